@@ -1,0 +1,489 @@
+"""Typed, validated configuration read from the YAML files in ``configs/``.
+
+Every tunable number of the project lives in ``configs/*.yaml``; this module turns those files into
+frozen dataclasses once, at start-up, and rejects anything it does not recognise with an error that
+names the file, the dotted key and the allowed keys or values.
+
+Overrides use dotted keys, e.g. ``task.layout.mode=random`` or ``task.episode.duration=30``; values
+are parsed as YAML scalars/lists.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import typing
+from pathlib import Path
+from typing import Any, Literal, Sequence
+
+import yaml
+
+CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
+OBJECTIVE_NAMES = ("avoid", "manipulate", "time")
+
+
+class ConfigError(ValueError):
+    """A configuration file, key or value is invalid; the message names which."""
+
+
+# ----------------------------------------------------------------------------------------------
+# Schema.  Field docs state units.  Defaults are NOT given here: every value comes from YAML.
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class TableConfig:
+    half_extent: tuple[float, float]  # (x, y) half-size of the table top, m
+    height: float  # z of the table top surface, m
+    thickness: float  # m
+
+
+@dataclasses.dataclass(frozen=True)
+class ArmConfig:
+    base_position: tuple[float, float, float]  # world position of the arm base, m
+    base_yaw: float  # rotation of the base about world z, rad
+    home: tuple[float, ...]  # initial joint angles, rad (converted from ``home_deg``)
+    joint_jitter: float  # uniform per-joint jitter of the initial posture, rad
+
+
+@dataclasses.dataclass(frozen=True)
+class PusherConfig:
+    radius: float  # m
+    length: float  # full length of the cylinder, m
+    mass: float  # kg
+
+
+@dataclasses.dataclass(frozen=True)
+class CubeConfig:
+    size: float  # edge length, m
+    mass: float  # kg
+    position: tuple[float, float]  # nominal (x, y) of the cube centre on the table, m
+    jitter: float  # uniform (x, y) jitter of the cube position, m
+
+
+@dataclasses.dataclass(frozen=True)
+class ObstacleConfig:
+    size: tuple[float, float, float]  # full edge lengths (x, y, z), m
+    mass: float  # kg
+    fixed_layout: tuple[tuple[float, float], ...]  # (x, y) centres of the default layout, m;
+    # its length is the number of obstacles in every mode
+
+
+@dataclasses.dataclass(frozen=True)
+class LayoutConfig:
+    mode: Literal["fixed", "random"]
+    radial_range: tuple[float, float]  # obstacle distance from the cube centre in random mode, m
+    min_gap: float  # smallest allowed gap between two obstacles / obstacle and cube, m
+    lane_width: float  # width of the free lane the initializer must keep, m
+    approach_room: float  # free length behind the cube (opposite the lane) for the pusher, m
+    lane_directions: tuple[str, ...]  # lane directions considered reachable: "+x" and/or "-x"
+    max_tries: int  # rejection-sampling attempts before giving up
+    settle_steps: int  # physics steps run at reset so the free bodies come to rest
+
+
+@dataclasses.dataclass(frozen=True)
+class RegionConfig:
+    target_half_width: float  # m
+    target_height: float  # m above the table top
+    obstacle_margin: float  # m
+    obstacle_height: float  # m above the table top
+
+
+@dataclasses.dataclass(frozen=True)
+class EpisodeConfig:
+    duration: float  # s of simulated time
+    control_period: float  # s
+    physics_timestep: float  # s
+
+
+@dataclasses.dataclass(frozen=True)
+class RewardConfig:
+    obstacle_speed_threshold: float  # m/s; a faster obstacle counts as touched
+    progress_eps: float  # m; f2 needs progress above the best so far by more than this
+
+
+@dataclasses.dataclass(frozen=True)
+class ActionConfig:
+    mode: Literal["joint", "cartesian"]
+    cartesian_max_speed: float  # m/s, scale of a normalised Cartesian action
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskConfig:
+    robot: Literal["jaco"]
+    table: TableConfig
+    arm: ArmConfig
+    pusher: PusherConfig
+    cube: CubeConfig
+    obstacles: ObstacleConfig
+    layout: LayoutConfig
+    regions: RegionConfig
+    episode: EpisodeConfig
+    rewards: RewardConfig
+    action: ActionConfig
+
+    @property
+    def substeps(self) -> int:
+        return int(round(self.episode.control_period / self.episode.physics_timestep))
+
+    @property
+    def max_steps(self) -> int:
+        return int(round(self.episode.duration / self.episode.control_period))
+
+
+@dataclasses.dataclass(frozen=True)
+class ScriptedConfig:
+    """The mink differential-IK waypoint controller (classical baseline). Positions: pusher tip."""
+
+    travel_speed: float  # m/s, top tip speed toward a waypoint (lift, travel, descend)
+    push_speed: float  # m/s, tip speed along the push direction
+    position_gain: float  # 1/s, proportional gain toward a waypoint / onto the push line
+    tilt_gain: float  # 1/s, rate of turning the pusher axis toward straight down
+    tilt_speed: float  # rad/s, top rate of that turn
+    tilt_tolerance: float  # rad, largest pusher tilt from vertical at which the push may start
+    orientation_cost: float  # weight of the pusher-pointing-down task (position task weight 1)
+    roll_cost: float  # weight of holding the pusher's spin about its own axis at zero
+    damping: float  # Levenberg-Marquardt damping of the IK
+    clearance: float  # m, tip height of the travel plane above the obstacles' tops
+    standoff: float  # m, gap between the pusher and the cube face where the descent ends
+    push_height: float  # m, tip height above the table while pushing
+    push_overshoot: float  # m, the push stops this far past the table edge
+    steer_gain: float  # 1/m, tan of the push direction's lean toward the lane line per metre of
+    # the cube's offset from that line
+    max_heading: float  # rad, largest lean of the push direction from the lane
+    realign_distance: float  # m, the push stops advancing while the tip is this far off its line
+    waypoint_tolerance: float  # m
+    collision_margin: float  # m, distance the IK keeps between the arm/pusher and the obstacles
+    collision_detection: float  # m, distance at which that constraint becomes active
+    collision_gain: float  # fraction of the gap beyond the margin one control step may close
+    solver: str  # QP solver name for mink (qpsolvers), e.g. daqp
+
+
+@dataclasses.dataclass(frozen=True)
+class SafetyConfig:
+    """The QP action filter (spec §5). Joint limits and velocity limits come from the robot
+    description; only margins and the extra limits the description lacks live here."""
+
+    enabled: bool  # false only for an explicit ablation (logged as such)
+    solver: Literal["osqp", "daqp"]
+    position_margin: float  # rad, kept from each finite joint limit
+    velocity_margin: float  # fraction of each joint's velocity limit left unused: headroom for the
+    # velocity controller, whose joints run faster than commanded under gravity (servo error)
+    acceleration_limit: tuple[float, ...]  # rad/s^2 per joint, |u - u_prev| <= a_max dt
+    braking_horizon: bool  # true: position and Cartesian rows look ahead max(dt, max_i v_i/a_i) s
+    # (the time to brake from full speed), which keeps them satisfiable under the acceleration
+    # limits; false: one control period dt, the literal one-step rows
+    table_rows: bool  # the tip and wrist stay table_margin above the table top
+    table_margin: float  # m, the pusher tip stays this far above the table top
+    wrist_table_margin: float  # m, the wrist point (the pusher's attachment, inside the wrist
+    # ring) stays this far above the table top: the ring's radius plus a clearance
+    workspace_rows: bool  # the tip and wrist stay inside the workspace box
+    workspace_lower: tuple[float, float, float]  # m, world-frame box the tip and wrist stay in
+    workspace_upper: tuple[float, float, float]
+    table_distance_rows: bool  # distance rows robot part-table (pusher body, link capsules; FCL)
+    obstacle_rows: bool  # distance rows robot part-obstacle (off in training, on in deployment)
+    obstacle_safe_distance: float  # m, d_safe
+    obstacle_activation_distance: float  # m, pairs farther than this add no row
+    max_obstacle_rows: int  # the nearest pairs within the activation distance get a row
+    osqp_eps: float  # OSQP absolute and relative tolerance
+    osqp_max_iter: int
+    cartesian_regularization: float  # lambda of ||u||^2 in cartesian mode, (m/rad)^2
+    cartesian_orientation_weight: float  # weight of holding the pusher's axis direction, m^2
+
+
+@dataclasses.dataclass(frozen=True)
+class MechanismConfig:
+    """Reward mechanisms of spec §4. Orders list objective names: avoid, manipulate, time."""
+
+    method: Literal["ahrm", "mhrm", "fhrm", "ls"]
+    fixed_order: tuple[str, str, str]  # FHRM: one order for every phase
+    manual_orders: tuple[tuple[str, str, str], tuple[str, str, str], tuple[str, str, str]]  # MHRM
+    initial_orders: tuple[tuple[str, str, str], tuple[str, str, str], tuple[str, str, str]]  # AHRM
+    convergence_window: int  # W episodes
+    convergence_tolerance: float  # relative to max(1, |mean|)
+    constraint_window: int  # episodes averaged for tau
+    constraint_min_steps: int  # steps in a phase before the constraint is checked
+    constraint_margin: float  # a per-step average below tau - margin ends the episode
+    priority_period: int  # P: visiting episodes between priority determinations
+    blend_band: float  # delta, m
+    blend_slope: float  # alpha, 1/m
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig:
+    """PPO hyper-parameters (spec §6, the paper's Table I as defaults)."""
+
+    gamma: float
+    gae_lambda: float
+    frames_per_batch: int
+    mini_batch_size: int
+    epochs: int
+    learning_rate: float
+    clip_epsilon: float
+    entropy_coeff: float
+    critic_coeff: float
+    max_grad_norm: float
+    hidden_sizes: tuple[int, ...]  # actor and critic
+    activation: Literal["tanh", "relu", "elu"]
+    init_std: float  # initial standard deviation of the (pre-tanh) Gaussian policy
+    std_mode: Literal["learned", "fixed"]
+    normalize_observations: bool
+    normalizer_clip: float  # normalised observations are clipped to +-this
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    episodes: int  # training stops after this many completed episodes
+    seed: int
+    runs_dir: str  # run folders are created here (relative to the working directory)
+    checkpoint_every: int  # batches between checkpoints
+    keep_checkpoints: int  # most recent checkpoints kept on disk
+    eval_episodes: int  # deterministic evaluation episodes at the end of training (0: none)
+    threads: int  # torch intra-op threads
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    task: TaskConfig
+    scripted: ScriptedConfig
+    safety: SafetyConfig
+    mechanism: MechanismConfig
+    ppo: PPOConfig
+    train: TrainConfig
+
+
+# ----------------------------------------------------------------------------------------------
+# Parsing.
+# ----------------------------------------------------------------------------------------------
+
+_DEG_KEYS = {"home_deg": "home", "base_yaw_deg": "base_yaw"}
+
+
+def _convert(tp: Any, value: Any, key: str) -> Any:
+    origin = typing.get_origin(tp)
+    if dataclasses.is_dataclass(tp):
+        return _build(tp, value, key)
+    if origin is Literal:
+        allowed = typing.get_args(tp)
+        if value not in allowed:
+            raise ConfigError(f"{key}: {value!r} is not allowed; choose one of {list(allowed)}")
+        return value
+    if origin is tuple:
+        args = typing.get_args(tp)
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{key}: expected a list, got {value!r}")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_convert(args[0], v, f"{key}[{i}]") for i, v in enumerate(value))
+        if len(value) != len(args):
+            raise ConfigError(f"{key}: expected {len(args)} values, got {len(value)}: {value!r}")
+        return tuple(_convert(a, v, f"{key}[{i}]") for i, (a, v) in enumerate(zip(args, value)))
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{key}: expected a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ConfigError(f"{key}: must be finite, got {value!r}")
+        return float(value)
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{key}: expected an integer, got {value!r}")
+        return value
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{key}: expected a string, got {value!r}")
+        return value
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{key}: expected true/false, got {value!r}")
+        return value
+    raise TypeError(f"unsupported config type {tp!r} at {key}")  # a bug in the schema, not input
+
+
+def _build(cls: type, data: Any, key: str) -> Any:
+    if not isinstance(data, dict):
+        raise ConfigError(f"{key or 'config'}: expected a mapping, got {data!r}")
+    data = dict(data)
+    for deg_key, rad_key in _DEG_KEYS.items():
+        if deg_key in data:
+            raw = data.pop(deg_key)
+            if isinstance(raw, (list, tuple)):
+                data[rad_key] = [math.radians(_convert(float, v, f"{key}.{deg_key}[{i}]"))
+                                 for i, v in enumerate(raw)]
+            else:
+                data[rad_key] = math.radians(_convert(float, raw, f"{key}.{deg_key}"))
+    hints = typing.get_type_hints(cls)
+    fields = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - fields)
+    prefix = f"{key}." if key else ""
+    if unknown:
+        raise ConfigError(f"unknown config key '{prefix}{unknown[0]}'; allowed keys here: {sorted(fields)}")
+    missing = sorted(fields - set(data))
+    if missing:
+        raise ConfigError(f"missing config key '{prefix}{missing[0]}'")
+    values = {name: _convert(hints[name], data[name], f"{prefix}{name}") for name in fields}
+    obj = cls(**values)
+    _check_ranges(obj, key)
+    return obj
+
+
+def _positive(obj: Any, key: str, *names: str) -> None:
+    for name in names:
+        value = getattr(obj, name)
+        for i, v in enumerate(value if isinstance(value, tuple) else (value,)):
+            if not v > 0:
+                where = f"{key}.{name}" + (f"[{i}]" if isinstance(value, tuple) else "")
+                raise ConfigError(f"{where} must be > 0, got {v!r}")
+
+
+def _check_ranges(obj: Any, key: str) -> None:
+    """Value checks that the types alone cannot express."""
+    if isinstance(obj, TableConfig):
+        _positive(obj, key, "half_extent", "thickness")
+    elif isinstance(obj, PusherConfig):
+        _positive(obj, key, "radius", "length", "mass")
+    elif isinstance(obj, CubeConfig):
+        _positive(obj, key, "size", "mass")
+    elif isinstance(obj, ObstacleConfig):
+        _positive(obj, key, "size", "mass")
+    elif isinstance(obj, RegionConfig):
+        _positive(obj, key, "target_half_width", "target_height", "obstacle_height")
+        if obj.obstacle_margin < 0:
+            raise ConfigError(f"{key}.obstacle_margin must be >= 0, got {obj.obstacle_margin}")
+    elif isinstance(obj, EpisodeConfig):
+        _positive(obj, key, "duration", "control_period", "physics_timestep")
+        ratio = obj.control_period / obj.physics_timestep
+        if abs(ratio - round(ratio)) > 1e-9:
+            raise ConfigError(f"{key}.control_period ({obj.control_period}) must be a whole multiple "
+                              f"of {key}.physics_timestep ({obj.physics_timestep})")
+    elif isinstance(obj, LayoutConfig):
+        lo, hi = obj.radial_range
+        if not 0 < lo <= hi:
+            raise ConfigError(f"{key}.radial_range must satisfy 0 < min <= max, got {obj.radial_range}")
+        _positive(obj, key, "lane_width", "approach_room", "max_tries")
+        bad = [d for d in obj.lane_directions if d not in ("+x", "-x")]
+        if bad or not obj.lane_directions:
+            raise ConfigError(f"{key}.lane_directions: {list(obj.lane_directions)} must be a non-empty "
+                              "subset of ['+x', '-x']")
+        if obj.settle_steps < 0:
+            raise ConfigError(f"{key}.settle_steps must be >= 0, got {obj.settle_steps}")
+    elif isinstance(obj, RewardConfig):
+        _positive(obj, key, "obstacle_speed_threshold", "progress_eps")
+    elif isinstance(obj, ActionConfig):
+        _positive(obj, key, "cartesian_max_speed")
+    elif isinstance(obj, ArmConfig):
+        if obj.joint_jitter < 0:
+            raise ConfigError(f"{key}.joint_jitter must be >= 0, got {obj.joint_jitter}")
+    elif isinstance(obj, SafetyConfig):
+        _positive(obj, key, "acceleration_limit", "osqp_eps", "osqp_max_iter",
+                  "cartesian_regularization")
+        for name in ("position_margin", "table_margin", "wrist_table_margin", "obstacle_safe_distance",
+                     "cartesian_orientation_weight", "max_obstacle_rows"):
+            if getattr(obj, name) < 0:
+                raise ConfigError(f"{key}.{name} must be >= 0, got {getattr(obj, name)!r}")
+        if not 0 <= obj.velocity_margin < 1:
+            raise ConfigError(f"{key}.velocity_margin must be in [0, 1), got {obj.velocity_margin!r}")
+        if obj.obstacle_activation_distance <= obj.obstacle_safe_distance:
+            raise ConfigError(f"{key}.obstacle_activation_distance ({obj.obstacle_activation_distance}) "
+                              f"must exceed {key}.obstacle_safe_distance ({obj.obstacle_safe_distance})")
+        for i, (lo, hi) in enumerate(zip(obj.workspace_lower, obj.workspace_upper)):
+            if not lo < hi:
+                raise ConfigError(f"{key}.workspace_lower[{i}] ({lo}) must be < workspace_upper[{i}] ({hi})")
+    elif isinstance(obj, MechanismConfig):
+        orders = [("fixed_order", obj.fixed_order)]
+        orders += [(f"manual_orders[{k}]", o) for k, o in enumerate(obj.manual_orders)]
+        orders += [(f"initial_orders[{k}]", o) for k, o in enumerate(obj.initial_orders)]
+        for name, order in orders:
+            if sorted(order) != sorted(OBJECTIVE_NAMES):
+                raise ConfigError(f"{key}.{name}: {list(order)} must be a permutation of "
+                                  f"{list(OBJECTIVE_NAMES)}")
+        _positive(obj, key, "convergence_window", "convergence_tolerance", "constraint_window",
+                  "priority_period", "blend_band", "blend_slope")
+        if obj.constraint_min_steps < 1 or obj.constraint_margin < 0:
+            raise ConfigError(f"{key}.constraint_min_steps must be >= 1 and constraint_margin >= 0")
+    elif isinstance(obj, PPOConfig):
+        _positive(obj, key, "frames_per_batch", "mini_batch_size", "epochs", "learning_rate",
+                  "clip_epsilon", "max_grad_norm", "hidden_sizes", "init_std", "normalizer_clip")
+        for name in ("gamma", "gae_lambda"):
+            if not 0 <= getattr(obj, name) <= 1:
+                raise ConfigError(f"{key}.{name} must be in [0, 1], got {getattr(obj, name)}")
+        if obj.entropy_coeff < 0 or obj.critic_coeff < 0:
+            raise ConfigError(f"{key}.entropy_coeff and {key}.critic_coeff must be >= 0")
+        if obj.frames_per_batch % obj.mini_batch_size:
+            raise ConfigError(f"{key}.frames_per_batch ({obj.frames_per_batch}) must be a multiple of "
+                              f"{key}.mini_batch_size ({obj.mini_batch_size})")
+    elif isinstance(obj, TrainConfig):
+        _positive(obj, key, "episodes", "checkpoint_every", "keep_checkpoints", "threads")
+        if obj.eval_episodes < 0:
+            raise ConfigError(f"{key}.eval_episodes must be >= 0, got {obj.eval_episodes}")
+    elif isinstance(obj, ScriptedConfig):
+        _positive(obj, key, "travel_speed", "push_speed", "position_gain", "tilt_gain", "tilt_speed",
+                  "tilt_tolerance", "orientation_cost", "damping", "clearance", "push_height",
+                  "waypoint_tolerance", "collision_detection", "realign_distance")
+        for name in ("standoff", "push_overshoot", "steer_gain", "max_heading", "collision_margin",
+                     "roll_cost"):
+            if getattr(obj, name) < 0:
+                raise ConfigError(f"{key}.{name} must be >= 0, got {getattr(obj, name)!r}")
+        if not 0 < obj.collision_gain <= 1:
+            raise ConfigError(f"{key}.collision_gain must be in (0, 1], got {obj.collision_gain!r}")
+        if obj.collision_detection <= obj.collision_margin:
+            raise ConfigError(f"{key}.collision_detection ({obj.collision_detection}) must exceed "
+                              f"{key}.collision_margin ({obj.collision_margin})")
+        import qpsolvers  # the solver list is only known at run time
+        if obj.solver not in qpsolvers.available_solvers:
+            raise ConfigError(f"{key}.solver: {obj.solver!r} is not installed; choose one of "
+                              f"{sorted(qpsolvers.available_solvers)}")
+
+
+# ----------------------------------------------------------------------------------------------
+# Loading and overrides.
+# ----------------------------------------------------------------------------------------------
+
+SECTIONS = {"task": "task.yaml", "scripted": "scripted.yaml", "safety": "safety.yaml",
+            "mechanism": "mechanism.yaml", "ppo": "ppo.yaml", "train": "train.yaml"}
+
+
+def _read_yaml(path: Path) -> dict:
+    if not path.is_file():
+        raise ConfigError(f"config file not found: {path}")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: expected a mapping at the top level")
+    return data
+
+
+def apply_override(data: dict, override: str) -> None:
+    """Apply one ``dotted.key=value`` override to a nested dict, in place."""
+    if "=" not in override:
+        raise ConfigError(f"override {override!r} must look like key.sub=value")
+    dotted, raw = override.split("=", 1)
+    parts = dotted.strip().split(".")
+    node = data
+    for i, part in enumerate(parts[:-1]):
+        if not isinstance(node, dict) or part not in node:
+            raise ConfigError(f"unknown config key '{'.'.join(parts[: i + 1])}' in override {override!r}")
+        node = node[part]
+    if not isinstance(node, dict) or parts[-1] not in node:
+        raise ConfigError(f"unknown config key '{dotted}' in override {override!r}")
+    try:
+        node[parts[-1]] = yaml.safe_load(raw)
+    except yaml.YAMLError:
+        raise ConfigError(f"override {override!r}: value is not valid YAML") from None
+
+
+def load_raw(config_dir: Path | str = CONFIG_DIR) -> dict:
+    config_dir = Path(config_dir)
+    return {section: _read_yaml(config_dir / name) for section, name in SECTIONS.items()}
+
+
+def load_config(overrides: Sequence[str] = (), config_dir: Path | str = CONFIG_DIR) -> Config:
+    """Read ``configs/*.yaml``, apply ``overrides`` and validate."""
+    data = load_raw(config_dir)
+    for override in overrides:
+        apply_override(data, override)
+    return config_from_dict(data)
+
+
+def config_from_dict(data: dict) -> Config:
+    return _build(Config, data, "")

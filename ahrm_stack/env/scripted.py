@@ -1,0 +1,276 @@
+"""A scripted push-off controller: Cartesian waypoints for the pusher tip, mink differential IK.
+
+The IK runs on the simulator's own MuJoCo model (``physics.model.ptr``) with a private ``MjData``
+that copies ``physics.data.qpos`` every control step, so the cube and obstacle poses it sees are the
+real ones. Only the 6 arm DOFs move in the IK; every other DOF (the free joints of the cube and the
+obstacles) is held by a :class:`mink.DofFreezingTask` equality constraint.
+
+One :class:`mink.FrameTask` on the pusher tip site carries both objectives, with targets one control
+period ahead (positions in metres, world frame):
+
+- position (cost 1): ``tip + v * dt`` for the stage's desired tip velocity ``v`` (m/s);
+- orientation: the current rotation turned toward "pusher pointing down" (world -z) by at most
+  ``tilt_speed * dt``, with cost ``orientation_cost`` on the tilt (tip-frame x and y) and
+  ``roll_cost`` on the spin about the pusher axis (tip-frame z): a spinning pusher drags the cube
+  sideways by friction.
+
+Limits: :class:`mink.ConfigurationLimit` (joints 2 and 3) and a collision-avoidance limit keeping
+every arm link and the pusher ``collision_margin`` away from the obstacle boxes. In ``travel``
+(above the obstacles) the QP also bounds the joint velocities, trading path accuracy for speed;
+in the other stages the QP's joint velocities are scaled down uniformly to the velocity limits, so
+the tip keeps its Cartesian path and only slows down.
+
+Stages (:attr:`ScriptedPusher.stage`):
+
+- ``lift``: straight up to the travel height (obstacle tops + ``clearance``); skipped when the tip
+  starts above it, as it does from the Kinova home posture;
+- ``travel``: toward the spot above the push start (behind the cube, on the side opposite the
+  chosen free lane) at or above the travel height, until the tip is over it;
+- ``descend``: straight down to the push height; the push waits for the pusher to be vertical
+  within ``tilt_tolerance``;
+- ``push``: along the lane at ``push_speed``, balancing the cube on the pusher and steering it back
+  onto the lane's centre line (closed loop on the cube's position and velocity);
+- ``hold``: the tip passed the table edge by ``push_overshoot`` without success: stop.
+"""
+
+from __future__ import annotations
+
+import mink
+import mujoco
+import numpy as np
+
+from ahrm_stack.config import ScriptedConfig
+from ahrm_stack.env.layout import Layout, free_lanes
+from ahrm_stack.env.task import PushOffTask
+
+DOWN = np.array([0.0, 0.0, -1.0])  # world frame
+
+
+def _saturate(vector: np.ndarray, limit: float) -> np.ndarray:
+    """``vector`` scaled down so that its norm is at most ``limit``."""
+    norm = float(np.linalg.norm(vector))
+    return vector if norm <= limit else vector * (limit / norm)
+
+
+class _NativeCcdCollisionLimit(mink.CollisionAvoidanceLimit):
+    """:class:`mink.CollisionAvoidanceLimit` measuring distances with MuJoCo's native convex solver.
+
+    The task's model disables native CCD (``<flag nativeccd="disable"/>``); the legacy libccd path
+    of ``mj_geomDistance`` then misreports separated cylinder/mesh-to-box distances (measured:
+    -27 mm for a 12 mm gap). The flag is cleared only while the limit measures, then restored.
+
+    Units: mink 1.3 bounds the step's displacement (m) by ``gain * (distance - margin) / dt``;
+    :class:`ScriptedPusher` passes ``gain = collision_gain * dt`` so that a control step closes at
+    most ``collision_gain`` of the gap beyond the margin.
+    """
+
+    def compute_qp_inequalities(self, configuration: mink.Configuration,
+                                dt: float) -> mink.Constraint:
+        opt = self.model.opt
+        saved = int(opt.disableflags)
+        opt.disableflags = saved & ~int(mujoco.mjtDisableBit.mjDSBL_NATIVECCD)
+        try:
+            return super().compute_qp_inequalities(configuration, dt)
+        finally:
+            opt.disableflags = saved
+
+
+class ScriptedPusher:
+    """Waypoint pusher for :class:`PushOffTask`; ``__call__`` returns joint velocities in rad/s."""
+
+    def __init__(self, task: PushOffTask, config: ScriptedConfig) -> None:
+        self.task = task
+        self.config = config
+        tc = task.config
+        self._dt = tc.episode.control_period  # s
+        self._cube_half = tc.cube.size / 2  # m
+        self._obstacle_half = np.asarray(tc.obstacles.size[:2]) / 2  # m, (x, y)
+        self._edge = tc.table.half_extent[0]  # m, |x| of the table's side edges
+        self._travel_z = tc.table.height + tc.obstacles.size[2] + config.clearance  # tip z, m
+        self._push_z = tc.table.height + config.push_height  # tip z, m
+        self._radius = tc.pusher.radius  # m
+        # Horizontal distance from the cube centre back to the pusher axis where the push starts, m.
+        self._behind = self._cube_half + self._radius + config.standoff
+        self._velocity_limit = task.robot.velocity_limit  # rad/s, per arm joint
+        self._model: mujoco.MjModel | None = None
+        self._stage = "idle"
+        self._direction = 1.0  # +1 pushes toward +x, -1 toward -x
+        self._lane_y = 0.0  # m, the lane's centre line is y = lane_y
+        self._tilt = 0.0  # rad, angle of the pusher axis from world -z
+
+    @property
+    def stage(self) -> str:
+        """The current stage: idle, lift, travel, descend, push or hold."""
+        return self._stage
+
+    @property
+    def lane(self) -> str:
+        """The lane chosen at the last :meth:`reset`: ``"+x"`` or ``"-x"``."""
+        return "+x" if self._direction > 0 else "-x"
+
+    @property
+    def model(self) -> mujoco.MjModel | None:
+        """The MuJoCo model the IK is bound to (the simulator's); None before :meth:`reset`."""
+        return self._model
+
+    # ------------------------------------------------------------------ episode set-up
+    def reset(self, physics) -> None:
+        """Bind to ``physics`` (an ``mjcf.Physics``), rebuilding the IK if its model changed, and
+        plan the episode from the settled cube and obstacle positions. Call after every
+        ``runner.reset()``."""
+        if physics.model.ptr is not self._model:
+            self._bind(physics)
+        self._configuration.update(physics.data.qpos)
+        tip = self._tip()
+        xpos = physics.data.xpos
+        self._choose_lane(tip, Layout(xpos[self._cube_body, :2].copy(),
+                                      xpos[self._obstacle_bodies, :2].copy()))
+        below = tip[2] < self._travel_z - self.config.waypoint_tolerance
+        self._stage = "lift" if below else "travel"
+
+    def _bind(self, physics) -> None:
+        """Build the mink problem on the simulator's model and cache ids into it."""
+        cfg, task = self.config, self.task
+        model = physics.model.ptr
+        self._model = model
+        self._configuration = mink.Configuration(model)
+        self._tip_site = int(physics.bind(task.pusher.tip_site).element_id)
+        self._cube_body = int(physics.bind(task.cube.geom).bodyid)
+        cube_dof = int(model.jnt_dofadr[model.body_jntadr[self._cube_body]])
+        self._cube_dofs = np.arange(cube_dof, cube_dof + 2)  # linear (x, y) of its free joint
+        self._arm_dofs = np.asarray(physics.bind(task.arm.joints).dofadr, dtype=int)
+        frozen = sorted(set(range(model.nv)) - set(self._arm_dofs.tolist()))
+        self._freeze = mink.DofFreezingTask(model, dof_indices=frozen)
+        tilt_roll_cost = [cfg.orientation_cost, cfg.orientation_cost, cfg.roll_cost]
+        self._tip_task = mink.FrameTask(self._tip_site, "site", position_cost=1.0,
+                                        orientation_cost=tilt_roll_cost)
+        robot = task.arm.mjcf_model.find_all("geom") + task.pusher.mjcf_model.find_all("geom")
+        robot_geoms = [int(i) for i in physics.bind(robot).element_id]
+        obstacle_geoms = [int(physics.bind(o.geom).element_id) for o in task.obstacles]
+        self._obstacle_bodies = np.asarray(
+            [int(physics.bind(o.geom).bodyid) for o in task.obstacles], dtype=int)
+        self._limits = [
+            mink.ConfigurationLimit(model),
+            _NativeCcdCollisionLimit(model, [(robot_geoms, obstacle_geoms)],
+                                     gain=cfg.collision_gain * self._dt,
+                                     minimum_distance_from_collisions=cfg.collision_margin,
+                                     collision_detection_distance=cfg.collision_detection),
+        ]
+        # Above the obstacles (travel) the QP itself respects the velocity limits, trading path
+        # accuracy for speed; near them the Cartesian path is kept and only slowed down.
+        speeds = {joint.full_identifier: float(limit)
+                  for joint, limit in zip(task.arm.joints, self._velocity_limit)}
+        self._travel_limits = self._limits + [mink.VelocityLimit(model, speeds)]
+
+    def _tip(self) -> np.ndarray:
+        """Pusher tip (centre of its free end face), world frame, m."""
+        return self._configuration.data.site_xpos[self._tip_site].copy()
+
+    def _choose_lane(self, tip: np.ndarray, layout: Layout) -> None:
+        """Pick the free lane whose swept strip leaves the most room to the obstacles.
+
+        ``layout``: the settled (x, y) of the cube and the obstacles, m. The strip is what the
+        pusher and the cube sweep: from the pusher's back at the push start to the table edge, the
+        cube's half-width either side of the lane line. Ties (to 1 mm) go to the lane whose push
+        start is nearer the tip.
+        """
+        tc = self.task.config
+        cube = layout.cube_xy
+        lanes = free_lanes(layout, self._cube_half, self._obstacle_half, tc.table, tc.layout)
+        best = None
+        for lane in lanes or tc.layout.lane_directions:  # the sampler guarantees a free lane
+            sign = 1.0 if lane == "+x" else -1.0
+            lo, hi = sorted((cube[0] - sign * (self._behind + self._radius), sign * self._edge))
+            half = np.array([(hi - lo) / 2, self._cube_half])
+            center = np.array([(hi + lo) / 2, cube[1]])
+            sep = np.abs(layout.obstacle_xy - center) - (half + self._obstacle_half)
+            gaps = np.where(np.all(sep < 0, axis=1), sep.max(axis=1),
+                            np.linalg.norm(np.maximum(sep, 0.0), axis=1))
+            room = float(gaps.min()) if len(gaps) else np.inf
+            start = np.array([cube[0] - sign * self._behind, cube[1]])
+            key = (round(room, 3), -float(np.linalg.norm(start - tip[:2])))
+            if best is None or key > best[0]:
+                best = (key, sign)
+        self._direction = best[1]
+        self._lane_y = float(cube[1])
+
+    # ------------------------------------------------------------------ control
+    def __call__(self, physics) -> np.ndarray:
+        """Joint velocities (rad/s) for the 6 arm joints, within ``task.robot.velocity_limit``."""
+        self._configuration.update(physics.data.qpos)
+        tip = self._tip()
+        axis = self._configuration.data.site_xmat[self._tip_site].reshape(3, 3)[:, 2]
+        self._tilt = float(np.arccos(np.clip(axis @ DOWN, -1.0, 1.0)))
+        cube = np.asarray(physics.data.xpos[self._cube_body])
+        cube_velocity = np.asarray(physics.data.qvel[self._cube_dofs])  # free joint: world, m/s
+        return self._solve(tip, self._tip_velocity(tip, cube, cube_velocity))
+
+    def _goto(self, tip: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        """Proportional approach of ``goal`` at most at ``travel_speed``, m/s."""
+        return _saturate(self.config.position_gain * (goal - tip), self.config.travel_speed)
+
+    def _tip_velocity(self, tip: np.ndarray, cube: np.ndarray,
+                      cube_velocity: np.ndarray) -> np.ndarray:
+        """Desired tip velocity (m/s, world frame); advances the stage at each waypoint."""
+        cfg = self.config
+        start = np.array([cube[0] - self._direction * self._behind, cube[1]])  # push start, xy
+        if self._stage == "lift":
+            if tip[2] < self._travel_z - cfg.waypoint_tolerance:
+                return self._goto(tip, np.array([tip[0], tip[1], self._travel_z]))
+            self._stage = "travel"
+        if self._stage == "travel":
+            goal = np.array([*start, self._travel_z])
+            if np.linalg.norm(goal[:2] - tip[:2]) > cfg.waypoint_tolerance:
+                return self._goto(tip, goal)
+            self._stage = "descend"
+        if self._stage == "descend":
+            goal = np.array([*start, self._push_z])
+            far = np.linalg.norm(goal - tip) > cfg.waypoint_tolerance
+            if far or self._tilt > cfg.tilt_tolerance:
+                return self._goto(tip, goal)
+            self._stage = "push"
+        if self._stage == "push":
+            if self._direction * tip[0] < self._edge + cfg.push_overshoot:
+                return self._push_velocity(tip, cube, cube_velocity)
+            self._stage = "hold"
+        return np.zeros(3)
+
+    def _push_velocity(self, tip: np.ndarray, cube: np.ndarray,
+                       cube_velocity: np.ndarray) -> np.ndarray:
+        """Tip velocity (m/s, world frame) for the push, steering the cube back onto the lane line.
+
+        The contact mostly sticks, so the cube swings about it like a broom balanced on a hand: the
+        tip is held at the y of the contact point c = cube - (cube half + pusher radius) * u, where
+        the push direction u leans toward the lane line by ``atan(steer_gain * e)`` for a cube
+        offset e from it (at most ``max_heading``). Across the lane the tip follows the cube's
+        velocity and corrects its distance to c at ``position_gain``; along u it advances at
+        ``push_speed``, slowed to a stop as it gets ``realign_distance`` off c's y.
+        """
+        cfg = self.config
+        lean = np.clip(np.arctan(cfg.steer_gain * self._direction * (cube[1] - self._lane_y)),
+                       -cfg.max_heading, cfg.max_heading)
+        u = self._direction * np.array([np.cos(lean), -np.sin(lean)])
+        off = tip[1] - (cube[1] - (self._cube_half + self._radius) * u[1])  # m, across the lane
+        advance = cfg.push_speed * max(0.0, 1.0 - abs(off) / cfg.realign_distance)
+        v_xy = advance * u + np.array([0.0, cube_velocity[1] - cfg.position_gain * off])
+        return np.array([*v_xy, cfg.position_gain * (self._push_z - tip[2])])
+
+    def _solve(self, tip: np.ndarray, tip_velocity: np.ndarray) -> np.ndarray:
+        """One differential-IK step toward ``tip + tip_velocity * dt`` with the pusher turned toward
+        vertical; returns the arm's joint velocities (rad/s), scaled into the velocity limits."""
+        cfg = self.config
+        frame = self._configuration.get_transform_frame_to_world(self._tip_site, "site")
+        rotation = frame.rotation()
+        turn = np.cross(rotation.as_matrix()[:, 2], DOWN)  # world axis tipping the pusher down
+        if self._tilt > 1e-6 and np.linalg.norm(turn) > 1e-9:
+            step = min(cfg.tilt_gain * self._tilt, cfg.tilt_speed) * self._dt  # rad
+            rotation = mink.SO3.exp(turn / np.linalg.norm(turn) * step) @ rotation
+        self._tip_task.set_target(
+            mink.SE3.from_rotation_and_translation(rotation, tip + tip_velocity * self._dt))
+        velocity = mink.solve_ik(self._configuration, [self._tip_task], self._dt, cfg.solver,
+                                 damping=cfg.damping, constraints=[self._freeze],
+                                 limits=self._travel_limits if self._stage == "travel"
+                                 else self._limits)
+        command = velocity[self._arm_dofs]
+        scale = float(np.max(np.abs(command) / self._velocity_limit))
+        return command / scale if scale > 1.0 else command

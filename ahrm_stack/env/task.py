@@ -1,0 +1,323 @@
+"""The push-off task: a composer task that composes the arena, the arm with its pusher, the cube and
+the obstacles, and owns only the episode logic (layout at reset, reward components, phase, success).
+
+Each control step (``control_period`` s) the task:
+
+1. sends the joint-velocity command (rad/s, all arm joints) to the velocity actuators;
+2. after the physics substeps, places the pusher by Pinocchio forward kinematics, computes the
+   phase k and the boundary distance x (:mod:`ahrm_stack.kinematics.phases`), the reward components
+   f = (f1, f2, f3) and their penalty form g, and whether the cube has left the table.
+
+The results of the last step are in :attr:`PushOffTask.step_info`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from dm_control import composer, mjcf
+from dm_control.composer.observation import observable
+from dm_env import specs
+
+from ahrm_stack.config import TaskConfig
+from ahrm_stack.env.arena import TableArena
+from ahrm_stack.env.entities import BoxProp, Pusher
+from ahrm_stack.env.layout import Layout, LayoutSampler
+from ahrm_stack.env.rewards import (NUM_PHASES, ProgressObjective, TimeObjective, avoid_component,
+                                    obstacle_touched, penalty_form, progress)
+from ahrm_stack.kinematics.model import ArmKinematics, relative_name
+from ahrm_stack.kinematics.scene import CollisionScene, link_capsules
+from ahrm_stack.kinematics.phases import (Cylinder, PhaseScene, RegionParams, phase_from_distances,
+                                          region_distances)
+from ahrm_stack.robot import describe, make_arm
+
+CUBE_RGBA = (0.8, 0.1, 0.1, 1.0)
+OBSTACLE_RGBA = (0.2, 0.35, 0.8, 1.0)
+
+
+@dataclasses.dataclass
+class StepInfo:
+    """What one control step produced. Positions in metres, world frame."""
+
+    f: np.ndarray  # (3,) +-1 components: avoid, manipulate, time
+    g: np.ndarray  # (3,) penalty form (f - 1) / 2
+    phase: int  # 1 approach, 2 pre-manipulate, 3 manipulate
+    x: float  # signed distance to the next phase's region, m
+    distances: np.ndarray  # (2,) signed distances of the pusher to B_obstacles and B_target, m
+    success: bool  # the cube's centre left the table top
+    touched: bool  # an obstacle was touched (contact or moving)
+    tip: np.ndarray  # (3,) pusher tip position
+    target: np.ndarray  # (3,) cube centre
+    progress: float  # P = d - l, m
+    elapsed: float  # episode time after this step, s
+
+    @classmethod
+    def empty(cls) -> "StepInfo":
+        return cls(f=np.ones(3), g=np.zeros(3), phase=1, x=0.0, distances=np.zeros(2), success=False, touched=False,
+                   tip=np.zeros(3), target=np.zeros(3), progress=0.0, elapsed=0.0)
+
+
+class PushOffTask(composer.Task):
+    """Push the target cube off the table without touching the obstacles (spec §1-3)."""
+
+    def __init__(self, config: TaskConfig) -> None:
+        self.config = config
+        self._arena = TableArena(config.table)
+        self._arm = make_arm(config.robot)
+        self.robot = describe(config.robot, self._arm)
+        self._pusher = Pusher(config.pusher.radius, config.pusher.length, config.pusher.mass)
+        self._arm.attach(self._pusher, self._arm.wrist_site)
+        frame = self._arena.attach(self._arm)
+        frame.pos = config.arm.base_position
+        half_yaw = config.arm.base_yaw / 2
+        frame.quat = [np.cos(half_yaw), 0, 0, np.sin(half_yaw)]
+        self._arena.add_pedestal(config.arm.base_position, config.arm.base_position[2])
+        self.kinematics = ArmKinematics(self._arm.mjcf_model, config.arm.base_position,
+                                        config.arm.base_yaw)
+        self._tip_frame = self.kinematics.element_frame_id(self._pusher.tip_site)
+        self._center_frame = self.kinematics.element_frame_id(self._pusher.center_site)
+
+        self._cube = BoxProp("cube", [config.cube.size / 2] * 3, config.cube.mass, CUBE_RGBA)
+        self._arena.add_free_entity(self._cube)
+        obstacle_half = [s / 2 for s in config.obstacles.size]
+        self._obstacles = []
+        for i in range(len(config.obstacles.fixed_layout)):
+            obstacle = BoxProp(f"obstacle_{i}", obstacle_half, config.obstacles.mass, OBSTACLE_RGBA)
+            self._arena.add_free_entity(obstacle)
+            self._obstacles.append(obstacle)
+        self.layout_sampler = LayoutSampler(config.table, config.cube, config.obstacles, config.layout)
+        self.set_timesteps(control_timestep=config.episode.control_period,
+                           physics_timestep=config.episode.physics_timestep)
+
+        self._region_params = RegionParams(**dataclasses.asdict(config.regions))
+        self._obstacle_half_sizes = np.tile(obstacle_half, (len(self._obstacles), 1))
+        self._table_center = np.zeros(2)
+        self.progress_objective = ProgressObjective(config.rewards.progress_eps)
+        self.time_objective = TimeObjective(config.episode.duration)
+        self.layout: Layout | None = None
+        self.step_info = StepInfo.empty()  # observables are evaluated once before the first reset
+        self.previous_action = np.zeros(len(self.robot.commanded_joints))
+        self._command = np.zeros(self.robot.num_joints)
+        self._declare_observables()
+
+    # ------------------------------------------------------------------ composition
+    @property
+    def root_entity(self) -> TableArena:
+        return self._arena
+
+    @property
+    def arm(self) -> composer.Entity:
+        return self._arm
+
+    @property
+    def pusher(self) -> Pusher:
+        return self._pusher
+
+    @property
+    def cube(self) -> BoxProp:
+        return self._cube
+
+    @property
+    def obstacles(self) -> list[BoxProp]:
+        return list(self._obstacles)
+
+    def _declare_observables(self) -> None:
+        """The observation of spec §1; :data:`OBSERVATION_ORDER` lists the keys in vector order."""
+        self._arm.observables.joints_pos.enabled = True
+        self._arm.observables.joints_vel.enabled = True
+        for prop in [self._cube, *self._obstacles]:
+            prop.observables.position.enabled = True
+            prop.observables.linear_velocity.enabled = True
+        self._task_observables = {
+            "pusher_tip": observable.Generic(lambda physics: self.step_info.tip),
+            "previous_action": observable.Generic(lambda physics: self.previous_action),
+            "phase": observable.Generic(
+                lambda physics: np.eye(NUM_PHASES)[self.step_info.phase - 1]),
+            "boundary_distance": observable.Generic(
+                lambda physics: np.array([self.step_info.x])),
+        }
+        for obs in self._task_observables.values():
+            obs.enabled = True
+        # Sample once per control step (at its last substep), not at every physics substep.
+        for obs in self.observables.values():
+            obs.update_interval = self.config.substeps
+
+    @property
+    def observables(self) -> dict:
+        """All enabled observables, keyed as in the composer observation dict."""
+        found = {}
+        for entity in [self._arm, self._cube, *self._obstacles]:
+            for name, obs in entity.observables.as_dict().items():
+                if obs.enabled:
+                    found[name] = obs
+        found.update(self._task_observables)
+        return found
+
+    @property
+    def task_observables(self) -> dict:
+        return self._task_observables
+
+    @property
+    def observation_order(self) -> list[str]:
+        """Observation keys in the order of the flat observation vector."""
+        props = [self._cube, *self._obstacles]
+        keys = [f"{self._arm.mjcf_model.model}/joints_pos", f"{self._arm.mjcf_model.model}/joints_vel",
+                "pusher_tip"]
+        for prop in props:
+            keys += [f"{prop.mjcf_model.model}/position", f"{prop.mjcf_model.model}/linear_velocity"]
+        return keys + ["previous_action", "phase", "boundary_distance"]
+
+    def flat_observation(self, physics: mjcf.Physics) -> np.ndarray:
+        """The observation vector in :attr:`observation_order`, read straight from the physics.
+
+        Equal to concatenating the declared observables (a test checks it) but without composer's
+        per-observable overhead: this runs every control step.
+        """
+        data = physics.data
+        q = data.qpos[self._arm_qpos]
+        parts = [np.stack([np.sin(q), np.cos(q)], axis=1).ravel(), data.qvel[self._arm_dof],
+                 self.step_info.tip,
+                 np.concatenate([data.xpos[self._prop_bodies], data.qvel[self._prop_linear_dofs]],
+                                axis=1).ravel(),
+                 self.previous_action, np.eye(NUM_PHASES)[self.step_info.phase - 1],
+                 (self.step_info.x,)]
+        return np.concatenate(parts)
+
+    def make_collision_scene(self, physics: mjcf.Physics) -> CollisionScene:
+        """The FCL scene of this task: pusher and link capsules (from the compiled link meshes),
+        table, cube and obstacles, placed at the current state of ``physics``."""
+        kin = self.kinematics
+        bodies = [(int(physics.bind(body).element_id), relative_name(body, self._arm.mjcf_model))
+                  for body in self._arm.mjcf_model.find_all("body")
+                  if relative_name(body, self._arm.mjcf_model) in self.robot.link_bodies]
+        scene = CollisionScene(
+            kin, link_capsules(physics.model.ptr, bodies),
+            relative_name(self._pusher.center_site, self._arm.mjcf_model), self._pusher.radius,
+            self._pusher.half_length, self.config.table.half_extent, self.config.table.height,
+            self.config.table.thickness, self.config.cube.size, self._obstacle_half_sizes)
+        kin.update(physics.data.qpos[self._arm_qpos])
+        scene.update_robot()
+        data = physics.data
+        scene.update_objects(data.xpos[self._cube_body], data.xmat[self._cube_body].reshape(3, 3),
+                             data.xpos[self._obstacle_bodies],
+                             data.xmat[self._obstacle_bodies].reshape(-1, 3, 3))
+        return scene
+
+    def get_reward_spec(self) -> specs.Array:
+        return specs.Array(shape=(3,), dtype=np.float64, name="f")
+
+    # ------------------------------------------------------------------ episode logic
+    def initialize_episode(self, physics: mjcf.Physics, random_state: np.random.RandomState) -> None:
+        self._bind(physics)
+        cfg = self.config
+        self.layout = self.layout_sampler.sample(random_state)
+        z_table = cfg.table.height
+        self._cube.set_pose(physics, [*self.layout.cube_xy, z_table + cfg.cube.size / 2], [1, 0, 0, 0])
+        for obstacle, xy in zip(self._obstacles, self.layout.obstacle_xy):
+            obstacle.set_pose(physics, [*xy, z_table + cfg.obstacles.size[2] / 2], [1, 0, 0, 0])
+        q0 = np.asarray(cfg.arm.home) + random_state.uniform(-1, 1, self.robot.num_joints) * cfg.arm.joint_jitter
+        q0 = np.clip(q0, self.robot.position_lower, self.robot.position_upper)
+        physics.data.qpos[self._arm_qpos] = q0
+        physics.data.ctrl[:] = 0.0
+        self._settle(physics, q0)
+        self.previous_action = np.zeros(len(self.robot.commanded_joints))
+        self._command = np.zeros(self.robot.num_joints)
+        self._episode_start = physics.data.time
+        self.time_objective.reset()
+        self.step_info = self._measure(physics, phase_time=0.0)
+        self.progress_objective.reset(self.step_info.progress)
+
+    def _settle(self, physics: mjcf.Physics, q0: np.ndarray) -> None:
+        """Let the free bodies come to rest on the table, then restore the arm and zero velocities."""
+        physics.data.qvel[:] = 0.0
+        physics.data.qacc_warmstart[:] = 0.0  # stale from before the bodies were placed
+        physics.forward()
+        for _ in range(self.config.layout.settle_steps):
+            physics.data.qpos[self._arm_qpos] = q0
+            physics.data.qvel[self._arm_dof] = 0.0
+            physics.step()
+        physics.data.qpos[self._arm_qpos] = q0
+        physics.data.qvel[:] = 0.0
+        physics.forward()
+
+    def _bind(self, physics: mjcf.Physics) -> None:
+        """Cache indices into the (possibly rebuilt) physics; called at every reset."""
+        model = physics.model
+        joints = physics.bind(self._arm.joints)
+        self._arm_qpos = np.asarray(joints.qposadr, dtype=int)
+        self._arm_dof = np.asarray(joints.dofadr, dtype=int)
+        self._arm_actuators = np.asarray(physics.bind(self._arm.actuators).element_id, dtype=int)
+        props = [self._cube, *self._obstacles]
+        bodies = [int(physics.bind(p.geom).bodyid) for p in props]
+        self._cube_body, self._obstacle_bodies = bodies[0], np.asarray(bodies[1:], dtype=int)
+        prop_dofs = np.asarray([model.jnt_dofadr[model.body_jntadr[b]] for b in bodies], int)
+        self._prop_bodies = np.asarray(bodies, dtype=int)
+        self._prop_linear_dofs = prop_dofs[:, None] + np.arange(3)  # free joint: world-frame velocity
+        self._obstacle_linear_dofs = self._prop_linear_dofs[1:]
+        self._is_obstacle = np.zeros(model.ngeom, dtype=bool)
+        self._is_obstacle[[int(physics.bind(o.geom).element_id) for o in self._obstacles]] = True
+        arm_bodies = {int(physics.bind(b).element_id) for b in self._arm.mjcf_model.find_all("body")}
+        arm_bodies |= {int(physics.bind(b).element_id) for b in self._pusher.mjcf_model.find_all("body")}
+        toucher = [g for g in range(model.ngeom) if int(model.geom_bodyid[g]) in arm_bodies]
+        toucher.append(int(physics.bind(self._cube.geom).element_id))
+        self._is_toucher = np.zeros(model.ngeom, dtype=bool)
+        self._is_toucher[toucher] = True
+
+    def before_step(self, physics: mjcf.Physics, action: np.ndarray,
+                    random_state: np.random.RandomState) -> None:
+        """``action``: joint velocities for all arm joints, rad/s, already checked by the caller."""
+        command = np.asarray(action, dtype=float)
+        self._command = command
+        physics.data.ctrl[self._arm_actuators] = command
+        limits = self.robot.velocity_limit[list(self.robot.commanded_joints)]
+        self.previous_action = command[list(self.robot.commanded_joints)] / limits
+
+    def after_step(self, physics: mjcf.Physics, random_state: np.random.RandomState) -> None:
+        self.step_info = self._measure(physics, phase_time=self.config.episode.control_period)
+
+    def _measure(self, physics: mjcf.Physics, phase_time: float) -> StepInfo:
+        cfg = self.config
+        data = physics.data
+        q = data.qpos[self._arm_qpos]
+        self.kinematics.update(q)
+        tip, _ = self.kinematics.frame_pose(self._tip_frame)
+        center, rotation = self.kinematics.frame_pose(self._center_frame)
+        target = data.xpos[self._cube_body].copy()
+        obstacle_centers = data.xpos[self._obstacle_bodies]
+        scene = PhaseScene(cfg.table.height, target, obstacle_centers, self._obstacle_half_sizes,
+                           self._region_params)
+        pusher = Cylinder(center, rotation, self._pusher.radius, self._pusher.half_length)
+        distances = region_distances(scene, pusher)
+        phase, x = phase_from_distances(*distances)
+
+        contacts = data.contact
+        pairs = contacts.geom if len(contacts) else np.empty((0, 2), dtype=int)
+        speeds = np.linalg.norm(data.qvel[self._obstacle_linear_dofs], axis=1)
+        touched = obstacle_touched(pairs, self._is_obstacle, self._is_toucher, speeds,
+                                   cfg.rewards.obstacle_speed_threshold)
+        elapsed = data.time - self._episode_start
+        prog = progress(target, self._table_center, tip)
+        if phase_time > 0:
+            f = np.array([avoid_component(touched), self.progress_objective.step(prog),
+                          self.time_objective.step(phase, phase_time, elapsed)])
+        else:  # the reset state: no step was taken, nothing was violated
+            f = np.ones(3)
+        half = np.asarray(cfg.table.half_extent)
+        success = bool(np.any(np.abs(target[:2]) > half) or target[2] < cfg.table.height)
+        return StepInfo(f=f, g=penalty_form(f), phase=phase, x=x, distances=distances, success=success, touched=touched,
+                        tip=tip.copy(), target=target, progress=prog, elapsed=elapsed)
+
+    def get_reward(self, physics: mjcf.Physics) -> np.ndarray:
+        return self.step_info.f
+
+    def should_terminate_episode(self, physics: mjcf.Physics) -> bool:
+        return self.step_info.success
+
+    def get_discount(self, physics: mjcf.Physics) -> float:
+        return 0.0 if self.step_info.success else 1.0
+
+    @property
+    def command(self) -> np.ndarray:
+        """The joint-velocity command of the last step, rad/s."""
+        return self._command

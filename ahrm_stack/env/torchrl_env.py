@@ -1,0 +1,138 @@
+"""TorchRL ``EnvBase`` around the push-off task.
+
+Keys (all float32 unless noted):
+
+* ``observation`` — the flat observation of spec §1 (layout: :attr:`PushOffTask.observation_order`);
+* ``action`` — normalised joint velocities of the commanded joints, in [-1, 1];
+* ``reward`` — the reward mechanism's scalar (without one: the linear sum of g);
+* ``f`` / ``g`` — the component vectors (avoid, manipulate, time): +-1 form and penalty form;
+* ``phase`` (int64, 1..3), ``x`` (boundary distance, m), ``distances`` (signed distances of the
+  pusher to B_obstacles and B_target, m), ``success`` and ``touched`` (bool);
+* ``done`` / ``terminated`` (success) / ``truncated`` (time limit).
+
+torchrl's ``DMControlWrapper`` cannot wrap composer tasks, hence this class.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Binary, Bounded, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from ahrm_stack.config import TaskConfig
+from ahrm_stack.env.runner import TaskRunner
+from ahrm_stack.env.episode import EpisodeRecorder, EpisodeSummary
+from ahrm_stack.env.task import PushOffTask, StepInfo
+
+
+def action_to_command(action: np.ndarray, velocity_limit: np.ndarray,
+                      commanded: tuple[int, ...]) -> np.ndarray:
+    """Map a normalised action of the commanded joints to joint velocities (rad/s) for all joints.
+
+    Non-finite entries become 0 and the action is clipped to [-1, 1]; joints that are not
+    commanded get 0.
+    """
+    action = np.nan_to_num(np.asarray(action, dtype=float), nan=0.0, posinf=0.0, neginf=0.0)
+    command = np.zeros(len(velocity_limit))
+    command[list(commanded)] = np.clip(action, -1.0, 1.0) * velocity_limit[list(commanded)]
+    return command
+
+
+class PushOffEnv(EnvBase):
+    """One push-off task as a TorchRL environment (batch size ``[]``, CPU).
+
+    With a ``mechanism`` (an object with ``reward(g, distances)``, ``constraint_monitor()`` and
+    ``end_episode(f, phase, ...)``, see :mod:`ahrm_stack.learning.mechanisms`), the reward is the
+    mechanism's, the priority constraint can end an episode early (as a truncation), and every
+    completed episode updates the mechanism. Completed episodes are summarised in
+    :attr:`completed` (the trainer drains it).
+    """
+
+    def __init__(self, config: TaskConfig, seed: int | None = None, device: str = "cpu",
+                 mechanism=None) -> None:
+        super().__init__(device=device, batch_size=torch.Size([]))
+        self.mechanism = mechanism
+        self.completed: list[EpisodeSummary] = []
+        self._monitor = None
+        self.task = PushOffTask(config)
+        self.runner = TaskRunner(self.task, seed)
+        self.robot = self.task.robot
+        self._commanded = self.robot.commanded_joints
+        self.runner.reset()
+        obs_dim = self.runner.flat_observation().shape[0]
+        self.observation_spec = Composite(
+            observation=Unbounded(shape=(obs_dim,), dtype=torch.float32),
+            f=Bounded(low=-1.0, high=1.0, shape=(3,), dtype=torch.float32),
+            g=Bounded(low=-1.0, high=0.0, shape=(3,), dtype=torch.float32),
+            phase=Bounded(low=1, high=3, shape=(1,), dtype=torch.int64),
+            x=Unbounded(shape=(1,), dtype=torch.float32),
+            distances=Unbounded(shape=(2,), dtype=torch.float32),
+            success=Binary(n=1, shape=(1,), dtype=torch.bool),
+            touched=Binary(n=1, shape=(1,), dtype=torch.bool),
+        )
+        self.action_spec = Bounded(low=-1.0, high=1.0, shape=(len(self._commanded),),
+                                   dtype=torch.float32)
+        self.reward_spec = Unbounded(shape=(1,), dtype=torch.float32)
+        self.full_done_spec = Composite(
+            done=Binary(n=1, shape=(1,), dtype=torch.bool),
+            terminated=Binary(n=1, shape=(1,), dtype=torch.bool),
+            truncated=Binary(n=1, shape=(1,), dtype=torch.bool))
+        if seed is not None:
+            self.set_seed(seed)
+
+    def _observation(self, info: StepInfo) -> dict[str, torch.Tensor]:
+        return {
+            "observation": torch.as_tensor(self.runner.flat_observation(), dtype=torch.float32),
+            "f": torch.as_tensor(info.f, dtype=torch.float32),
+            "g": torch.as_tensor(info.g, dtype=torch.float32),
+            "phase": torch.tensor([info.phase], dtype=torch.int64),
+            "x": torch.tensor([info.x], dtype=torch.float32),
+            "distances": torch.as_tensor(info.distances, dtype=torch.float32),
+            "success": torch.tensor([info.success]),
+            "touched": torch.tensor([info.touched]),
+        }
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        transition = self.runner.reset()
+        self._monitor = self.mechanism.constraint_monitor() if self.mechanism is not None else None
+        self._recorder = EpisodeRecorder(transition.info)
+        out = self._observation(transition.info)
+        out.update(done=torch.tensor([False]), terminated=torch.tensor([False]),
+                   truncated=torch.tensor([False]))
+        return TensorDict(out, batch_size=[])
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        action = tensordict["action"].detach().cpu().numpy()
+        command = action_to_command(action, self.robot.velocity_limit, self._commanded)
+        info, terminated, truncated = self.runner.step_only(command)
+        if self.mechanism is None:
+            reward = float(info.g.sum())
+        else:
+            reward = float(self.mechanism.reward(info.g, info.distances))
+        constrained = (self._monitor is not None and not terminated
+                       and self._monitor.step(info.f, info.phase))
+        if constrained and not truncated:
+            truncated = True
+            self.runner.end_episode()
+        self._recorder.step(info, reward)
+        if terminated or truncated:
+            self._finish_episode(constrained)
+        out = self._observation(info)
+        out.update(reward=torch.tensor([reward], dtype=torch.float32),
+                   done=torch.tensor([terminated or truncated]),
+                   terminated=torch.tensor([terminated]), truncated=torch.tensor([truncated]))
+        return TensorDict(out, batch_size=[])
+
+    def _finish_episode(self, constrained: bool) -> None:
+        phase = self._monitor.violated_phase if constrained else None
+        summary = self._recorder.summary(constraint_terminated=constrained, constraint_phase=phase)
+        if self.mechanism is not None:
+            summary.events = self.mechanism.end_episode(
+                self._recorder.f, self._recorder.phase, constraint_terminated=constrained,
+                terminated_phase=phase)
+        self.completed.append(summary)
+
+    def _set_seed(self, seed: int | None) -> None:
+        self.runner.seed(0 if seed is None else seed)

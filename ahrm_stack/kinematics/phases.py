@@ -1,0 +1,633 @@
+"""Phase geometry (spec §2): phase k and boundary distance x of the pusher.
+
+Pure functions over plain numbers; no simulator. All lengths are metres and all
+poses are in the world frame (z up). The table top is the plane z = table_height.
+
+Regions (axis-aligned boxes):
+
+* ``B_target``: ``target_half_width`` horizontally around the target centre,
+  from the table top up to ``target_height`` above it.
+* ``B_obstacles``: the AABB of all obstacles grown horizontally by
+  ``obstacle_margin``, from the table top up to ``obstacle_height`` above it.
+
+The pusher E is *in* a region when its signed distance to it is <= 0. Phase 3
+(manipulate) if E is in B_target, else 2 (pre-manipulate) if E is in
+B_obstacles, else 1 (approach). x is the signed distance to the next phase's
+region: B_obstacles in phase 1, B_target in phases 2 and 3.
+
+Distances: an upright pusher (axis parallel to z, either sign) uses an exact
+closed form (spec §2). Any other pose uses ``_general_distance``, which computes the
+same quantity as FCL's signed distance (distance when apart, minus the penetration
+depth when overlapping) without calling python-fcl, because python-fcl 0.7 is not
+reliable for this pair (measured on random and axis-aligned placements):
+
+* separated: its GJK over-estimates, up to 0.067 m (0.134 m reported for 0.066 m);
+* touching or within ~1e-9 m of touching: its EPA returns garbage (-0.062 m for 0) or
+  throws a C++ ``std::logic_error`` that python-fcl does not catch: the process aborts;
+* shallow overlaps with aligned features: returns ~0 for a 1e-4 m penetration.
+
+Instead: separated -> alternating projections, certified to POLISH_TOL by a
+support-function lower bound; overlapping / touching -> signed distance =
+max over unit n of [min_box n.x - max_cylinder n.x], maximised over the finite
+set of directions where that maximum can lie (plus a 1-D search on three great
+circles). ``_fcl_signed_distance`` is kept for cross-checks only (never near touching).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import fcl
+import numpy as np
+
+__all__ = [
+    "Box",
+    "Cylinder",
+    "RegionParams",
+    "PhaseScene",
+    "PHASE_NAMES",
+    "UPRIGHT_TOL",
+    "ROTATION_TOL",
+    "POLISH_TOL",
+    "target_region",
+    "obstacle_region",
+    "upright_cylinder_box_distance",
+    "cylinder_box_distance",
+    "phase_and_x",
+]
+
+PHASE_NAMES = ("approach", "pre-manipulate", "manipulate")
+"""Name of phase k is ``PHASE_NAMES[k - 1]``."""
+
+UPRIGHT_TOL = 1e-6
+"""Max sine of the angle between the pusher axis and z for the closed form.
+Closed-form error is then <= half_length * 1e-6 + radius * 5e-13 m."""
+
+ROTATION_TOL = 1e-6
+"""Max |R^T R - I| entry (and |det R - 1|) accepted for a rotation matrix."""
+
+POLISH_TOL = 1e-9
+"""Certified gap (m) between upper and lower bound of a separated distance."""
+
+_POLISH_MAX_ITERS = 100
+_EDGE_SEARCH_AFTER = 10  # alternating-projection iterations before searching along an edge
+_EDGE_SEARCH_ITERS = 80  # golden-section steps: shrinks the edge interval by 0.618**80 ~ 2e-17
+_GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
+_ARC_SAMPLES = 128  # coarse samples per great circle in _candidate_gap
+_ARC_ZOOM_SAMPLES = 25  # samples per zoom step (window shrinks 12x per step)
+_ARC_ZOOMS = 5  # final angular resolution ~ 2 pi / 128 / 12**5 ~ 2e-7 rad (gap error <= radius * 2e-7)
+_DEGENERATE = 1e-12  # |component| below which a direction counts as along/across the axis
+_FCL_REQUEST = fcl.DistanceRequest(enable_signed_distance=True)  # read-only input
+
+Bounds = tuple[float, float, float, float, float, float]  # xlo, ylo, zlo, xhi, yhi, zhi
+
+
+# --------------------------------------------------------------------------- validation
+
+
+def _fmt_index(index: tuple[int, ...]) -> str:
+    return "".join(f"[{i}]" for i in index)
+
+
+def _as_array(name: str, value: object, shape: tuple[int, ...]) -> np.ndarray:
+    """Read-only float64 copy of ``value`` with the given shape (-1 = any length), all finite."""
+    try:
+        arr = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be an array of numbers, got {value!r}") from exc
+    if arr.shape != shape and not (shape[0] == -1 and arr.ndim == 2 and arr.shape[1] == shape[1]):
+        want = "(" + ", ".join("n" if s == -1 else str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"
+        raise ValueError(f"{name} must have shape {want}, got {arr.shape}")
+    if not all(map(math.isfinite, arr.ravel().tolist())):
+        index = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
+        raise ValueError(f"{name}{_fmt_index(index)} must be finite, got {arr[index]}")
+    arr.setflags(write=False)
+    return arr
+
+
+def _require_positive(name: str, arr: np.ndarray) -> None:
+    if arr.size and not min(arr.ravel().tolist()) > 0.0:
+        index = tuple(int(i) for i in np.argwhere(~(arr > 0.0))[0])
+        raise ValueError(f"{name}{_fmt_index(index)} must be > 0, got {arr[index]}")
+
+
+def _as_scalar(name: str, value: object, *, positive: bool = False, nonnegative: bool = False) -> float:
+    if isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name} must be a number, got {value!r}")
+    try:
+        x = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a number, got {value!r}") from exc
+    if not math.isfinite(x):
+        raise ValueError(f"{name} must be finite, got {x}")
+    if positive and not x > 0.0:
+        raise ValueError(f"{name} must be > 0, got {x}")
+    if nonnegative and not x >= 0.0:
+        raise ValueError(f"{name} must be >= 0, got {x}")
+    return x
+
+
+def _check_rotation(name: str, rot: np.ndarray) -> None:
+    (a, b, c), (d, e, f), (g, h, i) = rot.tolist()
+    # Columns must be orthonormal and right-handed: R^T R = I, det R = +1.
+    err = max(
+        abs(a * a + d * d + g * g - 1.0),
+        abs(b * b + e * e + h * h - 1.0),
+        abs(c * c + f * f + i * i - 1.0),
+        abs(a * b + d * e + g * h),
+        abs(a * c + d * f + g * i),
+        abs(b * c + e * f + h * i),
+    )
+    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+    if err > ROTATION_TOL or abs(det - 1.0) > ROTATION_TOL:
+        raise ValueError(
+            f"{name} must be a rotation matrix (orthonormal, det +1), "
+            f"got max|R^T R - I| = {err:.3g}, det = {det:.6g}"
+        )
+
+
+# --------------------------------------------------------------------------- value types
+
+
+@dataclass(frozen=True, eq=False)
+class Box:
+    """Axis-aligned box in the world frame: ``center`` (3,) m, ``half_size`` (3,) m, all > 0."""
+
+    center: np.ndarray
+    half_size: np.ndarray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "center", _as_array("center", self.center, (3,)))
+        half = _as_array("half_size", self.half_size, (3,))
+        _require_positive("half_size", half)
+        object.__setattr__(self, "half_size", half)
+
+    def bounds(self) -> Bounds:
+        """(xlo, ylo, zlo, xhi, yhi, zhi) in metres, world frame."""
+        cx, cy, cz = self.center.tolist()
+        hx, hy, hz = self.half_size.tolist()
+        return (cx - hx, cy - hy, cz - hz, cx + hx, cy + hy, cz + hz)
+
+
+@dataclass(frozen=True, eq=False)
+class Cylinder:
+    """Solid cylinder (the pusher), world frame.
+
+    ``center`` (3,) m; ``rotation`` (3,3) world-from-cylinder, the cylinder axis is
+    its local z axis (third column); ``radius`` > 0 m; ``half_length`` > 0 m along the axis.
+    """
+
+    center: np.ndarray
+    rotation: np.ndarray
+    radius: float
+    half_length: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "center", _as_array("center", self.center, (3,)))
+        rot = _as_array("rotation", self.rotation, (3, 3))
+        _check_rotation("rotation", rot)
+        object.__setattr__(self, "rotation", rot)
+        object.__setattr__(self, "radius", _as_scalar("radius", self.radius, positive=True))
+        object.__setattr__(self, "half_length", _as_scalar("half_length", self.half_length, positive=True))
+
+    @property
+    def axis(self) -> np.ndarray:
+        """Unit axis direction (3,) in the world frame."""
+        return self.rotation[:, 2]
+
+
+@dataclass(frozen=True)
+class RegionParams:
+    """Region sizes in metres (the spec defaults live in the config, not here).
+
+    ``target_half_width`` > 0: horizontal half-size of B_target around the target centre.
+    ``target_height`` > 0: B_target top above the table top.
+    ``obstacle_margin`` >= 0: horizontal growth of the obstacles' bounding box.
+    ``obstacle_height`` > 0: B_obstacles top above the table top.
+    """
+
+    target_half_width: float
+    target_height: float
+    obstacle_margin: float
+    obstacle_height: float
+
+    def __post_init__(self) -> None:
+        for name in ("target_half_width", "target_height", "obstacle_height"):
+            object.__setattr__(self, name, _as_scalar(name, getattr(self, name), positive=True))
+        object.__setattr__(
+            self, "obstacle_margin", _as_scalar("obstacle_margin", self.obstacle_margin, nonnegative=True)
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class PhaseScene:
+    """Scene for phase computation, world frame, metres.
+
+    ``table_height``: z of the table top; ``target_center`` (3,) (only x, y are used);
+    ``obstacle_centers`` / ``obstacle_half_sizes`` (n,3), n >= 1, half sizes > 0.
+    The region bounds are computed once here.
+    """
+
+    table_height: float
+    target_center: np.ndarray
+    obstacle_centers: np.ndarray
+    obstacle_half_sizes: np.ndarray
+    params: RegionParams
+
+    def __post_init__(self) -> None:
+        z0 = _as_scalar("table_height", self.table_height)
+        object.__setattr__(self, "table_height", z0)
+        target = _as_array("target_center", self.target_center, (3,))
+        object.__setattr__(self, "target_center", target)
+        centers = _as_array("obstacle_centers", self.obstacle_centers, (-1, 3))
+        halves = _as_array("obstacle_half_sizes", self.obstacle_half_sizes, (-1, 3))
+        if centers.shape[0] == 0:
+            raise ValueError("obstacle_centers must hold at least one obstacle, got shape (0, 3)")
+        if halves.shape != centers.shape:
+            raise ValueError(
+                f"obstacle_half_sizes must have the same shape as obstacle_centers {centers.shape}, got {halves.shape}"
+            )
+        _require_positive("obstacle_half_sizes", halves)
+        object.__setattr__(self, "obstacle_centers", centers)
+        object.__setattr__(self, "obstacle_half_sizes", halves)
+        p = self.params
+        if not isinstance(p, RegionParams):
+            raise ValueError(f"params must be a RegionParams, got {type(p).__name__}")
+
+        tx, ty, _ = target.tolist()
+        w = p.target_half_width
+        object.__setattr__(self, "_target_bounds", (tx - w, ty - w, z0, tx + w, ty + w, z0 + p.target_height))
+        m = p.obstacle_margin
+        c, hs = centers.tolist(), halves.tolist()  # plain floats: faster than numpy for a few obstacles
+        xlo = min([ci[0] - hi[0] for ci, hi in zip(c, hs)])
+        ylo = min([ci[1] - hi[1] for ci, hi in zip(c, hs)])
+        xhi = max([ci[0] + hi[0] for ci, hi in zip(c, hs)])
+        yhi = max([ci[1] + hi[1] for ci, hi in zip(c, hs)])
+        object.__setattr__(
+            self, "_obstacle_bounds", (xlo - m, ylo - m, z0, xhi + m, yhi + m, z0 + p.obstacle_height)
+        )
+
+
+def _box_from_bounds(b: Bounds) -> Box:
+    xlo, ylo, zlo, xhi, yhi, zhi = b
+    return Box(
+        np.array([(xlo + xhi) / 2, (ylo + yhi) / 2, (zlo + zhi) / 2]),
+        np.array([(xhi - xlo) / 2, (yhi - ylo) / 2, (zhi - zlo) / 2]),
+    )
+
+
+def target_region(scene: PhaseScene) -> Box:
+    """B_target (world frame, m): target centre ± target_half_width in x, y; table top to +target_height in z."""
+    return _box_from_bounds(scene._target_bounds)  # type: ignore[attr-defined]
+
+
+def obstacle_region(scene: PhaseScene) -> Box:
+    """B_obstacles (world frame, m): obstacles' AABB grown by obstacle_margin in x, y; table top to +obstacle_height."""
+    return _box_from_bounds(scene._obstacle_bounds)  # type: ignore[attr-defined]
+
+
+# --------------------------------------------------------------------------- distances
+
+
+def _tilt_sine(cyl: Cylinder) -> float:
+    """Sine of the angle between the cylinder axis and the world z axis (either sign)."""
+    r = cyl.rotation
+    return math.hypot(float(r[0, 2]), float(r[1, 2]))
+
+
+def _upright_distance(cx: float, cy: float, cz: float, r: float, h: float, b: Bounds) -> float:
+    """Exact signed distance, upright cylinder vs AABB ``b`` (m). See spec §2."""
+    xlo, ylo, zlo, xhi, yhi, zhi = b
+    # Per-axis signed excess of the centre beyond the rectangle (<= 0 inside that slab).
+    ex = max(xlo - cx, cx - xhi)
+    ey = max(ylo - cy, cy - yhi)
+    if ex > 0.0 or ey > 0.0:
+        # Centre outside the rectangle: disc-rectangle signed distance = planar distance - r.
+        sd_xy = math.hypot(max(ex, 0.0), max(ey, 0.0)) - r
+    else:
+        # Centre inside: separating shift = r + distance to the nearest edge (= -max(ex, ey)).
+        sd_xy = max(ex, ey) - r
+    # Signed gap between the z-intervals [cz-h, cz+h] and [zlo, zhi].
+    sd_z = max(zlo - (cz + h), (cz - h) - zhi)
+    if sd_xy > 0.0 or sd_z > 0.0:
+        return math.hypot(max(sd_xy, 0.0), max(sd_z, 0.0))
+    # Overlap: the smaller of the horizontal and vertical overlaps, negated (+0.0 turns -0.0 into 0.0).
+    return max(sd_xy, sd_z) + 0.0
+
+
+def upright_cylinder_box_distance(cyl: Cylinder, box: Box) -> float:
+    """Exact signed distance (m) between an upright cylinder and an AABB, world frame.
+
+    Positive when apart, 0 when touching, minus the penetration depth when overlapping.
+    Raises ValueError unless the axis is parallel to z (either sign) within UPRIGHT_TOL.
+    """
+    s = _tilt_sine(cyl)
+    if s > UPRIGHT_TOL:
+        raise ValueError(f"cylinder axis must be parallel to z within {UPRIGHT_TOL}, got tilt sine {s:.3g}")
+    cx, cy, cz = cyl.center.tolist()
+    return _upright_distance(cx, cy, cz, cyl.radius, cyl.half_length, box.bounds())
+
+
+def _support_gap(n: tuple[float, float, float], cyl: tuple, b: Bounds) -> float:
+    """min over box of n.p minus max over cylinder of n.p, for unit n: a lower bound on the signed distance."""
+    nx, ny, nz = n
+    (cx, cy, cz), (ax, ay, az), r, h = cyl[0], cyl[1], cyl[2], cyl[3]
+    xlo, ylo, zlo, xhi, yhi, zhi = b
+    box_min = nx * (xlo if nx > 0 else xhi) + ny * (ylo if ny > 0 else yhi) + nz * (zlo if nz > 0 else zhi)
+    na = nx * ax + ny * ay + nz * az
+    # |n - (n.a) a| rather than sqrt(1 - na^2): no cancellation when n is along the axis.
+    across = math.sqrt((nx - na * ax) ** 2 + (ny - na * ay) ** 2 + (nz - na * az) ** 2)
+    cyl_max = nx * cx + ny * cy + nz * cz + h * abs(na) + r * across
+    return box_min - cyl_max
+
+
+def _project_cylinder(p: tuple[float, float, float], cyl: tuple) -> tuple[float, float, float]:
+    """Closest point of the solid cylinder to p (world frame)."""
+    (cx, cy, cz), rot, r, h = cyl[0], cyl[4], cyl[2], cyl[3]
+    (a, b, c), (d, e, f), (g, hh, i) = rot
+    dx, dy, dz = p[0] - cx, p[1] - cy, p[2] - cz
+    u, v, w = a * dx + d * dy + g * dz, b * dx + e * dy + hh * dz, c * dx + f * dy + i * dz  # R^T (p - c)
+    w = min(max(w, -h), h)
+    rho = math.hypot(u, v)
+    if rho > r:
+        u, v = u * (r / rho), v * (r / rho)
+    return (cx + a * u + b * v + c * w, cy + d * u + e * v + f * w, cz + g * u + hh * v + i * w)
+
+
+def _extreme_point(n: tuple[float, float, float], p: tuple[float, float, float], cyl: tuple) -> tuple[float, float, float]:
+    """Point of the cylinder maximising n.x (unit n); where that set is a segment or a disc, its point nearest p."""
+    (cx, cy, cz), (ax, ay, az), r, h = cyl[0], cyl[1], cyl[2], cyl[3]
+    na = n[0] * ax + n[1] * ay + n[2] * az
+    ux, uy, uz = n[0] - na * ax, n[1] - na * ay, n[2] - na * az  # part of n across the axis
+    un = math.sqrt(ux * ux + uy * uy + uz * uz)
+    if un <= _DEGENERATE:  # n along the axis: the whole cap disc is extreme
+        t = h if na > 0.0 else -h
+        ox, oy, oz = cx + t * ax, cy + t * ay, cz + t * az
+        dx, dy, dz = p[0] - ox, p[1] - oy, p[2] - oz
+        da = dx * ax + dy * ay + dz * az
+        dx, dy, dz = dx - da * ax, dy - da * ay, dz - da * az
+        dn = math.sqrt(dx * dx + dy * dy + dz * dz)
+        k = 1.0 if dn <= r else r / dn
+        return (ox + k * dx, oy + k * dy, oz + k * dz)
+    if abs(na) <= _DEGENERATE:  # n across the axis: a side segment is extreme
+        t = min(max((p[0] - cx) * ax + (p[1] - cy) * ay + (p[2] - cz) * az, -h), h)
+    else:
+        t = h if na > 0.0 else -h
+    k = r / un
+    return (cx + t * ax + k * ux, cy + t * ay + k * uy, cz + t * az + k * uz)
+
+
+def _edge_minimiser(q: tuple[float, float, float], axis: int, b: Bounds, cyl: tuple) -> tuple[float, float, float]:
+    """Point of the box edge through q (running along ``axis``) nearest the cylinder (golden-section search)."""
+    lo, hi = b[axis], b[axis + 3]
+
+    def point(t: float) -> tuple[float, float, float]:
+        e = list(q)
+        e[axis] = t
+        return (e[0], e[1], e[2])
+
+    def f(t: float) -> float:  # distance from the edge point to the cylinder: convex in t
+        e = point(t)
+        return math.dist(e, _project_cylinder(e, cyl))
+
+    t1, t2 = hi - _GOLDEN * (hi - lo), lo + _GOLDEN * (hi - lo)
+    f1, f2 = f(t1), f(t2)
+    for _ in range(_EDGE_SEARCH_ITERS):
+        if f1 <= f2:
+            hi, t2, f2 = t2, t1, f1
+            t1 = hi - _GOLDEN * (hi - lo)
+            f1 = f(t1)
+        else:
+            lo, t1, f1 = t1, t2, f2
+            t2 = lo + _GOLDEN * (hi - lo)
+            f2 = f(t2)
+    return point(t1 if f1 <= f2 else t2)
+
+
+def _clamp(p: tuple[float, float, float], b: Bounds) -> tuple[float, float, float]:
+    """Closest point of the box to p."""
+    return (min(max(p[0], b[0]), b[3]), min(max(p[1], b[1]), b[4]), min(max(p[2], b[2]), b[5]))
+
+
+def _separate(cd: tuple, b: Bounds) -> tuple[float, float]:
+    """Bounds (upper, lower) on the signed distance by alternating projections, m.
+
+    Starts from the box point nearest the cylinder centre. Every iterate is a genuine
+    (cylinder point p, box point q) pair, so upper = min |p - q| >= max(sd, 0); the support gap
+    along p -> q gives lower <= sd. When q lies on one box face the face normal is tried
+    directly (exact for face contacts; otherwise q jumps to the face point nearest the
+    cylinder's extreme point); when q crawls along a box edge, a 1-D search along the edge
+    jumps to its end. Stops when upper - lower <= POLISH_TOL, when a common point is found
+    (upper <= POLISH_TOL: the sets touch or overlap), or after _POLISH_MAX_ITERS.
+    """
+    lo, hi = b[:3], b[3:]
+    q = _clamp(cd[0], b)
+    upper = math.inf
+    lower = -math.inf
+    edge_done = False
+    for i in range(_POLISH_MAX_ITERS):
+        p = _project_cylinder(q, cd)
+        q = _clamp(p, b)
+        gx, gy, gz = q[0] - p[0], q[1] - p[1], q[2] - p[2]
+        g = math.sqrt(gx * gx + gy * gy + gz * gz)
+        upper = min(upper, g)
+        if g <= POLISH_TOL:  # common point: the sets touch or overlap
+            break
+        lower = max(lower, _support_gap((gx / g, gy / g, gz / g), cd, b))
+        if upper - lower <= POLISH_TOL:
+            break
+        free = [k for k in range(3) if lo[k] <= p[k] <= hi[k]]
+        if len(free) == 2:  # q on a face: try that face's normal
+            k = 3 - free[0] - free[1]
+            n = [0.0, 0.0, 0.0]
+            n[k] = -1.0 if p[k] > hi[k] else 1.0  # from the cylinder towards the box
+            s = _extreme_point((n[0], n[1], n[2]), p, cd)
+            qs = _clamp(s, b)
+            upper = min(upper, math.dist(s, qs))
+            lower = max(lower, _support_gap((n[0], n[1], n[2]), cd, b))
+            if upper - lower <= POLISH_TOL:
+                break
+            q = qs  # the face's nearest point lies beyond its boundary: jump there
+        elif len(free) == 1 and not edge_done and i >= _EDGE_SEARCH_AFTER:  # crawling along an edge
+            edge_done = True
+            q = _edge_minimiser(q, free[0], b, cd)
+    return upper, lower
+
+
+def _support_gaps(n: np.ndarray, c: np.ndarray, a: np.ndarray, r: float, h: float, b: Bounds) -> np.ndarray:
+    """_support_gap for each unit row of n (k,3)."""
+    box_min = (n * np.where(n > 0.0, b[:3], b[3:])).sum(axis=1)
+    na = n @ a
+    across = np.sqrt(np.maximum(0.0, ((n - na[:, None] * a) ** 2).sum(axis=1)))
+    return box_min - (n @ c + h * np.abs(na) + r * across)
+
+
+_CIRCLE_J = np.array([[1], [2], [0]])  # great circle i is spanned by e_j, e_k
+_CIRCLE_K = np.array([[2], [0], [1]])
+_ARC_T = np.linspace(0.0, 2.0 * math.pi, _ARC_SAMPLES, endpoint=False)
+_ARC_COS = np.broadcast_to(np.cos(_ARC_T), (3, _ARC_SAMPLES))
+_ARC_SIN = np.broadcast_to(np.sin(_ARC_T), (3, _ARC_SAMPLES))
+# Zoom offsets per round: +-1 coarse step, shrinking by (ZOOM_SAMPLES - 1) / 2 each round.
+_ZOOM_OFFSETS = [
+    np.linspace(-1.0, 1.0, _ARC_ZOOM_SAMPLES) * (2.0 * math.pi / _ARC_SAMPLES) * (2.0 / (_ARC_ZOOM_SAMPLES - 1)) ** z
+    for z in range(_ARC_ZOOMS)
+]
+_ZOOM_COS = [np.cos(d) for d in _ZOOM_OFFSETS]
+_ZOOM_SIN = [np.sin(d) for d in _ZOOM_OFFSETS]
+_ROWS3 = np.arange(3)
+
+
+def _candidate_gap(cd: tuple, b: Bounds) -> float:
+    """Max of the support gap over the directions where its maximum over the sphere can lie, m.
+
+    The signed distance is the max over unit n of gap(n) = min_box n.x - max_cyl n.x (any n gives
+    a lower bound). The gap is smooth except where a component of n is 0 (box features),
+    n.a = 0 (cylinder side) or n = +-a (caps); its local maxima lie at: box face normals,
+    +-a, +-(e_i x a) (edge vs side), the side's normals through box vertices, rim-to-vertex
+    directions, or smooth maxima on the great circles n_i = 0 (box edge vs cap rim), which
+    are found by sampling and zooming in (angle-addition, no trig per call).
+    """
+    c, a, r, h = np.array(cd[0]), np.array(cd[1]), cd[2], cd[3]
+    ax, ay, az = cd[1]
+    verts = np.array([[x, y, z] for x in (b[0], b[3]) for y in (b[1], b[4]) for z in (b[2], b[5])])
+    w = verts - c
+    side = w - np.outer(w @ a, a)  # vertex offsets across the axis
+    side_u = side / np.maximum(np.sqrt((side * side).sum(axis=1)), _DEGENERATE)[:, None]
+    rim = np.vstack([w - h * a, w + h * a]) - r * np.vstack([side_u, side_u])  # nearest rim point -> vertex
+    fixed = [
+        [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0],  # box faces
+        [ax, ay, az], [0.0, ay, az], [ax, 0.0, az], [ax, ay, 0.0],  # caps, and a moved onto each circle n_i = 0
+        [0.0, -az, ay], [az, 0.0, -ax], [-ay, ax, 0.0],  # e_i x a: box edge vs side
+    ]  # fmt: skip
+    dirs = np.vstack([fixed, side, rim])
+    norm = np.sqrt((dirs * dirs).sum(axis=1))
+    keep = norm > _DEGENERATE
+    dirs = dirs[keep] / norm[keep, None]
+    best = float(_support_gaps(np.vstack([dirs, -dirs]), c, a, r, h, b).max())
+    # Great circles n_i = 0 (row i spanned by e_j, e_k): coarse samples, then zoom in around
+    # each circle's best sample. gap = co * (lo_j | hi_j) + si * (lo_k | hi_k) - n.c - h|n.a| - r sqrt(1 - (n.a)^2)
+    # (the sqrt loses ~1e-8 relative only next to n = +-a, which is a fixed candidate).
+    lo, hi = np.asarray(b[:3]), np.asarray(b[3:])
+    lo_j, hi_j, lo_k, hi_k = lo[_CIRCLE_J], hi[_CIRCLE_J], lo[_CIRCLE_K], hi[_CIRCLE_K]
+    a_j, a_k, c_j, c_k = a[_CIRCLE_J], a[_CIRCLE_K], c[_CIRCLE_J], c[_CIRCLE_K]
+    co, si = _ARC_COS, _ARC_SIN
+    for z in range(_ARC_ZOOMS + 1):
+        na = co * a_j + si * a_k
+        g = (
+            co * np.where(co > 0.0, lo_j, hi_j)
+            + si * np.where(si > 0.0, lo_k, hi_k)
+            - co * c_j
+            - si * c_k
+            - h * np.abs(na)
+            - r * np.sqrt(np.maximum(0.0, 1.0 - na * na))
+        )
+        k = g.argmax(axis=1)
+        best = max(best, float(g[_ROWS3, k].max()))
+        if z == _ARC_ZOOMS:
+            break
+        cb, sb = co[_ROWS3, k][:, None], si[_ROWS3, k][:, None]
+        co = cb * _ZOOM_COS[z] - sb * _ZOOM_SIN[z]  # cos(t_best + offset)
+        si = sb * _ZOOM_COS[z] + cb * _ZOOM_SIN[z]
+    return best
+
+
+def _cyl_data(cyl: Cylinder) -> tuple:
+    rot = cyl.rotation.tolist()
+    return (tuple(cyl.center.tolist()), (rot[0][2], rot[1][2], rot[2][2]), cyl.radius, cyl.half_length, rot)
+
+
+def _fcl_signed_distance(cyl: Cylinder, b: Bounds) -> float:
+    """Raw python-fcl signed distance (m) between the cylinder and the AABB ``b``."""
+    xlo, ylo, zlo, xhi, yhi, zhi = b
+    cyl_obj = fcl.CollisionObject(
+        fcl.Cylinder(cyl.radius, 2.0 * cyl.half_length),  # FCL sizes are full lengths
+        fcl.Transform(cyl.rotation, cyl.center),
+    )
+    box_obj = fcl.CollisionObject(
+        fcl.Box(xhi - xlo, yhi - ylo, zhi - zlo),
+        fcl.Transform(np.array([(xlo + xhi) / 2, (ylo + yhi) / 2, (zlo + zhi) / 2])),
+    )
+    # A fresh result per query: python-fcl keeps a running minimum in it.
+    return float(fcl.distance(cyl_obj, box_obj, _FCL_REQUEST, fcl.DistanceResult()))
+
+
+def _general_distance(cd: tuple, b: Bounds) -> float:
+    """Signed distance (m), cylinder in any pose (data ``cd``) vs AABB ``b``.
+
+    Separated: alternating projections, certified to POLISH_TOL by a support-gap lower bound.
+    Touching, overlapping (a common point was found) or not certified within the iteration
+    cap: the maximum support gap over the directions where it can peak (_candidate_gap),
+    which is the signed distance (minus the penetration depth when overlapping).
+    """
+    upper, lower = _separate(cd, b)
+    if lower > 0.0 and upper - lower <= POLISH_TOL:
+        return upper
+    lower = max(lower, _candidate_gap(cd, b))
+    return min(lower, 0.0) if upper <= POLISH_TOL else lower
+
+
+def _general_cylinder_box_distance(cyl: Cylinder, box: Box) -> float:
+    """The non-upright path of cylinder_box_distance, for any pose (exposed for tests)."""
+    return _general_distance(_cyl_data(cyl), box.bounds())
+
+
+def cylinder_box_distance(cyl: Cylinder, box: Box) -> float:
+    """Signed distance (m) between a cylinder in any pose and an AABB, world frame.
+
+    Positive when apart, 0 when touching, minus the penetration depth when overlapping.
+    Closed form when upright (within UPRIGHT_TOL), else _general_distance (see the module notes
+    on why python-fcl is not used for the value).
+    """
+    if _tilt_sine(cyl) <= UPRIGHT_TOL:
+        cx, cy, cz = cyl.center.tolist()
+        return _upright_distance(cx, cy, cz, cyl.radius, cyl.half_length, box.bounds())
+    return _general_cylinder_box_distance(cyl, box)
+
+
+# --------------------------------------------------------------------------- phases
+
+
+def phase_and_x(scene: PhaseScene, pusher: Cylinder) -> tuple[int, float]:
+    """Phase k in {1, 2, 3} and boundary distance x (m) of the pusher (spec §2).
+
+    k = 3 if the pusher is in B_target (signed distance <= 0), x = that distance (<= 0);
+    k = 2 if in B_obstacles, x = signed distance to B_target (> 0);
+    k = 1 otherwise, x = signed distance to B_obstacles (> 0).
+    """
+    tb: Bounds = scene._target_bounds  # type: ignore[attr-defined]
+    ob: Bounds = scene._obstacle_bounds  # type: ignore[attr-defined]
+    if _tilt_sine(pusher) <= UPRIGHT_TOL:
+        cx, cy, cz = pusher.center.tolist()
+        r, h = pusher.radius, pusher.half_length
+        d_target = _upright_distance(cx, cy, cz, r, h, tb)
+        if d_target <= 0.0:
+            return 3, d_target
+        d_obstacles = _upright_distance(cx, cy, cz, r, h, ob)
+    else:
+        cd = _cyl_data(pusher)
+        d_target = _general_distance(cd, tb)
+        if d_target <= 0.0:
+            return 3, d_target
+        d_obstacles = _general_distance(cd, ob)
+    if d_obstacles <= 0.0:
+        return 2, d_target
+    return 1, d_obstacles
+
+
+def region_distances(scene: PhaseScene, pusher: Cylinder) -> np.ndarray:
+    """Signed distances (m) of the pusher to (B_obstacles, B_target), as a (2,) array.
+
+    Both are needed for a reward that is continuous across both phase boundaries.
+    """
+    return np.array([cylinder_box_distance(pusher, obstacle_region(scene)),
+                     cylinder_box_distance(pusher, target_region(scene))])
+
+
+def phase_from_distances(d_obstacles: float, d_target: float) -> tuple[int, float]:
+    """Phase k and boundary distance x (m) from the signed distances to the two regions (spec §2)."""
+    if d_target <= 0.0:
+        return 3, float(d_target)
+    if d_obstacles <= 0.0:
+        return 2, float(d_target)
+    return 1, float(d_obstacles)

@@ -1,0 +1,93 @@
+"""Evaluation with a deterministic policy: the paper's Table II metrics (spec §7).
+
+Episodes use fresh seeds (``seed_offset + i``), distinct from training's, and the distribution's
+deterministic action. Metrics: successes, success rate, episodes touching an obstacle, time to
+success (mean ± std over successes, s), cube travel (mean ± std, m), safety-filter interventions
+per episode and joint-limit violations.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+import yaml
+from tensordict import TensorDict
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from ahrm_stack.config import Config, config_from_dict
+from ahrm_stack.env.episode import EpisodeSummary
+from ahrm_stack.env.torchrl_env import PushOffEnv
+from ahrm_stack.learning.checkpoint import load
+from ahrm_stack.learning.ppo import make_modules
+
+EVAL_SEED_OFFSET = 1_000_000  # evaluation seeds never overlap training seeds
+
+
+@dataclasses.dataclass
+class EvaluationTable:
+    episodes: int
+    successes: int
+    touched_episodes: int
+    time_mean: float
+    time_std: float
+    travel_mean: float
+    travel_std: float
+    interventions_per_episode: float
+    joint_limit_violations: int
+
+    @property
+    def success_rate(self) -> float:
+        return self.successes / self.episodes if self.episodes else float("nan")
+
+    @classmethod
+    def from_summaries(cls, summaries: list[EpisodeSummary], violations: int = 0) -> "EvaluationTable":
+        times = [s.time_to_success for s in summaries if s.success]
+        travel = [s.cube_travel for s in summaries]
+        return cls(len(summaries), sum(s.success for s in summaries),
+                   sum(s.touched for s in summaries),
+                   float(np.mean(times)) if times else float("nan"),
+                   float(np.std(times)) if times else float("nan"),
+                   float(np.mean(travel)), float(np.std(travel)),
+                   float(np.mean([s.interventions for s in summaries])), violations)
+
+    def __str__(self) -> str:
+        return (f"episodes {self.episodes} | successes {self.successes} ({self.success_rate:.1%}) | "
+                f"touched obstacles {self.touched_episodes} | time {self.time_mean:.2f} ± "
+                f"{self.time_std:.2f} s | cube travel {self.travel_mean:.4f} ± {self.travel_std:.4f} m | "
+                f"interventions/episode {self.interventions_per_episode:.1f} | "
+                f"joint-limit violations {self.joint_limit_violations}")
+
+
+def load_policy(run_dir: Path) -> tuple[Config, Callable[[TensorDict], TensorDict]]:
+    """The run's config and its final deterministic policy (``policy.pt``, loaded safely)."""
+    run_dir = Path(run_dir)
+    config = config_from_dict(yaml.safe_load((run_dir / "config.yaml").read_text()))
+    saved = load(run_dir / "policy.pt")
+    modules = make_modules(config.ppo, saved["observation_dim"], saved["action_dim"])
+    modules.actor.load_state_dict(saved["actor"])
+    modules.actor.eval()
+    return config, modules.actor
+
+
+def run_episodes(env: PushOffEnv, policy, episodes: int, seed_offset: int = EVAL_SEED_OFFSET) -> list[EpisodeSummary]:
+    summaries = []
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        for i in range(episodes):
+            env.set_seed(seed_offset + i)
+            env.completed.clear()
+            env.rollout(max_steps=env.task.config.max_steps, policy=policy, break_when_any_done=True)
+            summaries += env.completed
+    return summaries
+
+
+def evaluate_run(run_dir: Path, episodes: int) -> EvaluationTable:
+    config, policy = load_policy(run_dir)
+    env = PushOffEnv(config.task, seed=EVAL_SEED_OFFSET)
+    table = EvaluationTable.from_summaries(run_episodes(env, policy, episodes))
+    (Path(run_dir) / "evaluation.yaml").write_text(yaml.safe_dump(
+        {**dataclasses.asdict(table), "success_rate": table.success_rate}, sort_keys=False))
+    return table

@@ -1,0 +1,117 @@
+"""PPO building blocks (TorchRL 0.14): observation normaliser, actor, critic, loss, GAE, buffer.
+
+Kept apart from the training loop (``ahrm_stack/train.py``) the way TorchRL's sota PPO keeps
+``utils_mujoco.py`` apart from ``ppo_mujoco.py``. Every hyper-parameter comes from
+:class:`PPOConfig` (``configs/ppo.yaml``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import torch
+from tensordict.nn import TensorDictModule, TensorDictSequential
+from torch import nn
+from torchrl.data import LazyTensorStorage, ReplayBuffer
+from torchrl.data.replay_buffers.samplers import SamplerWithoutReplacement
+from torchrl.modules import MLP, ProbabilisticActor, TanhNormal
+from torchrl.objectives import ClipPPOLoss
+from torchrl.objectives.value import GAE
+
+from ahrm_stack.config import PPOConfig
+
+
+class RunningNorm(nn.Module):
+    """Observation normaliser with running mean and variance kept in buffers (so they are part of
+    the policy's state dict and checkpoints). ``update`` is called by the trainer, never in
+    ``forward``, so collection and the PPO update see the same statistics."""
+
+    def __init__(self, size: int, clip: float, enabled: bool = True) -> None:
+        super().__init__()
+        self.clip = clip
+        self.enabled = enabled
+        self.register_buffer("mean", torch.zeros(size))
+        self.register_buffer("var", torch.ones(size))
+        self.register_buffer("count", torch.tensor(0.0))
+
+    @torch.no_grad()
+    def update(self, batch: torch.Tensor) -> None:
+        if not self.enabled:
+            return
+        batch = batch.reshape(-1, batch.shape[-1]).double()
+        n = batch.shape[0]
+        mean, var = batch.mean(0), batch.var(0, unbiased=False)
+        total = self.count + n
+        delta = mean - self.mean
+        new_mean = self.mean + delta * n / total
+        m2 = self.var * self.count + var * n + delta**2 * self.count * n / total
+        self.mean.copy_(new_mean)
+        self.var.copy_(m2 / total)
+        self.count.copy_(total)
+
+    def forward(self, observation: torch.Tensor) -> torch.Tensor:
+        if not self.enabled or self.count == 0:
+            return observation
+        std = torch.sqrt(self.var + 1e-8).to(observation.dtype)
+        return ((observation - self.mean.to(observation.dtype)) / std).clamp(-self.clip, self.clip)
+
+
+class GaussianHead(nn.Module):
+    """Mean from the network; a state-independent standard deviation (learned or fixed)."""
+
+    def __init__(self, action_dim: int, init_std: float, learned: bool) -> None:
+        super().__init__()
+        log_std = torch.full((action_dim,), float(torch.log(torch.tensor(init_std))))
+        if learned:
+            self.log_std = nn.Parameter(log_std)
+        else:
+            self.register_buffer("log_std", log_std)
+
+    def forward(self, mean: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return mean, self.log_std.exp().expand_as(mean)
+
+
+_ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
+
+
+@dataclasses.dataclass
+class Modules:
+    normalizer: RunningNorm
+    actor: ProbabilisticActor
+    critic: TensorDictSequential
+
+
+def make_modules(config: PPOConfig, observation_dim: int, action_dim: int) -> Modules:
+    """Actor (TanhNormal over [-1, 1]) and critic, sharing one observation normaliser."""
+    normalizer = RunningNorm(observation_dim, config.normalizer_clip, config.normalize_observations)
+    norm_module = TensorDictModule(normalizer, in_keys=["observation"], out_keys=["observation_norm"])
+    activation = _ACTIVATIONS[config.activation]
+    actor_net = nn.Sequential(
+        MLP(in_features=observation_dim, out_features=action_dim, num_cells=list(config.hidden_sizes),
+            activation_class=activation),
+        GaussianHead(action_dim, config.init_std, config.std_mode == "learned"))
+    actor_body = TensorDictSequential(
+        norm_module, TensorDictModule(actor_net, in_keys=["observation_norm"], out_keys=["loc", "scale"]))
+    actor = ProbabilisticActor(
+        actor_body, in_keys=["loc", "scale"], distribution_class=TanhNormal,
+        distribution_kwargs={"low": -1.0, "high": 1.0}, return_log_prob=True)
+    critic_net = MLP(in_features=observation_dim, out_features=1, num_cells=list(config.hidden_sizes),
+                     activation_class=activation)
+    critic = TensorDictSequential(
+        norm_module, TensorDictModule(critic_net, in_keys=["observation_norm"], out_keys=["state_value"]))
+    return Modules(normalizer, actor, critic)
+
+
+def make_loss(config: PPOConfig, modules: Modules) -> tuple[ClipPPOLoss, GAE]:
+    loss = ClipPPOLoss(modules.actor, modules.critic, clip_epsilon=config.clip_epsilon,
+                       entropy_bonus=config.entropy_coeff > 0, entropy_coeff=config.entropy_coeff,
+                       critic_coeff=config.critic_coeff, loss_critic_type="l2",
+                       normalize_advantage=True)
+    advantage = GAE(gamma=config.gamma, lmbda=config.gae_lambda, value_network=modules.critic,
+                    average_gae=False)
+    return loss, advantage
+
+
+def make_buffer(config: PPOConfig) -> ReplayBuffer:
+    return ReplayBuffer(storage=LazyTensorStorage(config.frames_per_batch),
+                        sampler=SamplerWithoutReplacement(), batch_size=config.mini_batch_size)

@@ -1,0 +1,168 @@
+"""The PPO trainer: one object that owns the environment, the networks, the optimiser and the reward
+mechanism's adaptive state, and can save and restore all of it.
+
+One :meth:`Trainer.iteration` is: collect ``frames_per_batch`` frames → GAE → ``epochs`` passes of
+mini-batches through the clipped PPO loss → update the observation normaliser → summarise the
+episodes that ended in the batch.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from torchrl.collectors import Collector
+from torchrl.envs.utils import ExplorationType
+
+from ahrm_stack.config import Config
+from ahrm_stack.env.torchrl_env import PushOffEnv
+from ahrm_stack.learning.mechanisms import OBJECTIVES, RewardMechanism
+from ahrm_stack.learning.ppo import make_buffer, make_loss, make_modules
+
+
+class TrainingDiverged(RuntimeError):
+    """A loss became NaN or infinite."""
+
+
+@dataclasses.dataclass
+class IterationResult:
+    episodes: list[dict]
+    events: list
+    batch: dict
+
+
+def _random_state_to_list(state: tuple) -> list:
+    return [state[0], state[1].tolist(), int(state[2]), int(state[3]), float(state[4])]
+
+
+def _random_state_from_list(state: list) -> tuple:
+    return (state[0], np.asarray(state[1], dtype=np.uint32), state[2], state[3], state[4])
+
+
+class Trainer:
+    def __init__(self, config: Config) -> None:
+        self.config = config
+        torch.manual_seed(config.train.seed)
+        np.random.seed(config.train.seed)
+        self.mechanism = RewardMechanism(config.mechanism)
+        self.env = PushOffEnv(config.task, seed=config.train.seed, mechanism=self.mechanism)
+        observation_dim = self.env.observation_spec["observation"].shape[-1]
+        action_dim = self.env.action_spec.shape[-1]
+        self.modules = make_modules(config.ppo, observation_dim, action_dim)
+        self.loss, self.advantage = make_loss(config.ppo, self.modules)
+        self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=config.ppo.learning_rate)
+        self.buffer = make_buffer(config.ppo)
+        self.episodes = 0
+        self.frames = 0
+        self.batches = 0
+        self._collector: Collector | None = None
+        self._iterator = None
+
+    # ------------------------------------------------------------------ one iteration
+    def _collect(self):
+        if self._collector is None:
+            self._collector = Collector(self.env, self.modules.actor,
+                                        frames_per_batch=self.config.ppo.frames_per_batch,
+                                        total_frames=-1, exploration_type=ExplorationType.RANDOM,
+                                        auto_register_policy_transforms=False)
+            self._iterator = iter(self._collector)
+        return next(self._iterator)
+
+    def iteration(self) -> IterationResult:
+        started = time.perf_counter()
+        ppo = self.config.ppo
+        data = self._collect()
+        self.frames += data.numel()
+        self.batches += 1
+        with torch.no_grad():
+            self.advantage(data)
+        self.buffer.empty()
+        self.buffer.extend(data.reshape(-1))
+        totals: dict[str, list[float]] = {}
+        grad_norms = []
+        for _ in range(ppo.epochs):
+            for _ in range(ppo.frames_per_batch // ppo.mini_batch_size):
+                batch = self.buffer.sample()
+                losses = self.loss(batch)
+                loss = losses["loss_objective"] + losses["loss_critic"] + losses.get("loss_entropy", 0.0)
+                if not torch.isfinite(loss):
+                    raise TrainingDiverged(
+                        f"non-finite loss at batch {self.batches} (objective "
+                        f"{float(losses['loss_objective'].detach()):.4g}, critic {float(losses['loss_critic'].detach()):.4g})")
+                self.optimizer.zero_grad()
+                loss.backward()
+                grad_norms.append(float(torch.nn.utils.clip_grad_norm_(self.loss.parameters(),
+                                                                       ppo.max_grad_norm)))
+                self.optimizer.step()
+                for key in ("loss_objective", "loss_critic", "loss_entropy", "entropy", "kl_approx"):
+                    if key in losses.keys():
+                        totals.setdefault(key, []).append(float(losses[key].detach()))
+        self.modules.normalizer.update(data["observation"])
+        episodes, events = self._drain_episodes()
+        batch = {k: float(np.mean(v)) for k, v in totals.items()}
+        batch.update(batch=self.batches, frames=self.frames, episodes=self.episodes,
+                     std=float(self._std().detach()), grad_norm=float(np.mean(grad_norms)),
+                     seconds=time.perf_counter() - started)
+        return IterationResult(episodes, events, batch)
+
+    def _std(self) -> torch.Tensor:
+        return self.modules.actor.module[0][1].module[1].log_std.exp().mean()
+
+    def _drain_episodes(self) -> tuple[list[dict], list]:
+        rows, events = [], []
+        for summary in self.env.completed:
+            self.episodes += 1
+            for event in summary.events:
+                event.episode = self.episodes
+            events += summary.events
+            row = dataclasses.asdict(summary)
+            row.pop("events")
+            row.update(episode=self.episodes, frames=self.frames, failure_mode=summary.failure_mode(),
+                       orders=self.mechanism_orders(), levels=list(self.mechanism.levels))
+            rows.append(row)
+        self.env.completed.clear()
+        return rows, events
+
+    def mechanism_orders(self) -> str:
+        short = {name: name[0].upper() for name in OBJECTIVES}
+        return " ".join("".join(short[OBJECTIVES[i]] for i in order) for order in self.mechanism.orders)
+
+    # ------------------------------------------------------------------ checkpoints
+    def state_dict(self) -> dict:
+        task = self.env.task
+        return {
+            "actor": self.modules.actor.state_dict(),
+            "critic": self.modules.critic.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "mechanism": self.mechanism.state_dict(),
+            "time_objective": task.time_objective.state_dict(),
+            "counters": {"episodes": self.episodes, "frames": self.frames, "batches": self.batches},
+            "torch_rng": torch.get_rng_state(),
+            "env_rng": _random_state_to_list(self.env.runner.random_state.get_state()),
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        self.modules.actor.load_state_dict(state["actor"])
+        self.modules.critic.load_state_dict(state["critic"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.mechanism.load_state_dict(state["mechanism"])
+        self.env.task.time_objective.load_state_dict(state["time_objective"])
+        counters = state["counters"]
+        self.episodes, self.frames, self.batches = (counters["episodes"], counters["frames"],
+                                                    counters["batches"])
+        torch.set_rng_state(state["torch_rng"])
+        self.env.runner.random_state.set_state(_random_state_from_list(state["env_rng"]))
+
+    def save_policy(self, path: Path) -> None:
+        """The final policy: actor weights (normaliser included) and what is needed to rebuild it."""
+        torch.save({"actor": self.modules.actor.state_dict(),
+                    "observation_dim": int(self.env.observation_spec["observation"].shape[-1]),
+                    "action_dim": int(self.env.action_spec.shape[-1]),
+                    "episodes": self.episodes, "frames": self.frames}, path)
+
+    def close(self) -> None:
+        if self._collector is not None:
+            self._collector.shutdown()

@@ -1,0 +1,1 @@
+"""The QP safety filter (spec §5)."""

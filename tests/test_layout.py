@@ -1,0 +1,78 @@
+"""Layouts: validation rules, the fixed layout, and random layouts that always keep a free lane."""
+
+import numpy as np
+import pytest
+
+from ahrm_stack.config import load_config
+from ahrm_stack.env.layout import Layout, LayoutError, LayoutSampler, free_lanes, validate_layout
+
+
+def _check(cfg, layout):
+    t = cfg.task
+    validate_layout(layout, t.table, t.cube, t.obstacles, t.layout)
+
+
+def test_fixed_layout_keeps_the_minus_x_lane(config):
+    t = config.task
+    sampler = LayoutSampler(t.table, t.cube, t.obstacles, t.layout)
+    half = np.asarray(t.obstacles.size[:2]) / 2
+    assert free_lanes(sampler.fixed, t.cube.size / 2, half, t.table, t.layout) == ["-x"]
+
+
+def test_obstacle_on_the_cube_is_rejected_with_a_clear_error():
+    cfg = load_config(["task.obstacles.fixed_layout=[[0.01, 0.0], [0.16, -0.12]]"])
+    with pytest.raises(LayoutError, match=r"obstacle 0 at \[0\.01, 0\.0\] overlaps cube"):
+        _make_sampler(cfg)
+
+
+def _make_sampler(cfg):
+    t = cfg.task
+    return LayoutSampler(t.table, t.cube, t.obstacles, t.layout)
+
+
+def test_obstacle_off_the_table_and_blocked_lanes_are_rejected(config):
+    t = config.task
+    with pytest.raises(LayoutError, match="not fully on the table"):
+        _check(config, Layout(np.zeros(2), np.array([[0.44, 0.0]])))
+    # a wall of obstacles across both lanes
+    wall = np.array([[0.12, 0.0], [-0.12, 0.0]])
+    with pytest.raises(LayoutError, match="no free lane"):
+        _check(config, Layout(np.zeros(2), wall))
+    del t
+
+
+def test_lane_geometry_by_hand(config):
+    t = config.task
+    half = np.asarray(t.obstacles.size[:2]) / 2
+    # the -x lane is |y| <= 0.06 from x = 0.025 + approach_room (0.105) down to -0.45.
+    # An obstacle centred at y = 0.09 spans y in [0.06, 0.12]: touching the strip's edge, not inside.
+    touching = Layout(np.zeros(2), np.array([[-0.2, 0.09]]))
+    assert "-x" in free_lanes(touching, 0.025, half, t.table, t.layout)
+    inside = Layout(np.zeros(2), np.array([[-0.2, 0.089]]))
+    assert "-x" not in free_lanes(inside, 0.025, half, t.table, t.layout)
+    # behind the cube, the +x side of the -x lane ends at x = 0.105: an obstacle from x = 0.106 is clear
+    behind = Layout(np.zeros(2), np.array([[0.136, 0.0]]))
+    assert "-x" in free_lanes(behind, 0.025, half, t.table, t.layout)
+
+
+def test_random_layouts_are_valid_seeded_and_varied():
+    cfg = load_config(["task.layout.mode=random"])
+    sampler = _make_sampler(cfg)
+    layouts = [sampler.sample(np.random.RandomState(seed)) for seed in range(200)]
+    for layout in layouts:
+        _check(cfg, layout)
+        radii = np.linalg.norm(layout.obstacle_xy - layout.cube_xy, axis=1)
+        lo, hi = cfg.task.layout.radial_range
+        assert np.all((radii >= lo - 1e-12) & (radii <= hi + 1e-12))
+    again = sampler.sample(np.random.RandomState(7))
+    np.testing.assert_array_equal(again.obstacle_xy, layouts[7].obstacle_xy)
+    assert len({tuple(np.round(l.obstacle_xy.ravel(), 6)) for l in layouts}) == 200
+
+
+def test_fixed_mode_jitters_only_the_cube(config):
+    sampler = _make_sampler(config)
+    a = sampler.sample(np.random.RandomState(0))
+    b = sampler.sample(np.random.RandomState(1))
+    np.testing.assert_array_equal(a.obstacle_xy, b.obstacle_xy)
+    assert np.all(np.abs(a.cube_xy - config.task.cube.position) <= config.task.cube.jitter)
+    assert not np.array_equal(a.cube_xy, b.cube_xy)

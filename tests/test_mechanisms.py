@@ -1,0 +1,195 @@
+"""Reward mechanisms (spec §4) on synthetic component streams with hand-computed expectations."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from ahrm_stack.learning.mechanisms import (ConstraintMonitor, MechanismConfig, RewardMechanism,
+                                            blend_weight)
+
+BASE = MechanismConfig(
+    method="ahrm",
+    fixed_order=("avoid", "manipulate", "time"),
+    manual_orders=(("time", "avoid", "manipulate"), ("avoid", "manipulate", "time"),
+                   ("manipulate", "avoid", "time")),
+    initial_orders=(("avoid", "manipulate", "time"),) * 3,
+    convergence_window=10, convergence_tolerance=0.05, constraint_window=10,
+    constraint_min_steps=20, constraint_margin=0.1, priority_period=30,
+    blend_band=0.05, blend_slope=40.0)
+
+FAR = np.array([1.0, 1.0])  # far from both regions: phase 1, no blending
+PHASE2 = np.array([-1.0, 1.0])  # deep in B_obstacles, far from B_target
+PHASE3 = np.array([-1.0, -1.0])
+
+
+def make(method, **changes):
+    return RewardMechanism(dataclasses.replace(BASE, method=method, **changes))
+
+
+def test_linear_sum():
+    ls = make("ls")
+    assert ls.reward(np.array([0.0, -1.0, -1.0]), FAR) == -2.0
+    assert ls.reward(np.array([-1.0, 0.0, 0.0]), PHASE3) == -1.0
+
+
+def test_hierarchical_sums_follow_order_and_level():
+    mhrm = make("mhrm")
+    g = np.array([-1.0, 0.0, -1.0])  # avoid violated, manipulate fine, time violated
+    # level 1: phase 1's first objective is time -> -1; phase 2: avoid -> -1; phase 3: manipulate -> 0
+    assert mhrm.reward(g, FAR) == -1.0
+    assert mhrm.reward(g, PHASE2) == -1.0
+    assert mhrm.reward(g, PHASE3) == 0.0
+    mhrm.levels = [2, 2, 3]
+    # phase 1: time + avoid = -2; phase 2: avoid + manipulate = -1; phase 3: all = -2
+    np.testing.assert_array_equal(mhrm.phase_rewards(g), [-2.0, -1.0, -2.0])
+
+
+def test_blend_weight_values():
+    assert blend_weight(0.05, 0.05, 40.0) == pytest.approx(0.0)
+    assert blend_weight(0.0, 0.05, 40.0) == pytest.approx(0.5)
+    assert blend_weight(-0.05, 0.05, 40.0) == pytest.approx(1.0)
+    assert blend_weight(0.2, 0.05, 40.0) == 0.0 and blend_weight(-0.2, 0.05, 40.0) == 1.0
+    # inside: 0.5 (1 - tanh(40 * 0.02) / tanh(2))
+    assert blend_weight(0.02, 0.05, 40.0) == pytest.approx(0.5 * (1 - np.tanh(0.8) / np.tanh(2.0)))
+
+
+@pytest.mark.parametrize("axis", [0, 1])
+def test_blended_reward_is_continuous_across_each_boundary(axis):
+    mhrm = make("mhrm")
+    mhrm.levels = [1, 1, 3]
+    g = np.array([0.0, -1.0, -1.0])  # R^1 = -1 (time), R^2 = 0 (avoid), R^3 = -2 (all)
+    path = np.linspace(0.1, -0.1, 200_001)  # 1e-6 m steps through the boundary and the band
+    distances = np.tile(PHASE2 if axis == 1 else FAR, (len(path), 1))
+    distances[:, axis] = path
+    rewards = mhrm.reward(g, distances)
+    r = mhrm.phase_rewards(g)
+    near, far = (r[0], r[1]) if axis == 0 else (r[1], r[2])
+    slope = 40.0 / (2 * np.tanh(40.0 * 0.05))  # the blend weight's steepest slope, 1/m
+    assert np.max(np.abs(np.diff(rewards))) <= abs(far - near) * slope * 1e-6 * (1 + 1e-6)
+    # far on either side: the pure phase rewards
+    assert rewards[0] == near and rewards[-1] == far
+
+
+def test_no_jump_at_the_boundary_only_the_bounded_slope():
+    """Across the exact boundary a step changes R by no more than the blend's slope allows:
+    |dR| <= |R3 - R2| * alpha / (2 tanh(alpha delta)) * ds (20.7 |dR| per metre at the defaults),
+    the same as anywhere in the band; a 1e-6 m step gives 2.07e-5, a 4.8e-8 m step under 1e-6."""
+    mhrm = make("mhrm")
+    g = np.array([0.0, -1.0, 0.0])  # R^2 = 0 (avoid), R^3 = -1 (manipulate): |R3 - R2| = 1
+    slope = 40.0 / (2 * np.tanh(40.0 * 0.05))
+    for step in (1e-6, 4.8e-8):
+        a = mhrm.reward(g, np.array([-1.0, step / 2]))
+        b = mhrm.reward(g, np.array([-1.0, -step / 2]))
+        assert abs(a - b) <= slope * step * (1 + 1e-6)
+    assert abs(mhrm.reward(g, np.array([-1.0, 2.4e-8])) - mhrm.reward(g, np.array([-1.0, -2.4e-8]))) < 1e-6
+
+
+def _episode(phase_steps, f_rows):
+    """f (T, 3) and phase (T,) from {phase: steps} and {phase: f row}."""
+    f, phase = [], []
+    for k, n in phase_steps.items():
+        f += [f_rows[k]] * n
+        phase += [k] * n
+    return np.array(f, dtype=float), np.array(phase)
+
+
+def test_priority_order_from_average_episode_rewards_with_ties():
+    ahrm = make("ahrm")
+    # phase 1 for 10 steps per episode: avoid always +1 (sum 10), manipulate alternates +-1
+    # (sum 0), time -1 (sum -10): |means| = (10, 0, 10) -> tie avoid/time broken by index
+    f = np.tile([[1, 1, -1], [1, -1, -1]], (5, 1)).astype(float)
+    phase = np.ones(10, dtype=int)
+    events = []
+    for _ in range(29):
+        events += ahrm.end_episode(f, phase)
+    assert ahrm.orders[0] == (0, 1, 2) and not [e for e in events if e.kind != "level_advanced"]
+    events = ahrm.end_episode(f, phase)
+    assert ahrm.orders[0] == (0, 2, 1)
+    assert [e.kind for e in events] == ["order_changed"] and events[0].episode == 30
+    assert ahrm.levels[0] == 1
+
+
+def test_locking_after_two_equal_orders():
+    ahrm = make("ahrm")
+    f, phase = _episode({1: 10}, {1: [1, -1, 1]})  # sums (10, -10, 10): order avoid, manipulate, time
+    kinds = []
+    for _ in range(60):
+        kinds += [e.kind for e in ahrm.end_episode(f, phase)]
+    # determination at 30 gives the initial order (no change, first determination);
+    # at 60 the same order again: locked
+    assert kinds.count("order_locked") == 1 and "order_changed" not in kinds
+    assert ahrm.locked[0] and not ahrm.locked[1]
+    for _ in range(30):
+        ahrm.end_episode(*_episode({1: 10}, {1: [-1, 1, 1]}))
+    assert ahrm.orders[0] == (0, 1, 2)  # locked: no further determination
+
+
+def test_level_advance_on_convergence():
+    fhrm = make("fhrm")
+    stream = [np.array([[1, 1, 1]] * 5 + [[-1, 1, 1]] * 5, float)] * 20
+    events = []
+    for i, f in enumerate(stream):
+        events += fhrm.end_episode(f, np.ones(10, int))
+        if i < 19:
+            assert fhrm.levels[0] == 1  # needs 2 W = 20 episodes
+    assert fhrm.levels[0] == 2 and events[-1].kind == "level_advanced" and events[-1].episode == 20
+
+
+def test_no_advance_while_changing():
+    fhrm = make("fhrm")
+    for i in range(20):
+        n_good = 1 + i // 2  # the level-1 sum keeps improving
+        f = np.array([[1, 1, 1]] * n_good + [[-1, 1, 1]] * (10 - min(n_good, 10)), float)
+        fhrm.end_episode(f, np.ones(len(f), int))
+    assert fhrm.levels[0] == 1
+
+
+def test_constraint_termination_at_the_right_step():
+    fhrm = make("fhrm")
+    fhrm.levels = [2, 1, 1]
+    # history: 10 episodes whose per-step average of R_1 (avoid) in phase 1 is 1.0
+    for _ in range(10):
+        fhrm._history[0].append((10.0, np.array([10.0, 0.0, 0.0])))
+    tau = fhrm.constraint_thresholds()
+    assert tau[0] == 1.0 and np.isnan(tau[1])
+    monitor = fhrm.constraint_monitor()
+    # 20 good steps, then bad ones: average after 20 + n steps = (20 - n) / (20 + n) < 0.9
+    # -> n > 20 * 0.1 / 1.9 = 1.05 -> ends on the 2nd bad step (the 22nd step)
+    results = [monitor.step(np.array([1.0, 1.0, 1.0]), 1) for _ in range(20)]
+    results += [monitor.step(np.array([-1.0, 1.0, 1.0]), 1) for _ in range(2)]
+    assert not any(results[:21]) and results[21] and monitor.violated_phase == 1
+
+
+def test_constraint_waits_for_min_steps():
+    monitor = ConstraintMonitor(np.array([1.0, np.nan, np.nan]), [[0], [], []], 20, 0.1)
+    assert not any(monitor.step(np.array([-1.0, 0, 0]), 1) for _ in range(19))
+    assert monitor.step(np.array([-1.0, 0, 0]), 1)
+
+
+def test_state_survives_save_and_restore_exactly():
+    rng = np.random.default_rng(0)
+    a = make("ahrm", priority_period=5, convergence_window=3)
+    for _ in range(40):
+        phase = rng.integers(1, 4, 30)
+        f = rng.choice([-1.0, 1.0], (30, 3))
+        a.end_episode(f, phase)
+    b = make("ahrm", priority_period=5, convergence_window=3)
+    b.load_state_dict(a.state_dict())
+    assert b.state_dict() == a.state_dict()
+    for _ in range(20):
+        phase = rng.integers(1, 4, 30)
+        f = rng.choice([-1.0, 1.0], (30, 3))
+        ea, eb = a.end_episode(f, phase), b.end_episode(f, phase)
+        assert [(e.kind, e.phase, e.detail) for e in ea] == [(e.kind, e.phase, e.detail) for e in eb]
+    assert b.state_dict() == a.state_dict()
+    g = rng.uniform(-1, 0, (100, 3))
+    d = rng.uniform(-0.1, 0.1, (100, 2))
+    np.testing.assert_array_equal(a.reward(g, d), b.reward(g, d))
+    with pytest.raises(ValueError, match="'ahrm'"):
+        make("mhrm").load_state_dict(a.state_dict())
+
+
+def test_bad_order_is_named():
+    with pytest.raises(ValueError, match=r"mechanism\.fixed_order.*permutation"):
+        make("fhrm", fixed_order=("avoid", "avoid", "time"))

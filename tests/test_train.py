@@ -1,0 +1,111 @@
+"""End to end: train for a few thousand frames on the real task, check the run folder, logs, resume
+after SIGKILL, the NaN guard and safe loading."""
+
+import csv
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+from ahrm_stack.learning.checkpoint import CheckpointManager, load
+from ahrm_stack.train import main
+
+SMALL = ["ppo.hidden_sizes=[32,32]", "ppo.frames_per_batch=256", "task.episode.duration=4",
+         "train.eval_episodes=1", "train.checkpoint_every=1"]
+
+
+def _rows(path: Path) -> list[dict]:
+    with open(path) as handle:
+        return list(csv.DictReader(handle))
+
+
+def test_training_writes_the_run_folder_and_resumes(tmp_path):
+    run = tmp_path / "run"
+    assert main(SMALL + ["train.episodes=30", "--run-dir", str(run), "--no-progress"]) == 0
+    for name in ("config.yaml", "episodes.csv", "batches.csv", "events.jsonl", "policy.pt",
+                 "evaluation.yaml"):
+        assert (run / name).is_file(), name
+    assert list((run / "tb").iterdir())
+    episodes = _rows(run / "episodes.csv")
+    assert len(episodes) >= 30 and int(episodes[-1]["frames"]) >= 2000
+    assert [int(r["episode"]) for r in episodes] == list(range(1, len(episodes) + 1))
+    assert len(CheckpointManager(run / "checkpoints", 3).paths()) <= 3
+    # AHRM level 1 converges on a constant stream: the event log names the episode
+    state = CheckpointManager(run / "checkpoints", 3).load_latest()
+    assert state["counters"]["episodes"] == len(episodes)
+    # resume: continues the numbering and the mechanism state
+    assert main(["--resume", str(run), "train.episodes=40", "--no-progress"]) == 0
+    resumed = _rows(run / "episodes.csv")
+    assert [int(r["episode"]) for r in resumed] == list(range(1, len(resumed) + 1))
+    assert len(resumed) >= 40
+    # a fresh run into a folder with checkpoints is refused, not overwritten
+    with pytest.raises(Exception, match="--resume"):
+        main(SMALL + ["--run-dir", str(run), "--no-progress"])
+
+
+def test_resume_after_sigkill(tmp_path):
+    run = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "ahrm_stack.train", *SMALL, "train.episodes=1000", "--run-dir",
+           str(run), "--no-progress"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.time() + 120
+        while time.time() < deadline and len(CheckpointManager(run / "checkpoints", 3).paths()) < 2:
+            time.sleep(0.2)
+        assert CheckpointManager(run / "checkpoints", 3).paths(), "no checkpoint written in time"
+    finally:
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+    state = CheckpointManager(run / "checkpoints", 3).load_latest()
+    done = state["counters"]["episodes"]
+    assert main(["--resume", str(run), f"train.episodes={done + 5}", "train.eval_episodes=0",
+                 "--no-progress"]) == 0
+    after = CheckpointManager(run / "checkpoints", 3).load_latest()
+    assert after["counters"]["episodes"] >= done + 5
+    assert after["mechanism"]["episodes"] == after["counters"]["episodes"]
+
+
+class Arbitrary:
+    """An object that a weights-only load must refuse to unpickle."""
+
+
+def test_policy_loads_with_weights_only(tmp_path):
+    bad = tmp_path / "bad.pt"
+    torch.save({"actor": {}, "arbitrary": Arbitrary()}, bad)
+    with pytest.raises(Exception, match="weights_only"):
+        load(bad)
+    with pytest.raises(FileNotFoundError, match="no such checkpoint"):
+        load(tmp_path / "missing.pt")
+
+
+def test_nan_loss_stops_with_a_clear_message(tmp_path, monkeypatch):
+    from ahrm_stack.learning import trainer as trainer_module
+
+    original = trainer_module.make_loss
+
+    def poisoned(config, modules):
+        loss, advantage = original(config, modules)
+        forward = loss.forward
+
+        def nan_forward(batch):
+            out = forward(batch)
+            out["loss_objective"] = out["loss_objective"] * float("nan")
+            return out
+
+        loss.forward = nan_forward
+        return loss, advantage
+
+    monkeypatch.setattr(trainer_module, "make_loss", poisoned)
+    with pytest.raises(SystemExit, match="non-finite loss"):
+        main(SMALL + ["train.episodes=5", "--run-dir", str(tmp_path / "nan"), "--no-progress"])
+    assert not list((tmp_path / "nan").glob("checkpoints/*.pt"))
+
+
+def test_bad_config_key_is_named(capsys):
+    assert main(["ppo.learning_rat=1", "--no-progress"]) == 2
+    assert "unknown config key 'ppo.learning_rat'" in capsys.readouterr().err
