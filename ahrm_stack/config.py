@@ -87,6 +87,7 @@ class RegionConfig:
     target_height: float  # m above the table top
     obstacle_margin: float  # m
     obstacle_height: float  # m above the table top
+    distance_clip: float  # m; the reported region distances are exact within +-this, saturated beyond
 
 
 @dataclasses.dataclass(frozen=True)
@@ -345,7 +346,7 @@ def _check_ranges(obj: Any, key: str) -> None:
     elif isinstance(obj, ObstacleConfig):
         _positive(obj, key, "size", "mass")
     elif isinstance(obj, RegionConfig):
-        _positive(obj, key, "target_half_width", "target_height", "obstacle_height")
+        _positive(obj, key, "target_half_width", "target_height", "obstacle_height", "distance_clip")
         if obj.obstacle_margin < 0:
             raise ConfigError(f"{key}.obstacle_margin must be >= 0, got {obj.obstacle_margin}")
     elif isinstance(obj, EpisodeConfig):

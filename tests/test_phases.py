@@ -4,8 +4,9 @@ Expected values are computed by hand in the comments. Most hand cases use dyadic
 (multiples of 1/64 m) so float arithmetic is exact and "touching" really gives 0.
 Tilted pushers take the general (non-closed-form) path, the stand-in for python-fcl's signed
 distance; they are compared with tolerance FCL_TOL = 5e-4 m (the accuracy asked of the
-FCL path), although it is measured to ~1e-9 m. python-fcl itself is never called here: near
-touching it can abort the whole process (uncaught C++ exception), see the module notes.
+FCL path), and also with 1e-9 m, which is what it achieves. python-fcl itself is called only
+on generic poses clear of touching: near touching it can abort the whole process (uncaught
+C++ exception), see the module notes.
 
 Hand scene (world frame, z up, metres), RegionParams(1/8, 1/8, 1/16, 1/4), table top z = 0.5:
   target centre (0, 0, *)                    -> B_target    x,y in [-0.125, 0.125],     z in [0.5, 0.625]
@@ -35,9 +36,12 @@ from ahrm_stack.kinematics.phases import (
     cylinder_box_distance,
     obstacle_region,
     phase_and_x,
+    phase_from_distances,
+    region_distances,
     target_region,
     upright_cylinder_box_distance,
 )
+from ahrm_stack.kinematics.phases import _fcl_signed_distance
 from ahrm_stack.kinematics.phases import _general_cylinder_box_distance as general_distance
 
 FCL_TOL = 5e-4  # accuracy required of the non-upright (FCL-replacement) path (m)
@@ -222,7 +226,7 @@ def test_upright_cylinder_box_distance_rejects_tilt():
     assert d == pytest.approx(0.046875, abs=1e-9)
 
 
-# --------------------------------------------------------------------------- hand cases, tilted (FCL)
+# --------------------------------------------------------------------------- hand cases, tilted (general path)
 
 C45 = (H_P + R_P) / S2  # 45 deg tilt about y: lowest point is cz - (h + r)/sqrt2, leftmost is cx - (h + r)/sqrt2
 TILTED_CASES = [
@@ -308,16 +312,43 @@ def test_case_where_fcl_epa_returns_zero_for_an_overlap():
         ((0.15625, 0.0, 0.6875), np.eye(3)),  # rim on the top +x edge
         ((0.0, 0.0, 0.625 + R_P), AXIS_ALONG_Y),  # lying on the top face (line contact)
         ((0.125 + H_P, 0.0, 0.5625), AXIS_ALONG_X),  # flat end on the +x face
-        ((0.125 + H_P, 0.125 + R_P, 0.5625), AXIS_ALONG_X),  # end rim on the vertical edge... from +x,+y
+        ((0.125 + H_P, 0.125 + R_P, 0.5625), AXIS_ALONG_X),  # end rim on the vertical edge
     ],
 )
 def test_exact_touching_gives_zero(center, rot):
     # Exactly touching configurations (dyadic, exact arithmetic); python-fcl aborts or returns
-    # garbage on such inputs. The last one: axis along x, end cap at x = 0.125 flush with the +x
-    # face plane, side at y = 0.125 flush with the +y face plane: touching along the edge.
-    d = cylinder_box_distance(pusher(center, rot), target_region(hand_scene()))
-    assert d == pytest.approx(0.0, abs=1e-12)
-    assert phase_and_x(hand_scene(), pusher(center, rot))[0] == 3
+    # garbage on such inputs. The last one: axis along x, end cap in the plane x = 0.125 of the
+    # +x face, side tangent to the plane y = 0.125 of the +y face: they meet on the vertical edge.
+    cyl, box = pusher(center, rot), target_region(hand_scene())
+    assert cylinder_box_distance(cyl, box) == pytest.approx(0.0, abs=1e-12)
+    assert general_distance(cyl, box) == pytest.approx(0.0, abs=1e-12)
+    assert phase_and_x(hand_scene(), cyl)[0] == 3
+
+
+def _rot_xyz(ax: float, ay: float, az: float) -> np.ndarray:
+    return rot_z(az) @ rot_y(ay) @ rot_x(ax)
+
+
+@pytest.mark.parametrize(
+    "center,angles",
+    [
+        ((0.61, 0.03, 0.83), (0.3, 0.2, 0.1)),
+        ((0.47, -0.05, 0.95), (0.5, -0.4, 1.0)),
+        ((0.52, 0.02, 0.80), (0.2, 0.7, 0.3)),
+        ((0.35, 0.12, 0.74), (1.2, 0.3, -0.5)),
+        ((0.55, -0.07, 0.86), (0.9, -0.2, 0.4)),
+        ((0.66, 0.11, 0.90), (0.1, 1.1, 0.7)),
+    ],
+)
+def test_same_quantity_as_python_fcl_on_generic_poses(center, angles):
+    # Same sign convention and value as python-fcl's signed distance (spec §2) on generic tilted
+    # poses, clear of touching (python-fcl can abort there) and of the degenerate alignments
+    # where it is wrong. Spec-default B_target around (0.5, 0, 0.7 .. 0.85); r 0.02, h 0.06.
+    box = Box(np.array([0.5, 0.0, 0.775]), np.array([0.08, 0.08, 0.075]))
+    cyl = pusher(center, _rot_xyz(*angles), radius=0.02, half_length=0.06)
+    d = cylinder_box_distance(cyl, box)
+    assert abs(d) > 1e-3
+    assert _fcl_signed_distance(cyl, box.bounds()) == pytest.approx(d, abs=FCL_TOL)
 
 
 # --------------------------------------------------------------------------- walking through boundaries
@@ -467,15 +498,16 @@ def test_lying_cylinder_agrees_with_relabelled_closed_form(placement):
     assert cylinder_box_distance(cyl, box) == pytest.approx(closed_form_axis_aligned(cyl, box, axis), abs=1e-9)
 
 
-_FIB = 20000
-_FIB_DIRS = np.stack(
-    [
-        np.cos(np.pi * (1 + 5**0.5) * (np.arange(_FIB) + 0.5)) * np.sqrt(1 - (1 - 2 * (np.arange(_FIB) + 0.5) / _FIB) ** 2),
-        np.sin(np.pi * (1 + 5**0.5) * (np.arange(_FIB) + 0.5)) * np.sqrt(1 - (1 - 2 * (np.arange(_FIB) + 0.5) / _FIB) ** 2),
-        1 - 2 * (np.arange(_FIB) + 0.5) / _FIB,
-    ],
-    axis=1,
-)
+def _fibonacci_sphere(m: int) -> np.ndarray:
+    """m near-uniform unit vectors."""
+    i = np.arange(m) + 0.5
+    z = 1.0 - 2.0 * i / m
+    phi = np.pi * (1.0 + 5**0.5) * i
+    rho = np.sqrt(1.0 - z * z)
+    return np.stack([rho * np.cos(phi), rho * np.sin(phi), z], axis=1)
+
+
+_FIB_DIRS = _fibonacci_sphere(20000)
 
 
 def _gaps(n: np.ndarray, cyl: Cylinder, box: Box) -> np.ndarray:
@@ -590,7 +622,7 @@ def test_closed_form_symmetries(placement, sx, sy, tx, ty, tz):
 
 @settings(max_examples=200, deadline=None)
 @given(upright_placements(), random_rotations(), st.sampled_from([-1.0, 1.0]), coord, coord)
-def test_tilted_fcl_symmetries(placement, rot, sx, tx, ty):
+def test_tilted_symmetries(placement, rot, sx, tx, ty):
     cyl, box = placement
     tilted = Cylinder(cyl.center, rot, cyl.radius, cyl.half_length)
     d = cylinder_box_distance(tilted, box)
@@ -655,6 +687,9 @@ def check_phase_invariants(scene: PhaseScene, cyl: Cylinder, tol: float) -> None
         assert x > 0.0 and x == pytest.approx(d_target, abs=tol) and d_obst <= tol
     else:  # approach: x = distance to B_obstacles, outside both
         assert x > 0.0 and x == pytest.approx(d_obst, abs=tol) and d_target > -tol
+    # The two-step route (both distances, then the phase) agrees.
+    k2, x2 = phase_from_distances(*region_distances(scene, cyl))
+    assert k2 == k and x2 == pytest.approx(x, abs=tol)
 
 
 @settings(max_examples=400, deadline=None)
@@ -753,3 +788,36 @@ def test_inputs_are_copied_and_read_only():
         cyl.center[0] = 1.0  # read-only
     # Lists are accepted and converted.
     assert Box([0, 0, 0], [1, 1, 1]).bounds() == (-1.0, -1.0, -1.0, 1.0, 1.0, 1.0)
+
+
+# --------------------------------------------------------------------------- phase_geometry
+from hypothesis import given as _given, settings as _settings, strategies as _st  # noqa: E402
+
+from ahrm_stack.kinematics.phases import phase_geometry as _phase_geometry  # noqa: E402
+from ahrm_stack.kinematics.phases import region_distances as _region_distances  # noqa: E402
+
+
+def _rotation_from(axis_angle: np.ndarray) -> np.ndarray:
+    angle = float(np.linalg.norm(axis_angle))
+    if angle < 1e-12:
+        return np.eye(3)
+    k = axis_angle / angle
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(angle) * kx + (1 - np.cos(angle)) * kx @ kx
+
+
+@_settings(max_examples=400, deadline=None)
+@_given(_st.lists(_st.floats(-0.35, 0.35), min_size=3, max_size=3),
+        _st.floats(0.4, 0.9), _st.lists(_st.floats(-1.5, 1.5), min_size=3, max_size=3),
+        _st.booleans())
+def test_phase_geometry_matches_phase_and_x_and_clipped_distances(xy_z, z, tilt, upright):
+    scene = PhaseScene(0.4, np.array([0.0, 0.0, 0.425]),
+                       np.array([[0.16, 0.05, 0.45], [-0.15, 0.16, 0.45]]),
+                       np.full((2, 3), [0.03, 0.03, 0.05]),
+                       RegionParams(0.08, 0.15, 0.05, 0.25))
+    rotation = np.eye(3) if upright else _rotation_from(np.asarray(tilt))
+    pusher = Cylinder(np.array([xy_z[0], xy_z[1], z - 0.3 + xy_z[2]]), rotation, 0.02, 0.075)
+    phase, x, clipped = _phase_geometry(scene, pusher, clip=0.1)
+    assert (phase, x) == phase_and_x(scene, pusher)
+    exact = _region_distances(scene, pusher)
+    np.testing.assert_allclose(clipped, np.clip(exact, -0.1, 0.1), atol=1e-9)

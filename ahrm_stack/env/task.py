@@ -28,8 +28,7 @@ from ahrm_stack.env.rewards import (NUM_PHASES, ProgressObjective, TimeObjective
                                     obstacle_touched, penalty_form, progress)
 from ahrm_stack.kinematics.model import ArmKinematics, relative_name
 from ahrm_stack.kinematics.scene import CollisionScene, link_capsules
-from ahrm_stack.kinematics.phases import (Cylinder, PhaseScene, RegionParams, phase_from_distances,
-                                          region_distances)
+from ahrm_stack.kinematics.phases import Cylinder, PhaseScene, RegionParams, phase_geometry
 from ahrm_stack.robot import describe, make_arm
 
 CUBE_RGBA = (0.8, 0.1, 0.1, 1.0)
@@ -44,7 +43,8 @@ class StepInfo:
     g: np.ndarray  # (3,) penalty form (f - 1) / 2
     phase: int  # 1 approach, 2 pre-manipulate, 3 manipulate
     x: float  # signed distance to the next phase's region, m
-    distances: np.ndarray  # (2,) signed distances of the pusher to B_obstacles and B_target, m
+    distances: np.ndarray  # (2,) signed distances to B_obstacles and B_target, m, clipped to
+    # +-regions.distance_clip (exact within it)
     success: bool  # the cube's centre left the table top
     touched: bool  # an obstacle was touched (contact or moving)
     tip: np.ndarray  # (3,) pusher tip position
@@ -90,7 +90,9 @@ class PushOffTask(composer.Task):
         self.set_timesteps(control_timestep=config.episode.control_period,
                            physics_timestep=config.episode.physics_timestep)
 
-        self._region_params = RegionParams(**dataclasses.asdict(config.regions))
+        regions = config.regions
+        self._region_params = RegionParams(regions.target_half_width, regions.target_height,
+                                           regions.obstacle_margin, regions.obstacle_height)
         self._obstacle_half_sizes = np.tile(obstacle_half, (len(self._obstacles), 1))
         self._table_center = np.zeros(2)
         self.progress_objective = ProgressObjective(config.rewards.progress_eps)
@@ -288,8 +290,7 @@ class PushOffTask(composer.Task):
         scene = PhaseScene(cfg.table.height, target, obstacle_centers, self._obstacle_half_sizes,
                            self._region_params)
         pusher = Cylinder(center, rotation, self._pusher.radius, self._pusher.half_length)
-        distances = region_distances(scene, pusher)
-        phase, x = phase_from_distances(*distances)
+        phase, x, distances = phase_geometry(scene, pusher, cfg.regions.distance_clip)
 
         contacts = data.contact
         pairs = contacts.geom if len(contacts) else np.empty((0, 2), dtype=int)

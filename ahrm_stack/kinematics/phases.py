@@ -55,6 +55,9 @@ __all__ = [
     "upright_cylinder_box_distance",
     "cylinder_box_distance",
     "phase_and_x",
+    "region_distances",
+    "phase_geometry",
+    "phase_from_distances",
 ]
 
 PHASE_NAMES = ("approach", "pre-manipulate", "manipulate")
@@ -76,7 +79,8 @@ _EDGE_SEARCH_ITERS = 80  # golden-section steps: shrinks the edge interval by 0.
 _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 _ARC_SAMPLES = 128  # coarse samples per great circle in _candidate_gap
 _ARC_ZOOM_SAMPLES = 25  # samples per zoom step (window shrinks 12x per step)
-_ARC_ZOOMS = 5  # final angular resolution ~ 2 pi / 128 / 12**5 ~ 2e-7 rad (gap error <= radius * 2e-7)
+_ARC_ZOOMS = 3  # final angular resolution ~ 2 pi / 128 / 12**3 ~ 3e-5 rad
+_ARC_WINDOWS = 2  # zoom windows per great circle (distinct local maxima to follow)
 _DEGENERATE = 1e-12  # |component| below which a direction counts as along/across the axis
 _FCL_REQUEST = fcl.DistanceRequest(enable_signed_distance=True)  # read-only input
 
@@ -468,6 +472,11 @@ _CIRCLE_K = np.array([[2], [0], [1]])
 _ARC_T = np.linspace(0.0, 2.0 * math.pi, _ARC_SAMPLES, endpoint=False)
 _ARC_COS = np.broadcast_to(np.cos(_ARC_T), (3, _ARC_SAMPLES))
 _ARC_SIN = np.broadcast_to(np.sin(_ARC_T), (3, _ARC_SAMPLES))
+_ARC_DIRS = np.zeros((3, _ARC_SAMPLES, 3))  # the same samples as unit vectors, circle by circle
+for _i in range(3):
+    _ARC_DIRS[_i, :, (_i + 1) % 3] = np.cos(_ARC_T)
+    _ARC_DIRS[_i, :, (_i + 2) % 3] = np.sin(_ARC_T)
+_ARC_DIRS = _ARC_DIRS.reshape(-1, 3)
 # Zoom offsets per round: +-1 coarse step, shrinking by (ZOOM_SAMPLES - 1) / 2 each round.
 _ZOOM_OFFSETS = [
     np.linspace(-1.0, 1.0, _ARC_ZOOM_SAMPLES) * (2.0 * math.pi / _ARC_SAMPLES) * (2.0 / (_ARC_ZOOM_SAMPLES - 1)) ** z
@@ -475,7 +484,6 @@ _ZOOM_OFFSETS = [
 ]
 _ZOOM_COS = [np.cos(d) for d in _ZOOM_OFFSETS]
 _ZOOM_SIN = [np.sin(d) for d in _ZOOM_OFFSETS]
-_ROWS3 = np.arange(3)
 
 
 def _candidate_gap(cd: tuple, b: Bounds) -> float:
@@ -504,31 +512,52 @@ def _candidate_gap(cd: tuple, b: Bounds) -> float:
     norm = np.sqrt((dirs * dirs).sum(axis=1))
     keep = norm > _DEGENERATE
     dirs = dirs[keep] / norm[keep, None]
-    best = float(_support_gaps(np.vstack([dirs, -dirs]), c, a, r, h, b).max())
-    # Great circles n_i = 0 (row i spanned by e_j, e_k): coarse samples, then zoom in around
-    # each circle's best sample. gap = co * (lo_j | hi_j) + si * (lo_k | hi_k) - n.c - h|n.a| - r sqrt(1 - (n.a)^2)
+    g = _support_gaps(np.vstack([dirs, -dirs, _ARC_DIRS]), c, a, r, h, b)  # one call for all
+    best = float(g.max())
+    g = g[-_ARC_DIRS.shape[0] :].reshape(3, _ARC_SAMPLES)  # coarse samples of the great circles
+    # Great circles n_i = 0 (circle i spanned by e_j, e_k), where
+    #   gap = co (lo_j | hi_j) + si (lo_k | hi_k) - n.c - h |n.a| - r sqrt(1 - (n.a)^2)
     # (the sqrt loses ~1e-8 relative only next to n = +-a, which is a fixed candidate).
+    # Branch and bound: gap is Lipschitz in the angle with constant lip, so a sample of value g
+    # bounds the gap within half a spacing s of it by g + lip * s / 2. Windows that cannot beat
+    # the best value are dropped; the others are zoomed into around their best sample.
     lo, hi = np.asarray(b[:3]), np.asarray(b[3:])
-    lo_j, hi_j, lo_k, hi_k = lo[_CIRCLE_J], hi[_CIRCLE_J], lo[_CIRCLE_K], hi[_CIRCLE_K]
-    a_j, a_k, c_j, c_k = a[_CIRCLE_J], a[_CIRCLE_K], c[_CIRCLE_J], c[_CIRCLE_K]
-    co, si = _ARC_COS, _ARC_SIN
-    for z in range(_ARC_ZOOMS + 1):
-        na = co * a_j + si * a_k
-        g = (
-            co * np.where(co > 0.0, lo_j, hi_j)
-            + si * np.where(si > 0.0, lo_k, hi_k)
-            - co * c_j
-            - si * c_k
+    par = np.stack([lo[_CIRCLE_J], hi[_CIRCLE_J], lo[_CIRCLE_K], hi[_CIRCLE_K], a[_CIRCLE_J], a[_CIRCLE_K], c[_CIRCLE_J], c[_CIRCLE_K]])
+    lip = float(np.sqrt(((w * w).sum(axis=1)).max())) + math.hypot(r, h)
+
+    def gaps(co: np.ndarray, si: np.ndarray, p: np.ndarray) -> np.ndarray:
+        na = co * p[4] + si * p[5]
+        return (
+            co * np.where(co > 0.0, p[0], p[1])
+            + si * np.where(si > 0.0, p[2], p[3])
+            - co * p[6]
+            - si * p[7]
             - h * np.abs(na)
             - r * np.sqrt(np.maximum(0.0, 1.0 - na * na))
         )
-        k = g.argmax(axis=1)
-        best = max(best, float(g[_ROWS3, k].max()))
-        if z == _ARC_ZOOMS:
+
+    spacing = 2.0 * math.pi / _ARC_SAMPLES
+    # Up to _ARC_WINDOWS promising samples per circle seed the zoom windows.
+    order = np.argsort(-g, axis=1)[:, :_ARC_WINDOWS]
+    vals = np.take_along_axis(g, order, axis=1)
+    live = vals + lip * spacing / 2 > best
+    circle = np.nonzero(live)[0]
+    index = order[live]
+    co, si = _ARC_COS[0, index][:, None], _ARC_SIN[0, index][:, None]
+    for z in range(_ARC_ZOOMS):
+        if circle.size == 0:
             break
-        cb, sb = co[_ROWS3, k][:, None], si[_ROWS3, k][:, None]
-        co = cb * _ZOOM_COS[z] - sb * _ZOOM_SIN[z]  # cos(t_best + offset)
-        si = sb * _ZOOM_COS[z] + cb * _ZOOM_SIN[z]
+        p = par[:, circle]
+        co, si = co * _ZOOM_COS[z] - si * _ZOOM_SIN[z], si * _ZOOM_COS[z] + co * _ZOOM_SIN[z]  # angle + offsets
+        g = gaps(co, si, p)
+        k = g.argmax(axis=1)
+        top = g[np.arange(circle.size), k]
+        best = max(best, float(top.max()))
+        spacing *= 2.0 / (_ARC_ZOOM_SAMPLES - 1)
+        keep = top + lip * spacing / 2 > best
+        circle, k = circle[keep], k[keep]
+        co = co[keep, k][:, None]
+        si = si[keep, k][:, None]
     return best
 
 
@@ -560,7 +589,11 @@ def _general_distance(cd: tuple, b: Bounds) -> float:
     cap: the maximum support gap over the directions where it can peak (_candidate_gap),
     which is the signed distance (minus the penetration depth when overlapping).
     """
-    upper, lower = _separate(cd, b)
+    return _settle(cd, b, *_separate(cd, b))
+
+
+def _settle(cd: tuple, b: Bounds, upper: float, lower: float) -> float:
+    """Signed distance from _separate's bounds, searching the candidate directions if needed."""
     if lower > 0.0 and upper - lower <= POLISH_TOL:
         return upper
     lower = max(lower, _candidate_gap(cd, b))
@@ -609,17 +642,90 @@ def phase_and_x(scene: PhaseScene, pusher: Cylinder) -> tuple[int, float]:
         d_target = _general_distance(cd, tb)
         if d_target <= 0.0:
             return 3, d_target
-        d_obstacles = _general_distance(cd, ob)
+        upper, lower = _separate(cd, ob)
+        if upper <= POLISH_TOL:  # a common point: in B_obstacles, and x needs no depth
+            return 2, d_target
+        d_obstacles = _settle(cd, ob, upper, lower)
     if d_obstacles <= 0.0:
         return 2, d_target
     return 1, d_obstacles
 
 
-def region_distances(scene: PhaseScene, pusher: Cylinder) -> np.ndarray:
-    """Signed distances (m) of the pusher to (B_obstacles, B_target), as a (2,) array.
+def _point_box_signed_distance(p: tuple[float, float, float], b: Bounds) -> float:
+    """Signed distance (m) of point ``p`` to the AABB ``b``: negative inside (minus the distance
+    to the nearest face)."""
+    dx = max(b[0] - p[0], 0.0, p[0] - b[3])
+    dy = max(b[1] - p[1], 0.0, p[1] - b[4])
+    dz = max(b[2] - p[2], 0.0, p[2] - b[5])
+    if dx or dy or dz:
+        return math.sqrt(dx * dx + dy * dy + dz * dz)
+    return -min(p[0] - b[0], b[3] - p[0], p[1] - b[1], b[4] - p[1], p[2] - b[2], b[5] - p[2])
 
-    Both are needed for a reward that is continuous across both phase boundaries.
+
+class _RegionDistance:
+    """The pusher's signed distance to one region, computed exactly only when needed.
+
+    Cheap bounds first: with c the cylinder's centre and R = sqrt(r^2 + h^2) the radius of its
+    bounding ball, sd(c) - R <= d <= sd(c) (the ball contains the cylinder, the cylinder contains
+    c). ``exact()`` runs the closed form (upright) or the general path (tilted) once, on demand.
     """
+
+    def __init__(self, pusher: Cylinder, bounds: Bounds, upright: bool) -> None:
+        self.pusher, self.bounds, self.upright = pusher, bounds, upright
+        self.upper = _point_box_signed_distance(tuple(pusher.center.tolist()), bounds)
+        self.lower = self.upper - math.hypot(pusher.radius, pusher.half_length)
+        self._exact: float | None = None
+
+    def exact(self) -> float:
+        if self._exact is None:
+            if self.upright:
+                cx, cy, cz = self.pusher.center.tolist()
+                self._exact = _upright_distance(cx, cy, cz, self.pusher.radius,
+                                                self.pusher.half_length, self.bounds)
+            else:
+                self._exact = _general_distance(_cyl_data(self.pusher), self.bounds)
+        return self._exact
+
+    def inside(self) -> bool:
+        """d <= 0, decided by the bounds where they suffice."""
+        if self.upper <= 0.0:
+            return True
+        if self.lower > 0.0:
+            return False
+        return self.exact() <= 0.0
+
+    def clipped(self, clip: float) -> float:
+        """d clipped to [-clip, clip]: exact inside that band, saturated (by the bounds) beyond."""
+        if self.lower >= clip:
+            return clip
+        if self.upper <= -clip:
+            return -clip
+        return min(max(self.exact(), -clip), clip)
+
+
+def phase_geometry(scene: PhaseScene, pusher: Cylinder, clip: float) -> tuple[int, float, np.ndarray]:
+    """Phase k, boundary distance x (m, exact) and the signed distances to (B_obstacles, B_target)
+    clipped to [-clip, clip] (m; exact inside the band), in one pass.
+
+    Equal to :func:`phase_and_x` for (k, x); at most one exact distance query is run when the
+    pusher is away from the other region's boundary (the bounding-ball bounds decide the rest),
+    which is what keeps the per-step cost low. The clipped distances are what a reward blend
+    across the boundaries needs (its weight saturates beyond the blend band <= clip).
+    """
+    upright = _tilt_sine(pusher) <= UPRIGHT_TOL
+    target = _RegionDistance(pusher, scene._target_bounds, upright)  # type: ignore[attr-defined]
+    obstacles = _RegionDistance(pusher, scene._obstacle_bounds, upright)  # type: ignore[attr-defined]
+    if target.inside():
+        phase, x = 3, target.exact()
+    elif obstacles.inside():
+        phase, x = 2, target.exact()
+    else:
+        phase, x = 1, obstacles.exact()
+    return phase, x, np.array([obstacles.clipped(clip), target.clipped(clip)])
+
+
+def region_distances(scene: PhaseScene, pusher: Cylinder) -> np.ndarray:
+    """Exact signed distances (m) of the pusher to (B_obstacles, B_target), as a (2,) array."""
     return np.array([cylinder_box_distance(pusher, obstacle_region(scene)),
                      cylinder_box_distance(pusher, target_region(scene))])
 
