@@ -1,11 +1,12 @@
-# Two commands a user needs: `make run` (the main job) and `make test` (the test suite).
+# Two commands a user needs: `make run` (the main job: training) and `make test` (the test suite).
+# `make demo` runs the scripted controller; ARGS="key=value ..." passes overrides to run and demo.
 # Both create .venv in the checkout and install the project from pyproject.toml.
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: run test bench setup clean
+.PHONY: run demo test bench setup clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -16,7 +17,10 @@ $(STAMP): pyproject.toml
 setup: $(STAMP)
 
 run: $(STAMP)
-	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m ahrm_stack.demo
+	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m ahrm_stack.train $(ARGS)
+
+demo: $(STAMP)
+	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m ahrm_stack.demo $(ARGS)
 
 test: $(STAMP)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m pytest -q

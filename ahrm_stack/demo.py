@@ -68,7 +68,7 @@ def run_layout(config: Config, episodes: int, seed: int) -> dict:
     mode = config.task.layout.mode
     start = time.perf_counter()
     task = PushOffTask(config.task)
-    runner = TaskRunner(task, seed=seed)
+    runner = TaskRunner(task, seed=seed, safety=config.safety)
     pusher = ScriptedPusher(task, config.scripted)
     print(f"== {mode} layout: {episodes} episodes, seeds {seed}..{seed + episodes - 1}")
     successes, clean, times = 0, 0, []
@@ -89,7 +89,8 @@ def run_layout(config: Config, episodes: int, seed: int) -> dict:
             times.append(info.elapsed)
         when = f"{info.elapsed:5.2f} s" if terminated else "    - "
         print(f"seed {episode_seed:4d}  success {str(terminated):5s}  phases {_chain(phases):11s}  "
-              f"time {when}  touching steps {touches:3d}  lane {pusher.lane}  "
+              f"time {when}  touching steps {touches:3d}  filter interventions "
+              f"{runner.safety_stats.interventions:3d}  lane {pusher.lane}  "
               f"stages {_chain(stages)}")
     wall = time.perf_counter() - start
     mean = f"{np.mean(times):.2f} ± {np.std(times):.2f} s" if times else "-"

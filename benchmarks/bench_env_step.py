@@ -39,7 +39,7 @@ def main() -> None:
     rng = np.random.default_rng(0)
     limits = runner.task.robot.velocity_limit
     commands = rng.uniform(-0.3, 0.3, (args.steps, 6)) * limits
-    env = PushOffEnv(cfg.task, seed=0)
+    env = PushOffEnv(cfg.task, cfg.safety, seed=0)
     td = env.reset()
 
     bare = full = torchrl = 0.0

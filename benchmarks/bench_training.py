@@ -32,7 +32,7 @@ def main() -> None:
     config = load_config(args.overrides)
     torch.set_num_threads(config.train.threads)
     trainer = Trainer(config)
-    env = PushOffEnv(config.task, seed=1)
+    env = PushOffEnv(config.task, config.safety, seed=1)
     frames = config.ppo.frames_per_batch
     collector = Collector(env, None, frames_per_batch=frames, total_frames=-1)
     batches = iter(collector)

@@ -125,8 +125,8 @@ def test_action_to_command_scales_clips_and_drops_nan():
     np.testing.assert_array_equal(action_to_command(np.array([-7.0, 1.0]), limits, (0, 2)), [-1.0, 0.0, 3.0])
 
 
-def test_torchrl_env_specs_and_seeded_rollouts(task_config):
-    env = PushOffEnv(task_config, seed=5)
+def test_torchrl_env_specs_and_seeded_rollouts(config, task_config):
+    env = PushOffEnv(task_config, config.safety, seed=5)
     check_env_specs(env)
     rollouts = []
     for _ in range(2):

@@ -13,13 +13,18 @@ step is caught by the obstacle-speed test of f1.
 from __future__ import annotations
 
 import dataclasses
+import logging
 from typing import Callable
 
 import mujoco
 import numpy as np
 from dm_control import mjcf
 
+from ahrm_stack.config import SafetyConfig
 from ahrm_stack.env.task import PushOffTask, StepInfo
+from ahrm_stack.safety import FilterResult, InterventionStats, SafetyFilter, make_filter
+
+log = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass
@@ -31,11 +36,27 @@ class Transition:
 
 
 class TaskRunner:
-    """Resets and steps one :class:`PushOffTask` on its own physics. Seeded by ``seed``."""
+    """Resets and steps one :class:`PushOffTask` on its own physics. Seeded by ``seed``.
 
-    def __init__(self, task: PushOffTask, seed: int | None = None) -> None:
+    With ``safety`` (the ``safety`` section of the config), every command passes through the QP
+    safety filter before it reaches the actuators; :attr:`last_filter_result` and
+    :attr:`safety_stats` report what it did. ``safety=None`` steps the raw physics — for
+    physics-level tests and the bare-step benchmark only — and ``safety.enabled: false`` is the
+    explicit ablation; both are logged as warnings.
+    """
+
+    def __init__(self, task: PushOffTask, seed: int | None = None,
+                 safety: SafetyConfig | None = None) -> None:
         self.task = task
         self.physics = mjcf.Physics.from_mjcf_model(task.root_entity.mjcf_model)
+        self.safety_config = safety
+        self.filter: SafetyFilter | None = None
+        self.safety_stats = InterventionStats()
+        self.last_filter_result: FilterResult | None = None
+        if safety is None:
+            log.warning("TaskRunner without a safety filter: commands reach the actuators unfiltered")
+        elif not safety.enabled:
+            log.warning("safety filter OFF (safety.enabled: false): an explicit ablation")
         self.random_state = np.random.RandomState(seed)
         self._substeps = task.config.substeps
         self._max_steps = task.config.max_steps
@@ -59,13 +80,47 @@ class TaskRunner:
         mujoco.mj_resetData(self.physics.model.ptr, self.physics.data.ptr)
         self.task.initialize_episode(self.physics, self.random_state)
         self._steps = 0
+        if self.safety_config is not None and self.safety_config.enabled:
+            if self.filter is None:  # needs the task bound to this physics: built at first reset
+                self._scene = self.task.make_collision_scene(self.physics)
+                task = self.task
+                self.filter = make_filter(
+                    task.robot, task.kinematics, self.safety_config,
+                    control_period=task.config.episode.control_period,
+                    table_height=task.config.table.height, tip_site=task.pusher.tip_site,
+                    wrist_site=task.arm.wrist_site, scene=self._scene)
+            self.filter.reset()
+        self.safety_stats.reset()
+        self.last_filter_result = None
         return Transition(self.observe(), self.task.step_info, False, False)
 
-    def step_only(self, command: np.ndarray) -> tuple[StepInfo, bool, bool]:
+    def _filtered(self, request: np.ndarray, cartesian: bool) -> np.ndarray:
+        if self.filter is None:
+            if cartesian:
+                raise RuntimeError("cartesian actions need the safety filter (safety.enabled: true)")
+            return np.asarray(request, dtype=float)
+        q, dq = self.task.arm_state(self.physics)
+        if self.safety_config.obstacle_rows:
+            self.task.place_objects(self._scene, self.physics)
+        result = (self.filter.cartesian if cartesian else self.filter)(q, dq, request)
+        self.last_filter_result = result
+        self.safety_stats.add(result)
+        return result.command
+
+    def step_only(self, request: np.ndarray) -> tuple[StepInfo, bool, bool]:
         """Advance one control step without building the observation dict.
 
-        ``command``: joint velocities for all arm joints, rad/s, from the safety layer.
+        ``request``: joint velocities for all arm joints, rad/s; the safety filter (if any) turns
+        it into the command that reaches the actuators.
         """
+        return self._advance(self._filtered(request, cartesian=False))
+
+    def step_cartesian(self, tip_velocity: np.ndarray) -> tuple[StepInfo, bool, bool]:
+        """Advance one control step toward a pusher-tip linear velocity (m/s, world frame), turned
+        into joint velocities by the safety filter's differential IK (spec §5)."""
+        return self._advance(self._filtered(tip_velocity, cartesian=True))
+
+    def _advance(self, command: np.ndarray) -> tuple[StepInfo, bool, bool]:
         self.task.before_step(self.physics, command, self.random_state)
         self.physics.step(self._substeps)
         self.task.after_step(self.physics, self.random_state)

@@ -186,6 +186,17 @@ class PushOffTask(composer.Task):
                  (self.step_info.x,)]
         return np.concatenate(parts)
 
+    def arm_state(self, physics: mjcf.Physics) -> tuple[np.ndarray, np.ndarray]:
+        """Joint positions (rad) and velocities (rad/s) of the arm."""
+        return physics.data.qpos[self._arm_qpos].copy(), physics.data.qvel[self._arm_dof].copy()
+
+    def place_objects(self, scene: CollisionScene, physics: mjcf.Physics) -> None:
+        """Move the scene's cube and obstacles to their poses in ``physics``."""
+        data = physics.data
+        scene.update_objects(data.xpos[self._cube_body], data.xmat[self._cube_body].reshape(3, 3),
+                             data.xpos[self._obstacle_bodies],
+                             data.xmat[self._obstacle_bodies].reshape(-1, 3, 3))
+
     def make_collision_scene(self, physics: mjcf.Physics) -> CollisionScene:
         """The FCL scene of this task: pusher and link capsules (from the compiled link meshes),
         table, cube and obstacles, placed at the current state of ``physics``."""
@@ -200,10 +211,7 @@ class PushOffTask(composer.Task):
             self.config.table.thickness, self.config.cube.size, self._obstacle_half_sizes)
         kin.update(physics.data.qpos[self._arm_qpos])
         scene.update_robot()
-        data = physics.data
-        scene.update_objects(data.xpos[self._cube_body], data.xmat[self._cube_body].reshape(3, 3),
-                             data.xpos[self._obstacle_bodies],
-                             data.xmat[self._obstacle_bodies].reshape(-1, 3, 3))
+        self.place_objects(scene, physics)
         return scene
 
     def get_reward_spec(self) -> specs.Array:

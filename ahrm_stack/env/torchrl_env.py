@@ -3,7 +3,9 @@
 Keys (all float32 unless noted):
 
 * ``observation`` — the flat observation of spec §1 (layout: :attr:`PushOffTask.observation_order`);
-* ``action`` — normalised joint velocities of the commanded joints, in [-1, 1];
+* ``action`` — ``action.mode: joint``: normalised joint velocities of the commanded joints, in
+  [-1, 1]; ``cartesian``: the pusher tip's linear velocity normalised by
+  ``action.cartesian_max_speed``. Either way the safety filter makes the joint command;
 * ``reward`` — the reward mechanism's scalar (without one: the linear sum of g);
 * ``f`` / ``g`` — the component vectors (avoid, manipulate, time): +-1 form and penalty form;
 * ``phase`` (int64, 1..3), ``x`` (boundary distance, m), ``distances`` (signed distances of the
@@ -21,7 +23,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Binary, Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from ahrm_stack.config import TaskConfig
+from ahrm_stack.config import SafetyConfig, TaskConfig
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.episode import EpisodeRecorder, EpisodeSummary
 from ahrm_stack.env.task import PushOffTask, StepInfo
@@ -50,16 +52,19 @@ class PushOffEnv(EnvBase):
     :attr:`completed` (the trainer drains it).
     """
 
-    def __init__(self, config: TaskConfig, seed: int | None = None, device: str = "cpu",
-                 mechanism=None) -> None:
+    def __init__(self, config: TaskConfig, safety: SafetyConfig | None, seed: int | None = None,
+                 device: str = "cpu", mechanism=None) -> None:
         super().__init__(device=device, batch_size=torch.Size([]))
         self.mechanism = mechanism
         self.completed: list[EpisodeSummary] = []
         self._monitor = None
         self.task = PushOffTask(config)
-        self.runner = TaskRunner(self.task, seed)
+        self.runner = TaskRunner(self.task, seed, safety)
         self.robot = self.task.robot
         self._commanded = self.robot.commanded_joints
+        self._cartesian = config.action.mode == "cartesian"
+        self._max_tip_speed = config.action.cartesian_max_speed
+        action_dim = 3 if self._cartesian else len(self._commanded)
         self.runner.reset()
         obs_dim = self.runner.flat_observation().shape[0]
         self.observation_spec = Composite(
@@ -72,8 +77,7 @@ class PushOffEnv(EnvBase):
             success=Binary(n=1, shape=(1,), dtype=torch.bool),
             touched=Binary(n=1, shape=(1,), dtype=torch.bool),
         )
-        self.action_spec = Bounded(low=-1.0, high=1.0, shape=(len(self._commanded),),
-                                   dtype=torch.float32)
+        self.action_spec = Bounded(low=-1.0, high=1.0, shape=(action_dim,), dtype=torch.float32)
         self.reward_spec = Unbounded(shape=(1,), dtype=torch.float32)
         self.full_done_spec = Composite(
             done=Binary(n=1, shape=(1,), dtype=torch.bool),
@@ -105,8 +109,12 @@ class PushOffEnv(EnvBase):
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict["action"].detach().cpu().numpy()
-        command = action_to_command(action, self.robot.velocity_limit, self._commanded)
-        info, terminated, truncated = self.runner.step_only(command)
+        if self._cartesian:
+            tip_velocity = np.clip(np.nan_to_num(action, nan=0.0, posinf=0.0, neginf=0.0), -1, 1)
+            info, terminated, truncated = self.runner.step_cartesian(tip_velocity * self._max_tip_speed)
+        else:
+            request = action_to_command(action, self.robot.velocity_limit, self._commanded)
+            info, terminated, truncated = self.runner.step_only(request)
         if self.mechanism is None:
             reward = float(info.g.sum())
         else:
@@ -116,7 +124,8 @@ class PushOffEnv(EnvBase):
         if constrained and not truncated:
             truncated = True
             self.runner.end_episode()
-        self._recorder.step(info, reward)
+        filtered = self.runner.last_filter_result
+        self._recorder.step(info, reward, intervened=filtered is not None and filtered.modified)
         if terminated or truncated:
             self._finish_episode(constrained)
         out = self._observation(info)

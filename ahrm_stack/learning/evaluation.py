@@ -86,7 +86,7 @@ def run_episodes(env: PushOffEnv, policy, episodes: int, seed_offset: int = EVAL
 
 def evaluate_run(run_dir: Path, episodes: int) -> EvaluationTable:
     config, policy = load_policy(run_dir)
-    env = PushOffEnv(config.task, seed=EVAL_SEED_OFFSET)
+    env = PushOffEnv(config.task, config.safety, seed=EVAL_SEED_OFFSET)
     table = EvaluationTable.from_summaries(run_episodes(env, policy, episodes))
     (Path(run_dir) / "evaluation.yaml").write_text(yaml.safe_dump(
         {**dataclasses.asdict(table), "success_rate": table.success_rate}, sort_keys=False))

@@ -48,7 +48,8 @@ class Trainer:
         torch.manual_seed(config.train.seed)
         np.random.seed(config.train.seed)
         self.mechanism = RewardMechanism(config.mechanism)
-        self.env = PushOffEnv(config.task, seed=config.train.seed, mechanism=self.mechanism)
+        self.env = PushOffEnv(config.task, config.safety, seed=config.train.seed,
+                              mechanism=self.mechanism)
         observation_dim = self.env.observation_spec["observation"].shape[-1]
         action_dim = self.env.action_spec.shape[-1]
         self.modules = make_modules(config.ppo, observation_dim, action_dim)

@@ -1,0 +1,426 @@
+"""The QP safety filter (spec §5): every joint-velocity command passes through here.
+
+Joint mode (:meth:`SafetyFilter.__call__`)::
+
+    u = argmin ||u - u_nom||^2
+        s.t.  max(-v_max, u_prev - a_max dt, (q_min + m - q) / T)
+                 <= u <=  min(v_max, u_prev + a_max dt, (q_max - m - q) / T)      (hard box)
+              p_z + T (J u)_z >= table + margin              tip and wrist
+              lower <= p + T J u <= upper                    tip and wrist (workspace box)
+              d_i + T n_i^T J_i u >= d_safe                  robot parts / table; / obstacles (optional)
+
+Cartesian mode (:meth:`SafetyFilter.cartesian`): the same constraints, objective
+``||J_tip u - v_nom||^2 + lambda ||u||^2 + w ||P_perp J_w u||^2`` (the last term holds the pusher's
+axis direction; ``P_perp`` leaves the spin about the axis free); joints the policy does not command
+hold zero velocity (within the box).
+
+``T`` is the horizon over which the rows are linearised: the control period ``dt``, or with
+``braking_horizon`` the braking time ``max(dt, max_i v_max_i / a_max_i)``. With the latter every
+row stays satisfiable step after step: if ``u`` met the rows at one step, ``(1 - dt/T) u`` meets
+them at the next (for a slowly varying Jacobian) and is within the acceleration limit, so the arm
+slows down on its way to a bound instead of finding it one period too late.
+
+After the solve the command is verified: it is clipped into the hard box, so every hard bound holds
+to rounding whatever the solver's tolerance, and the coupled rows' clearances are measured and
+reported. When no command meets every constraint (the QP is infeasible, or a joint is past its
+position bound by more than one period's deceleration) or the solver fails, the filter returns the
+safest command: the one that violates the coupled rows least and otherwise brakes towards zero,
+within the velocity and acceleration limits and as close to the position bounds as they allow.
+NaN or inf never pass: a non-finite request is read as a request for zero; a non-finite state gives
+a brake towards zero within the acceleration limit.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ahrm_stack.config import SafetyConfig
+from ahrm_stack.kinematics.model import ArmKinematics
+from ahrm_stack.kinematics.scene import CollisionScene
+from ahrm_stack.robot import RobotDescription
+from ahrm_stack.safety.constraints import (AccelerationLimit, ArmSnapshot, ControlPoints,
+                                           CoordinateRows, DistanceLimit, PositionLimit, Rows, TableLimit,
+                                           VelocityLimit, WorkspaceLimit)
+from ahrm_stack.safety.report import (DISABLED, INFEASIBLE, NONFINITE_INPUT, OPTIMAL, SOLVER_FAILED,
+                                      FilterResult)
+from ahrm_stack.safety.solvers import DaqpSolver, Outcome, OsqpSolver, QPSolver
+
+CONTROL_POINTS = ("tip", "wrist")
+ACTIVE_TOLERANCE = 1e-7  # rad/s for bounds, m for rows: closer than this counts as active
+VIOLATION_TOLERANCE = 1e-6  # m: a coupled row short by more than this is reported as violated
+# The fallback problem: min 1/2 ||u||^2 + rho s + 1/2 s^2 over the box, rows A u - s <= b, s >= 0.
+# rho (per metre of violation) is far above what braking is worth, so the worst violation s is
+# minimised first and the brake towards zero second.
+VIOLATION_WEIGHT = 1e4
+SANE = 1e300  # inputs beyond this magnitude (rad, rad/s, m/s) take the careful path
+_UNCONSTRAINED = Outcome(None, "optimal")
+
+
+class SafetyFilterError(ValueError):
+    """The filter was built or called inconsistently (wrong sizes, missing scene); the message
+    names the bad value."""
+
+
+def braking_time(robot: RobotDescription, config: SafetyConfig) -> float:
+    """max_i v_i / a_max_i, s, with v_i the commandable speed ``(1 - velocity_margin) v_max_i``: the
+    longest time any joint needs to stop from full speed."""
+    speed = robot.velocity_limit * (1.0 - config.velocity_margin)
+    return float(np.max(speed / np.asarray(config.acceleration_limit, dtype=float)))
+
+
+class SafetyFilter:
+    """QP filter of joint-velocity commands (rad/s) for one arm; one call per control step.
+
+    Args:
+        robot: joint position and velocity limits (rad, rad/s).
+        kinematics: the Pinocchio model of the arm. The filter works on a private copy of the
+            model and its own ``Data``, so calls leave the caller's kinematics alone.
+        config: margins, acceleration limits, rows on/off, the solver (``configs/safety.yaml``).
+        dt: the control period, s (a command is held this long).
+        table_height: z of the table top, m, world frame.
+        tip_frame, wrist_frame: frame ids (in ``kinematics``) of the pusher tip and the wrist.
+        scene: the FCL scene, needed for the distance rows (``config.table_distance_rows``,
+            ``config.obstacle_rows``, or a call with ``obstacles=True``). The filter places its
+            robot parts; the caller keeps its environment objects current
+            (``scene.update_objects``). Building the filter calls ``scene.kinematics.update`` (at
+            q = 0) and ``scene.update_robot`` once, to learn where each part sits on its link.
+
+    Raises:
+        SafetyFilterError, ConstraintDefinitionError: inconsistent settings (the message names the
+            value), at construction, never mid-run.
+    """
+
+    def __init__(self, robot: RobotDescription, kinematics: ArmKinematics, config: SafetyConfig, *,
+                 dt: float, table_height: float, tip_frame: int, wrist_frame: int,
+                 scene: CollisionScene | None = None) -> None:
+        nv = robot.num_joints
+        if kinematics.model.nq != nv or kinematics.model.nv != nv:
+            raise SafetyFilterError(f"the kinematics model has nq={kinematics.model.nq}, "
+                                    f"nv={kinematics.model.nv}; {robot.name} has {nv} joints")
+        for name, frame in (("tip_frame", tip_frame), ("wrist_frame", wrist_frame)):
+            if not 0 <= frame < len(kinematics.model.frames):
+                raise SafetyFilterError(f"{name}={frame!r} is not a frame of the kinematics model")
+        if config.solver not in ("daqp", "osqp"):
+            raise SafetyFilterError(f"safety.solver is {config.solver!r}; choose daqp or osqp")
+        for switch in ("table_distance_rows", "obstacle_rows"):
+            if getattr(config, switch) and scene is None:
+                raise SafetyFilterError(f"safety.{switch} is on but no collision scene was given "
+                                        "(pass task.make_collision_scene(physics))")
+        if not (np.isfinite(dt) and dt > 0):
+            raise SafetyFilterError(f"dt must be a finite control period > 0 s, got {dt!r}")
+        self.robot = robot
+        self.config = config
+        self.dt = float(dt)
+        self.num_joints = nv
+        self.velocity = VelocityLimit(robot, config.velocity_margin)
+        self.acceleration = AccelerationLimit(config.acceleration_limit, self.dt, nv)
+        self.horizon = max(self.dt, braking_time(robot, config)) if config.braking_horizon else self.dt
+        self.position = PositionLimit(robot, config.position_margin, self.horizon)
+        self.table = (TableLimit(table_height, {"tip": config.table_margin,
+                                                "wrist": config.wrist_table_margin}, self.horizon)
+                      if config.table_rows else None)
+        self.workspace = (WorkspaceLimit(config.workspace_lower, config.workspace_upper, self.horizon,
+                                         CONTROL_POINTS) if config.workspace_rows else None)
+        self._snapshot = ArmSnapshot(kinematics.model, kinematics.base)
+        self.distances: DistanceLimit | None = None
+        if scene is not None:
+            if scene.kinematics.model.nq != nv:
+                raise SafetyFilterError("the collision scene was built on another kinematics model")
+            reference = np.zeros(nv)
+            scene.kinematics.update(reference)
+            scene.update_robot()
+            self._snapshot.update(reference)
+            frames = {name: kinematics.frame_id(name) for name in scene.robot if name != "pusher"}
+            frames["pusher"] = int(tip_frame)  # the pusher is one rigid body with its tip
+            self.distances = DistanceLimit(
+                scene, self._snapshot, frames, config.obstacle_safe_distance,
+                config.obstacle_activation_distance, config.max_obstacle_rows, self.horizon)
+        self._frames = (int(tip_frame), int(wrist_frame))
+        self._commanded = np.zeros(nv, dtype=bool)
+        self._commanded[list(robot.commanded_joints)] = True
+        point_families = [f for f in (self.table, self.workspace) if f is not None]
+        self._point_rows = CoordinateRows.stacked(point_families) if point_families else None
+        self.max_rows = (len(self._point_rows.names) if self._point_rows else 0) + \
+            (self.distances.max_rows(config.table_distance_rows, True) if self.distances else 0)
+        self.solver: QPSolver = (DaqpSolver(nv, self.max_rows) if config.solver == "daqp" else
+                                 OsqpSolver(nv, self.max_rows, config.osqp_eps, config.osqp_max_iter))
+        self._fallback_solver = DaqpSolver(nv + 1, self.max_rows)
+        self._identity = np.eye(nv)
+        self._previous = np.zeros(nv)
+        self.last_rows: tuple[str, ...] = ()  # names of the coupled rows built by the last call
+        self._bound_names = (self.position.names, self.velocity.names, self.acceleration.names)
+
+    # ------------------------------------------------------------------ public API
+    @property
+    def previous_command(self) -> np.ndarray:
+        """The command the acceleration limit is measured from (the last returned one), rad/s."""
+        return self._previous.copy()
+
+    def reset(self) -> None:
+        """Start of an episode: the previous command is zero."""
+        self._previous = np.zeros(self.num_joints)
+
+    def __call__(self, q: np.ndarray, dq: np.ndarray, u_nom: np.ndarray, *,
+                 obstacles: bool | None = None, u_prev: np.ndarray | None = None) -> FilterResult:
+        """Filter the joint-velocity request ``u_nom`` (rad/s, all joints) at joint positions ``q``
+        (rad) and velocities ``dq`` (rad/s).
+
+        ``obstacles`` turns the obstacle rows on or off for this call (default: the config).
+        ``u_prev`` overrides the stored previous command (e.g. what the hardware executed); the
+        returned command becomes the stored previous command either way.
+        """
+        return self._filter(q, dq, u_nom, False, obstacles, u_prev)
+
+    def cartesian(self, q: np.ndarray, dq: np.ndarray, v_nom: np.ndarray, *,
+                  obstacles: bool | None = None, u_prev: np.ndarray | None = None) -> FilterResult:
+        """Differential IK under the same constraints: the joint velocities (rad/s) that best give
+        the pusher tip the linear velocity ``v_nom`` (m/s, world frame) while holding the pusher's
+        axis direction. Arguments as for ``__call__``."""
+        return self._filter(q, dq, v_nom, True, obstacles, u_prev)
+
+    # ------------------------------------------------------------------ one call
+    def _filter(self, q, dq, request, cartesian: bool, obstacles: bool | None,
+                u_prev: np.ndarray | None) -> FilterResult:
+        nv = self.num_joints
+        q = _vector(q, nv, "q")
+        dq = _vector(dq, nv, "dq")
+        request = _vector(request, 3 if cartesian else nv, "v_nom" if cartesian else "u_nom")
+        with_obstacles = self.config.obstacle_rows if obstacles is None else obstacles
+        if with_obstacles and self.distances is None:
+            raise SafetyFilterError("obstacle rows requested but the filter has no collision scene")
+        # One reduction on the common path: every input finite and of sane size (NaN fails it).
+        if np.abs(np.concatenate((q, dq, request))).max() < SANE:
+            state_ok = request_ok = True
+        else:
+            state_ok = bool(np.isfinite(q).all() and np.isfinite(dq).all())
+            request_ok = bool(np.isfinite(request).all())
+            q = np.minimum(np.maximum(q, -SANE), SANE)  # absurd but finite: nothing may overflow
+        if u_prev is None:
+            previous, previous_ok = self._previous, True
+        else:
+            previous, previous_ok = self._given_previous(u_prev, dq)
+        raw_request = request
+        if not request_ok:
+            request = np.zeros_like(request)  # a non-finite request asks for nothing
+        if not self.config.enabled:
+            return self._unfiltered(q, request, raw_request, cartesian, state_ok)
+        if not state_ok:
+            return self._brake_blind(previous, raw_request, cartesian)
+
+        # The hard box. Velocity and acceleration always intersect (|u_prev| <= v_max); where the
+        # position bound lies beyond them the joint is pinned to the closest value they allow, and
+        # the problem as posed is infeasible.
+        velocity = self.velocity.bounds()
+        acceleration = self.acceleration.bounds(previous)
+        position = self.position.bounds(q)
+        lower = np.maximum(np.maximum(velocity.lower, acceleration.lower), position.lower)
+        upper = np.minimum(np.minimum(velocity.upper, acceleration.upper), position.upper)
+        box_violated: tuple[str, ...] = ()
+        if (lower > upper).any():
+            lower, upper, box_violated = self._pin_unreachable(velocity, acceleration, position)
+
+        # Coupled rows and the objective.
+        self._snapshot.update(q)
+        rows = self._rows(with_obstacles)
+        if cartesian:
+            hessian, linear = self._cartesian_objective(request)
+            hold = np.minimum(np.maximum(0.0, lower), upper)
+            lower = np.where(self._commanded, lower, hold)
+            upper = np.where(self._commanded, upper, hold)
+        else:
+            hessian = self._identity
+            linear = -np.minimum(np.maximum(request, velocity.lower), velocity.upper)
+        matrix, bound = rows.matrix, rows.bound
+        self.last_rows = rows.names
+
+        # When the unconstrained optimum meets every constraint it is the solution: no solver call
+        # (this also keeps OSQP from printing its no-active-set notice, osqp/osqp#785).
+        free = -linear if hessian is self._identity else np.linalg.solve(hessian, -linear)
+        start = time.perf_counter()
+        if box_violated:
+            outcome = None
+        elif (np.maximum(lower - free, free - upper).max() <= 0.0
+              and (not len(bound) or (matrix @ free - bound).max() <= 0.0)):
+            outcome = _UNCONSTRAINED._replace(x=free)
+        else:
+            outcome = self.solver.solve(hessian, linear, lower, upper, matrix, bound)
+        if outcome is not None and outcome.x is not None:
+            command, status, fallback = np.minimum(np.maximum(outcome.x, lower), upper), OPTIMAL, False
+        else:
+            status = INFEASIBLE if outcome is None or outcome.status == INFEASIBLE else SOLVER_FAILED
+            command, fallback = self._safest(lower, upper, matrix, bound), True
+        solve_time = time.perf_counter() - start
+        if not (state_ok and previous_ok and request_ok):
+            status, fallback = NONFINITE_INPUT, True
+
+        active = self._active_bounds(command, lower, upper, (position, velocity, acceleration))
+        worst, violated = np.inf, box_violated
+        if len(bound):
+            margins = bound - matrix @ command
+            worst = float(margins.min())
+            if worst <= ACTIVE_TOLERANCE:
+                active += tuple(rows.names[i] for i in np.flatnonzero(margins <= ACTIVE_TOLERANCE))
+                if worst < -VIOLATION_TOLERANCE:
+                    violated += tuple(rows.names[i] for i in np.flatnonzero(margins < -VIOLATION_TOLERANCE))
+        if cartesian:
+            modified = fallback or bool(active)
+        else:
+            modified = not (request_ok and np.abs(command - raw_request).max() <= ACTIVE_TOLERANCE)
+        self._previous = command.copy()
+        return FilterResult(command, modified, active, status, solve_time, fallback, worst, violated)
+
+    def _pin_unreachable(self, velocity, acceleration, position):
+        """Box bounds where each joint whose position bound is out of reach this period is pinned
+        to the reachable value closest to it, and the names of those position bounds."""
+        reachable_lower = np.maximum(velocity.lower, acceleration.lower)
+        reachable_upper = np.minimum(velocity.upper, acceleration.upper)
+        lower = np.maximum(reachable_lower, position.lower)
+        upper = np.minimum(reachable_upper, position.upper)
+        conflict = lower > upper
+        pinned = np.where(position.upper < reachable_lower, reachable_lower, reachable_upper)
+        return (np.where(conflict, pinned, lower), np.where(conflict, pinned, upper),
+                tuple(self.position.names[i] for i in np.flatnonzero(conflict)))
+
+    def _given_previous(self, u_prev, dq) -> tuple[np.ndarray, bool]:
+        """A caller-given previous command, made finite (non-finite entries are replaced by the
+        measured velocity, or zero) and clipped to the velocity limits."""
+        previous = _vector(u_prev, self.num_joints, "u_prev")
+        ok = bool(np.isfinite(previous).all())
+        if not ok:
+            previous = np.where(np.isfinite(previous), previous, np.where(np.isfinite(dq), dq, 0.0))
+        return np.clip(previous, -self.velocity.limit, self.velocity.limit), ok
+
+    def _rows(self, with_obstacles: bool) -> Rows:
+        parts = []
+        if self._point_rows is not None:
+            parts.append(self._point_rows.rows(self._control_points()))
+        if with_obstacles or self.config.table_distance_rows:
+            distance_rows = self.distances.rows(self._snapshot, self.config.table_distance_rows,
+                                                with_obstacles)
+            if len(distance_rows.bound) or not parts:
+                parts.append(distance_rows)
+        if len(parts) == 1:
+            return parts[0]
+        if not parts:
+            return Rows.empty(self.num_joints)
+        return Rows(np.concatenate([p.matrix for p in parts]), np.concatenate([p.bound for p in parts]),
+                    sum((p.names for p in parts), ()))
+
+    def _control_points(self) -> ControlPoints:
+        snap = self._snapshot
+        tip, wrist = self._frames
+        jacobians = np.concatenate((snap.jacobian(tip)[:3], snap.jacobian(wrist)[:3]))
+        return ControlPoints(CONTROL_POINTS, snap.positions(self._frames).ravel(), jacobians)
+
+    def _cartesian_objective(self, v_nom: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        tip = self._frames[0]
+        jac = self._snapshot.jacobian(tip)
+        linear_jac, angular_jac = jac[:3], jac[3:]
+        # A request faster than any command could give is scaled down along its direction.
+        reach = float(np.linalg.norm(linear_jac, axis=0) @ self.velocity.limit)
+        largest = float(np.abs(v_nom).max())
+        if largest > 0:
+            unit = v_nom / largest
+            speed = float(np.linalg.norm(unit))
+            if largest * speed > reach:
+                v_nom = unit * (reach / speed)
+        axis = self._snapshot.placement(tip)[1][:, 2]
+        off_axis = angular_jac - np.outer(axis, axis @ angular_jac)  # P_perp J_w
+        hessian = (linear_jac.T @ linear_jac + self.config.cartesian_regularization * self._identity
+                   + self.config.cartesian_orientation_weight * (off_axis.T @ off_axis))
+        return hessian, -(linear_jac.T @ v_nom)
+
+    def _safest(self, lower, upper, matrix, bound) -> np.ndarray:
+        """The command that violates the coupled rows least (worst row first), then is closest to
+        zero, within the box; the box clip of zero if even that solve fails."""
+        brake = np.minimum(np.maximum(0.0, lower), upper)
+        if not len(bound) or np.all(matrix @ brake <= bound):
+            return brake
+        nv = self.num_joints
+        hessian = np.eye(nv + 1)
+        linear = np.zeros(nv + 1)
+        linear[-1] = VIOLATION_WEIGHT
+        outcome = self._fallback_solver.solve(hessian, linear, np.r_[lower, 0.0], np.r_[upper, np.inf],
+                                              np.hstack((matrix, -np.ones((len(bound), 1)))), bound)
+        if outcome.x is None:
+            return brake
+        return np.minimum(np.maximum(outcome.x[:nv], lower), upper)
+
+    def _brake_blind(self, previous, raw_request, cartesian) -> FilterResult:
+        """Non-finite state: position and Cartesian bounds cannot be evaluated; brake towards zero
+        as fast as the acceleration limit allows."""
+        velocity, acceleration = self.velocity.bounds(), self.acceleration.bounds(previous)
+        lower = np.maximum(velocity.lower, acceleration.lower)
+        upper = np.minimum(velocity.upper, acceleration.upper)
+        command = np.clip(0.0, lower, upper)
+        active = self._active_bounds(command, lower, upper, (None, velocity, acceleration))
+        self._previous = command
+        return FilterResult(command, True, active, NONFINITE_INPUT, 0.0, True, np.nan, ())
+
+    def _unfiltered(self, q, request, raw_request, cartesian, state_ok) -> FilterResult:
+        """The ablation (``enabled: false``): the request clipped to the robot's velocity limits
+        (joint mode) or the unconstrained differential IK (Cartesian mode); NaN/inf still never pass."""
+        limit = self.robot.velocity_limit
+        if not cartesian:
+            command = np.clip(request, -limit, limit)
+        elif state_ok:
+            self._snapshot.update(q)
+            hessian, linear = self._cartesian_objective(request)
+            command = np.clip(np.linalg.solve(hessian, -linear), -limit, limit) * self._commanded
+        else:
+            command = np.zeros(self.num_joints)
+        finite = bool(np.isfinite(raw_request).all()) and state_ok
+        modified = not (finite and (cartesian or np.array_equal(command, raw_request)))
+        self._previous = command
+        return FilterResult(command, modified, (), DISABLED if finite else NONFINITE_INPUT, 0.0,
+                            False, np.inf, ())
+
+    def _active_bounds(self, command, lower, upper, families) -> tuple[str, ...]:
+        """Names of the hard bounds the command sits on (within ACTIVE_TOLERANCE); ``families``:
+        the position, velocity and acceleration bounds (position None when not evaluated). The
+        effective bound is the max (min) of the families', so it equals its owners' exactly."""
+        at_lower = command <= lower + ACTIVE_TOLERANCE
+        at_upper = command >= upper - ACTIVE_TOLERANCE
+        joints = np.flatnonzero(at_lower | at_upper).tolist()
+        if not joints:
+            return ()
+        low, high = lower.tolist(), upper.tolist()
+        low_side, high_side = at_lower.tolist(), at_upper.tolist()
+        names = []
+        for owner, family in zip(self._bound_names, families):
+            if family is None:
+                continue
+            family_low, family_high = family.lower.tolist(), family.upper.tolist()
+            for i in joints:
+                if (low_side[i] and family_low[i] == low[i]) or (high_side[i] and family_high[i] == high[i]):
+                    names.append(owner[i])
+        return tuple(names)
+
+
+def _vector(value, size: int, name: str) -> np.ndarray:
+    array = np.asarray(value, dtype=float)
+    if array.shape != (size,):
+        raise SafetyFilterError(f"{name} must have shape ({size},), got {array.shape}")
+    return array
+
+
+def make_filter(robot: RobotDescription, kinematics: ArmKinematics, config: SafetyConfig, *,
+                control_period: float, table_height: float, tip_site, wrist_site,
+                scene: CollisionScene | None = None) -> SafetyFilter:
+    """The filter for an arm whose pusher tip and wrist are the MJCF sites ``tip_site`` and
+    ``wrist_site`` of the kinematics' model. In the environment::
+
+        make_filter(task.robot, task.kinematics, cfg.safety,
+                    control_period=task.config.episode.control_period,
+                    table_height=task.config.table.height,
+                    tip_site=task.pusher.tip_site, wrist_site=task.arm.wrist_site,
+                    scene=task.make_collision_scene(physics))   # only needed for obstacle rows
+    """
+    return SafetyFilter(robot, kinematics, config, dt=control_period, table_height=table_height,
+                        tip_frame=kinematics.element_frame_id(tip_site),
+                        wrist_frame=kinematics.element_frame_id(wrist_site), scene=scene)
+
+
+__all__ = ["SafetyFilter", "SafetyFilterError", "braking_time", "make_filter"]

@@ -1,0 +1,187 @@
+"""Latency of the QP safety filter per call, and its share of one environment control step.
+
+Rows of the table (each for daqp and for the persistent OSQP workspace):
+
+* box          — hard bounds only (position, velocity, acceleration): coupled rows off;
+* table+ws     — plus the table and workspace rows of the tip and the wrist (the spec's training rows);
+* default      — the shipped configs/safety.yaml: plus the table distance rows (pusher, links; FCL);
+* 8 obstacles  — default plus obstacle rows, in a scene where the four obstacles crowd the pusher
+                 and wrist so that 8 robot-obstacle pairs are within the activation distance.
+
+"hot" latencies replay the same inputs back to back (the filter alone, caches warm); "in loop"
+latencies are measured inside a random-policy episode, alternating with ``runner.step_only`` (the
+real use: MuJoCo evicts the filter's working set between calls), and the step share is
+sum(filter time) / sum(step_only time) over that episode.
+Usage: python benchmarks/bench_safety.py [--repeats R] [--steps N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import time
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import numpy as np  # noqa: E402
+
+from ahrm_stack.config import load_config  # noqa: E402
+from ahrm_stack.env.runner import TaskRunner  # noqa: E402
+from ahrm_stack.env.task import PushOffTask  # noqa: E402
+from ahrm_stack.safety import make_filter  # noqa: E402
+
+VARIANTS = {
+    "box": dict(table_rows=False, workspace_rows=False, table_distance_rows=False),
+    "table+ws": dict(table_distance_rows=False),
+    "default": {},
+    "8 obstacles": dict(obstacle_rows=True),
+}
+GOALS_US = {("daqp", "table+ws"): 50.0, ("daqp", "8 obstacles"): 150.0}
+
+
+def build(runner, config, changes, scene=None):
+    task = runner.task
+    config = dataclasses.replace(config, **changes)
+    if scene is None and (config.table_distance_rows or config.obstacle_rows):
+        scene = task.make_collision_scene(runner.physics)
+    return make_filter(task.robot, task.kinematics, config,
+                       control_period=task.config.episode.control_period,
+                       table_height=task.config.table.height, tip_site=task.pusher.tip_site,
+                       wrist_site=task.arm.wrist_site, scene=scene)
+
+
+def record_stream(runner, config, steps, seed=0):
+    """(q, dq, u_nom, u_prev) of a random-policy episode through the default filter."""
+    runner.reset()
+    task = runner.task
+    safety = build(runner, config, {})
+    joints = runner.physics.bind(task.arm.joints)
+    rng = np.random.default_rng(seed)
+    stream, u_nom = [], np.zeros(6)
+    for step in range(steps):
+        if step % 20 == 0:
+            u_nom = rng.uniform(-1.5, 1.5, 6) * task.robot.velocity_limit
+            u_nom[5] = 0.0
+        q, dq = np.array(joints.qpos), np.array(joints.qvel)
+        stream.append((q, dq, u_nom.copy(), safety.previous_command))
+        runner.step_only(safety(q, dq, u_nom).command)
+    return stream
+
+
+def crowded_scene(runner):
+    """The pusher pointing down 5 cm above the table with the four obstacles around it, and the
+    joint positions of that pose (damped least squares)."""
+    task, kin = runner.task, runner.task.kinematics
+    tip = kin.element_frame_id(task.pusher.tip_site)
+    table = task.config.table.height
+    target = np.array([0.0, 0.15, table + 0.05])
+    q = np.asarray(task.config.arm.home, dtype=float)
+    for goal in (target + [0, 0, 0.2], target):
+        for _ in range(300):
+            kin.update(q)
+            p, rotation = kin.frame_pose(tip)
+            error = np.r_[goal - p, np.cross(rotation[:, 2], [0.0, 0.0, -1.0])]
+            jac = kin.frame_jacobian(tip)
+            q = q + jac.T @ np.linalg.solve(jac @ jac.T + 1e-6 * np.eye(6), error)
+    scene = task.make_collision_scene(runner.physics)
+    half = np.asarray(task.config.obstacles.size) / 2
+    offsets = np.array([[0.075, 0.0], [-0.075, 0.0], [0.0, 0.075], [0.0, -0.075]])
+    centers = np.c_[target[:2] + offsets, np.full(4, table + half[2])]
+    scene.update_objects(np.array([3.0, 3.0, table]), np.eye(3), centers, np.tile(np.eye(3), (4, 1, 1)))
+    return scene, q
+
+
+def percentiles(samples):
+    us = np.asarray(samples) * 1e6
+    return float(np.percentile(us, 50)), float(np.percentile(us, 99))
+
+
+def hot_latency(safety, inputs, repeats):
+    """Per-call times (s) and the mean number of obstacle rows built per call."""
+    times, rows = [], []
+    for _ in range(repeats):
+        for q, dq, u_nom, u_prev in inputs:
+            start = time.perf_counter()
+            safety(q, dq, u_nom, u_prev=u_prev)
+            times.append(time.perf_counter() - start)
+            rows.append(sum(name.startswith("obstacle:") for name in safety.last_rows))
+    return times, float(np.mean(rows))
+
+
+def in_loop(runner, safety, steps, seed=1):
+    """Filter and step_only times (s) per control step of one random-policy episode."""
+    runner.reset()
+    safety.reset()
+    task = runner.task
+    joints = runner.physics.bind(task.arm.joints)
+    rng = np.random.default_rng(seed)
+    filter_times, step_times, u_nom = [], [], np.zeros(6)
+    for step in range(steps):
+        if step % 20 == 0:
+            u_nom = rng.uniform(-1.5, 1.5, 6) * task.robot.velocity_limit
+            u_nom[5] = 0.0
+        q, dq = np.array(joints.qpos), np.array(joints.qvel)
+        start = time.perf_counter()
+        command = safety(q, dq, u_nom).command
+        middle = time.perf_counter()
+        runner.step_only(command)
+        filter_times.append(middle - start)
+        step_times.append(time.perf_counter() - middle)
+    return np.array(filter_times), np.array(step_times)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=5, help="replays of the recorded inputs")
+    parser.add_argument("--steps", type=int, default=600, help="control steps recorded / in loop")
+    args = parser.parse_args()
+    cfg = load_config()
+    runner = TaskRunner(PushOffTask(cfg.task), seed=0)
+    stream = record_stream(runner, cfg.safety, args.steps)
+
+    # the crowded scene: joint positions near the pose, random requests
+    scene, q_crowd = crowded_scene(runner)
+    rng = np.random.default_rng(2)
+    limit = runner.task.robot.velocity_limit
+    crowd_inputs = [(q_crowd + rng.uniform(-0.02, 0.02, 6), np.zeros(6), rng.uniform(-1, 1, 6) * limit,
+                     rng.uniform(-0.5, 0.5, 6) * limit) for _ in range(args.steps)]
+
+    print(f"safety filter latency, {args.repeats} x {args.steps} calls per row (hot) and one "
+          f"{args.steps}-step random-policy episode per row (in loop); times in microseconds")
+    print(f"{'solver':6s} {'rows':12s} {'hot p50':>8s} {'hot p99':>8s} {'loop p50':>9s} "
+          f"{'loop p99':>9s} {'step p50':>9s} {'share':>7s}  goal")
+    results = {}
+    for solver in ("daqp", "osqp"):
+        for name, changes in VARIANTS.items():
+            changes = dict(changes, solver=solver)
+            if name == "8 obstacles":
+                safety = build(runner, cfg.safety, changes, scene=scene)
+                hot, obstacle_rows = hot_latency(safety, crowd_inputs, args.repeats)
+                loop_filter, loop_step = np.array([np.nan]), np.array([np.nan])
+            else:
+                safety = build(runner, cfg.safety, changes)
+                hot, obstacle_rows = hot_latency(safety, stream, args.repeats)
+                loop_filter, loop_step = in_loop(runner, safety, args.steps)
+            hot50, hot99 = percentiles(hot)
+            loop50, loop99 = percentiles(loop_filter)
+            step50 = float(np.median(loop_step) * 1e6)
+            share = float(loop_filter.sum() / loop_step.sum())
+            goal = GOALS_US.get((solver, name))
+            mark = "" if goal is None else f"p99 <= {goal:.0f}: {'met' if hot99 <= goal else 'NOT met'}"
+            if name == "8 obstacles":
+                mark += f" ({obstacle_rows:.1f} obstacle rows per call)"
+            elif solver == "daqp":
+                mark += ("  " if mark else "") + f"share <= 5%: {'met' if share <= 0.05 else 'NOT met'}"
+            results[(solver, name)] = (hot50, hot99, loop50, share)
+            print(f"{solver:6s} {name:12s} {hot50:8.1f} {hot99:8.1f} {loop50:9.1f} {loop99:9.1f} "
+                  f"{step50:9.1f} {share:7.1%}  {mark}")
+    print("ratios osqp / daqp (hot p50): " + ", ".join(
+        f"{name} {results[('osqp', name)][0] / results[('daqp', name)][0]:.1f}x" for name in VARIANTS))
+    print("ratios in-loop / hot (p50, daqp): " + ", ".join(
+        f"{name} {results[('daqp', name)][2] / results[('daqp', name)][0]:.1f}x"
+        for name in VARIANTS if name != "8 obstacles"))
+
+
+if __name__ == "__main__":
+    main()
