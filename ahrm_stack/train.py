@@ -7,7 +7,8 @@ Configuration: ``configs/*.yaml``, overridden by dotted ``key=value`` arguments 
 ``mechanism.method=ls train.episodes=50 ppo.hidden_sizes=[256,256,256]``), validated at start-up.
 A run folder holds the resolved ``config.yaml``, ``checkpoints/`` (atomic writes, rotated),
 ``episodes.csv`` (one row per episode), ``batches.csv`` (losses), ``events.jsonl`` (reward-mechanism
-events), TensorBoard logs in ``tb/``, and ``policy.pt`` at the end. ``--resume`` continues a run
+events), TensorBoard logs in ``tb/``, and at the end ``policy.pt`` and ``diagnostics.png`` (per-episode
+diagnostics: where a failing run fails). ``--resume`` continues a run
 that was stopped or killed from its last checkpoint, reward-mechanism state included.
 """
 
@@ -16,7 +17,6 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import math
 import sys
 import time
 from pathlib import Path
@@ -28,6 +28,7 @@ from tqdm import tqdm
 
 from ahrm_stack.config import Config, ConfigError, config_from_dict, load_raw, apply_override
 from ahrm_stack.learning.checkpoint import CheckpointManager
+from ahrm_stack.learning.diagnostics import plot_run
 from ahrm_stack.learning.trainer import Trainer, TrainingDiverged
 
 EPISODE_FIELDS = ["episode", "frames", "steps", "duration", "success", "time_to_success",
@@ -168,6 +169,7 @@ def train(config: Config, raw: dict, run_dir: Path, resume: bool, progress: bool
         log.flush()
         checkpoints.save(trainer.state_dict(), trainer.batches)
         trainer.save_policy(run_dir / "policy.pt")
+        plot_run(run_dir)
     finally:
         bar.close()
         log.close()

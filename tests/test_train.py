@@ -28,7 +28,7 @@ def test_training_writes_the_run_folder_and_resumes(tmp_path):
     run = tmp_path / "run"
     assert main(SMALL + ["train.episodes=30", "--run-dir", str(run), "--no-progress"]) == 0
     for name in ("config.yaml", "episodes.csv", "batches.csv", "events.jsonl", "policy.pt",
-                 "evaluation.yaml"):
+                 "evaluation.yaml", "diagnostics.png"):
         assert (run / name).is_file(), name
     assert list((run / "tb").iterdir())
     episodes = _rows(run / "episodes.csv")

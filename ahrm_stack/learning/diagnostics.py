@@ -1,0 +1,140 @@
+"""Diagnostics of a training run, plotted from its ``episodes.csv``: where a failing run fails.
+
+    python -m ahrm_stack.learning.diagnostics RUN_DIR [RUN_DIR ...]
+
+One PNG per run (``diagnostics.png`` in the run folder): success and failure modes (never reached
+the cube, reached it but could not push, hit obstacles, stalled), closest approach of the pusher to
+the cube, largest cube displacement, time in each phase, each ±1 component's sum per phase, the
+learning return, constraint terminations and safety-filter interventions — all per episode, with a
+moving average.
+"""
+
+from __future__ import annotations
+
+import ast
+import csv
+import sys
+from pathlib import Path
+
+import numpy as np
+
+FAILURE_MODES = ("success", "touched", "never reached the cube", "reached the cube, could not push",
+                 "hit obstacles", "stalled")
+OBJECTIVES = ("avoid", "manipulate", "time")
+
+
+def read_episodes(run_dir: Path) -> dict[str, np.ndarray]:
+    """Columns of ``episodes.csv`` as arrays (lists parsed)."""
+    path = Path(run_dir) / "episodes.csv"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no episodes.csv; is {run_dir} a run folder?")
+    with open(path) as handle:
+        rows = list(csv.DictReader(handle))
+    if not rows:
+        raise ValueError(f"{path} holds no episodes yet")
+    out: dict[str, np.ndarray] = {}
+    for key in rows[0]:
+        values = [row[key] for row in rows]
+        if key in ("phase_steps", "component_sums", "levels"):
+            out[key] = np.array([ast.literal_eval(v) for v in values], dtype=float)
+        elif key in ("success", "constraint_terminated"):
+            out[key] = np.array([v == "True" for v in values])
+        elif key in ("phases_visited", "failure_mode", "orders"):
+            out[key] = np.array(values)
+        else:
+            out[key] = np.array([float(v) for v in values])
+    return out
+
+
+def moving_average(values: np.ndarray, window: int) -> np.ndarray:
+    """Trailing mean over the last ``window`` values (fewer at the start)."""
+    values = np.asarray(values, dtype=float)
+    cumulative = np.concatenate([[0.0], np.cumsum(values)])
+    index = np.arange(1, len(values) + 1)
+    start = np.maximum(index - window, 0)
+    return (cumulative[index] - cumulative[start]) / (index - start)
+
+
+def plot_run(run_dir: Path, window: int = 20) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    data = read_episodes(run_dir)
+    episode = data["episode"]
+    fig, axes = plt.subplots(3, 3, figsize=(15, 11))
+    fig.suptitle(f"{Path(run_dir).name}: {len(episode)} episodes", fontsize=13)
+
+    ax = axes[0, 0]
+    ax.plot(episode, moving_average(data["success"], window), label=f"success ({window}-episode mean)")
+    ax.plot(episode, moving_average(data["constraint_terminated"], window), label="constraint terminations")
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_title("success")
+    ax.legend(fontsize=8)
+
+    ax = axes[0, 1]
+    modes = data["failure_mode"]
+    for mode in FAILURE_MODES:
+        ax.plot(episode, moving_average(modes == mode, window), label=mode)
+    ax.set_title(f"episode outcome ({window}-episode share)")
+    ax.legend(fontsize=7)
+
+    ax = axes[0, 2]
+    ax.plot(episode, data["learning_return"], ".", ms=3, alpha=0.4)
+    ax.plot(episode, moving_average(data["learning_return"], window))
+    ax.set_title("learning return (mechanism reward)")
+
+    ax = axes[1, 0]
+    ax.plot(episode, data["closest_approach"], ".", ms=3, alpha=0.4, label="closest tip-cube distance")
+    ax.plot(episode, data["cube_displacement"], ".", ms=3, alpha=0.4, label="largest cube displacement")
+    ax.set_title("reach and push (m)")
+    ax.legend(fontsize=8)
+
+    ax = axes[1, 1]
+    steps = data["phase_steps"]
+    for k in range(3):
+        ax.plot(episode, moving_average(steps[:, k], window), label=f"phase {k + 1}")
+    ax.set_title("steps per phase")
+    ax.legend(fontsize=8)
+
+    ax = axes[1, 2]
+    ax.plot(episode, data["touched_steps"], ".", ms=3, alpha=0.4, label="obstacle-touching steps")
+    ax.plot(episode, data["interventions"], ".", ms=3, alpha=0.4, label="filter interventions")
+    ax.set_title("contacts and filter interventions per episode")
+    ax.legend(fontsize=8)
+
+    sums = data["component_sums"]
+    for k in range(3):
+        ax = axes[2, k]
+        for i, name in enumerate(OBJECTIVES):
+            ax.plot(episode, moving_average(sums[:, k, i], window), label=name)
+        levels = data["levels"][:, k]
+        ax.set_title(f"phase {k + 1}: ±1 component sums (level now {int(levels[-1])})")
+        ax.legend(fontsize=8)
+    for ax in axes.flat:
+        ax.set_xlabel("episode")
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    out = Path(run_dir) / "diagnostics.png"
+    fig.savefig(out, dpi=80)
+    plt.close(fig)
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    if not args:
+        print("usage: python -m ahrm_stack.learning.diagnostics RUN_DIR [RUN_DIR ...]", file=sys.stderr)
+        return 2
+    for run_dir in args:
+        try:
+            print(plot_run(Path(run_dir)))
+        except (FileNotFoundError, ValueError) as error:
+            print(f"error: {error}", file=sys.stderr)
+            return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
