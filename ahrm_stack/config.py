@@ -230,6 +230,7 @@ class PPOConfig:
     std_mode: Literal["learned", "fixed"]
     normalize_observations: bool
     normalizer_clip: float  # normalised observations are clipped to +-this
+    bc_coeff: float  # weight of a behaviour-cloning term toward the demonstrations (0: off)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -241,6 +242,10 @@ class TrainConfig:
     keep_checkpoints: int  # most recent checkpoints kept on disk
     eval_episodes: int  # deterministic evaluation episodes at the end of training (0: none)
     threads: int  # torch intra-op threads
+    warm_start: Literal["none", "bc"]  # bc: behaviour cloning from scripted demonstrations first
+    demo_episodes: int  # scripted-controller episodes recorded for warm start and the BC anchor
+    bc_epochs: int  # passes over the demonstrations for behaviour cloning and the critic refit
+    bc_learning_rate: float
 
 
 @dataclasses.dataclass(frozen=True)
@@ -279,6 +284,11 @@ def _convert(tp: Any, value: Any, key: str) -> Any:
             raise ConfigError(f"{key}: expected {len(args)} values, got {len(value)}: {value!r}")
         return tuple(_convert(a, v, f"{key}[{i}]") for i, (a, v) in enumerate(zip(args, value)))
     if tp is float:
+        if isinstance(value, str):  # YAML 1.1 reads "1e-4" as a string
+            try:
+                value = float(value)
+            except ValueError:
+                raise ConfigError(f"{key}: expected a number, got {value!r}") from None
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{key}: expected a number, got {value!r}")
         if not math.isfinite(value):
@@ -406,8 +416,8 @@ def _check_ranges(obj: Any, key: str) -> None:
         for name in ("gamma", "gae_lambda"):
             if not 0 <= getattr(obj, name) <= 1:
                 raise ConfigError(f"{key}.{name} must be in [0, 1], got {getattr(obj, name)}")
-        if obj.entropy_coeff < 0 or obj.critic_coeff < 0:
-            raise ConfigError(f"{key}.entropy_coeff and {key}.critic_coeff must be >= 0")
+        if obj.entropy_coeff < 0 or obj.critic_coeff < 0 or obj.bc_coeff < 0:
+            raise ConfigError(f"{key}.entropy_coeff, critic_coeff and bc_coeff must be >= 0")
         if obj.frames_per_batch % obj.mini_batch_size:
             raise ConfigError(f"{key}.frames_per_batch ({obj.frames_per_batch}) must be a multiple of "
                               f"{key}.mini_batch_size ({obj.mini_batch_size})")
@@ -415,6 +425,7 @@ def _check_ranges(obj: Any, key: str) -> None:
         _positive(obj, key, "episodes", "checkpoint_every", "keep_checkpoints", "threads")
         if obj.eval_episodes < 0:
             raise ConfigError(f"{key}.eval_episodes must be >= 0, got {obj.eval_episodes}")
+        _positive(obj, key, "demo_episodes", "bc_epochs", "bc_learning_rate")
     elif isinstance(obj, ScriptedConfig):
         _positive(obj, key, "travel_speed", "push_speed", "position_gain", "tilt_gain", "tilt_speed",
                   "tilt_tolerance", "orientation_cost", "damping", "clearance", "push_height",

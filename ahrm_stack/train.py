@@ -36,7 +36,7 @@ EPISODE_FIELDS = ["episode", "frames", "steps", "duration", "success", "time_to_
                   "component_sums", "closest_approach", "cube_displacement", "cube_travel",
                   "constraint_terminated", "interventions", "failure_mode", "orders", "levels"]
 BATCH_FIELDS = ["batch", "frames", "episodes", "loss_objective", "loss_critic", "loss_entropy",
-                "entropy", "kl_approx", "std", "grad_norm", "seconds"]
+                "entropy", "kl_approx", "bc_loss", "std", "grad_norm", "seconds"]
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -153,6 +153,8 @@ def train(config: Config, raw: dict, run_dir: Path, resume: bool, progress: bool
             except TrainingDiverged as error:
                 raise SystemExit(f"training stopped: {error}. The last good checkpoint is kept in "
                                  f"{checkpoints.directory}; nothing after it was written.") from None
+            if trainer.warm_start_report is not None and trainer.batches == 1:
+                print(f"warm start: {trainer.warm_start_report}")
             for row in result.episodes:
                 log.episode(row)
                 recent = (recent + [bool(row["success"])])[-20:]

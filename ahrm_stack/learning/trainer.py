@@ -19,6 +19,7 @@ from torchrl.envs.utils import ExplorationType
 
 from ahrm_stack.config import Config
 from ahrm_stack.env.torchrl_env import PushOffEnv
+from ahrm_stack.learning.demonstrations import bc_loss, collect_demonstrations, warm_start
 from ahrm_stack.learning.mechanisms import OBJECTIVES, RewardMechanism
 from ahrm_stack.learning.ppo import make_buffer, make_loss, make_modules
 
@@ -61,6 +62,17 @@ class Trainer:
         self.batches = 0
         self._collector: Collector | None = None
         self._iterator = None
+        self.warm_start_report: dict[str, float] | None = None
+        uses_demos = config.train.warm_start == "bc" or config.ppo.bc_coeff > 0
+        self.demos = collect_demonstrations(config, config.train.demo_episodes) if uses_demos else None
+        self._demo_generator = torch.Generator().manual_seed(config.train.seed)
+
+    def _warm_start(self) -> None:
+        """Behaviour cloning and critic refit, once, before the first batch of a new run."""
+        train = self.config.train
+        self.warm_start_report = warm_start(self.modules, self.demos, train.bc_epochs,
+                                            train.bc_learning_rate, self.config.ppo.mini_batch_size,
+                                            self._demo_generator)
 
     # ------------------------------------------------------------------ one iteration
     def _collect(self):
@@ -75,6 +87,8 @@ class Trainer:
     def iteration(self) -> IterationResult:
         started = time.perf_counter()
         ppo = self.config.ppo
+        if self.batches == 0 and self.config.train.warm_start == "bc" and self.warm_start_report is None:
+            self._warm_start()
         data = self._collect()
         self.frames += data.numel()
         self.batches += 1
@@ -89,6 +103,12 @@ class Trainer:
                 batch = self.buffer.sample()
                 losses = self.loss(batch)
                 loss = losses["loss_objective"] + losses["loss_critic"] + losses.get("loss_entropy", 0.0)
+                if ppo.bc_coeff > 0:  # the anchor toward the demonstrations
+                    index = torch.randint(self.demos.shape[0], (ppo.mini_batch_size,),
+                                          generator=self._demo_generator)
+                    anchor = bc_loss(self.modules.actor, self.demos[index])
+                    loss = loss + ppo.bc_coeff * anchor
+                    totals.setdefault("bc_loss", []).append(float(anchor.detach()))
                 if not torch.isfinite(loss):
                     raise TrainingDiverged(
                         f"non-finite loss at batch {self.batches} (objective "

@@ -1,0 +1,111 @@
+"""Demonstrations from the scripted mink controller, behaviour cloning and the critic refit.
+
+A demonstration step records the observation the learner would see and the normalised action
+that reproduces the controller's request: a = clip(u[j] / v_max[j], -1, 1) for the commanded
+joints j (joint 6 only spins the symmetric pusher and is held at zero, as for the learner). The
+commands go through the same safety filter as the learner's.
+
+Warm start (``train.warm_start: bc``): fit the actor's mean to the demonstrated actions
+(pre-tanh, MSE on atanh(a)), then fit the critic to the demonstrations' discounted returns under
+the reward mechanism's initial state. The same data serves as the anchor of the PPO update
+(``ppo.bc_coeff``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from tensordict import TensorDict
+
+from ahrm_stack.config import Config
+from ahrm_stack.env.runner import TaskRunner
+from ahrm_stack.env.scripted import ScriptedPusher
+from ahrm_stack.env.task import PushOffTask
+from ahrm_stack.learning.mechanisms import RewardMechanism
+
+DEMO_SEED_OFFSET = 2_000_000  # demonstration seeds never overlap training or evaluation seeds
+ACTION_LIMIT = 0.995  # demonstrated actions are kept inside the tanh's open interval
+
+
+def collect_demonstrations(config: Config, episodes: int) -> TensorDict:
+    """Run the scripted controller for ``episodes`` seeded episodes; successful episodes only.
+
+    Returns a flat TensorDict with ``observation``, ``action`` (normalised, commanded joints) and
+    ``return`` (discounted return under the initial reward-mechanism state, ``ppo.gamma``).
+    """
+    if config.task.action.mode != "joint":
+        raise ValueError("demonstrations are recorded for action.mode: joint only")
+    task = PushOffTask(config.task)
+    runner = TaskRunner(task, seed=DEMO_SEED_OFFSET, safety=config.safety)
+    controller = ScriptedPusher(task, config.scripted)
+    mechanism = RewardMechanism(config.mechanism)
+    commanded = list(task.robot.commanded_joints)
+    limits = task.robot.velocity_limit[commanded]
+    observations, actions, returns = [], [], []
+    for episode in range(episodes):
+        runner.seed(DEMO_SEED_OFFSET + episode)
+        runner.reset()
+        controller.reset(runner.physics)
+        obs, act, rewards = [], [], []
+        terminated = truncated = False
+        while not (terminated or truncated):
+            obs.append(runner.flat_observation())
+            request = controller(runner.physics)
+            action = np.clip(request[commanded] / limits, -ACTION_LIMIT, ACTION_LIMIT)
+            act.append(action)
+            command = np.zeros(task.robot.num_joints)
+            command[commanded] = action * limits
+            info, terminated, truncated = runner.step_only(command)
+            rewards.append(float(mechanism.reward(info.g, info.distances)))
+        if not terminated:
+            continue
+        discounted, running = [], 0.0
+        for reward in reversed(rewards):  # success is terminal: no bootstrap after it
+            running = reward + config.ppo.gamma * running
+            discounted.append(running)
+        observations += obs
+        actions += act
+        returns += discounted[::-1]
+    if not observations:
+        raise RuntimeError("the scripted controller produced no successful demonstration")
+    return TensorDict({
+        "observation": torch.as_tensor(np.array(observations), dtype=torch.float32),
+        "action": torch.as_tensor(np.array(actions), dtype=torch.float32),
+        "return": torch.as_tensor(np.array(returns), dtype=torch.float32).unsqueeze(-1),
+    }, batch_size=[len(observations)])
+
+
+def bc_loss(actor, batch: TensorDict) -> torch.Tensor:
+    """MSE between the actor's pre-tanh mean and atanh of the demonstrated actions."""
+    out = actor.module[0](batch.select("observation").clone())  # normaliser + network: loc, scale
+    target = torch.atanh(batch["action"].clamp(-ACTION_LIMIT, ACTION_LIMIT))
+    return torch.mean((out["loc"] - target) ** 2)
+
+
+def warm_start(modules, demos: TensorDict, epochs: int, learning_rate: float,
+               batch_size: int, generator: torch.Generator) -> dict[str, float]:
+    """Behaviour cloning of the actor and a critic refit to the demonstrations' returns."""
+    modules.normalizer.update(demos["observation"])
+    actor_params = [p for p in modules.actor.parameters() if p.requires_grad]
+    critic_params = [p for p in modules.critic.parameters() if p.requires_grad]
+    actor_opt = torch.optim.Adam(actor_params, lr=learning_rate)
+    critic_opt = torch.optim.Adam(critic_params, lr=learning_rate)
+    n = demos.shape[0]
+    for _ in range(epochs):
+        order = torch.randperm(n, generator=generator)
+        for start in range(0, n, batch_size):
+            batch = demos[order[start:start + batch_size]]
+            loss = bc_loss(modules.actor, batch)
+            actor_opt.zero_grad()
+            loss.backward()
+            actor_opt.step()
+            value = modules.critic(batch.select("observation").clone())["state_value"]
+            critic_loss = torch.mean((value - batch["return"]) ** 2)
+            critic_opt.zero_grad()
+            critic_loss.backward()
+            critic_opt.step()
+    with torch.no_grad():
+        final_bc = float(bc_loss(modules.actor, demos))
+        value = modules.critic(demos.select("observation").clone())["state_value"]
+        final_critic = float(torch.mean((value - demos["return"]) ** 2))
+    return {"bc_loss": final_bc, "critic_loss": final_critic, "demo_steps": float(n)}
