@@ -136,3 +136,18 @@ def test_torchrl_env_specs_and_seeded_rollouts(config, task_config):
     assert torch.equal(rollouts[0]["next", "observation"], rollouts[1]["next", "observation"])
     assert rollouts[0]["next", "observation"].dtype == torch.float32
     assert set(rollouts[0]["next"].keys()) >= {"f", "g", "phase", "x", "success", "touched", "reward"}
+
+
+def test_cartesian_action_mode_moves_the_tip_through_the_filter(config):
+    """action.mode: cartesian — a tip velocity goes through the filter's differential IK."""
+    cfg = load_config(["task.action.mode=cartesian"])
+    env = PushOffEnv(cfg.task, cfg.safety, seed=0)
+    assert env.action_spec.shape == (3,)
+    td = env.reset()
+    start = env.task.step_info.tip.copy()
+    for _ in range(10):
+        td["action"] = torch.tensor([0.0, 0.0, -1.0])  # straight down
+        td = env.step(td)["next"]
+    moved = env.task.step_info.tip - start
+    assert moved[2] < -0.02 and abs(moved[0]) < 0.5 * abs(moved[2]) and abs(moved[1]) < 0.5 * abs(moved[2])
+    assert env.runner.last_filter_result is not None
