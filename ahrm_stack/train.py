@@ -34,7 +34,8 @@ from ahrm_stack.learning.trainer import Trainer, TrainingDiverged
 EPISODE_FIELDS = ["episode", "frames", "steps", "duration", "success", "time_to_success",
                   "touched_steps", "learning_return", "phase_steps", "phases_visited",
                   "component_sums", "closest_approach", "cube_displacement", "cube_travel",
-                  "constraint_terminated", "interventions", "failure_mode", "orders", "levels"]
+                  "constraint_terminated", "interventions", "joint_limit_violations", "failure_mode",
+                  "orders", "levels"]
 BATCH_FIELDS = ["batch", "frames", "episodes", "loss_objective", "loss_critic", "loss_entropy",
                 "entropy", "kl_approx", "bc_loss", "std", "grad_norm", "seconds"]
 

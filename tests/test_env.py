@@ -151,3 +151,15 @@ def test_cartesian_action_mode_moves_the_tip_through_the_filter(config):
     moved = env.task.step_info.tip - start
     assert moved[2] < -0.02 and abs(moved[0]) < 0.5 * abs(moved[2]) and abs(moved[1]) < 0.5 * abs(moved[2])
     assert env.runner.last_filter_result is not None
+
+
+def test_joint_limit_violations_are_counted_from_the_simulator(task_config):
+    runner = TaskRunner(PushOffTask(task_config), seed=0)  # raw: no filter, to force a violation
+    runner.reset()
+    adr = runner.physics.bind(runner.task.arm.joints).qposadr
+    runner.physics.data.qpos[adr[1]] = runner.task.robot.position_lower[1] - 0.2  # joint 2 below its range
+    runner.physics.forward()
+    runner.step_only(np.zeros(6))
+    assert runner.limit_violations == 1
+    runner.reset()
+    assert runner.limit_violations == 0

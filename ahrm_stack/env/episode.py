@@ -31,6 +31,7 @@ class EpisodeSummary:
     constraint_terminated: bool
     constraint_phase: int | None
     interventions: int = 0  # safety-filter calls that modified the command
+    joint_limit_violations: int = 0  # steps with a joint outside its position limits (simulator)
     events: list = dataclasses.field(default_factory=list)
 
     @property
@@ -85,8 +86,8 @@ class EpisodeRecorder:
         self._elapsed = info.elapsed
         self.interventions += int(intervened)
 
-    def summary(self, constraint_terminated: bool = False,
-                constraint_phase: int | None = None) -> EpisodeSummary:
+    def summary(self, constraint_terminated: bool = False, constraint_phase: int | None = None,
+                joint_limit_violations: int = 0) -> EpisodeSummary:
         f = np.asarray(self.f, dtype=float).reshape(-1, 3)
         phase = np.asarray(self.phase, dtype=int)
         sums = [f[phase == k].sum(axis=0).tolist() for k in range(1, NUM_PHASES + 1)]
@@ -98,4 +99,5 @@ class EpisodeRecorder:
             phases_visited=">".join(str(k) for k in self._visited), component_sums=sums,
             closest_approach=self._closest, cube_displacement=self._displacement,
             cube_travel=self._travel, constraint_terminated=constraint_terminated,
-            constraint_phase=constraint_phase, interventions=self.interventions)
+            constraint_phase=constraint_phase, interventions=self.interventions,
+            joint_limit_violations=joint_limit_violations)

@@ -53,6 +53,7 @@ class TaskRunner:
         self.filter: SafetyFilter | None = None
         self.safety_stats = InterventionStats()
         self.last_filter_result: FilterResult | None = None
+        self.limit_violations = 0  # steps of this episode with a joint outside its position limits
         if safety is None:
             log.warning("TaskRunner without a safety filter: commands reach the actuators unfiltered")
         elif not safety.enabled:
@@ -92,6 +93,7 @@ class TaskRunner:
             self.filter.reset()
         self.safety_stats.reset()
         self.last_filter_result = None
+        self.limit_violations = 0
         return Transition(self.observe(), self.task.step_info, False, False)
 
     def _filtered(self, request: np.ndarray, cartesian: bool) -> np.ndarray:
@@ -124,6 +126,7 @@ class TaskRunner:
         self.task.before_step(self.physics, command, self.random_state)
         self.physics.step(self._substeps)
         self.task.after_step(self.physics, self.random_state)
+        self.limit_violations += self._count_limit_violations()
         self._steps += 1
         info = self.task.step_info
         terminated = self.task.should_terminate_episode(self.physics)
@@ -136,6 +139,13 @@ class TaskRunner:
         """Close the episode's cross-episode bookkeeping (f3's phase budgets). Called on success
         and time limit here; a caller that ends an episode early for its own reason calls it."""
         self.task.time_objective.end_episode()
+
+    def _count_limit_violations(self) -> int:
+        """1 when a limited joint of the simulated arm is outside its position range, else 0."""
+        q, _ = self.task.arm_state(self.physics)
+        robot = self.task.robot
+        outside = (q < robot.position_lower) | (q > robot.position_upper)
+        return int(outside.any())
 
     def step(self, command: np.ndarray) -> Transition:
         info, terminated, truncated = self.step_only(command)

@@ -136,7 +136,8 @@ class PushOffEnv(EnvBase):
 
     def _finish_episode(self, constrained: bool) -> None:
         phase = self._monitor.violated_phase if constrained else None
-        summary = self._recorder.summary(constraint_terminated=constrained, constraint_phase=phase)
+        summary = self._recorder.summary(constraint_terminated=constrained, constraint_phase=phase,
+                                         joint_limit_violations=self.runner.limit_violations)
         if self.mechanism is not None:
             summary.events = self.mechanism.end_episode(
                 self._recorder.f, self._recorder.phase, constraint_terminated=constrained,

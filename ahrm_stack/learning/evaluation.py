@@ -44,7 +44,7 @@ class EvaluationTable:
         return self.successes / self.episodes if self.episodes else float("nan")
 
     @classmethod
-    def from_summaries(cls, summaries: list[EpisodeSummary], violations: int = 0) -> "EvaluationTable":
+    def from_summaries(cls, summaries: list[EpisodeSummary]) -> "EvaluationTable":
         times = [s.time_to_success for s in summaries if s.success]
         travel = [s.cube_travel for s in summaries]
         return cls(len(summaries), sum(s.success for s in summaries),
@@ -52,7 +52,8 @@ class EvaluationTable:
                    float(np.mean(times)) if times else float("nan"),
                    float(np.std(times)) if times else float("nan"),
                    float(np.mean(travel)), float(np.std(travel)),
-                   float(np.mean([s.interventions for s in summaries])), violations)
+                   float(np.mean([s.interventions for s in summaries])),
+                   sum(s.joint_limit_violations for s in summaries))
 
     def __str__(self) -> str:
         return (f"episodes {self.episodes} | successes {self.successes} ({self.success_rate:.1%}) | "
