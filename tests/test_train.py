@@ -109,3 +109,15 @@ def test_nan_loss_stops_with_a_clear_message(tmp_path, monkeypatch):
 def test_bad_config_key_is_named(capsys):
     assert main(["ppo.learning_rat=1", "--no-progress"]) == 2
     assert "unknown config key 'ppo.learning_rat'" in capsys.readouterr().err
+
+
+def test_same_seed_same_training(tmp_path):
+    runs = []
+    for name in ("a", "b"):
+        run = tmp_path / name
+        assert main(SMALL + ["train.episodes=4", "train.eval_episodes=0", "--run-dir", str(run),
+                             "--no-progress"]) == 0
+        episodes = [{k: v for k, v in row.items()} for row in _rows(run / "episodes.csv")]
+        batches = [{k: v for k, v in row.items() if k != "seconds"} for row in _rows(run / "batches.csv")]
+        runs.append((episodes, batches))
+    assert runs[0] == runs[1]
