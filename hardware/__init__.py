@@ -1,0 +1,1 @@
+"""Arm adapters: the Kortex-style protocol and its backends."""
