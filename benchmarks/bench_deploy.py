@@ -1,0 +1,123 @@
+"""Deploy loop latency (feedback received → command sent) and missed deadlines, at 20 Hz and 100 Hz.
+
+The scripted controller drives the sim backend paced to the wall clock (``--realtime``, the
+default) for ``--duration`` s per rate (the issue's figure is 60 s; 10 s keeps it short); a new
+seeded episode starts whenever the cube is off the table. The watchdog tolerates misses here so
+that they are counted instead of ending the run. Besides the whole step it reports the two costly
+parts inside it: the controller (mink IK) and the QP safety filter (obstacle rows on).
+Goals: whole-step p99 ≤ 1 ms; no missed deadline at 20 Hz.
+
+Usage: python benchmarks/bench_deploy.py [--duration S] [--rates 20 100] [--fast] [--checkpoint RUN]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import logging
+import os
+import time
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import numpy as np  # noqa: E402
+
+from ahrm_stack.deploy import (DeployLoop, WorldModel, load_controller_config,  # noqa: E402
+                               load_deploy_settings, make_controller)
+from hardware.protocol import FastClock, WallClock  # noqa: E402
+from hardware.sim import SimArm  # noqa: E402
+
+GOAL_P99_MS = 1.0
+
+
+class _Timed:
+    """Wraps a callable and records the wall time of each call (s)."""
+
+    def __init__(self, inner) -> None:
+        self.inner, self.times = inner, []
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+    def __call__(self, *args, **kwargs):
+        start = time.perf_counter()
+        try:
+            return self.inner(*args, **kwargs)
+        finally:
+            self.times.append(time.perf_counter() - start)
+
+
+def _ms(values) -> tuple[float, float, float]:
+    v = np.asarray(values) * 1e3
+    return (float(np.percentile(v, 50)), float(np.percentile(v, 99)), float(v.max())) if v.size \
+        else (float("nan"),) * 3
+
+
+def bench_rate(rate: float, duration: float, realtime: bool, checkpoint) -> dict:
+    settings = load_deploy_settings(rate_hz=rate, realtime=realtime, telemetry="")
+    settings = dataclasses.replace(settings, watchdog=dataclasses.replace(
+        settings.watchdog, max_deadline_misses=10**9))
+    config, actor = load_controller_config(checkpoint)
+    clock = WallClock() if realtime else FastClock()
+    arm = SimArm(config.task, seed=0, clock=clock)
+    world = WorldModel(config.task)
+    controller = _Timed(make_controller(world, config, actor))
+    latencies, controller_times, filter_times = [], [], []
+    misses = ticks = episodes = successes = 0
+    stops = []
+    arm.connect()
+    left = duration
+    while left > 1e-9:
+        arm.reset_scene(seed=episodes)
+        loop = DeployLoop(arm, world, controller, config.safety, settings)
+        loop.filter = _Timed(loop.filter)
+        controller.times.clear()
+        summary = loop.run(left)
+        episodes += 1
+        successes += summary.success
+        latencies += loop.latencies
+        controller_times += controller.times[2:]  # the two calls of start() are not in the loop
+        filter_times += loop.filter.times[1:]
+        misses += loop.deadline_misses
+        ticks += summary.ticks
+        left -= max(summary.duration, loop.period)
+        if not summary.success and "duration" not in summary.stop_reason:
+            stops.append(summary.stop_reason)
+            break
+    arm.disconnect()
+    return dict(rate=rate, ticks=ticks, episodes=episodes, successes=successes, misses=misses,
+                step=_ms(latencies), controller=_ms(controller_times), filter=_ms(filter_times),
+                stops=stops)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--duration", type=float, default=10.0, help="s per rate (default 10)")
+    parser.add_argument("--rates", type=float, nargs="+", default=[20.0, 100.0])
+    parser.add_argument("--fast", action="store_true", help="unpaced (deadlines then count only "
+                        "computation)")
+    parser.add_argument("--checkpoint", help="a policy run folder instead of the scripted controller")
+    args = parser.parse_args()
+    logging.basicConfig(level=logging.ERROR)
+    logging.getLogger("ahrm_stack.deploy").setLevel(logging.ERROR)
+    mode = "fast" if args.fast else "realtime"
+    name = "policy" if args.checkpoint else "scripted"
+    print(f"deploy loop, sim backend, {name} controller, {mode}, {args.duration:g} s per rate")
+    print(f"{'rate':>7} {'ticks':>6} {'eps':>4} {'ok':>3} {'missed':>6} | "
+          f"{'step p50/p99/max ms':>22} | {'controller p50/p99':>18} | {'filter p50/p99':>15}")
+    for rate in args.rates:
+        r = bench_rate(rate, args.duration, not args.fast, args.checkpoint)
+        step, ctrl, filt = r["step"], r["controller"], r["filter"]
+        print(f"{rate:5.0f}Hz {r['ticks']:6d} {r['episodes']:4d} {r['successes']:3d} "
+              f"{r['misses']:6d} | {step[0]:6.3f} / {step[1]:6.3f} / {step[2]:6.3f} | "
+              f"{ctrl[0]:7.3f} / {ctrl[1]:7.3f} | {filt[0]:6.3f} / {filt[1]:6.3f}")
+        for stop in r["stops"]:
+            print(f"        stopped early: {stop}")
+        verdict = "met" if step[1] <= GOAL_P99_MS else "NOT met"
+        print(f"        goal whole-step p99 <= {GOAL_P99_MS:g} ms: {verdict}"
+              + (f"; goal 0 missed deadlines at 20 Hz: {'met' if r['misses'] == 0 else 'NOT met'}"
+                 if rate == 20 else ""))
+
+
+if __name__ == "__main__":
+    main()

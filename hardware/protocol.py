@@ -1,0 +1,294 @@
+"""The arm adapter protocol, in the vocabulary of Kinova's Kortex API.
+
+One small abstract class, :class:`ArmAdapter`, whose docstrings are the contract every backend
+meets (the shared suite in ``tests/test_hardware_contract.py`` checks it):
+
+==========================  =====================================================================
+Kortex                      here
+==========================  =====================================================================
+TCP transport + router +    :meth:`ArmAdapter.connect` / :meth:`ArmAdapter.disconnect`
+SessionManager
+BaseCyclic.RefreshFeedback  :meth:`ArmAdapter.refresh_feedback` -> :class:`Feedback`
+Base.SendJointSpeedsCommand :meth:`ArmAdapter.send_joint_speeds` (all joints at once)
+Base.Stop                   :meth:`ArmAdapter.stop`
+Base.ApplyEmergencyStop     :meth:`ArmAdapter.apply_emergency_stop`
+Base.ClearFaults            :meth:`ArmAdapter.clear_faults`
+Base.SetServoingMode        :meth:`ArmAdapter.set_servoing_mode`
+==========================  =====================================================================
+
+Units are SI and radians everywhere in this protocol: positions in rad, velocities in rad/s,
+torques in N·m, times in s. Only the Kortex backend converts to degrees, at its edge.
+
+Every method but :meth:`ArmAdapter.connect` and the description properties raises
+:class:`NotConnectedError` when the adapter is not connected. Commands are re-checked against the
+robot's limits here, at the adapter (:func:`check_joint_speeds`): a command that is non-finite, of
+the wrong size, or beyond a velocity limit is refused and the arm is e-stopped.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+import enum
+import time
+
+import numpy as np
+
+
+class HardwareError(RuntimeError):
+    """Base class of adapter errors; the message names the bad value and never a credential."""
+
+
+class NotConnectedError(HardwareError):
+    """A call that needs a session was made without one (before connect or after disconnect)."""
+
+
+class ConnectionLostError(HardwareError):
+    """The session dropped. The arm's own watchdog stops it; the adapter is disconnected."""
+
+
+class FeedbackTimeoutError(HardwareError):
+    """No feedback came back in time (a dropped RefreshFeedback)."""
+
+
+class CommandRefusedError(HardwareError):
+    """A command failed the adapter's limit check; the arm was e-stopped."""
+
+
+class ArmFaultError(HardwareError):
+    """The arm is in fault (e.g. after an emergency stop): motion commands are refused until
+    :meth:`ArmAdapter.clear_faults`."""
+
+
+class ArmState(enum.Enum):
+    """Kortex ``ArmState`` (Common.proto), the states an adapter reports."""
+
+    BASE_INITIALIZATION = "base_initialization"
+    IDLE = "idle"
+    INITIALIZATION = "initialization"
+    IN_FAULT = "in_fault"
+    MAINTENANCE = "maintenance"
+    SERVOING_LOW_LEVEL = "servoing_low_level"
+    SERVOING_READY = "servoing_ready"
+    SERVOING_PLAYING_SEQUENCE = "servoing_playing_sequence"
+    SERVOING_MANUALLY_CONTROLLED = "servoing_manually_controlled"
+
+
+class Fault(enum.IntFlag):
+    """Fault flags of one feedback frame (a summary of Kortex's fault banks)."""
+
+    NONE = 0
+    EMERGENCY_STOP = 1  # ApplyEmergencyStop was called (by us or the adapter's limit check)
+    LIMIT = 2  # a command was refused by the limit check, or a joint is past a limit
+    HARDWARE = 4  # an actuator or base fault bank is non-zero
+    COMMUNICATION = 8  # the link to the arm reported an error
+
+
+class ServoingMode(enum.Enum):
+    """Kortex ``ServoingMode``: joint speed commands need single-level servoing."""
+
+    SINGLE_LEVEL_SERVOING = "single_level_servoing"
+    LOW_LEVEL_SERVOING = "low_level_servoing"
+
+
+@dataclasses.dataclass(frozen=True)
+class Feedback:
+    """One feedback frame (BaseCyclic's ``Feedback``), SI units.
+
+    Attributes:
+        timestamp: s, on the adapter's clock, when the frame was measured.
+        frame_id: increases by at least one per fresh frame; a repeated id is a stale frame.
+        position: (n,) joint positions, rad (continuous joints unwrapped, not reduced mod 2π).
+        velocity: (n,) joint velocities, rad/s.
+        torque: (n,) joint torques, N·m.
+        arm_state: the arm's state.
+        faults: fault flags; ``Fault.NONE`` when healthy.
+    """
+
+    timestamp: float
+    frame_id: int
+    position: np.ndarray
+    velocity: np.ndarray
+    torque: np.ndarray
+    arm_state: ArmState
+    faults: Fault
+
+    @property
+    def healthy(self) -> bool:
+        """No fault flag, not in fault, and every reading finite."""
+        return (self.faults == Fault.NONE and self.arm_state != ArmState.IN_FAULT
+                and bool(np.isfinite(self.position).all() and np.isfinite(self.velocity).all()
+                         and np.isfinite(self.torque).all()))
+
+
+@dataclasses.dataclass(frozen=True)
+class ObjectPoses:
+    """What a perception module gives: world-frame poses of the cube and the obstacles.
+
+    Positions in m, quaternions (w, x, y, z), linear velocities in m/s; ``timestamp`` in s on the
+    adapter's clock. Obstacle arrays have one row per obstacle.
+    """
+
+    timestamp: float
+    cube_position: np.ndarray  # (3,)
+    cube_quaternion: np.ndarray  # (4,)
+    cube_velocity: np.ndarray  # (3,)
+    obstacle_positions: np.ndarray  # (k, 3)
+    obstacle_quaternions: np.ndarray  # (k, 4)
+    obstacle_velocities: np.ndarray  # (k, 3)
+
+    @property
+    def finite(self) -> bool:
+        return all(bool(np.isfinite(a).all()) for a in (
+            self.cube_position, self.cube_quaternion, self.cube_velocity, self.obstacle_positions,
+            self.obstacle_quaternions, self.obstacle_velocities))
+
+
+class WallClock:
+    """Real time: ``now`` is ``time.perf_counter`` (s), ``sleep`` really sleeps."""
+
+    def now(self) -> float:
+        return time.perf_counter()
+
+    def sleep(self, seconds: float) -> None:
+        if seconds > 0:
+            time.sleep(seconds)
+
+    def sleep_until(self, deadline: float) -> None:
+        # Sleep coarsely, then spin the last half millisecond: time.sleep overshoots by ~0.1 ms.
+        while True:
+            left = deadline - self.now()
+            if left <= 0:
+                return
+            if left > 5e-4:
+                time.sleep(left - 5e-4)
+
+
+class FastClock(WallClock):
+    """As fast as possible: a virtual clock that moves only when slept on. A paced loop then runs
+    unpaced with the same timing logic, and a simulation driven by it is deterministic (the
+    computation between two sleeps takes no simulated time; only an explicit ``sleep``, e.g. an
+    injected command delay, can make a deadline late)."""
+
+    def __init__(self, start: float = 0.0) -> None:
+        self._now = float(start)
+
+    def now(self) -> float:
+        return self._now
+
+    def sleep(self, seconds: float) -> None:
+        if seconds > 0:
+            self._now += seconds
+
+    def sleep_until(self, deadline: float) -> None:
+        self._now = max(self._now, float(deadline))
+
+
+def check_joint_speeds(speeds, velocity_limit: np.ndarray) -> np.ndarray:
+    """The command as a float array if it is safe to send, else :class:`CommandRefusedError`.
+
+    ``speeds``: joint velocities, rad/s, one per joint. Refused: wrong size, any non-finite entry,
+    or any ``|speed| > velocity_limit`` (rad/s). The message names the first bad joint.
+    """
+    limit = np.asarray(velocity_limit, dtype=float)
+    try:
+        command = np.asarray(speeds, dtype=float).reshape(-1)
+    except (TypeError, ValueError) as error:
+        raise CommandRefusedError(f"joint speeds are not numbers: {error}") from None
+    if command.shape != limit.shape:
+        raise CommandRefusedError(f"joint speeds have {command.size} entries; the arm has "
+                                  f"{limit.size} joints")
+    bad = np.flatnonzero(~np.isfinite(command))
+    if bad.size:
+        raise CommandRefusedError(f"joint speed [{bad[0]}] is {command[bad[0]]} (non-finite)")
+    over = np.flatnonzero(np.abs(command) > limit)
+    if over.size:
+        i = over[0]
+        raise CommandRefusedError(f"joint speed [{i}] is {command[i]:.6g} rad/s, beyond its "
+                                  f"limit {limit[i]:.6g} rad/s")
+    return command
+
+
+class ArmAdapter(abc.ABC):
+    """A connection to one arm, Kortex style. Contract (every backend):
+
+    * ``joint_names``, ``velocity_limit`` describe the arm without a connection.
+    * :meth:`connect` opens the session and leaves the arm in single-level servoing, stopped; it is
+      an error to connect twice. :meth:`disconnect` stops the arm and closes the session; it is
+      idempotent.
+    * While not connected, every other method raises :class:`NotConnectedError`.
+    * :meth:`send_joint_speeds` returns the command actually sent (rad/s); it refuses (and
+      e-stops) commands failing :func:`check_joint_speeds`, and raises :class:`ArmFaultError`
+      while the arm is in fault.
+    * :meth:`apply_emergency_stop` stops the arm and puts it in fault until :meth:`clear_faults`.
+    """
+
+    @property
+    @abc.abstractmethod
+    def joint_names(self) -> tuple[str, ...]:
+        """Names of the joints, in command and feedback order."""
+
+    @property
+    @abc.abstractmethod
+    def velocity_limit(self) -> np.ndarray:
+        """(n,) rad/s: the adapter refuses any command beyond it."""
+
+    @property
+    def num_joints(self) -> int:
+        return len(self.joint_names)
+
+    @property
+    def clock(self) -> WallClock:
+        """The clock of :attr:`Feedback.timestamp`; the deploy loop paces itself with it."""
+        return WallClock()
+
+    @property
+    @abc.abstractmethod
+    def is_connected(self) -> bool:
+        """A session is open."""
+
+    @abc.abstractmethod
+    def connect(self) -> None:
+        """Open the session (transport, router, session, clients); raise :class:`HardwareError`
+        if it cannot."""
+
+    @abc.abstractmethod
+    def disconnect(self) -> None:
+        """Stop the arm (best effort) and close the session; a no-op when not connected."""
+
+    @abc.abstractmethod
+    def refresh_feedback(self) -> Feedback:
+        """A fresh feedback frame; :class:`FeedbackTimeoutError` when none came in time,
+        :class:`ConnectionLostError` when the session dropped."""
+
+    @abc.abstractmethod
+    def send_joint_speeds(self, speeds: np.ndarray) -> np.ndarray:
+        """Command joint velocities (rad/s, all joints at once) and return what was sent."""
+
+    @abc.abstractmethod
+    def stop(self) -> None:
+        """Command zero velocity on every joint (Base.Stop). Allowed in fault."""
+
+    @abc.abstractmethod
+    def apply_emergency_stop(self) -> None:
+        """Stop now and enter fault (Fault.EMERGENCY_STOP); motion is refused until cleared."""
+
+    @abc.abstractmethod
+    def clear_faults(self) -> None:
+        """Leave fault: back to servoing-ready, the arm stopped."""
+
+    @property
+    @abc.abstractmethod
+    def servoing_mode(self) -> ServoingMode:
+        """The current servoing mode."""
+
+    @abc.abstractmethod
+    def set_servoing_mode(self, mode: ServoingMode) -> None:
+        """Switch servoing mode; joint speed commands need ``SINGLE_LEVEL_SERVOING``."""
+
+    def __enter__(self) -> "ArmAdapter":
+        self.connect()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.disconnect()

@@ -1,0 +1,152 @@
+"""The adapter contract (hardware/protocol.py) that every backend passes; run against the sim
+backend in fast (unpaced) mode. A new backend adds a factory to BACKENDS."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hardware.protocol import (ArmAdapter, ArmFaultError, ArmState, CommandRefusedError,
+                               FastClock, Fault, HardwareError, NotConnectedError, ServoingMode)
+
+
+def _sim(task_config) -> ArmAdapter:
+    from hardware.sim import SimArm
+
+    return SimArm(task_config, seed=0, clock=FastClock())
+
+
+BACKENDS = {"sim": _sim}
+
+
+@pytest.fixture(params=sorted(BACKENDS))
+def arm(request, task_config):
+    adapter = BACKENDS[request.param](task_config)
+    yield adapter
+    adapter.disconnect()
+
+
+@pytest.fixture
+def connected(arm):
+    arm.connect()
+    return arm
+
+
+def _speeds(arm: ArmAdapter, joint: int, speed: float) -> np.ndarray:
+    command = np.zeros(arm.num_joints)
+    command[joint] = speed
+    return command
+
+
+def test_description_needs_no_connection(arm):
+    assert not arm.is_connected
+    assert len(arm.joint_names) == arm.num_joints == arm.velocity_limit.shape[0]
+    assert (arm.velocity_limit > 0).all() and np.isfinite(arm.velocity_limit).all()
+
+
+@pytest.mark.parametrize("call", [
+    lambda a: a.refresh_feedback(), lambda a: a.send_joint_speeds(np.zeros(a.num_joints)),
+    lambda a: a.stop(), lambda a: a.apply_emergency_stop(), lambda a: a.clear_faults(),
+    lambda a: a.servoing_mode, lambda a: a.set_servoing_mode(ServoingMode.SINGLE_LEVEL_SERVOING)])
+def test_every_call_needs_a_connection(arm, call):
+    with pytest.raises(NotConnectedError):
+        call(arm)
+    arm.connect()
+    arm.disconnect()
+    with pytest.raises(NotConnectedError):
+        call(arm)
+
+
+def test_connect_and_disconnect(arm):
+    arm.connect()
+    assert arm.is_connected
+    assert arm.servoing_mode == ServoingMode.SINGLE_LEVEL_SERVOING
+    with pytest.raises(Exception):
+        arm.connect()  # twice is an error
+    arm.disconnect()
+    assert not arm.is_connected
+    arm.disconnect()  # idempotent
+    with arm:  # context manager
+        assert arm.is_connected
+    assert not arm.is_connected
+
+
+def test_feedback_shape_and_health(connected):
+    first = connected.refresh_feedback()
+    connected.clock.sleep(0.01)
+    second = connected.refresh_feedback()
+    n = connected.num_joints
+    for frame in (first, second):
+        assert frame.position.shape == frame.velocity.shape == frame.torque.shape == (n,)
+        assert frame.healthy and frame.faults == Fault.NONE
+        assert frame.arm_state == ArmState.SERVOING_READY
+    assert second.frame_id > first.frame_id and second.timestamp > first.timestamp
+
+
+def test_units_are_radians_and_seconds(connected):
+    """0.2 rad/s on the base joint for 0.5 s turns it by about 0.1 rad (not 0.1 degree)."""
+    start = connected.refresh_feedback().position
+    sent = connected.send_joint_speeds(_speeds(connected, 0, 0.2))
+    np.testing.assert_allclose(sent, _speeds(connected, 0, 0.2))
+    connected.clock.sleep(0.5)
+    frame = connected.refresh_feedback()
+    assert frame.position[0] - start[0] == pytest.approx(0.1, rel=0.2)
+    assert frame.velocity[0] == pytest.approx(0.2, rel=0.1)
+
+
+def test_command_round_trip_returns_what_was_sent(connected):
+    command = 0.5 * connected.velocity_limit * np.linspace(-1, 1, connected.num_joints)
+    sent = connected.send_joint_speeds(command.tolist())
+    assert isinstance(sent, np.ndarray) and sent.dtype == float
+    np.testing.assert_array_equal(sent, command)
+
+
+def test_stop_brings_the_arm_to_rest(connected):
+    connected.send_joint_speeds(_speeds(connected, 0, 0.5))
+    connected.clock.sleep(0.3)
+    assert abs(connected.refresh_feedback().velocity[0]) > 0.3
+    connected.stop()
+    connected.clock.sleep(0.2)
+    assert np.abs(connected.refresh_feedback().velocity).max() < 0.05
+
+
+@pytest.mark.parametrize("bad", ["over_limit", "nan", "inf", "wrong_size"])
+def test_limits_are_rechecked_at_the_adapter(connected, bad):
+    limit = connected.velocity_limit
+    command = {"over_limit": _speeds(connected, 1, 1.01 * limit[1]),
+               "nan": _speeds(connected, 2, np.nan), "inf": _speeds(connected, 0, np.inf),
+               "wrong_size": np.zeros(connected.num_joints + 1)}[bad]
+    with pytest.raises(CommandRefusedError):
+        connected.send_joint_speeds(command)
+    frame = connected.refresh_feedback()
+    assert frame.arm_state == ArmState.IN_FAULT and Fault.EMERGENCY_STOP in frame.faults
+    with pytest.raises(ArmFaultError):  # refused and e-stopped: nothing moves until cleared
+        connected.send_joint_speeds(np.zeros(connected.num_joints))
+
+
+def test_emergency_stop_blocks_commands_until_faults_are_cleared(connected):
+    connected.send_joint_speeds(_speeds(connected, 0, 0.4))
+    connected.clock.sleep(0.2)
+    connected.apply_emergency_stop()
+    frame = connected.refresh_feedback()
+    assert frame.arm_state == ArmState.IN_FAULT and not frame.healthy
+    for _ in range(3):
+        with pytest.raises(ArmFaultError):
+            connected.send_joint_speeds(_speeds(connected, 0, 0.1))
+    connected.stop()  # stopping is always allowed
+    connected.clock.sleep(0.2)
+    assert np.abs(connected.refresh_feedback().velocity).max() < 0.05
+    connected.clear_faults()
+    frame = connected.refresh_feedback()
+    assert frame.healthy and frame.arm_state == ArmState.SERVOING_READY
+    np.testing.assert_array_equal(connected.send_joint_speeds(_speeds(connected, 0, 0.1)),
+                                  _speeds(connected, 0, 0.1))
+
+
+def test_joint_speeds_need_single_level_servoing(connected):
+    connected.set_servoing_mode(ServoingMode.LOW_LEVEL_SERVOING)
+    assert connected.servoing_mode == ServoingMode.LOW_LEVEL_SERVOING
+    with pytest.raises(HardwareError):
+        connected.send_joint_speeds(np.zeros(connected.num_joints))
+    connected.set_servoing_mode(ServoingMode.SINGLE_LEVEL_SERVOING)
+    connected.send_joint_speeds(np.zeros(connected.num_joints))
