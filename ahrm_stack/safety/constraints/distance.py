@@ -122,7 +122,6 @@ class DistanceLimit:
         if not (table or obstacles):
             return Rows.empty(nv)
         first = 0 if table else 1
-        last = len(self._objects) if obstacles else 1
         # Bounding test: each part's sphere against each object's world-aligned box.
         centers = snapshot.positions(self._part_frames)
         if obstacles:
