@@ -314,7 +314,8 @@ class PushOffTask(composer.Task):
             f = np.ones(3)
         half = np.asarray(cfg.table.half_extent)
         success = bool(np.any(np.abs(target[:2]) > half) or target[2] < cfg.table.height)
-        return StepInfo(f=f, g=penalty_form(f), phase=phase, x=x, distances=distances, success=success, touched=touched,
+        return StepInfo(f=f, g=penalty_form(f), phase=phase, x=x, distances=distances,
+                        success=success, touched=touched,
                         tip=tip.copy(), target=target, progress=prog, elapsed=elapsed)
 
     def get_reward(self, physics: mjcf.Physics) -> np.ndarray:

@@ -77,6 +77,7 @@ _ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
 @dataclasses.dataclass
 class Modules:
     normalizer: RunningNorm
+    head: GaussianHead  # the policy's standard deviation lives here
     actor: ProbabilisticActor
     critic: TensorDictSequential
 
@@ -86,10 +87,11 @@ def make_modules(config: PPOConfig, observation_dim: int, action_dim: int) -> Mo
     normalizer = RunningNorm(observation_dim, config.normalizer_clip, config.normalize_observations)
     norm_module = TensorDictModule(normalizer, in_keys=["observation"], out_keys=["observation_norm"])
     activation = _ACTIVATIONS[config.activation]
+    head = GaussianHead(action_dim, config.init_std, config.std_mode == "learned")
     actor_net = nn.Sequential(
         MLP(in_features=observation_dim, out_features=action_dim, num_cells=list(config.hidden_sizes),
             activation_class=activation),
-        GaussianHead(action_dim, config.init_std, config.std_mode == "learned"))
+        head)
     actor_body = TensorDictSequential(
         norm_module, TensorDictModule(actor_net, in_keys=["observation_norm"], out_keys=["loc", "scale"]))
     actor = ProbabilisticActor(
@@ -99,7 +101,7 @@ def make_modules(config: PPOConfig, observation_dim: int, action_dim: int) -> Mo
                      activation_class=activation)
     critic = TensorDictSequential(
         norm_module, TensorDictModule(critic_net, in_keys=["observation_norm"], out_keys=["state_value"]))
-    return Modules(normalizer, actor, critic)
+    return Modules(normalizer, head, actor, critic)
 
 
 def make_loss(config: PPOConfig, modules: Modules) -> tuple[ClipPPOLoss, GAE]:

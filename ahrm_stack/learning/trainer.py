@@ -130,7 +130,7 @@ class Trainer:
         return IterationResult(episodes, events, batch)
 
     def _std(self) -> torch.Tensor:
-        return self.modules.actor.module[0][1].module[1].log_std.exp().mean()
+        return self.modules.head.log_std.exp().mean()
 
     def _drain_episodes(self) -> tuple[list[dict], list]:
         rows, events = [], []
