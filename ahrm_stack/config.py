@@ -227,9 +227,14 @@ class PPOConfig:
     hidden_sizes: tuple[int, ...]  # actor and critic
     activation: Literal["tanh", "relu", "elu"]
     init_std: float  # initial standard deviation of the (pre-tanh) Gaussian policy
-    std_mode: Literal["learned", "fixed"]
+    std_mode: Literal["learned", "fixed", "scheduled"]  # scheduled: init_std -> final_std
+    final_std: float  # std_mode scheduled: the standard deviation reached after std_schedule_frames
+    std_schedule_frames: int  # frames over which the std goes (log-linearly) to final_std
+    target_kl: float  # stop a batch's epochs once the approximate KL exceeds 1.5x this (0: off)
+    normalize_advantage: bool  # scale each mini-batch's advantages to zero mean, unit std
     normalize_observations: bool
     normalizer_clip: float  # normalised observations are clipped to +-this
+    update_normalizer: bool  # keep updating its statistics from every batch (false: frozen once set)
     bc_coeff: float  # weight of a behaviour-cloning term toward the demonstrations (0: off)
 
 
@@ -241,11 +246,14 @@ class TrainConfig:
     checkpoint_every: int  # batches between checkpoints
     keep_checkpoints: int  # most recent checkpoints kept on disk
     eval_episodes: int  # deterministic evaluation episodes at the end of training (0: none)
+    eval_every: int  # also evaluate (eval_episodes) every this many training episodes (0: never)
     threads: int  # torch intra-op threads
     warm_start: Literal["none", "bc"]  # bc: behaviour cloning from scripted demonstrations first
     demo_episodes: int  # scripted-controller episodes recorded for warm start and the BC anchor
     bc_epochs: int  # passes over the demonstrations for behaviour cloning and the critic refit
     bc_learning_rate: float
+    demo_noise: float  # std of noise on the executed demonstration actions (normalised; labels clean)
+    num_envs: int  # environments stepped together (in one process, sharing the reward mechanism)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -412,7 +420,10 @@ def _check_ranges(obj: Any, key: str) -> None:
             raise ConfigError(f"{key}.constraint_min_steps must be >= 1 and constraint_margin >= 0")
     elif isinstance(obj, PPOConfig):
         _positive(obj, key, "frames_per_batch", "mini_batch_size", "epochs", "learning_rate",
-                  "clip_epsilon", "max_grad_norm", "hidden_sizes", "init_std", "normalizer_clip")
+                  "clip_epsilon", "max_grad_norm", "hidden_sizes", "init_std", "normalizer_clip",
+                  "final_std", "std_schedule_frames")
+        if obj.target_kl < 0:
+            raise ConfigError(f"{key}.target_kl must be >= 0 (0: off), got {obj.target_kl}")
         for name in ("gamma", "gae_lambda"):
             if not 0 <= getattr(obj, name) <= 1:
                 raise ConfigError(f"{key}.{name} must be in [0, 1], got {getattr(obj, name)}")
@@ -423,9 +434,12 @@ def _check_ranges(obj: Any, key: str) -> None:
                               f"{key}.mini_batch_size ({obj.mini_batch_size})")
     elif isinstance(obj, TrainConfig):
         _positive(obj, key, "episodes", "checkpoint_every", "keep_checkpoints", "threads")
-        if obj.eval_episodes < 0:
-            raise ConfigError(f"{key}.eval_episodes must be >= 0, got {obj.eval_episodes}")
-        _positive(obj, key, "demo_episodes", "bc_epochs", "bc_learning_rate")
+        if obj.eval_episodes < 0 or obj.eval_every < 0:
+            raise ConfigError(f"{key}.eval_episodes and {key}.eval_every must be >= 0, got "
+                              f"{obj.eval_episodes} and {obj.eval_every}")
+        _positive(obj, key, "demo_episodes", "bc_epochs", "bc_learning_rate", "num_envs")
+        if obj.demo_noise < 0:
+            raise ConfigError(f"{key}.demo_noise must be >= 0, got {obj.demo_noise}")
     elif isinstance(obj, ScriptedConfig):
         _positive(obj, key, "travel_speed", "push_speed", "position_gain", "tilt_gain", "tilt_speed",
                   "tilt_tolerance", "orientation_cost", "damping", "clearance", "push_height",
@@ -484,16 +498,51 @@ def apply_override(data: dict, override: str) -> None:
         raise ConfigError(f"override {override!r}: value is not valid YAML") from None
 
 
+PROFILE_DIR = "profiles"  # under the config folder: named sets of overrides
+
+
+def _flatten(mapping: dict, prefix: str = "") -> list[str]:
+    """``{"ppo": {"epochs": 3}}`` -> ``["ppo.epochs=3"]`` (values written back as YAML)."""
+    items = []
+    for key, value in mapping.items():
+        dotted = f"{prefix}{key}"
+        if isinstance(value, dict):
+            items += _flatten(value, f"{dotted}.")
+        else:
+            items.append(f"{dotted}={yaml.safe_dump(value, default_flow_style=True).strip().removesuffix('...').strip()}")
+    return items
+
+
+def profile_overrides(name: str, config_dir: Path | str = CONFIG_DIR) -> list[str]:
+    """The overrides of profile ``name`` (``configs/profiles/<name>.yaml``), as ``key=value``."""
+    folder = Path(config_dir) / PROFILE_DIR
+    path = folder / f"{name}.yaml"
+    if not path.is_file():
+        known = sorted(p.stem for p in folder.glob("*.yaml")) if folder.is_dir() else []
+        raise ConfigError(f"profile={name}: no file {path}; known profiles: {known}")
+    return _flatten(_read_yaml(path))
+
+
+def apply_overrides(data: dict, overrides: Sequence[str], config_dir: Path | str = CONFIG_DIR) -> None:
+    """Apply ``key=value`` overrides in order; ``profile=NAME`` applies that profile's overrides at
+    its place in the list (so later overrides win over it)."""
+    for override in overrides:
+        if override.strip().startswith("profile="):
+            for item in profile_overrides(override.split("=", 1)[1].strip(), config_dir):
+                apply_override(data, item)
+        else:
+            apply_override(data, override)
+
+
 def load_raw(config_dir: Path | str = CONFIG_DIR) -> dict:
     config_dir = Path(config_dir)
     return {section: _read_yaml(config_dir / name) for section, name in SECTIONS.items()}
 
 
 def load_config(overrides: Sequence[str] = (), config_dir: Path | str = CONFIG_DIR) -> Config:
-    """Read ``configs/*.yaml``, apply ``overrides`` and validate."""
+    """Read ``configs/*.yaml``, apply ``overrides`` (``profile=NAME`` among them) and validate."""
     data = load_raw(config_dir)
-    for override in overrides:
-        apply_override(data, override)
+    apply_overrides(data, overrides, config_dir)
     return config_from_dict(data)
 
 

@@ -4,11 +4,13 @@
     python -m ahrm_stack.train --resume RUN_DIR
 
 Configuration: ``configs/*.yaml``, overridden by dotted ``key=value`` arguments (e.g.
-``mechanism.method=ls train.episodes=50 ppo.hidden_sizes=[256,256,256]``), validated at start-up.
+``mechanism.method=ls train.episodes=50 ppo.hidden_sizes=[256,256,256]``; ``profile=paper`` applies
+``configs/profiles/paper.yaml``, the paper-faithful configuration), validated at start-up.
 A run folder holds the resolved ``config.yaml``, ``checkpoints/`` (atomic writes, rotated),
 ``episodes.csv`` (one row per episode), ``batches.csv`` (losses), ``events.jsonl`` (reward-mechanism
-events), TensorBoard logs in ``tb/``, and at the end ``policy.pt`` and ``diagnostics.png`` (per-episode
-diagnostics: where a failing run fails). ``--resume`` continues a run
+events), TensorBoard logs in ``tb/``, with ``train.eval_every`` interim deterministic evaluations in
+``evaluations.csv`` and their policies in ``policies/``, and at the end ``policy.pt`` and
+``diagnostics.png`` (per-episode diagnostics: where a failing run fails). ``--resume`` continues a run
 that was stopped or killed from its last checkpoint, reward-mechanism state included.
 """
 
@@ -16,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import json
 import sys
 import time
@@ -26,9 +29,10 @@ import torch
 import yaml
 from tqdm import tqdm
 
-from ahrm_stack.config import Config, ConfigError, config_from_dict, load_raw, apply_override
+from ahrm_stack.config import Config, ConfigError, apply_overrides, config_from_dict, load_raw
 from ahrm_stack.learning.checkpoint import CheckpointManager
 from ahrm_stack.learning.diagnostics import plot_run
+from ahrm_stack.learning.evaluation import evaluate_policy
 from ahrm_stack.learning.trainer import Trainer, TrainingDiverged
 
 EPISODE_FIELDS = ["episode", "frames", "steps", "duration", "success", "time_to_success",
@@ -37,7 +41,10 @@ EPISODE_FIELDS = ["episode", "frames", "steps", "duration", "success", "time_to_
                   "constraint_terminated", "interventions", "joint_limit_violations", "failure_mode",
                   "orders", "levels"]
 BATCH_FIELDS = ["batch", "frames", "episodes", "loss_objective", "loss_critic", "loss_entropy",
-                "entropy", "kl_approx", "bc_loss", "std", "grad_norm", "seconds"]
+                "entropy", "kl_approx", "bc_loss", "std", "updates", "grad_norm", "seconds"]
+
+EVALUATION_FIELDS = ["episode", "frames", "episodes", "successes", "success_rate", "touched_episodes",
+                     "time_mean", "time_std", "interventions_per_episode", "joint_limit_violations"]
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -58,8 +65,7 @@ def resolve_config(args: argparse.Namespace) -> tuple[Config, dict, Path]:
         raw = yaml.safe_load(path.read_text())
     else:
         raw = load_raw()
-    for override in args.overrides:
-        apply_override(raw, override)
+    apply_overrides(raw, args.overrides)
     config = config_from_dict(raw)
     if args.resume:
         return config, raw, Path(args.resume)
@@ -77,6 +83,7 @@ class RunLog:
     def __init__(self, run_dir: Path) -> None:
         self.episodes = self._csv(run_dir / "episodes.csv", EPISODE_FIELDS)
         self.batches = self._csv(run_dir / "batches.csv", BATCH_FIELDS)
+        self.evaluations = self._csv(run_dir / "evaluations.csv", EVALUATION_FIELDS)
         self.events = open(run_dir / "events.jsonl", "a")
         from torch.utils.tensorboard import SummaryWriter
         self.tb = SummaryWriter(str(run_dir / "tb"))
@@ -108,19 +115,27 @@ class RunLog:
             if isinstance(row.get(key), float):
                 self.tb.add_scalar(f"train/{key}", row[key], row["frames"])
 
+    def evaluation(self, trainer, table) -> None:
+        """One interim deterministic evaluation (``train.eval_every``)."""
+        row = {"episode": trainer.episodes, "frames": trainer.frames, **dataclasses.asdict(table),
+               "success_rate": table.success_rate}
+        self.evaluations[1].writerow({k: row[k] for k in EVALUATION_FIELDS})
+        self.evaluations[0].flush()
+        self.tb.add_scalar("evaluation/success_rate", table.success_rate, trainer.episodes)
+
     def event(self, event) -> None:
         self.events.write(json.dumps({"episode": event.episode, "kind": event.kind,
                                       "phase": event.phase, "detail": event.detail}) + "\n")
 
     def flush(self) -> None:
-        for handle, _ in (self.episodes, self.batches):
+        for handle, _ in (self.episodes, self.batches, self.evaluations):
             handle.flush()
         self.events.flush()
         self.tb.flush()
 
     def close(self) -> None:
         self.flush()
-        for handle, _ in (self.episodes, self.batches):
+        for handle, _ in (self.episodes, self.batches, self.evaluations):
             handle.close()
         self.events.close()
         self.tb.close()
@@ -147,7 +162,12 @@ def train(config: Config, raw: dict, run_dir: Path, resume: bool, progress: bool
     bar = tqdm(total=config.train.episodes, initial=min(trainer.episodes, config.train.episodes),
                unit="ep", disable=not progress, dynamic_ncols=True)
     recent: list[bool] = []
+    evaluated = trainer.episodes
     try:
+        if config.train.eval_every and config.train.eval_episodes and trainer.episodes == 0:
+            trainer.warm_start()  # the curve's first point: the policy before any PPO update
+            log.evaluation(trainer, evaluate_policy(config, trainer.modules.actor,
+                                                    config.train.eval_episodes))
         while trainer.episodes < config.train.episodes:
             try:
                 result = trainer.iteration()
@@ -166,6 +186,12 @@ def train(config: Config, raw: dict, run_dir: Path, resume: bool, progress: bool
             phase = result.episodes[-1]["phases_visited"][-1] if result.episodes else "-"
             bar.set_postfix(frames=trainer.frames, success=f"{np.mean(recent) if recent else 0:.2f}",
                             phase=phase, orders=trainer.mechanism_orders())
+            if config.train.eval_every and config.train.eval_episodes and (
+                    trainer.episodes // config.train.eval_every > evaluated // config.train.eval_every):
+                evaluated = trainer.episodes
+                log.evaluation(trainer, evaluate_policy(config, trainer.modules.actor,
+                                                        config.train.eval_episodes))
+                trainer.save_policy(run_dir / "policies" / f"episode-{trainer.episodes:05d}.pt")
             if trainer.batches % config.train.checkpoint_every == 0:
                 log.flush()
                 checkpoints.save(trainer.state_dict(), trainer.batches)

@@ -197,13 +197,23 @@ class ScriptedPusher:
     # ------------------------------------------------------------------ control
     def __call__(self, physics) -> np.ndarray:
         """Joint velocities (rad/s) for the 6 arm joints, within ``task.robot.velocity_limit``."""
+        tip, tip_velocity = self._plan(physics)
+        return self._solve(tip, tip_velocity)
+
+    def tip_velocity(self, physics) -> np.ndarray:
+        """The stage's desired pusher-tip velocity (m/s, world frame), without the IK: the request
+        of ``action.mode: cartesian``, where the safety filter's differential IK makes the joint
+        command (and holds the pusher's tilt instead of turning it toward vertical)."""
+        return self._plan(physics)[1]
+
+    def _plan(self, physics) -> tuple[np.ndarray, np.ndarray]:
         self._configuration.update(physics.data.qpos)
         tip = self._tip()
         axis = self._configuration.data.site_xmat[self._tip_site].reshape(3, 3)[:, 2]
         self._tilt = float(np.arccos(np.clip(axis @ DOWN, -1.0, 1.0)))
         cube = np.asarray(physics.data.xpos[self._cube_body])
         cube_velocity = np.asarray(physics.data.qvel[self._cube_dofs])  # free joint: world, m/s
-        return self._solve(tip, self._tip_velocity(tip, cube, cube_velocity))
+        return tip, self._tip_velocity(tip, cube, cube_velocity)
 
     def _goto(self, tip: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """Proportional approach of ``goal`` at most at ``travel_speed``, m/s."""

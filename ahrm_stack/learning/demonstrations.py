@@ -1,9 +1,20 @@
 """Demonstrations from the scripted mink controller, behaviour cloning and the critic refit.
 
 A demonstration step records the observation the learner would see and the normalised action
-that reproduces the controller's request: a = clip(u[j] / v_max[j], -1, 1) for the commanded
-joints j (joint 6 only spins the symmetric pusher and is held at zero, as for the learner). The
-commands go through the same safety filter as the learner's.
+that reproduces the controller's request, in the learner's action mode:
+
+- ``action.mode: joint``: a = clip(u[j] / v_max[j], -1, 1) for the commanded joints j (joint 6
+  only spins the symmetric pusher and is held at zero, as for the learner), u the mink IK's
+  joint velocities;
+- ``action.mode: cartesian``: a = clip(v / cartesian_max_speed, -1, 1), v the controller's
+  desired tip velocity (m/s, world frame), executed by the safety filter's differential IK exactly
+  as the learner's actions are.
+
+Either way the commands go through the same safety filter as the learner's. With
+``train.demo_noise`` > 0 the executed action is the controller's plus Gaussian noise of that
+standard deviation (normalised units) while the recorded label stays the controller's own action
+(DART: the demonstrations then cover the states a slightly wrong policy visits, and show how to
+recover from them).
 
 Warm start (``train.warm_start: bc``): fit the actor's mean to the demonstrated actions
 (pre-tanh, MSE on atanh(a)), then fit the critic to the demonstrations' discounted returns under
@@ -33,14 +44,16 @@ def collect_demonstrations(config: Config, episodes: int) -> TensorDict:
     Returns a flat TensorDict with ``observation``, ``action`` (normalised, commanded joints) and
     ``return`` (discounted return under the initial reward-mechanism state, ``ppo.gamma``).
     """
-    if config.task.action.mode != "joint":
-        raise ValueError("demonstrations are recorded for action.mode: joint only")
+    cartesian = config.task.action.mode == "cartesian"
     task = PushOffTask(config.task)
     runner = TaskRunner(task, seed=DEMO_SEED_OFFSET, safety=config.safety)
     controller = ScriptedPusher(task, config.scripted)
     mechanism = RewardMechanism(config.mechanism)
     commanded = list(task.robot.commanded_joints)
     limits = task.robot.velocity_limit[commanded]
+    max_speed = config.task.action.cartesian_max_speed
+    noise_std = config.train.demo_noise
+    noise = np.random.default_rng(DEMO_SEED_OFFSET)
     observations, actions, returns = [], [], []
     for episode in range(episodes):
         runner.seed(DEMO_SEED_OFFSET + episode)
@@ -50,12 +63,22 @@ def collect_demonstrations(config: Config, episodes: int) -> TensorDict:
         terminated = truncated = False
         while not (terminated or truncated):
             obs.append(runner.flat_observation())
-            request = controller(runner.physics)
-            action = np.clip(request[commanded] / limits, -ACTION_LIMIT, ACTION_LIMIT)
+            if cartesian:
+                action = np.clip(controller.tip_velocity(runner.physics) / max_speed,
+                                 -ACTION_LIMIT, ACTION_LIMIT)
+            else:
+                request = controller(runner.physics)
+                action = np.clip(request[commanded] / limits, -ACTION_LIMIT, ACTION_LIMIT)
             act.append(action)
-            command = np.zeros(task.robot.num_joints)
-            command[commanded] = action * limits
-            info, terminated, truncated = runner.step_only(command)
+            executed = action
+            if noise_std > 0:
+                executed = np.clip(action + noise.normal(0.0, noise_std, action.shape), -1.0, 1.0)
+            if cartesian:
+                info, terminated, truncated = runner.step_cartesian(executed * max_speed)
+            else:
+                command = np.zeros(task.robot.num_joints)
+                command[commanded] = executed * limits
+                info, terminated, truncated = runner.step_only(command)
             rewards.append(float(mechanism.reward(info.g, info.distances)))
         if not terminated:
             continue

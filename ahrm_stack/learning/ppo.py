@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
 import torch
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
@@ -57,7 +58,8 @@ class RunningNorm(nn.Module):
 
 
 class GaussianHead(nn.Module):
-    """Mean from the network; a state-independent standard deviation (learned or fixed)."""
+    """Mean from the network; a state-independent standard deviation: learned (a parameter), or
+    fixed / scheduled (a buffer the trainer sets with :meth:`set_std`)."""
 
     def __init__(self, action_dim: int, init_std: float, learned: bool) -> None:
         super().__init__()
@@ -66,6 +68,11 @@ class GaussianHead(nn.Module):
             self.log_std = nn.Parameter(log_std)
         else:
             self.register_buffer("log_std", log_std)
+
+    @torch.no_grad()
+    def set_std(self, std: float) -> None:
+        """Set every action dimension's standard deviation (pre-tanh) to ``std``."""
+        self.log_std.fill_(float(np.log(std)))
 
     def forward(self, mean: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return mean, self.log_std.exp().expand_as(mean)
@@ -104,11 +111,18 @@ def make_modules(config: PPOConfig, observation_dim: int, action_dim: int) -> Mo
     return Modules(normalizer, head, actor, critic)
 
 
+def scheduled_std(config: PPOConfig, frames: int) -> float:
+    """``std_mode: scheduled``: log-linear from ``init_std`` at frame 0 to ``final_std`` at
+    ``std_schedule_frames``, constant after."""
+    fraction = min(1.0, frames / config.std_schedule_frames)
+    return float(np.exp((1 - fraction) * np.log(config.init_std) + fraction * np.log(config.final_std)))
+
+
 def make_loss(config: PPOConfig, modules: Modules) -> tuple[ClipPPOLoss, GAE]:
     loss = ClipPPOLoss(modules.actor, modules.critic, clip_epsilon=config.clip_epsilon,
                        entropy_bonus=config.entropy_coeff > 0, entropy_coeff=config.entropy_coeff,
                        critic_coeff=config.critic_coeff, loss_critic_type="l2",
-                       normalize_advantage=True)
+                       normalize_advantage=config.normalize_advantage)
     advantage = GAE(gamma=config.gamma, lmbda=config.gae_lambda, value_network=modules.critic,
                     average_gae=False)
     return loss, advantage

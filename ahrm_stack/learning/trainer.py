@@ -2,8 +2,13 @@
 mechanism's adaptive state, and can save and restore all of it.
 
 One :meth:`Trainer.iteration` is: collect ``frames_per_batch`` frames → GAE → ``epochs`` passes of
-mini-batches through the clipped PPO loss → update the observation normaliser → summarise the
-episodes that ended in the batch.
+mini-batches through the clipped PPO loss (stopped early once the approximate KL passes
+1.5 × ``ppo.target_kl``, when set) → update the observation normaliser → summarise the episodes
+that ended in the batch.
+
+With ``train.num_envs`` > 1 the environments are stepped together by a TorchRL ``SerialEnv`` in
+this process: they share the one reward mechanism (its adaptive state sees every episode, as in
+the single-environment case); each keeps its own seed stream and its own f3 phase budgets.
 """
 
 from __future__ import annotations
@@ -15,13 +20,16 @@ from pathlib import Path
 import numpy as np
 import torch
 from torchrl.collectors import Collector
+from torchrl.envs import SerialEnv
 from torchrl.envs.utils import ExplorationType
 
-from ahrm_stack.config import Config
+from ahrm_stack.config import Config, ConfigError
 from ahrm_stack.env.torchrl_env import PushOffEnv
 from ahrm_stack.learning.demonstrations import bc_loss, collect_demonstrations, warm_start
 from ahrm_stack.learning.mechanisms import OBJECTIVES, RewardMechanism
-from ahrm_stack.learning.ppo import make_buffer, make_loss, make_modules
+from ahrm_stack.learning.ppo import make_buffer, make_loss, make_modules, scheduled_std
+
+ENV_SEED_STRIDE = 10_000  # environment i of a run is seeded train.seed + i * ENV_SEED_STRIDE
 
 
 class TrainingDiverged(RuntimeError):
@@ -49,10 +57,16 @@ class Trainer:
         torch.manual_seed(config.train.seed)
         np.random.seed(config.train.seed)
         self.mechanism = RewardMechanism(config.mechanism)
-        self.env = PushOffEnv(config.task, config.safety, seed=config.train.seed,
-                              mechanism=self.mechanism)
-        observation_dim = self.env.observation_spec["observation"].shape[-1]
-        action_dim = self.env.action_spec.shape[-1]
+        count = config.train.num_envs
+        if config.ppo.frames_per_batch % count:
+            raise ConfigError(f"ppo.frames_per_batch ({config.ppo.frames_per_batch}) must be a "
+                              f"multiple of train.num_envs ({count})")
+        self.envs = [PushOffEnv(config.task, config.safety, mechanism=self.mechanism,
+                                seed=config.train.seed + i * ENV_SEED_STRIDE) for i in range(count)]
+        self.env = self.envs[0] if count == 1 else SerialEnv(
+            count, [lambda env=env: env for env in self.envs])
+        observation_dim = self.envs[0].observation_spec["observation"].shape[-1]
+        action_dim = self.envs[0].action_spec.shape[-1]
         self.modules = make_modules(config.ppo, observation_dim, action_dim)
         self.loss, self.advantage = make_loss(config.ppo, self.modules)
         self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=config.ppo.learning_rate)
@@ -67,8 +81,11 @@ class Trainer:
         self.demos = collect_demonstrations(config, config.train.demo_episodes) if uses_demos else None
         self._demo_generator = torch.Generator().manual_seed(config.train.seed)
 
-    def _warm_start(self) -> None:
-        """Behaviour cloning and critic refit, once, before the first batch of a new run."""
+    def warm_start(self) -> None:
+        """Behaviour cloning and critic refit (``train.warm_start: bc``), once, before the first
+        batch of a new run; nothing otherwise. :meth:`iteration` calls it when needed."""
+        if self.batches or self.config.train.warm_start != "bc" or self.warm_start_report is not None:
+            return
         train = self.config.train
         self.warm_start_report = warm_start(self.modules, self.demos, train.bc_epochs,
                                             train.bc_learning_rate, self.config.ppo.mini_batch_size,
@@ -87,8 +104,9 @@ class Trainer:
     def iteration(self) -> IterationResult:
         started = time.perf_counter()
         ppo = self.config.ppo
-        if self.batches == 0 and self.config.train.warm_start == "bc" and self.warm_start_report is None:
-            self._warm_start()
+        self.warm_start()
+        if ppo.std_mode == "scheduled":
+            self.modules.head.set_std(scheduled_std(ppo, self.frames))
         data = self._collect()
         self.frames += data.numel()
         self.batches += 1
@@ -98,10 +116,17 @@ class Trainer:
         self.buffer.extend(data.reshape(-1))
         totals: dict[str, list[float]] = {}
         grad_norms = []
+        updates = 0
+        kl_stopped = False
         for _ in range(ppo.epochs):
+            if kl_stopped:
+                break
             for _ in range(ppo.frames_per_batch // ppo.mini_batch_size):
                 batch = self.buffer.sample()
                 losses = self.loss(batch)
+                if ppo.target_kl > 0 and float(losses["kl_approx"]) > 1.5 * ppo.target_kl:
+                    kl_stopped = True  # this mini-batch already moved too far: no step
+                    break
                 loss = losses["loss_objective"] + losses["loss_critic"] + losses.get("loss_entropy", 0.0)
                 if ppo.bc_coeff > 0:  # the anchor toward the demonstrations
                     index = torch.randint(self.demos.shape[0], (ppo.mini_batch_size,),
@@ -118,14 +143,17 @@ class Trainer:
                 grad_norms.append(float(torch.nn.utils.clip_grad_norm_(self.loss.parameters(),
                                                                        ppo.max_grad_norm)))
                 self.optimizer.step()
+                updates += 1
                 for key in ("loss_objective", "loss_critic", "loss_entropy", "entropy", "kl_approx"):
                     if key in losses.keys():
                         totals.setdefault(key, []).append(float(losses[key].detach()))
-        self.modules.normalizer.update(data["observation"])
+        if ppo.update_normalizer or self.modules.normalizer.count == 0:
+            self.modules.normalizer.update(data["observation"])
         episodes, events = self._drain_episodes()
         batch = {k: float(np.mean(v)) for k, v in totals.items()}
         batch.update(batch=self.batches, frames=self.frames, episodes=self.episodes,
-                     std=float(self._std().detach()), grad_norm=float(np.mean(grad_norms)),
+                     std=float(self._std().detach()), updates=updates,
+                     grad_norm=float(np.mean(grad_norms)) if grad_norms else float("nan"),
                      seconds=time.perf_counter() - started)
         return IterationResult(episodes, events, batch)
 
@@ -134,7 +162,7 @@ class Trainer:
 
     def _drain_episodes(self) -> tuple[list[dict], list]:
         rows, events = [], []
-        for summary in self.env.completed:
+        for summary in [summary for env in self.envs for summary in env.completed]:
             self.episodes += 1
             for event in summary.events:
                 event.episode = self.episodes
@@ -144,7 +172,8 @@ class Trainer:
             row.update(episode=self.episodes, frames=self.frames, failure_mode=summary.failure_mode(),
                        orders=self.mechanism_orders(), levels=list(self.mechanism.levels))
             rows.append(row)
-        self.env.completed.clear()
+        for env in self.envs:
+            env.completed.clear()
         return rows, events
 
     def mechanism_orders(self) -> str:
@@ -153,16 +182,16 @@ class Trainer:
 
     # ------------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict:
-        task = self.env.task
         return {
             "actor": self.modules.actor.state_dict(),
             "critic": self.modules.critic.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "mechanism": self.mechanism.state_dict(),
-            "time_objective": task.time_objective.state_dict(),
+            "time_objective": [env.task.time_objective.state_dict() for env in self.envs],
             "counters": {"episodes": self.episodes, "frames": self.frames, "batches": self.batches},
             "torch_rng": torch.get_rng_state(),
-            "env_rng": _random_state_to_list(self.env.runner.random_state.get_state()),
+            "env_rng": [_random_state_to_list(env.runner.random_state.get_state())
+                        for env in self.envs],
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -170,18 +199,26 @@ class Trainer:
         self.modules.critic.load_state_dict(state["critic"])
         self.optimizer.load_state_dict(state["optimizer"])
         self.mechanism.load_state_dict(state["mechanism"])
-        self.env.task.time_objective.load_state_dict(state["time_objective"])
+        budgets, rngs = state["time_objective"], state["env_rng"]
+        if isinstance(budgets, dict):  # checkpoints of single-environment runs before num_envs
+            budgets, rngs = [budgets], [rngs]
+        if len(budgets) != len(self.envs):
+            raise ConfigError(f"the checkpoint has {len(budgets)} environments, train.num_envs is "
+                              f"{len(self.envs)}")
+        for env, budget, rng in zip(self.envs, budgets, rngs):
+            env.task.time_objective.load_state_dict(budget)
+            env.runner.random_state.set_state(_random_state_from_list(rng))
         counters = state["counters"]
         self.episodes, self.frames, self.batches = (counters["episodes"], counters["frames"],
                                                     counters["batches"])
         torch.set_rng_state(state["torch_rng"])
-        self.env.runner.random_state.set_state(_random_state_from_list(state["env_rng"]))
 
     def save_policy(self, path: Path) -> None:
         """The final policy: actor weights (normaliser included) and what is needed to rebuild it."""
+        path.parent.mkdir(parents=True, exist_ok=True)
         torch.save({"actor": self.modules.actor.state_dict(),
-                    "observation_dim": int(self.env.observation_spec["observation"].shape[-1]),
-                    "action_dim": int(self.env.action_spec.shape[-1]),
+                    "observation_dim": int(self.envs[0].observation_spec["observation"].shape[-1]),
+                    "action_dim": int(self.envs[0].action_spec.shape[-1]),
                     "episodes": self.episodes, "frames": self.frames}, path)
 
     def close(self) -> None:

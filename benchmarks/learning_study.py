@@ -1,0 +1,189 @@
+"""The learnability study (issue 5): named configurations, their runs, and the report.
+
+    python benchmarks/learning_study.py list
+    python benchmarks/learning_study.py run ROW --seed 0 [--episodes 300] [--runs-dir runs/study]
+    python benchmarks/learning_study.py report runs/study --out docs/learning-study
+
+A row is a list of config overrides applied on top of ``configs/`` (``profile=paper`` is the
+paper-faithful configuration). ``run`` trains one row and seed into ``RUNS_DIR/ROW-seedN`` with an
+interim deterministic evaluation every ``--eval-every`` episodes. ``report`` reads the run folders
+(nothing is typed in by hand) and writes ``table.md`` and the learning-curve PNGs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+VERTICAL = "task.arm.home_deg=[240,204.2,55.4,350.7,36.2,75]"  # the default start pose
+ROWS: dict[str, list[str]] = {
+    # the paper's configuration: joint actions, 3x1000, Table I hyper-parameters, no demonstrations
+    "paper-ahrm": ["profile=paper", "mechanism.method=ahrm"],
+    "paper-ls": ["profile=paper", "mechanism.method=ls"],
+    # Cartesian actions from the vertical start pose, 3x256, from scratch
+    "cartesian-scratch-ahrm": ["profile=paper", "task.action.mode=cartesian", VERTICAL,
+                               "ppo.hidden_sizes=[256,256,256]", "ppo.learning_rate=3e-4",
+                               "mechanism.method=ahrm"],
+    # the defaults (configs/): demonstrations, BC warm start, anchored and KL-limited PPO
+    "default-ahrm": ["mechanism.method=ahrm"],
+    "default-ls": ["mechanism.method=ls"],
+    # ablations of the defaults, one lever each
+    "no-anchor-ahrm": ["mechanism.method=ahrm", "ppo.bc_coeff=0"],
+    "normalized-advantage-ahrm": ["mechanism.method=ahrm", "ppo.normalize_advantage=true",
+                                  "ppo.target_kl=0"],
+    "no-kl-target-ahrm": ["mechanism.method=ahrm", "ppo.target_kl=0"],
+    "joint-bc-ahrm": ["mechanism.method=ahrm", "task.action.mode=joint"],
+    "two-envs-ahrm": ["mechanism.method=ahrm", "train.num_envs=2"],
+}
+
+
+def run(row: str, seed: int, episodes: int, runs_dir: Path, eval_every: int) -> int:
+    from ahrm_stack.train import main as train_main
+    if row not in ROWS:
+        print(f"error: unknown row {row!r}; rows: {sorted(ROWS)}", file=sys.stderr)
+        return 2
+    run_dir = runs_dir / f"{row}-seed{seed}"
+    args = [*ROWS[row], f"train.seed={seed}", f"train.episodes={episodes}",
+            f"train.eval_every={eval_every}", "--run-dir", str(run_dir), "--no-progress"]
+    if (run_dir / "checkpoints").is_dir():
+        args = ["--resume", str(run_dir), "--no-progress", f"train.episodes={episodes}"]
+    print("python -m ahrm_stack.train " + " ".join(args))
+    return train_main(args)
+
+
+# ---------------------------------------------------------------------------------------------- report
+def _rows(path: Path) -> list[dict]:
+    if not path.is_file():
+        return []
+    with open(path, newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+def summarize(run_dir: Path) -> dict:
+    """One run folder's figures: training successes, first success, touches, wall time, evaluations."""
+    episodes = _rows(run_dir / "episodes.csv")
+    batches = _rows(run_dir / "batches.csv")
+    evaluations = _rows(run_dir / "evaluations.csv")
+    success = [row["success"] == "True" for row in episodes]
+    first = next((i + 1 for i, ok in enumerate(success) if ok), None)
+    evals = {int(row["episode"]): (int(row["successes"]), int(row["episodes"]),
+                                   int(row["touched_episodes"]), float(row["time_mean"]))
+             for row in evaluations}
+
+    def eval_at(target: int):
+        """The first interim evaluation at or after ``target`` episodes (the batch that crossed it)."""
+        later = [e for e in evals if e >= target]
+        return evals[min(later)] if later else None
+
+    return {
+        "run": run_dir.name,
+        "episodes": len(episodes),
+        "train_successes": sum(success),
+        "first_success": first,
+        "touching_episodes": sum(int(row["touched_steps"]) > 0 for row in episodes),
+        "constraint_terminations": sum(row["constraint_terminated"] == "True" for row in episodes),
+        "minutes": sum(float(row["seconds"]) for row in batches) / 60,
+        "eval_0": evals.get(0),
+        "eval_300": eval_at(300),
+        "eval_600": eval_at(600),
+        "success": success,
+        "evals": sorted(evals.items()),
+    }
+
+
+def _fmt_eval(value) -> str:
+    if value is None:
+        return "–"
+    successes, n, touched, time_mean = value
+    time = f", {time_mean:.2f} s" if successes else ""
+    return f"{successes}/{n} ({touched} touching{time})"
+
+
+def report(runs_dir: Path, out: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out.mkdir(parents=True, exist_ok=True)
+    groups: dict[str, list[dict]] = defaultdict(list)
+    for run_dir in sorted(p for p in runs_dir.iterdir() if (p / "episodes.csv").is_file()):
+        row = run_dir.name.rsplit("-seed", 1)[0]
+        groups[row].append(summarize(run_dir))
+    lines = ["| row | seed | episodes | training successes | first success (episode) | "
+             "touching episodes | deterministic eval before PPO | at 300 | at 600 | "
+             "training minutes |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for row, runs in groups.items():
+        for summary in runs:
+            lines.append(
+                f"| {row} | {summary['run'].rsplit('-seed', 1)[1]} | {summary['episodes']} | "
+                f"{summary['train_successes']} | {summary['first_success'] or 'never'} | "
+                f"{summary['touching_episodes']} | {_fmt_eval(summary['eval_0'])} | "
+                f"{_fmt_eval(summary['eval_300'])} | {_fmt_eval(summary['eval_600'])} | "
+                f"{summary['minutes']:.1f} |")
+    (out / "table.md").write_text("\n".join(lines) + "\n")
+    (out / "summary.json").write_text(json.dumps(
+        {row: [{k: v for k, v in s.items() if k != "success"} for s in runs]
+         for row, runs in groups.items()}, indent=1))
+
+    figure, (top, bottom) = plt.subplots(2, 1, figsize=(10, 8), sharex=True)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for i, (row, runs) in enumerate(groups.items()):
+        colour = colours[i % len(colours)]
+        for j, summary in enumerate(runs):
+            success = np.asarray(summary["success"], dtype=float)
+            if len(success) == 0:
+                continue
+            window = min(20, len(success))
+            rolling = np.convolve(success, np.ones(window) / window, mode="valid")
+            top.plot(np.arange(window, len(success) + 1), rolling, color=colour,
+                     alpha=0.9 - 0.3 * j, label=row if j == 0 else None)
+            if summary["evals"]:
+                x, values = zip(*summary["evals"])
+                bottom.plot(x, [v[0] / v[1] for v in values], "o-", color=colour,
+                            alpha=0.9 - 0.3 * j, label=row if j == 0 else None)
+    top.set_ylabel("training success (rolling 20 episodes)")
+    bottom.set_ylabel("deterministic evaluation success")
+    bottom.set_xlabel("training episode")
+    for axis in (top, bottom):
+        axis.set_ylim(-0.05, 1.05)
+        axis.axhline(0.9, color="grey", lw=0.8, ls="--")
+        axis.grid(alpha=0.3)
+    top.legend(fontsize=8, loc="lower right")
+    figure.tight_layout()
+    figure.savefig(out / "learning-curves.png", dpi=110)
+    print((out / "table.md").read_text())
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    sub.add_parser("list")
+    run_parser = sub.add_parser("run")
+    run_parser.add_argument("row")
+    run_parser.add_argument("--seed", type=int, default=0)
+    run_parser.add_argument("--episodes", type=int, default=300)
+    run_parser.add_argument("--eval-every", type=int, default=25)
+    run_parser.add_argument("--runs-dir", type=Path, default=Path("runs/study"))
+    report_parser = sub.add_parser("report")
+    report_parser.add_argument("runs_dir", type=Path)
+    report_parser.add_argument("--out", type=Path, default=Path("docs/learning-study"))
+    args = parser.parse_args(argv)
+    if args.command == "list":
+        for name, overrides in ROWS.items():
+            print(f"{name}: {' '.join(overrides)}")
+        return 0
+    if args.command == "run":
+        return run(args.row, args.seed, args.episodes, args.runs_dir, args.eval_every)
+    report(args.runs_dir, args.out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
