@@ -64,14 +64,17 @@ def probe_gl_backend(backend: str) -> str | None:
 
 
 def select_gl_backend(candidates: Sequence[str]) -> str:
-    """The OpenGL backend for offscreen rendering: ``MUJOCO_GL`` when set (respected as is), else
-    the first of ``candidates`` that works, which is then written to ``MUJOCO_GL``.
+    """The OpenGL backend for offscreen rendering: ``MUJOCO_GL`` when set (respected, and checked),
+    else the first of ``candidates`` that works, which is then written to ``MUJOCO_GL``.
 
     Must run before ``mujoco`` is imported for a choice to take effect; raises
     :class:`RenderError` naming MUJOCO_GL and the packages needed when none works.
     """
     current = os.environ.get("MUJOCO_GL")
     if current:
+        reason = probe_gl_backend(current)
+        if reason is not None:
+            raise RenderError(_missing_message({current: reason}))
         return current
     if "mujoco" in sys.modules:
         raise RenderError("MUJOCO_GL is not set and mujoco is already imported, so its OpenGL "
