@@ -30,8 +30,8 @@ from typing import Callable, Sequence
 
 import yaml
 
-from ahrm_stack.config import (Config, ConfigError, VideoConfig, config_from_dict, load_extra,
-                               load_raw)
+from ahrm_stack.config import (Config, ConfigError, VideoConfig, apply_override, config_from_dict,
+                               load_extra, load_raw)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -172,10 +172,12 @@ def _write_outputs(out: Path, summaries, table, header: dict) -> None:
 
 def evaluate(run_dir: Path | None, episodes: int, layout: str | None = None, out: Path | None = None,
              video_path: Path | None = None, video_episodes: Sequence[int] = (0,),
-             video_overrides: Sequence[str] = (), quiet: bool = False) -> dict:
+             video_overrides: Sequence[str] = (), quiet: bool = False,
+             overrides: Sequence[str] = ()) -> dict:
     """Evaluate a run (``run_dir``) or the scripted controller (``None``) and write the outputs.
 
-    Returns the contents of ``evaluation.json``. Raises :class:`ConfigError` on bad input (a
+    ``overrides`` (``key=value``) change the run's (or the default) config before the layout is
+    applied. Returns the contents of ``evaluation.json``. Raises :class:`ConfigError` on bad input (a
     missing run, an unknown layout, a bad video setting) and ``RenderError`` when a video is asked
     for and offscreen rendering is impossible.
     """
@@ -191,6 +193,8 @@ def evaluate(run_dir: Path | None, episodes: int, layout: str | None = None, out
         raw = yaml.safe_load((run_dir / "config.yaml").read_text())
     else:
         raw = load_raw()
+    for override in overrides:
+        apply_override(raw, override)
     seed_offset = None
     if layout is not None:
         from ahrm_stack.env.layout_catalog import apply_layout
