@@ -32,6 +32,7 @@ from ahrm_stack.config import (ConfigError, ExperimentConfig, VideoConfig, apply
                                config_from_dict, load_extra, load_raw)
 
 DONE, FAILED, GRID = "done.json", "failed.json", "grid.json"
+RESULT_KEYS = ("overrides", "eval_episodes", "episodes", "layout")  # a run's spec keys that change its result
 
 
 class _Parser(argparse.ArgumentParser):
@@ -146,7 +147,8 @@ def run_one(spec: dict) -> dict:
                                   Path(spec["video"]) if spec["video"] else None,
                                   [spec["video_episode"]], spec["video_overrides"], quiet=True)
         result = {"name": spec["name"], "method": spec["method"], "seed": spec["seed"],
-                  "status": "done", "seconds": time.perf_counter() - started, "evaluation": evaluation}
+                  "status": "done", "seconds": time.perf_counter() - started, "evaluation": evaluation,
+                  "spec": spec}
         _write_json(run_dir / DONE, result)
         return result
     except BaseException as error:  # noqa: BLE001 - SystemExit from a diverged run included
@@ -173,7 +175,7 @@ def run_scripted(spec: dict) -> dict:
                                   [spec["video_episode"]], spec["video_overrides"], quiet=True,
                                   overrides=spec["overrides"])
         result = {"name": "scripted", "status": "done", "seconds": time.perf_counter() - started,
-                  "evaluation": evaluation}
+                  "evaluation": evaluation, "spec": spec}
         _write_json(out / DONE, result)
         return result
     except BaseException as error:  # noqa: BLE001
@@ -201,9 +203,23 @@ def _start_ray(address: str | None, experiment: ExperimentConfig):
     return ray
 
 
+def check_finished(grid: dict) -> None:
+    """A finished run is only reused for the same plan: raise :class:`ConfigError` naming the run
+    when its ``done.json`` was made with settings that change its result (:data:`RESULT_KEYS`)."""
+    for spec in grid["runs"] + [grid["scripted"]]:
+        done = Path(spec["run_dir"]) / DONE
+        if done.is_file():
+            before = json.loads(done.read_text()).get("spec") or {}
+            changed = [k for k in RESULT_KEYS if before.get(k) != spec.get(k)]
+            if changed:
+                raise ConfigError(f"{done} was made with other settings ({', '.join(changed)} differ); "
+                                  "use another --out for a new grid, or delete that run folder")
+
+
 def run_grid(grid: dict, experiment: ExperimentConfig, address: str | None) -> list[dict]:
     """Run every unfinished run of the grid on Ray; returns one result per run (and the scripted
     row last when it has episodes). A task that dies (worker crash) is reported as failed."""
+    check_finished(grid)
     pending = [spec for spec in grid["runs"] if not (Path(spec["run_dir"]) / DONE).is_file()]
     results = [run_one(spec) for spec in grid["runs"] if spec not in pending]
     scripted = grid["scripted"]
@@ -252,6 +268,7 @@ def main(argv: list[str] | None = None) -> int:
         video = load_extra(VideoConfig, "video", grid["video_overrides"])
         out = Path(grid["out"])
         out.mkdir(parents=True, exist_ok=True)
+        check_finished(grid)
         _write_json(out / GRID, grid)
         if not args.report_only:
             if not args.no_video and experiment.video_episode >= 0:
