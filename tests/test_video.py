@@ -47,5 +47,5 @@ def test_video_cli_errors_are_one_line(tmp_path, capsys):
 
 def test_unusable_backend_names_mujoco_gl_and_the_packages(monkeypatch):
     monkeypatch.setenv("MUJOCO_GL", "no-such-backend")
-    with pytest.raises(RenderError, match=r"MUJOCO_GL=no-such-backend.*libegl1 libgl1-mesa-dri libosmesa6"):
+    with pytest.raises(RenderError, match=r"MUJOCO_GL=no-such-backend.*libegl1 libegl-mesa0 libgl1-mesa-dri.*libosmesa6"):
         select_gl_backend(["egl"])

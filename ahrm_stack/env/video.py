@@ -21,7 +21,7 @@ import numpy as np
 from ahrm_stack.config import ConfigError, VideoConfig
 
 # What each backend needs from the system (Debian/Ubuntu package names).
-GL_PACKAGES = {"egl": "libegl1 libgl1-mesa-dri", "osmesa": "libosmesa6",
+GL_PACKAGES = {"egl": "libegl1 libegl-mesa0 libgl1-mesa-dri", "osmesa": "libosmesa6",
                "glfw": "libglfw3 and a display (DISPLAY)"}
 _PROBE = """
 import mujoco
@@ -43,8 +43,8 @@ def _missing_message(tried: dict[str, str]) -> str:
     needs = ", ".join(f"{b} needs {GL_PACKAGES.get(b, '?')}" for b in tried)
     return (f"offscreen rendering is not available ({details}). Set MUJOCO_GL to a working backend "
             f"(egl, osmesa, or glfw with a display) or install the system packages: {needs} "
-            "(on Debian/Ubuntu: sudo apt-get install libegl1 libgl1-mesa-dri libosmesa6; "
-            "`make setup` does this)")
+            "(on Debian/Ubuntu: sudo apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri, or "
+            "libosmesa6 for MUJOCO_GL=osmesa; `make setup` installs the EGL ones)")
 
 
 def probe_gl_backend(backend: str) -> str | None:
