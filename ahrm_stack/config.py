@@ -515,6 +515,7 @@ class VideoConfig:
     width: int  # px, even
     height: int  # px, even
     frame_every: int  # control steps per frame
+    shadows: bool  # shadows cost most of the rendering time in software OpenGL
     quality: int  # imageio-ffmpeg quality 0..10
     gl_backends: tuple[str, ...]  # MUJOCO_GL values tried in order when MUJOCO_GL is unset
 

@@ -112,6 +112,7 @@ class FrameRenderer:
         except Exception as error:  # the GL libraries raise many types; all mean "cannot render"
             backend = os.environ.get("MUJOCO_GL", "") or "(unset: glfw)"
             raise RenderError(_missing_message({backend: f"{type(error).__name__}: {error}"})) from None
+        self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = int(video.shadows)
 
     def __call__(self) -> np.ndarray:
         self._renderer.update_scene(self._data, camera=self.camera)
