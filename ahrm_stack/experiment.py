@@ -191,9 +191,9 @@ def _start_ray(address: str | None, experiment: ExperimentConfig):
     import ray
 
     env_vars = {k: os.environ[k] for k in ("MUJOCO_GL", "PYTHONPATH") if k in os.environ}
-    if address:
+    if address:  # the nodes have their own installation: only the rendering backend travels
         ray.init(address=address, include_dashboard=False, log_to_driver=False,
-                 runtime_env={"env_vars": env_vars})
+                 runtime_env={"env_vars": {k: v for k, v in env_vars.items() if k == "MUJOCO_GL"}})
     else:
         Path(experiment.ray_temp_dir).mkdir(parents=True, exist_ok=True)
         ray.init(include_dashboard=False, log_to_driver=False, num_cpus=os.cpu_count(),

@@ -5,15 +5,17 @@ the videos are written."""
 
 import json
 import os
+import shutil
 
 import pytest
 
 from ahrm_stack.env.video import read_mp4
 from ahrm_stack.experiment import main
 
+RAY_TEMP = f"/tmp/ahrm-ray-test-{os.getpid()}"  # short: Ray's socket paths must fit 107 bytes
 TINY = ["task.episode.duration=2", "ppo.hidden_sizes=[16]", "ppo.frames_per_batch=128",
         "experiment.eval_episodes=2", "experiment.scripted_episodes=1",
-        f"experiment.ray_temp_dir=/tmp/ahrm-ray-test-{os.getpid()}", "video.width=160", "video.height=120"]
+        f"experiment.ray_temp_dir={RAY_TEMP}", "video.width=160", "video.height=120"]
 
 
 def _args(out, episodes=2):
@@ -34,6 +36,7 @@ def grid(tmp_path_factory):
              "ls_done": (ls / "done.json").exists()}
     (ls / "policy.pt").unlink()  # repaired: the rerun trains it from scratch
     second_status = main(_args(out))
+    shutil.rmtree(RAY_TEMP, ignore_errors=True)
     return {"out": out, "first_status": first_status, "first": first, "second_status": second_status}
 
 
