@@ -6,15 +6,32 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: run demo test bench setup clean
+# Offscreen rendering for evaluation videos (MUJOCO_GL=egl with Mesa's software renderer): Debian /
+# Ubuntu packages, installed only when missing (sudo when not root); a failure is only a warning.
+GL_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libopengl0 libgl1
+
+.PHONY: run demo test bench setup clean system-deps
 
 $(STAMP): pyproject.toml
+	@$(MAKE) --no-print-directory system-deps
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e ".[dev]"
 	touch $(STAMP)
 
 setup: $(STAMP)
+
+system-deps:
+	@if ! command -v dpkg >/dev/null 2>&1; then \
+	  echo "note: no dpkg; evaluation videos need EGL (or OSMesa) OpenGL libraries"; exit 0; fi; \
+	missing=""; for p in $(GL_PACKAGES); do \
+	  dpkg -s $$p 2>/dev/null | grep -q "^Status: install ok installed" || missing="$$missing $$p"; done; \
+	if [ -z "$$missing" ]; then exit 0; fi; \
+	if [ "$$(id -u)" = 0 ]; then SUDO=""; else SUDO="sudo -n"; fi; \
+	echo "installing$$missing (offscreen rendering for evaluation videos)"; \
+	( $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq \
+	    --no-install-recommends $$missing ) \
+	  || echo "warning: could not install$$missing; MUJOCO_GL=egl (the default here) needs them"
 
 run: $(STAMP)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m ahrm_stack.train $(ARGS)

@@ -548,3 +548,112 @@ def load_config(overrides: Sequence[str] = (), config_dir: Path | str = CONFIG_D
 
 def config_from_dict(data: dict) -> Config:
     return _build(Config, data, "")
+
+
+# ----------------------------------------------------------------------------------------------
+# Evaluation videos and the four-method experiment: their own files, outside a run's config.yaml
+# (so run folders written before these existed still load).
+# ----------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class VideoConfig:
+    """Offscreen evaluation videos (``configs/video.yaml``)."""
+
+    camera: str  # a named camera of the arena
+    width: int  # px, even
+    height: int  # px, even
+    frame_every: int  # control steps per frame
+    shadows: bool  # shadows cost most of the rendering time in software OpenGL
+    quality: int  # imageio-ffmpeg quality 0..10
+    gl_backends: tuple[str, ...]  # MUJOCO_GL values tried in order when MUJOCO_GL is unset
+
+
+@dataclasses.dataclass(frozen=True)
+class PaperRow:
+    """One method's row of the paper's Table II."""
+
+    successes: int
+    episodes: int
+    touched: int  # episodes touching an obstacle
+    time: tuple[float, float]  # mean, std time to success, s
+    travel: tuple[float, float]  # mean, std cube travel, m
+
+
+@dataclasses.dataclass(frozen=True)
+class ExperimentConfig:
+    """The four-method grid, its budgets and its report (``configs/experiment.yaml``)."""
+
+    methods: tuple[str, ...]  # mechanism.method values
+    seeds: int  # training seeds 0 .. seeds-1
+    episodes: int  # training episodes per run
+    eval_episodes: int  # deterministic evaluation episodes per run
+    scripted_episodes: int  # evaluation episodes of the scripted controller (0: no row)
+    eval_layout: str  # a name in configs/layouts.yaml
+    video_episode: int  # evaluation episode rendered per method (-1: no videos)
+    cpus_per_run: float  # Ray num_cpus of one run
+    ray_temp_dir: str
+    ray_object_store_mb: int
+    success_threshold: float  # fraction of successes for "episodes to reach it"
+    success_window: int  # trailing training episodes of that fraction
+    curve_window: int  # trailing window of the learning curves, episodes
+    paper_table2: dict[str, PaperRow]
+
+
+def _check_extra(obj: Any, where: str) -> None:
+    if isinstance(obj, VideoConfig):
+        _positive(obj, where, "width", "height", "frame_every")
+        for name in ("width", "height"):
+            if getattr(obj, name) % 2:
+                raise ConfigError(f"{where}.{name} must be even (H.264), got {getattr(obj, name)}")
+        if not 0 <= obj.quality <= 10:
+            raise ConfigError(f"{where}.quality must be in 0..10, got {obj.quality}")
+        bad = [b for b in obj.gl_backends if b not in ("egl", "osmesa", "glfw")]
+        if bad or not obj.gl_backends:
+            raise ConfigError(f"{where}.gl_backends: {list(obj.gl_backends)} must be a non-empty list "
+                              "of egl, osmesa, glfw")
+    elif isinstance(obj, ExperimentConfig):
+        allowed = typing.get_args(typing.get_type_hints(MechanismConfig)["method"])
+        bad = [m for m in obj.methods if m not in allowed]
+        if bad or not obj.methods or len(set(obj.methods)) != len(obj.methods):
+            raise ConfigError(f"{where}.methods: {list(obj.methods)} must be distinct values of "
+                              f"{list(allowed)}")
+        _positive(obj, where, "seeds", "episodes", "eval_episodes", "cpus_per_run",
+                  "ray_object_store_mb", "success_window", "curve_window")
+        if obj.scripted_episodes < 0 or obj.video_episode < -1:
+            raise ConfigError(f"{where}.scripted_episodes must be >= 0 and video_episode >= -1")
+        if obj.video_episode >= obj.eval_episodes:
+            raise ConfigError(f"{where}.video_episode ({obj.video_episode}) must be < eval_episodes "
+                              f"({obj.eval_episodes})")
+        if not 0 < obj.success_threshold <= 1:
+            raise ConfigError(f"{where}.success_threshold must be in (0, 1], got {obj.success_threshold}")
+
+
+def _convert_extra(tp: Any, value: Any, key: str) -> Any:
+    if typing.get_origin(tp) is dict:
+        if not isinstance(value, dict):
+            raise ConfigError(f"{key}: expected a mapping, got {value!r}")
+        item = typing.get_args(tp)[1]
+        return {str(k): _build(item, v, f"{key}.{k}") for k, v in value.items()}
+    return _convert(tp, value, key)
+
+
+def load_extra(cls: type, name: str, overrides: Sequence[str] = (),
+               config_dir: Path | str = CONFIG_DIR) -> Any:
+    """Load ``configs/<name>.yaml`` into ``cls`` (VideoConfig, ExperimentConfig) with ``key=value``
+    overrides (keys relative to the file), validated."""
+    path = Path(config_dir) / f"{name}.yaml"
+    data = _read_yaml(path)
+    for override in overrides:
+        apply_override(data, override)
+    hints = typing.get_type_hints(cls)
+    fields = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - fields)
+    if unknown:
+        raise ConfigError(f"{path}: unknown key '{name}.{unknown[0]}'; allowed keys: {sorted(fields)}")
+    missing = sorted(fields - set(data))
+    if missing:
+        raise ConfigError(f"{path}: missing key '{name}.{missing[0]}'")
+    obj = cls(**{k: _convert_extra(hints[k], data[k], f"{name}.{k}") for k in fields})
+    _check_extra(obj, name)
+    return obj

@@ -1,12 +1,20 @@
 """Evaluate a trained policy or the scripted controller: the paper's Table II metrics (spec §7).
 
-    python -m ahrm_stack.evaluate RUN_DIR [--episodes 40] [--layout fixed|random] [--out DIR]
-    python -m ahrm_stack.evaluate --policy scripted [--episodes 40] [--layout fixed|random]
+    python -m ahrm_stack.evaluate RUN_DIR [--episodes 40] [--layout NAME] [--out DIR]
+                                  [--video PATH [--video-episodes 0,1]]
+    python -m ahrm_stack.evaluate --policy scripted [--episodes 40] [--layout NAME] ...
 
 Episodes use fresh seeds (never used in training) and the deterministic policy (the distribution's
 mode), or the mink scripted controller. Every command passes through the safety filter. Prints the
 table and writes ``evaluation.csv`` (one row per episode) and ``evaluation.json`` (the table) to
 ``--out`` (default: the run folder, or ``runs/scripted-eval`` for the scripted controller).
+
+``--layout`` names an entry of ``configs/layouts.yaml``: ``fixed`` / ``random`` (the run's own
+modes), fixed layouts (``default``, ``mirrored``, ``corridor``, ``offset_cube``) or held-out random
+layouts on reserved seeds (``heldout``, ``heldout_far`` with a wider radial range).
+``--video PATH`` renders the chosen evaluation episodes (``--video-episodes``, default the first)
+offscreen into one MP4 (``configs/video.yaml``: camera, size, frames per control step); rendering
+only reads the simulation, so the episodes are the same with or without it.
 """
 
 from __future__ import annotations
@@ -16,87 +24,140 @@ import csv
 import dataclasses
 import json
 import sys
+import time
 from pathlib import Path
+from typing import Callable, Sequence
 
 import yaml
 
-from ahrm_stack.config import ConfigError, apply_override, config_from_dict, load_raw
+from ahrm_stack.config import (Config, ConfigError, VideoConfig, apply_override, config_from_dict,
+                               load_extra, load_raw)
+
+
+class _Parser(argparse.ArgumentParser):
+    """Errors are one line on stderr (exit status 2)."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _episode_list(text: str) -> list[int]:
+    try:
+        values = sorted({int(v) for v in text.split(",") if v.strip()})
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected episode numbers like 0,1 — got {text!r}") from None
+    if not values or values[0] < 0:
+        raise argparse.ArgumentTypeError(f"expected episode numbers >= 0 like 0,1 — got {text!r}")
+    return values
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="python -m ahrm_stack.evaluate",
-                                     description=__doc__.split("\n\n")[0])
+    parser = _Parser(prog="python -m ahrm_stack.evaluate", description=__doc__.split("\n\n")[0])
     parser.add_argument("run_dir", nargs="?", help="a training run folder (with policy.pt)")
     parser.add_argument("--policy", choices=["scripted"], help="evaluate the scripted controller")
     parser.add_argument("--episodes", type=int, default=40)
-    parser.add_argument("--layout", choices=["fixed", "random"], help="layout mode (default: the config's)")
+    parser.add_argument("--layout", help="a layout name of configs/layouts.yaml (default: the config's mode)")
     parser.add_argument("--out", help="folder for evaluation.csv and evaluation.json")
+    parser.add_argument("--video", metavar="PATH", help="render the chosen episodes into this MP4")
+    parser.add_argument("--video-episodes", type=_episode_list, default=[0], metavar="I,J",
+                        help="evaluation episodes (0-based) in the video (default: 0)")
+    parser.add_argument("--video-config", nargs="*", default=[], metavar="key=value",
+                        help="overrides of configs/video.yaml, e.g. width=320 height=240")
     args = parser.parse_args(argv)
     if (args.run_dir is None) == (args.policy is None):
         parser.error("give either RUN_DIR or --policy scripted")
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
+    if args.video and args.video_episodes[-1] >= args.episodes:
+        parser.error(f"--video-episodes {args.video_episodes} must be < --episodes ({args.episodes})")
     return args
 
 
-def _scripted_summaries(config, episodes: int):
+class Camera:
+    """Collects frames of one physics every ``frame_every`` control steps of the filmed episodes."""
+
+    def __init__(self, physics, video: VideoConfig) -> None:
+        from ahrm_stack.env.video import FrameRenderer
+
+        self.renderer = FrameRenderer(physics, video)
+        self.frame_every = video.frame_every
+        self.frames: list = []
+        self.render_seconds = 0.0
+        self._step = 0
+
+    def start_episode(self) -> None:
+        self._step = 0
+
+    def capture(self, final: bool = False) -> None:
+        """Render the current state (at every ``frame_every``-th call, and always when ``final``)."""
+        if final or self._step % self.frame_every == 0:
+            started = time.perf_counter()
+            self.frames.append(self.renderer())
+            self.render_seconds += time.perf_counter() - started
+        self._step += 1
+
+
+def scripted_summaries(config: Config, episodes: int, seed_offset: int, camera_for: Callable | None = None,
+                       filmed: Sequence[int] = ()):
+    """Episodes ``seed_offset + i`` of the scripted controller through the safety filter; with
+    ``camera_for(physics)``, the episodes in ``filmed`` are rendered."""
     from ahrm_stack.env.episode import EpisodeRecorder
     from ahrm_stack.env.runner import TaskRunner
     from ahrm_stack.env.scripted import ScriptedPusher
     from ahrm_stack.env.task import PushOffTask
-    from ahrm_stack.learning.evaluation import EVAL_SEED_OFFSET
 
     task = PushOffTask(config.task)
-    runner = TaskRunner(task, seed=EVAL_SEED_OFFSET, safety=config.safety)
+    runner = TaskRunner(task, seed=seed_offset, safety=config.safety)
     controller = ScriptedPusher(task, config.scripted)
+    camera = camera_for(runner.physics) if camera_for and filmed else None
     summaries = []
     for i in range(episodes):
-        runner.seed(EVAL_SEED_OFFSET + i)
+        runner.seed(seed_offset + i)
         transition = runner.reset()
         controller.reset(runner.physics)
         recorder = EpisodeRecorder(transition.info)
+        film = camera if i in filmed else None
+        if film:
+            film.start_episode()
         terminated = truncated = False
         while not (terminated or truncated):
+            if film:
+                film.capture()
             info, terminated, truncated = runner.step_only(controller(runner.physics))
             result = runner.last_filter_result
             recorder.step(info, float(info.g.sum()), intervened=result is not None and result.modified)
+        if film:
+            film.capture(final=True)
         summaries.append(recorder.summary(joint_limit_violations=runner.limit_violations))
-    return summaries
+    return summaries, camera
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = _parse(sys.argv[1:] if argv is None else argv)
-    layout = [f"task.layout.mode={args.layout}"] if args.layout else []
-    try:
-        if args.run_dir:
-            run_dir = Path(args.run_dir)
-            for name in ("config.yaml", "policy.pt"):
-                if not (run_dir / name).is_file():
-                    raise ConfigError(f"{run_dir / name} not found: RUN_DIR must be a finished training run")
-            raw = yaml.safe_load((run_dir / "config.yaml").read_text())
-        else:
-            raw = load_raw()
-        for override in layout:
-            apply_override(raw, override)
-        config = config_from_dict(raw)
-    except ConfigError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-
+def policy_summaries(config: Config, run_dir: Path, episodes: int, seed_offset: int,
+                     camera_for: Callable | None = None, filmed: Sequence[int] = ()):
+    """Episodes ``seed_offset + i`` of the run's deterministic policy; the ``filmed`` ones rendered."""
     from ahrm_stack.env.torchrl_env import PushOffEnv
-    from ahrm_stack.learning.evaluation import EVAL_SEED_OFFSET, EvaluationTable, load_policy, run_episodes
+    from ahrm_stack.learning.evaluation import load_policy, run_episodes
 
-    if args.run_dir:
-        _, policy = load_policy(run_dir)
-        env = PushOffEnv(config.task, config.safety, seed=EVAL_SEED_OFFSET)
-        summaries = run_episodes(env, policy, args.episodes)
-        out = Path(args.out) if args.out else run_dir
-        name = str(run_dir)
-    else:
-        summaries = _scripted_summaries(config, args.episodes)
-        out = Path(args.out) if args.out else Path(config.train.runs_dir) / "scripted-eval"
-        name = "scripted controller"
-    table = EvaluationTable.from_summaries(summaries)
+    _, policy = load_policy(run_dir)
+    env = PushOffEnv(config.task, config.safety, seed=seed_offset)
+    camera = camera_for(env.runner.physics) if camera_for and filmed else None
+
+    def filmed_policy(tensordict):
+        camera.capture()  # the state the action is chosen in; rendering reads it only
+        return policy(tensordict)
+
+    summaries = []
+    for i in range(episodes):
+        if camera and i in filmed:
+            camera.start_episode()
+            summaries += run_episodes(env, filmed_policy, 1, seed_offset=seed_offset + i)
+            camera.capture(final=True)
+        else:
+            summaries += run_episodes(env, policy, 1, seed_offset=seed_offset + i)
+    return summaries, camera
+
+
+def _write_outputs(out: Path, summaries, table, header: dict) -> None:
     out.mkdir(parents=True, exist_ok=True)
     rows = [dataclasses.asdict(s) | {"failure_mode": s.failure_mode()} for s in summaries]
     for row in rows:
@@ -106,10 +167,88 @@ def main(argv: list[str] | None = None) -> int:
         writer.writeheader()
         writer.writerows(rows)
     (out / "evaluation.json").write_text(json.dumps(
-        {"policy": name, "layout": config.task.layout.mode, **dataclasses.asdict(table),
-         "success_rate": table.success_rate}, indent=2))
-    print(f"{name} ({config.task.layout.mode} layout): {table}")
-    print(f"written: {out / 'evaluation.csv'}, {out / 'evaluation.json'}")
+        {**header, **dataclasses.asdict(table), "success_rate": table.success_rate}, indent=2))
+
+
+def evaluate(run_dir: Path | None, episodes: int, layout: str | None = None, out: Path | None = None,
+             video_path: Path | None = None, video_episodes: Sequence[int] = (0,),
+             video_overrides: Sequence[str] = (), quiet: bool = False,
+             overrides: Sequence[str] = ()) -> dict:
+    """Evaluate a run (``run_dir``) or the scripted controller (``None``) and write the outputs.
+
+    ``overrides`` (``key=value``) change the run's (or the default) config before the layout is
+    applied. Returns the contents of ``evaluation.json``. Raises :class:`ConfigError` on bad input (a
+    missing run, an unknown layout, a bad video setting) and ``RenderError`` when a video is asked
+    for and offscreen rendering is impossible.
+    """
+    video = load_extra(VideoConfig, "video", video_overrides) if video_path else None
+    if video is not None:
+        from ahrm_stack.env.video import select_gl_backend
+        select_gl_backend(video.gl_backends)  # before mujoco is imported
+    if run_dir is not None:
+        run_dir = Path(run_dir)
+        for name in ("config.yaml", "policy.pt"):
+            if not (run_dir / name).is_file():
+                raise ConfigError(f"{run_dir / name} not found: RUN_DIR must be a finished training run")
+        raw = yaml.safe_load((run_dir / "config.yaml").read_text())
+    else:
+        raw = load_raw()
+    for override in overrides:
+        apply_override(raw, override)
+    seed_offset = None
+    if layout is not None:
+        from ahrm_stack.env.layout_catalog import apply_layout
+        seed_offset = apply_layout(raw, layout).seed_offset
+    config = config_from_dict(raw)
+
+    from ahrm_stack.learning.evaluation import EVAL_SEED_OFFSET, EvaluationTable
+
+    seed_offset = EVAL_SEED_OFFSET if seed_offset is None else seed_offset
+    camera_for = (lambda physics: Camera(physics, video)) if video is not None else None
+    filmed = tuple(video_episodes) if video is not None else ()
+    started = time.perf_counter()
+    if run_dir is not None:
+        summaries, camera = policy_summaries(config, run_dir, episodes, seed_offset, camera_for, filmed)
+        out = Path(out) if out else run_dir
+        name = str(run_dir)
+    else:
+        summaries, camera = scripted_summaries(config, episodes, seed_offset, camera_for, filmed)
+        out = Path(out) if out else Path(config.train.runs_dir) / "scripted-eval"
+        name = "scripted controller"
+    seconds = time.perf_counter() - started
+    table = EvaluationTable.from_summaries(summaries)
+    header = {"policy": name, "layout": layout or config.task.layout.mode,
+              "layout_mode": config.task.layout.mode, "seed_offset": seed_offset, "wall_seconds": seconds}
+    if camera is not None:
+        from ahrm_stack.env.video import write_mp4
+        fps = 1.0 / (config.task.episode.control_period * video.frame_every)
+        write_mp4(video_path, camera.frames, fps, video.quality)
+        camera.renderer.close()
+        header["video"] = {"path": str(video_path), "episodes": list(filmed), "frames": len(camera.frames),
+                           "fps": fps, "width": video.width, "height": video.height,
+                           "render_seconds": camera.render_seconds}
+    _write_outputs(out, summaries, table, header)
+    result = json.loads((out / "evaluation.json").read_text())
+    if not quiet:
+        print(f"{name} ({header['layout']} layout, seeds {seed_offset}+): {table}")
+        print(f"written: {out / 'evaluation.csv'}, {out / 'evaluation.json'}")
+        if camera is not None:
+            v = header["video"]
+            print(f"video: {video_path} ({v['frames']} frames, {v['width']}x{v['height']}, "
+                  f"{v['fps']:.0f} fps; rendering {1000 * camera.render_seconds / max(1, v['frames']):.0f} ms/frame)")
+    return result
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parse(sys.argv[1:] if argv is None else argv)
+    from ahrm_stack.env.video import RenderError
+    try:
+        evaluate(Path(args.run_dir) if args.run_dir else None, args.episodes, args.layout,
+                 Path(args.out) if args.out else None, Path(args.video) if args.video else None,
+                 args.video_episodes, args.video_config)
+    except (ConfigError, RenderError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
     return 0
 
 

@@ -32,6 +32,10 @@ class TableArena(composer.Arena):
                 rgba=[0.5, 0.38, 0.25, 1])
         self.mjcf_model.worldbody.add("camera", name="overview", pos=[1.3, -1.3, 1.4],
                                       xyaxes=[0.707, 0.707, 0, -0.35, 0.35, 0.87])
+        # Evaluation videos: the whole arm (base at y = 0.5 m, reaching up), the table top, the
+        # cube and the obstacles; looks at (0, 0.12, 0.55) from the +x, -y corner.
+        self.mjcf_model.worldbody.add("camera", name="video", pos=[1.2, -0.9, 1.3],
+                                      xyaxes=[0.648, 0.762, 0, -0.328, 0.278, 0.903])
 
     @property
     def table_top(self) -> mjcf.Element:

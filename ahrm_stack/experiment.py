@@ -1,0 +1,293 @@
+"""The four-method experiment: train and evaluate AHRM, MHRM, FHRM and LS over several seeds with
+identical budgets, on Ray, then write the report (``ahrm_stack.report``).
+
+    python -m ahrm_stack.experiment [--methods ahrm mhrm fhrm ls] [--seeds 3] [--episodes 300]
+                                    [--out DIR] [--address RAY_ADDRESS] [--config key=value ...]
+
+Defaults come from ``configs/experiment.yaml``. ``--config`` overrides go to the training config
+(``task.episode.duration=30``), to ``experiment.*`` (``experiment.eval_episodes=10``) or to
+``video.*`` (``video.width=320``). Every (method, seed) run is one Ray task (``cpus_per_run`` CPUs;
+a local Ray instance by default, a cluster with ``--address``) that trains in-process
+(``ahrm_stack.train.train``) into ``OUT/runs/<method>-seed<seed>/``, evaluates the deterministic
+policy (``eval/``) and, for the first seed, renders one evaluation episode to
+``OUT/videos/<method>.mp4``. A finished run writes ``done.json`` and is skipped on a rerun; a run
+stopped during training resumes from its last checkpoint; a failed run writes ``failed.json`` (the
+error text, also in the report) and the others go on. The scripted controller's row is one more
+task (``OUT/scripted/``). Each run's output goes to its ``log.txt``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import sys
+import time
+import traceback
+from pathlib import Path
+from typing import Sequence
+
+from ahrm_stack.config import (ConfigError, ExperimentConfig, VideoConfig, apply_override,
+                               config_from_dict, load_extra, load_raw)
+
+DONE, FAILED, GRID = "done.json", "failed.json", "grid.json"
+RESULT_KEYS = ("overrides", "eval_episodes", "episodes", "layout")  # a run's spec keys that change its result
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _parse(argv: Sequence[str]) -> argparse.Namespace:
+    parser = _Parser(prog="python -m ahrm_stack.experiment", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--methods", nargs="+", help="reward mechanisms (default: configs/experiment.yaml)")
+    parser.add_argument("--seeds", type=int, help="training seeds 0..N-1 per method")
+    parser.add_argument("--episodes", type=int, help="training episodes per run")
+    parser.add_argument("--out", default="runs/experiment", help="the grid and report folder")
+    parser.add_argument("--address", help="Ray cluster address (default: a local Ray instance)")
+    parser.add_argument("--config", nargs="*", default=[], metavar="key=value",
+                        help="overrides: training config keys, experiment.*, video.*")
+    parser.add_argument("--no-video", action="store_true", help="no evaluation videos")
+    parser.add_argument("--report-only", action="store_true", help="rewrite the report, run nothing")
+    return parser.parse_args(argv)
+
+
+def _split_overrides(overrides: Sequence[str]) -> tuple[list[str], list[str], list[str]]:
+    train, experiment, video = [], [], []
+    for item in overrides:
+        if item.startswith("experiment."):
+            experiment.append(item[len("experiment."):])
+        elif item.startswith("video."):
+            video.append(item[len("video."):])
+        else:
+            train.append(item)
+    return train, experiment, video
+
+
+def build_grid(args: argparse.Namespace) -> dict:
+    """The grid's plan (written to ``OUT/grid.json``): validated settings and one spec per run."""
+    train_overrides, experiment_overrides, video_overrides = _split_overrides(args.config)
+    for flag, key in (("methods", "methods"), ("seeds", "seeds"), ("episodes", "episodes")):
+        value = getattr(args, flag)
+        if value is not None:
+            experiment_overrides.append(f"{key}={json.dumps(value)}")
+    experiment = load_extra(ExperimentConfig, "experiment", experiment_overrides)
+    load_extra(VideoConfig, "video", video_overrides)  # fail now, not in every task
+    raw = load_raw()
+    for override in train_overrides:
+        apply_override(raw, override)
+    config_from_dict(raw)  # fail now, not in every task
+    from ahrm_stack.env.layout_catalog import apply_layout
+    apply_layout(load_raw(), experiment.eval_layout)
+    out = Path(args.out).resolve()
+    with_video = not args.no_video and experiment.video_episode >= 0
+    runs = []
+    for method in experiment.methods:
+        for seed in range(experiment.seeds):
+            name = f"{method}-seed{seed}"
+            runs.append({
+                "name": name, "method": method, "seed": seed, "run_dir": str(out / "runs" / name),
+                "overrides": train_overrides + [f"mechanism.method={method}", f"train.seed={seed}",
+                                                f"train.episodes={experiment.episodes}",
+                                                "train.eval_episodes=0"],
+                "eval_episodes": experiment.eval_episodes, "layout": experiment.eval_layout,
+                "video": str(out / "videos" / f"{method}.mp4") if with_video and seed == 0 else None,
+                "video_episode": experiment.video_episode, "video_overrides": video_overrides})
+    return {"out": str(out), "methods": list(experiment.methods), "seeds": experiment.seeds,
+            "episodes": experiment.episodes, "eval_episodes": experiment.eval_episodes,
+            "layout": experiment.eval_layout, "train_overrides": train_overrides,
+            "experiment_overrides": experiment_overrides, "video_overrides": video_overrides,
+            "runs": runs,
+            "scripted": {"name": "scripted", "run_dir": str(out / "scripted"),
+                         "episodes": experiment.scripted_episodes, "layout": experiment.eval_layout,
+                         "overrides": train_overrides,
+                         "video": str(out / "videos" / "scripted.mp4") if with_video else None,
+                         "video_episode": experiment.video_episode, "video_overrides": video_overrides}}
+
+
+@contextlib.contextmanager
+def _logged(run_dir: Path):
+    run_dir.mkdir(parents=True, exist_ok=True)
+    with open(run_dir / "log.txt", "a") as log, contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
+        yield
+
+
+def _write_json(path: Path, data: dict) -> None:
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(data, indent=2))
+    os.replace(tmp, path)
+
+
+def run_one(spec: dict) -> dict:
+    """Train (or resume) and evaluate one (method, seed) run; never raises.
+
+    Returns ``{"name", "status": "done" | "skipped" | "failed", ...}``; ``done.json`` /
+    ``failed.json`` in the run folder hold the same.
+    """
+    run_dir = Path(spec["run_dir"])
+    if (run_dir / DONE).is_file():
+        return {**json.loads((run_dir / DONE).read_text()), "status": "skipped"}
+    started = time.perf_counter()
+    try:
+        with _logged(run_dir):
+            (run_dir / FAILED).unlink(missing_ok=True)
+            if not (run_dir / "policy.pt").is_file():
+                from ahrm_stack.train import train
+                raw = load_raw()
+                for override in spec["overrides"]:
+                    apply_override(raw, override)
+                config = config_from_dict(raw)
+                checkpoints = run_dir / "checkpoints"
+                resume = checkpoints.is_dir() and any(checkpoints.glob("ckpt-*.pt"))
+                train(config, raw, run_dir, resume=resume, progress=False)
+            from ahrm_stack.evaluate import evaluate
+            evaluation = evaluate(run_dir, spec["eval_episodes"], spec["layout"], run_dir / "eval",
+                                  Path(spec["video"]) if spec["video"] else None,
+                                  [spec["video_episode"]], spec["video_overrides"], quiet=True)
+        result = {"name": spec["name"], "method": spec["method"], "seed": spec["seed"],
+                  "status": "done", "seconds": time.perf_counter() - started, "evaluation": evaluation,
+                  "spec": spec}
+        _write_json(run_dir / DONE, result)
+        return result
+    except BaseException as error:  # noqa: BLE001 - SystemExit from a diverged run included
+        if isinstance(error, KeyboardInterrupt):
+            raise
+        result = {"name": spec["name"], "method": spec["method"], "seed": spec["seed"],
+                  "status": "failed", "seconds": time.perf_counter() - started,
+                  "error": f"{type(error).__name__}: {error}", "traceback": traceback.format_exc()}
+        _write_json(run_dir / FAILED, result)
+        return result
+
+
+def run_scripted(spec: dict) -> dict:
+    """The scripted controller's evaluation row (skipped when its ``evaluation.json`` exists)."""
+    out = Path(spec["run_dir"])
+    if (out / DONE).is_file():
+        return {**json.loads((out / DONE).read_text()), "status": "skipped"}
+    started = time.perf_counter()
+    try:
+        with _logged(out):
+            from ahrm_stack.evaluate import evaluate
+            evaluation = evaluate(None, spec["episodes"], spec["layout"], out,
+                                  Path(spec["video"]) if spec["video"] else None,
+                                  [spec["video_episode"]], spec["video_overrides"], quiet=True,
+                                  overrides=spec["overrides"])
+        result = {"name": "scripted", "status": "done", "seconds": time.perf_counter() - started,
+                  "evaluation": evaluation, "spec": spec}
+        _write_json(out / DONE, result)
+        return result
+    except BaseException as error:  # noqa: BLE001
+        if isinstance(error, KeyboardInterrupt):
+            raise
+        result = {"name": "scripted", "status": "failed", "error": f"{type(error).__name__}: {error}",
+                  "traceback": traceback.format_exc()}
+        _write_json(out / FAILED, result)
+        return result
+
+
+def _start_ray(address: str | None, experiment: ExperimentConfig):
+    import ray
+
+    env_vars = {k: os.environ[k] for k in ("MUJOCO_GL", "PYTHONPATH") if k in os.environ}
+    if address:  # the nodes have their own installation: only the rendering backend travels
+        ray.init(address=address, include_dashboard=False, log_to_driver=False,
+                 runtime_env={"env_vars": {k: v for k, v in env_vars.items() if k == "MUJOCO_GL"}})
+    else:
+        Path(experiment.ray_temp_dir).mkdir(parents=True, exist_ok=True)
+        ray.init(include_dashboard=False, log_to_driver=False, num_cpus=os.cpu_count(),
+                 _temp_dir=experiment.ray_temp_dir,
+                 object_store_memory=experiment.ray_object_store_mb * 1024 * 1024,
+                 runtime_env={"env_vars": env_vars})
+    return ray
+
+
+def check_finished(grid: dict) -> None:
+    """A finished run is only reused for the same plan: raise :class:`ConfigError` naming the run
+    when its ``done.json`` was made with settings that change its result (:data:`RESULT_KEYS`)."""
+    for spec in grid["runs"] + [grid["scripted"]]:
+        done = Path(spec["run_dir"]) / DONE
+        if done.is_file():
+            before = json.loads(done.read_text()).get("spec") or {}
+            changed = [k for k in RESULT_KEYS if before.get(k) != spec.get(k)]
+            if changed:
+                raise ConfigError(f"{done} was made with other settings ({', '.join(changed)} differ); "
+                                  "use another --out for a new grid, or delete that run folder")
+
+
+def run_grid(grid: dict, experiment: ExperimentConfig, address: str | None) -> list[dict]:
+    """Run every unfinished run of the grid on Ray; returns one result per run (and the scripted
+    row last when it has episodes). A task that dies (worker crash) is reported as failed."""
+    check_finished(grid)
+    pending = [spec for spec in grid["runs"] if not (Path(spec["run_dir"]) / DONE).is_file()]
+    results = [run_one(spec) for spec in grid["runs"] if spec not in pending]
+    scripted = grid["scripted"]
+    do_scripted = scripted["episodes"] > 0 and not (Path(scripted["run_dir"]) / DONE).is_file()
+    for result in results:
+        print(f"  {result['name']}: finished before, skipped")
+    if not pending and not do_scripted:
+        return results + ([run_scripted(scripted)] if scripted["episodes"] > 0 else [])
+    ray = _start_ray(address, experiment)
+    try:
+        remote_run = ray.remote(num_cpus=experiment.cpus_per_run, max_retries=0)(run_one)
+        remote_scripted = ray.remote(num_cpus=experiment.cpus_per_run, max_retries=0)(run_scripted)
+        refs = {remote_run.remote(spec): spec for spec in pending}
+        if do_scripted:
+            refs[remote_scripted.remote(scripted)] = scripted
+        waiting = list(refs)
+        while waiting:
+            ready, waiting = ray.wait(waiting, num_returns=1)
+            spec = refs[ready[0]]
+            try:
+                result = ray.get(ready[0])
+            except Exception as error:  # noqa: BLE001 - the task's process died
+                result = {"name": spec["name"], "method": spec.get("method"), "seed": spec.get("seed"),
+                          "status": "failed", "error": f"{type(error).__name__}: {error}"}
+                run_dir = Path(spec["run_dir"])
+                run_dir.mkdir(parents=True, exist_ok=True)
+                _write_json(run_dir / FAILED, result)
+            detail = result.get("error", "") if result["status"] == "failed" else \
+                f"success rate {result['evaluation']['success_rate']:.0%}"
+            print(f"  {result['name']}: {result['status']} ({result.get('seconds', 0):.0f} s) {detail}",
+                  flush=True)
+            results.append(result)
+    finally:
+        ray.shutdown()
+    if not do_scripted and scripted["episodes"] > 0:
+        results.append(run_scripted(scripted))
+    return results
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parse(sys.argv[1:] if argv is None else argv)
+    from ahrm_stack.env.video import RenderError
+    try:
+        grid = build_grid(args)
+        experiment = load_extra(ExperimentConfig, "experiment", grid["experiment_overrides"])
+        video = load_extra(VideoConfig, "video", grid["video_overrides"])
+        out = Path(grid["out"])
+        out.mkdir(parents=True, exist_ok=True)
+        check_finished(grid)
+        _write_json(out / GRID, grid)
+        if not args.report_only:
+            if not args.no_video and experiment.video_episode >= 0:
+                from ahrm_stack.env.video import select_gl_backend
+                select_gl_backend(video.gl_backends)  # inherited by the Ray workers
+            started = time.perf_counter()
+            print(f"experiment: {len(grid['runs'])} runs ({', '.join(grid['methods'])} x "
+                  f"{grid['seeds']} seeds, {grid['episodes']} episodes) -> {out}", flush=True)
+            run_grid(grid, experiment, args.address)
+            print(f"grid finished in {(time.perf_counter() - started) / 60:.1f} min")
+        from ahrm_stack.report import write_report
+        report = write_report(out, experiment)
+    except (ConfigError, RenderError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    print(f"report: {report}")
+    failed = [r for r in grid["runs"] if (Path(r["run_dir"]) / FAILED).is_file()]
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

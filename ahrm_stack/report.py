@@ -1,0 +1,363 @@
+"""The experiment report: ``report.md`` and its figures, generated from an experiment folder.
+
+    python -m ahrm_stack.report OUT_DIR
+
+Everything in the report is computed from the files the runs wrote (``grid.json``,
+``runs/*/done.json`` / ``failed.json``, ``episodes.csv``, ``events.jsonl``,
+``scripted/done.json``) and from ``configs/experiment.yaml`` (thresholds, the paper's Table II);
+no number is typed in by hand. Across seeds, "mean ± std" uses the population std (ddof 0), as
+the per-run Table II metrics do across episodes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from ahrm_stack.config import ConfigError, ExperimentConfig, PaperRow, load_extra
+
+OBJECTIVE_LETTERS = {"A": "avoid", "M": "manipulate", "T": "time"}
+METHOD_NAMES = {"ahrm": "AHRM", "mhrm": "MHRM", "fhrm": "FHRM", "ls": "LS"}
+
+
+@dataclasses.dataclass
+class RunRecord:
+    """One (method, seed) run as the report sees it."""
+
+    name: str
+    method: str
+    seed: int
+    status: str  # done | failed | missing
+    evaluation: dict | None = None  # evaluation.json of a finished run
+    error: str | None = None
+    seconds: float = float("nan")  # wall time of the task (train + evaluate), s
+    episodes: dict | None = None  # columns of episodes.csv
+    events: list = dataclasses.field(default_factory=list)  # events.jsonl
+
+
+# ------------------------------------------------------------------ pure statistics
+
+
+def mean_std(values: Sequence[float]) -> tuple[float, float, int]:
+    """Mean, population std and count of the finite values (nan, nan, 0 when there are none)."""
+    finite = [float(v) for v in values if v is not None and math.isfinite(float(v))]
+    if not finite:
+        return float("nan"), float("nan"), 0
+    return float(np.mean(finite)), float(np.std(finite)), len(finite)
+
+
+def episodes_to_threshold(success: Sequence[bool], threshold: float, window: int) -> int | None:
+    """The first training episode (1-based) whose trailing ``window`` episodes reach a success
+    fraction of ``threshold``; None if none does (a window must be full)."""
+    success = np.asarray(success, dtype=float)
+    if len(success) < window:
+        return None
+    fractions = np.convolve(success, np.ones(window), mode="valid") / window  # ends at window..n
+    hits = np.flatnonzero(fractions >= threshold - 1e-12)
+    return int(hits[0] + window) if hits.size else None
+
+
+def orders_by_phase(orders: str) -> list[str]:
+    """``"AMT AMT MAT"`` -> ``["avoid > manipulate > time", ..., "manipulate > avoid > time"]``."""
+    phases = orders.split()
+    try:
+        return [" > ".join(OBJECTIVE_LETTERS[c] for c in phase) for phase in phases]
+    except KeyError:
+        raise ValueError(f"priority orders {orders!r}: expected letters A, M, T per phase") from None
+
+
+def method_summary(runs: list[RunRecord]) -> dict:
+    """Table II over the finished runs of one method: each metric's mean ± std over seeds."""
+    evaluations = [r.evaluation for r in runs if r.status == "done" and r.evaluation]
+    keys = ("successes", "success_rate", "touched_episodes", "time_mean", "travel_mean",
+            "interventions_per_episode", "joint_limit_violations", "episodes")
+    summary = {key: mean_std([e[key] for e in evaluations]) for key in keys}
+    summary["seeds_done"] = len(evaluations)
+    summary["seeds"] = len(runs)
+    return summary
+
+
+def rank_methods(summaries: dict[str, dict]) -> list[str]:
+    """Methods with finished runs, best mean evaluation success rate first (ties: fewer touches)."""
+    done = [m for m, s in summaries.items() if s["seeds_done"]]
+    return sorted(done, key=lambda m: (-summaries[m]["success_rate"][0], summaries[m]["touched_episodes"][0]))
+
+
+def findings(summaries: dict[str, dict], paper: dict[str, PaperRow], runs: list[RunRecord]) -> list[str]:
+    """Plain statements about the outcome, AHRM's rank and its distance to the paper first."""
+    lines = []
+    ranking = rank_methods(summaries)
+    if "ahrm" not in summaries or not summaries["ahrm"]["seeds_done"]:
+        lines.append("AHRM has no finished run in this grid, so the paper's main claim is not tested here.")
+    else:
+        rate = summaries["ahrm"]["success_rate"][0]
+        position = ranking.index("ahrm") + 1
+        tied = [m for m in ranking if m != "ahrm" and summaries[m]["success_rate"][0] == rate]
+        if position == 1 and tied:
+            lines.append(f"AHRM ties for first with {', '.join(METHOD_NAMES.get(m, m) for m in tied)} "
+                         f"by mean evaluation success rate ({rate:.1%}): it is not ahead of them.")
+        elif position == 1:
+            lines.append(f"AHRM ranks first of {len(ranking)} methods by mean evaluation success rate "
+                         f"({rate:.1%}).")
+        else:
+            best = ranking[0]
+            lines.append(f"**AHRM is not the best method here**: it ranks {position} of {len(ranking)} by "
+                         f"mean evaluation success rate ({rate:.1%}); {METHOD_NAMES.get(best, best)} ranks "
+                         f"first ({summaries[best]['success_rate'][0]:.1%}).")
+        if "ahrm" in paper:
+            target = paper["ahrm"].successes / paper["ahrm"].episodes
+            if rate < target:
+                lines.append(f"**AHRM's mean success rate ({rate:.1%}) is below the paper's "
+                             f"{target:.1%}.** The paper's result is not reproduced by this run.")
+            else:
+                lines.append(f"AHRM's mean success rate ({rate:.1%}) reaches the paper's {target:.1%}.")
+    for method in ranking:
+        if method in paper:
+            ours = summaries[method]["success_rate"][0]
+            theirs = paper[method].successes / paper[method].episodes
+            lines.append(f"{METHOD_NAMES.get(method, method)}: {ours:.1%} here vs {theirs:.1%} in the paper.")
+    failed = [r.name for r in runs if r.status == "failed"]
+    missing = [r.name for r in runs if r.status == "missing"]
+    if failed:
+        lines.append(f"**{len(failed)} run(s) failed** ({', '.join(failed)}); see 'Failed runs'. "
+                     "The means above leave them out.")
+    if missing:
+        lines.append(f"{len(missing)} run(s) have not finished yet ({', '.join(missing)}).")
+    return lines
+
+
+# ------------------------------------------------------------------ loading
+
+
+def _read_events(path: Path) -> list[dict]:
+    if not path.is_file():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def load_runs(out: Path, grid: dict) -> list[RunRecord]:
+    from ahrm_stack.learning.diagnostics import read_episodes
+
+    records = []
+    for spec in grid["runs"]:
+        run_dir = Path(spec["run_dir"])
+        record = RunRecord(spec["name"], spec["method"], spec["seed"], "missing")
+        if (run_dir / "done.json").is_file():
+            done = json.loads((run_dir / "done.json").read_text())
+            record.status, record.evaluation, record.seconds = "done", done["evaluation"], done["seconds"]
+        elif (run_dir / "failed.json").is_file():
+            failed = json.loads((run_dir / "failed.json").read_text())
+            record.status, record.error = "failed", failed["error"]
+        try:
+            record.episodes = read_episodes(run_dir)
+        except (FileNotFoundError, ValueError):
+            record.episodes = None
+        record.events = _read_events(run_dir / "events.jsonl")
+        records.append(record)
+    return records
+
+
+# ------------------------------------------------------------------ formatting
+
+
+def _pm(stat: tuple[float, float, int], digits: int, percent: bool = False) -> str:
+    mean, std, n = stat
+    if n == 0:
+        return "—"
+    if percent:
+        return f"{100 * mean:.{digits}f} ± {100 * std:.{digits}f} %"
+    return f"{mean:.{digits}f} ± {std:.{digits}f}"
+
+
+def _time(evaluation: dict) -> str:
+    """Time to success of one evaluation, '—' without successes."""
+    if not evaluation["successes"]:
+        return "— (no success)"
+    return f"{evaluation['time_mean']:.2f} ± {evaluation['time_std']:.2f}"
+
+
+def _table(header: list[str], rows: list[list[str]]) -> list[str]:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return lines + ["| " + " | ".join(row) + " |" for row in rows]
+
+
+def _table2_rows(methods: list[str], summaries: dict, paper: dict[str, PaperRow], scripted: dict | None) -> list[list[str]]:
+    rows = []
+    for method in methods:
+        s = summaries[method]
+        name = METHOD_NAMES.get(method, method)
+        rows.append([f"{name} (here, {s['seeds_done']}/{s['seeds']} seeds)", _pm(s["successes"], 1),
+                     _pm(s["success_rate"], 1, percent=True), _pm(s["touched_episodes"], 1),
+                     _pm(s["time_mean"], 2), _pm(s["travel_mean"], 4)])
+        if method in paper:
+            p = paper[method]
+            rows.append([f"{name} (paper)", str(p.successes), f"{100 * p.successes / p.episodes:.1f} %",
+                         str(p.touched), f"{p.time[0]} ± {p.time[1]}", f"{p.travel[0]} ± {p.travel[1]}"])
+    if scripted is not None:
+        e = scripted
+        rows.append(["scripted controller (mink)", str(e["successes"]), f"{100 * e['success_rate']:.1f} %",
+                     str(e["touched_episodes"]), _time(e),
+                     f"{e['travel_mean']:.4f} ± {e['travel_std']:.4f}"])
+    return rows
+
+
+def _run_rows(runs: list[RunRecord]) -> list[list[str]]:
+    rows = []
+    for r in runs:
+        e = r.evaluation
+        if e is None:
+            rows.append([r.name, r.status] + ["—"] * 7)
+            continue
+        rows.append([r.name, r.status, f"{e['successes']}/{e['episodes']}", str(e["touched_episodes"]),
+                     _time(e), f"{e['travel_mean']:.4f} ± {e['travel_std']:.4f}",
+                     f"{e['interventions_per_episode']:.1f}", str(e["joint_limit_violations"]),
+                     f"{r.seconds / 60:.1f}"])
+    return rows
+
+
+def _order_rows(runs: list[RunRecord]) -> list[list[str]]:
+    rows = []
+    for r in runs:
+        if r.episodes is None:
+            continue
+        final = orders_by_phase(str(r.episodes["orders"][-1]))
+        changes = [e for e in r.events if e["kind"] == "order_changed"]
+        locks = {e["phase"]: e["episode"] for e in r.events if e["kind"] == "order_locked"}
+        lock_text = ", ".join(f"phase {k} at {v}" for k, v in sorted(locks.items())) or "none"
+        rows.append([r.name] + final + [str(len(changes)), lock_text])
+    return rows
+
+
+def _threshold_rows(runs: list[RunRecord], methods: list[str], threshold: float, window: int) -> list[list[str]]:
+    rows = []
+    for method in methods:
+        per_seed, reached = [], []
+        for r in runs:
+            if r.method != method or r.episodes is None:
+                continue
+            episode = episodes_to_threshold(r.episodes["success"], threshold, window)
+            total = len(r.episodes["success"])
+            per_seed.append(f"seed {r.seed}: {episode if episode is not None else f'not in {total}'}")
+            if episode is not None:
+                reached.append(episode)
+        summary = (f"{np.mean(reached):.0f} ({len(reached)}/{len(per_seed)} seeds)" if reached
+                   else f"not reached (0/{len(per_seed)} seeds)")
+        rows.append([METHOD_NAMES.get(method, method), summary, "; ".join(per_seed) or "—"])
+    return rows
+
+
+def _safety_rows(runs: list[RunRecord], methods: list[str], summaries: dict, scripted: dict | None) -> list[list[str]]:
+    rows = []
+    for method in methods:
+        s = summaries[method]
+        train_interventions = [np.mean(r.episodes["interventions"]) for r in runs
+                               if r.method == method and r.episodes is not None]
+        terminations = [np.mean(r.episodes["constraint_terminated"]) for r in runs
+                        if r.method == method and r.episodes is not None]
+        rows.append([METHOD_NAMES.get(method, method), _pm(s["interventions_per_episode"], 1),
+                     _pm(s["touched_episodes"], 1), _pm(s["joint_limit_violations"], 1),
+                     _pm(mean_std(train_interventions), 1), _pm(mean_std(terminations), 2)])
+    if scripted is not None:
+        rows.append(["scripted controller", f"{scripted['interventions_per_episode']:.1f}",
+                     str(scripted["touched_episodes"]), str(scripted["joint_limit_violations"]), "—", "—"])
+    return rows
+
+
+def write_report(out: Path | str, experiment: ExperimentConfig | None = None) -> Path:
+    """Write ``report.md`` and the figures into ``out`` (an experiment folder); returns the report."""
+    out = Path(out)
+    if not (out / "grid.json").is_file():
+        raise ConfigError(f"{out / 'grid.json'} not found: is {out} an experiment folder?")
+    grid = json.loads((out / "grid.json").read_text())
+    if experiment is None:
+        experiment = load_extra(ExperimentConfig, "experiment", grid.get("experiment_overrides", []))
+    runs = load_runs(out, grid)
+    methods = list(grid["methods"])
+    summaries = {m: method_summary([r for r in runs if r.method == m]) for m in methods}
+    scripted_done = out / "scripted" / "done.json"
+    scripted = json.loads(scripted_done.read_text())["evaluation"] if scripted_done.is_file() else None
+    paper = experiment.paper_table2
+
+    from ahrm_stack.report_plots import plot_curves, plot_objectives, plot_orders
+    figures = [plot_curves(out, runs, methods, experiment.curve_window),
+               plot_objectives(out, runs, methods, experiment.curve_window),
+               plot_orders(out, runs, methods)]
+
+    lines = [f"# AHRM experiment: {', '.join(METHOD_NAMES.get(m, m) for m in methods)}", "",
+             f"Generated {time.strftime('%Y-%m-%d %H:%M')} by `python -m ahrm_stack.experiment` from the "
+             f"files in this folder. {grid['seeds']} seed(s) per method, {grid['episodes']} training "
+             f"episodes per run, {grid['eval_episodes']} deterministic evaluation episodes per run on the "
+             f"`{grid['layout']}` layout (fresh seeds), every command through the safety filter.",
+             f"Training overrides: `{' '.join(grid['train_overrides']) or 'none'}`.", "",
+             "## Findings", ""]
+    lines += [f"- {line}" for line in findings(summaries, paper, runs)]
+    lines += ["", "## Table II: this reproduction (mean ± std over seeds) and the paper", "",
+              "Successes and touches are per 40-episode evaluation in the paper and per "
+              f"{grid['eval_episodes']}-episode evaluation here. Time: mean time to success (over "
+              "successful episodes), s; cube travel: mean path length of the cube's centre, m. Here "
+              "each cell is the mean ± std over seeds of the per-run figure. The paper ran V-REP; "
+              "this is MuJoCo.", ""]
+    lines += _table(["Method", "Successes", "Success rate", "Touch obstacles", "Time (s)", "Cube travel (m)"],
+                    _table2_rows(methods, summaries, paper, scripted))
+    lines += ["", "### Per run", ""]
+    lines += _table(["Run", "Status", "Successes", "Touched", "Time (s)", "Cube travel (m)",
+                     "Interventions/episode", "Joint-limit violations", "Wall time (min)"], _run_rows(runs))
+    lines += ["", "## Learned priority orders per phase (Fig. 3)", "",
+              "The mechanism's order at the end of training (highest priority first), the number of "
+              "order changes and where the orders were locked. Only AHRM determines its orders; "
+              "MHRM's are set per phase, FHRM's fixed, LS has none (its column shows the unused "
+              "default).", ""]
+    lines += _table(["Run", "Phase 1 (approach)", "Phase 2 (pre-manipulate)", "Phase 3 (manipulate)",
+                     "Order changes", "Locked"], _order_rows(runs))
+    lines += ["", f"## Episodes to reach {experiment.success_threshold:.0%} success", "",
+              f"First training episode whose trailing {experiment.success_window} episodes reach "
+              f"{experiment.success_threshold:.0%} success (stochastic training policy).", ""]
+    lines += _table(["Method", "Mean over seeds that reached it", "Per seed"],
+                    _threshold_rows(runs, methods, experiment.success_threshold, experiment.success_window))
+    lines += ["", "## Safety", "",
+              "Evaluation: safety-filter interventions per episode (commands the QP changed), episodes "
+              "touching an obstacle, joint-limit violations (steps outside the position limits, from "
+              "the simulator; must be 0). Training: interventions per episode and the share of "
+              "episodes ended by the priority constraint.", ""]
+    lines += _table(["Method", "Interventions/episode (eval)", "Touching episodes (eval)",
+                     "Joint-limit violations (eval)", "Interventions/episode (training)",
+                     "Constraint terminations (training share)"],
+                    _safety_rows(runs, methods, summaries, scripted))
+    lines += ["", "## Figures", ""]
+    lines += [f"![{f.stem}]({f.name})" for f in figures if f is not None]
+    videos = sorted((out / "videos").glob("*.mp4")) if (out / "videos").is_dir() else []
+    lines += ["", "## Videos", ""]
+    lines += [f"- [{v.stem}](videos/{v.name})" for v in videos] or ["- none"]
+    failed = [r for r in runs if r.status == "failed"]
+    if failed:
+        lines += ["", "## Failed runs", ""]
+        for r in failed:
+            lines += [f"- `{r.name}`: {r.error} (traceback in `runs/{r.name}/failed.json`, output in "
+                      f"`runs/{r.name}/log.txt`)"]
+    path = out / "report.md"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 1:
+        print("usage: python -m ahrm_stack.report OUT_DIR", file=sys.stderr)
+        return 2
+    try:
+        print(write_report(Path(args[0])))
+    except ConfigError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

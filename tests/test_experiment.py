@@ -1,0 +1,86 @@
+"""The experiment grid end to end on a tiny real grid (2 methods x 1 seed x a few 2-second
+episodes, real simulator and trainer, on a local Ray instance): a failed run is reported and does
+not stop the other, a rerun skips the finished run and redoes the failed one, and the report and
+the videos are written."""
+
+import json
+import os
+import shutil
+
+import pytest
+
+from ahrm_stack.env.video import read_mp4
+from ahrm_stack.experiment import main
+
+RAY_TEMP = f"/tmp/ahrm-ray-test-{os.getpid()}"  # short: Ray's socket paths must fit 107 bytes
+TINY = ["task.episode.duration=2", "ppo.hidden_sizes=[16]", "ppo.frames_per_batch=128",
+        "experiment.eval_episodes=2", "experiment.scripted_episodes=1",
+        f"experiment.ray_temp_dir={RAY_TEMP}", "video.width=160", "video.height=120"]
+
+
+def _args(out, episodes=2):
+    return ["--methods", "ahrm", "ls", "--seeds", "1", "--episodes", str(episodes), "--out", str(out),
+            "--config", *TINY]
+
+
+@pytest.fixture(scope="module")
+def grid(tmp_path_factory):
+    out = tmp_path_factory.mktemp("grid")
+    ahrm, ls = out / "runs" / "ahrm-seed0", out / "runs" / "ls-seed0"
+    ls.mkdir(parents=True)
+    (ls / "policy.pt").write_bytes(b"not a policy")  # a broken run folder (no config.yaml): it fails
+    first_status = main(_args(out))
+    first = {"report": (out / "report.md").read_text(), "ls_failed": json.loads((ls / "failed.json").read_text()),
+             "ahrm_done_mtime": (ahrm / "done.json").stat().st_mtime_ns,
+             "ahrm_episodes_mtime": (ahrm / "episodes.csv").stat().st_mtime_ns,
+             "ls_done": (ls / "done.json").exists()}
+    (ls / "policy.pt").unlink()  # repaired: the rerun trains it from scratch
+    second_status = main(_args(out))
+    shutil.rmtree(RAY_TEMP, ignore_errors=True)
+    return {"out": out, "first_status": first_status, "first": first, "second_status": second_status}
+
+
+def test_a_failed_run_is_reported_and_the_other_finishes(grid):
+    first = grid["first"]
+    assert grid["first_status"] == 1                      # some run failed
+    assert not first["ls_done"] and "config.yaml not found" in first["ls_failed"]["error"]
+    assert "1 run(s) failed** (ls-seed0)" in first["report"]
+    assert "`ls-seed0`: ConfigError: " in first["report"]
+    assert first["ahrm_done_mtime"] > 0
+
+
+def test_rerun_skips_the_finished_run_and_redoes_the_failed_one(grid):
+    out, first = grid["out"], grid["first"]
+    ahrm, ls = out / "runs" / "ahrm-seed0", out / "runs" / "ls-seed0"
+    assert grid["second_status"] == 0
+    assert (ahrm / "done.json").stat().st_mtime_ns == first["ahrm_done_mtime"]       # not redone
+    assert (ahrm / "episodes.csv").stat().st_mtime_ns == first["ahrm_episodes_mtime"]  # not retrained
+    done = json.loads((ls / "done.json").read_text())
+    assert done["status"] == "done" and done["evaluation"]["episodes"] == 2
+    assert not (ls / "failed.json").exists()
+    assert len((ls / "episodes.csv").read_text().strip().splitlines()) - 1 >= 2      # trained
+
+
+def test_changed_settings_do_not_reuse_finished_runs(grid, capsys):
+    assert main(_args(grid["out"], episodes=3)) == 2
+    assert "ahrm-seed0/done.json was made with other settings (overrides differ)" in capsys.readouterr().err
+
+
+def test_report_tables_figures_and_videos(grid):
+    out = grid["out"]
+    report = (out / "report.md").read_text()
+    for row in ("| AHRM (here, 1/1 seeds) |", "| AHRM (paper) | 37 | 92.5 % | 2 | 3.8 ± 0.3 | 0.5103 ± 0.0032 |",
+                "| LS (here, 1/1 seeds) |", "| LS (paper) | 4 | 10.0 % | 39 | 8.3 ± 1.1 | 0.5342 ± 0.0219 |",
+                "| scripted controller (mink) | ", "| ahrm-seed0 | avoid > manipulate > time |",
+                "## Episodes to reach 80% success", "## Safety", "below the paper's 92.5%"):
+        assert row in report
+    assert "failed" not in report.split("## Findings")[1].split("##")[0]
+    for name in ("learning_curves", "objectives_per_phase", "priority_orders"):
+        assert (out / f"{name}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert f"![{name}]({name}.png)" in report
+    for method in ("ahrm", "ls", "scripted"):
+        frames, size, _ = read_mp4(out / "videos" / f"{method}.mp4")
+        assert size == (120, 160) and frames >= 2
+        assert f"videos/{method}.mp4" in report
+    # a learned policy's episode here runs the full 2 s: 40 control steps + the final frame
+    assert read_mp4(out / "videos" / "ahrm.mp4")[0] == 41
