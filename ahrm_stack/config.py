@@ -42,7 +42,9 @@ class TableConfig:
 class ArmConfig:
     base_position: tuple[float, float, float]  # world position of the arm base, m
     base_yaw: float  # rotation of the base about world z, rad
-    home: tuple[float, ...]  # initial joint angles, rad (converted from ``home_deg``)
+    home: tuple[float, ...]  # initial joint angles of the chosen robot, rad: ``home_deg`` is a
+    # mapping robot name -> degrees (or one list for the chosen robot); the entry of ``task.robot``
+    # is converted
     joint_jitter: float  # uniform per-joint jitter of the initial posture, rad
 
 
@@ -111,7 +113,7 @@ class ActionConfig:
 
 @dataclasses.dataclass(frozen=True)
 class TaskConfig:
-    robot: Literal["jaco"]
+    robot: Literal["jaco", "j2s6s200"]  # an arm of ahrm_stack.robot.ARMS
     table: TableConfig
     arm: ArmConfig
     pusher: PusherConfig
@@ -317,10 +319,32 @@ def _convert(tp: Any, value: Any, key: str) -> Any:
     raise TypeError(f"unsupported config type {tp!r} at {key}")  # a bug in the schema, not input
 
 
+def _select_home(data: dict, key: str) -> dict:
+    """``data`` (a task section) with ``arm.home_deg`` reduced to the list of ``data['robot']``
+    when it is given per robot (a mapping robot name -> degrees)."""
+    arm = data.get("arm")
+    if not isinstance(arm, dict) or not isinstance(arm.get("home_deg"), dict):
+        return data
+    robot = data.get("robot")
+    choices = typing.get_args(typing.get_type_hints(TaskConfig)["robot"])
+    if robot not in choices:
+        raise ConfigError(f"{key}.robot: {robot!r} is not allowed; choose one of {list(choices)}")
+    where = f"{key}.arm.home_deg"
+    unknown = sorted(set(arm["home_deg"]) - set(choices), key=str)
+    if unknown:
+        raise ConfigError(f"{where}.{unknown[0]}: no such robot; choose among {list(choices)}")
+    if robot in choices and robot not in arm["home_deg"]:
+        raise ConfigError(f"{where} has no entry for robot {robot!r} (task.robot); "
+                          f"entries: {sorted(arm['home_deg'])}")
+    return {**data, "arm": {**arm, "home_deg": arm["home_deg"].get(robot)}}
+
+
 def _build(cls: type, data: Any, key: str) -> Any:
     if not isinstance(data, dict):
         raise ConfigError(f"{key or 'config'}: expected a mapping, got {data!r}")
     data = dict(data)
+    if cls is TaskConfig:
+        data = _select_home(data, key)
     for deg_key, rad_key in _DEG_KEYS.items():
         if deg_key in data:
             raw = data.pop(deg_key)
@@ -657,3 +681,47 @@ def load_extra(cls: type, name: str, overrides: Sequence[str] = (),
     obj = cls(**{k: _convert_extra(hints[k], data[k], f"{name}.{k}") for k in fields})
     _check_extra(obj, name)
     return obj
+
+
+# ----------------------------------------------------------------------------------------------
+# Arms built from a URDF: ``configs/robots/<name>.yaml``.
+# ----------------------------------------------------------------------------------------------
+
+ROBOTS_DIR = CONFIG_DIR / "robots"
+
+
+@dataclasses.dataclass(frozen=True)
+class UrdfArmConfig:
+    """How to build a simulated arm from a URDF of the ``example-robot-data`` package. Joint
+    limits, velocity limits, efforts, inertias and meshes come from the URDF; this file holds only
+    the simulation parameters a URDF does not carry, and which links to use."""
+
+    urdf: str  # path under example-robot-data's share folder, e.g. robots/.../kinova.urdf
+    root_link: str  # the link placed at the arm's base frame
+    flange_link: str  # the last link kept: the hand mounts here and the pusher replaces it
+    end_effector_link: str  # a link below the flange: the pusher points from the flange toward it
+    hand_meshes: tuple[str, ...]  # mesh file names of the hand on the flange link (not built)
+    velocity_gain: float  # kv of the velocity actuators, N m s/rad
+    joint_damping: float  # N m s/rad, every actuated joint
+    armature: tuple[float, ...]  # kg m^2, per actuated joint (rotor inertia)
+    frictionloss: tuple[float, ...]  # N m, per actuated joint
+
+
+def _check_urdf_arm(obj: UrdfArmConfig, key: str) -> None:
+    _positive(obj, key, "velocity_gain")
+    for name in ("joint_damping", "armature", "frictionloss"):
+        value = getattr(obj, name)
+        for i, v in enumerate(value if isinstance(value, tuple) else (value,)):
+            if v < 0:
+                raise ConfigError(f"{key}.{name} must be >= 0, got {v!r}")
+    if len(obj.armature) != len(obj.frictionloss):
+        raise ConfigError(f"{key}: armature ({len(obj.armature)} values) and frictionloss "
+                          f"({len(obj.frictionloss)} values) must both give one value per joint")
+
+
+def load_robot_config(name: str, robots_dir: Path | str = ROBOTS_DIR) -> UrdfArmConfig:
+    """The validated ``<robots_dir>/<name>.yaml``; keys are named as ``robots/<name>.<key>``."""
+    data = _read_yaml(Path(robots_dir) / f"{name}.yaml")
+    config = _build(UrdfArmConfig, data, f"robots/{name}")
+    _check_urdf_arm(config, f"robots/{name}")
+    return config

@@ -50,7 +50,7 @@ from typing import Any, Sequence
 import numpy as np
 import yaml
 
-from ahrm_stack.config import CONFIG_DIR, Config, TaskConfig, load_config
+from ahrm_stack.config import CONFIG_DIR, Config, ConfigError, TaskConfig, load_config
 from hardware.protocol import (ArmFaultError, CommandRefusedError, ConnectionLostError, FastClock,
                                FeedbackTimeoutError, HardwareError, ServoingMode, WallClock)
 
@@ -632,10 +632,16 @@ def make_controller(world: WorldModel, config: Config, actor=None):
     return ScriptedController(world, config) if actor is None else PolicyController(world, actor, config)
 
 
-def load_controller_config(checkpoint: Path | None) -> tuple[Config, object]:
-    """The config (and actor) of a checkpoint run, or the repository's config and no actor."""
+def load_controller_config(checkpoint: Path | None,
+                           overrides: Sequence[str] = ()) -> tuple[Config, object]:
+    """The config (and actor) of a checkpoint run, or the repository's config with ``overrides``
+    (``key=value``, e.g. ``task.robot=j2s6s200``) and no actor. A checkpoint fixes its own config
+    (the arm it was trained on), so it takes no overrides."""
     if checkpoint is None:
-        return load_config(), None
+        return load_config(overrides), None
+    if overrides:
+        raise ConfigError(f"overrides {list(overrides)} cannot change a checkpoint's config "
+                          f"({checkpoint}/config.yaml fixes the arm and the task)")
     import torch
 
     from ahrm_stack.learning.evaluation import load_policy
@@ -644,12 +650,14 @@ def load_controller_config(checkpoint: Path | None) -> tuple[Config, object]:
     return load_policy(Path(checkpoint))
 
 
-def deploy_sim(settings: DeploySettings, checkpoint: Path | None = None) -> DeployLoop:
+def deploy_sim(settings: DeploySettings, checkpoint: Path | None = None,
+               overrides: Sequence[str] = ()) -> DeployLoop:
     """One run of the deploy loop against the sim backend; returns the finished loop (its
-    :meth:`DeployLoop.summary`, :attr:`DeployLoop.interrupted`)."""
+    :meth:`DeployLoop.summary`, :attr:`DeployLoop.interrupted`). ``overrides``: config
+    ``key=value`` pairs for the scripted controller's run (no checkpoint)."""
     from hardware.sim import SimArm
 
-    config, actor = load_controller_config(checkpoint)
+    config, actor = load_controller_config(checkpoint, overrides)
     clock = WallClock() if settings.realtime else FastClock()
     arm = SimArm(config.task, seed=settings.seed, clock=clock,
                  command_delay=settings.sim.command_delay)
@@ -695,6 +703,8 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--seed", type=int, help="sim layout seed (default: deploy.yaml)")
     parser.add_argument("--telemetry", help="JSONL log path ('' for none; default: deploy.yaml)")
     parser.add_argument("--config", type=Path, default=DEPLOY_CONFIG, help="deploy settings YAML")
+    parser.add_argument("overrides", nargs="*", metavar="key=value",
+                        help="config overrides without --checkpoint, e.g. task.robot=j2s6s200")
     return parser.parse_args(argv)
 
 
@@ -716,7 +726,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     previous = signal.signal(signal.SIGTERM, terminate)
     try:
-        loop = deploy_sim(settings, args.checkpoint)
+        loop = deploy_sim(settings, args.checkpoint, args.overrides)
+    except ConfigError as error:
+        print(f"python -m ahrm_stack.deploy: error: {error}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:  # during set-up, before the arm moved
         print("interrupted before the loop started", file=sys.stderr)
         return 130

@@ -1,19 +1,29 @@
 """The one robot description: everything that reads the arm reads it from here.
 
-The arm is a dm_control composer entity whose MJCF is the single source of truth. Joint limits and
-velocity limits are read from the *compiled* MJCF (MuJoCo's ``jnt_range`` and the velocity
-actuators' ``ctrlrange``), never restated in code; the simulator, the Pinocchio model, the safety
-filter and the hardware adapter all take them from a :class:`RobotDescription`.
+Each arm of :data:`ARMS` is a dm_control composer entity. ``jaco`` is dm_control's curved-wrist
+JACO2, whose MJCF is its source of truth; ``j2s6s200`` is the spherical-wrist JACO2 of
+``example-robot-data``, whose URDF is (the entity and the Pinocchio model are both built from it,
+:mod:`ahrm_stack.arms`). Joint limits and velocity limits are read from the *compiled* MJCF
+(MuJoCo's ``jnt_range`` and the velocity actuators' ``ctrlrange``), never restated in code; the
+simulator, the Pinocchio model, the safety filter and the hardware adapter all take them from a
+:class:`RobotDescription`.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
 from dm_control import composer, mjcf
 from dm_control.entities.manipulators.kinova import jaco_arm
+
+from ahrm_stack.arms.assets import robot_file
+from ahrm_stack.arms.entity import UrdfArm
+from ahrm_stack.arms.urdf import Urdf, read_urdf
+from ahrm_stack.config import load_robot_config
 
 
 @dataclasses.dataclass(frozen=True)
@@ -32,6 +42,8 @@ class RobotDescription:
     commanded_joints: tuple[int, ...]  # indices driven by the policy; the rest hold zero velocity
     link_bodies: tuple[str, ...]  # body names of the links, base to wrist (arm-model names)
     attachment_site: str  # arm-model name of the site the pusher is attached to
+    urdf: Path | None = None  # the URDF the arm is built from (None: the MJCF is the source); the
+    # kinematics then read the URDF directly
 
     @property
     def num_joints(self) -> int:
@@ -53,9 +65,22 @@ def _make_jaco() -> composer.Entity:
     return jaco_arm.JacoArm(name="jaco")
 
 
+@functools.lru_cache(maxsize=None)
+def robot_urdf(name: str) -> Urdf:
+    """The parsed URDF of a URDF-built arm (``configs/robots/<name>.yaml`` names the file)."""
+    return read_urdf(robot_file(load_robot_config(name).urdf))
+
+
+def _make_urdf_arm(name: str) -> Callable[[], composer.Entity]:
+    def make() -> composer.Entity:
+        return UrdfArm(robot_urdf(name), load_robot_config(name), name)
+    return make
+
+
 # joint_6 only spins the symmetric pusher (spec §1), so the policy commands joints 1-5.
 ARMS: dict[str, _ArmSpec] = {
     "jaco": _ArmSpec(make_entity=_make_jaco, commanded_joints=(0, 1, 2, 3, 4)),
+    "j2s6s200": _ArmSpec(make_entity=_make_urdf_arm("j2s6s200"), commanded_joints=(0, 1, 2, 3, 4)),
 }
 
 
@@ -86,4 +111,5 @@ def describe(name: str, arm: composer.Entity) -> RobotDescription:
         commanded_joints=ARMS[name].commanded_joints,
         link_bodies=tuple(j.parent.name for j in arm.joints),
         attachment_site=arm.wrist_site.name,
+        urdf=arm.urdf.path if isinstance(arm, UrdfArm) else None,
     )

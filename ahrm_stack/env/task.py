@@ -20,13 +20,13 @@ from dm_control import composer, mjcf
 from dm_control.composer.observation import observable
 from dm_env import specs
 
-from ahrm_stack.config import TaskConfig
+from ahrm_stack.config import ConfigError, TaskConfig
 from ahrm_stack.env.arena import TableArena
 from ahrm_stack.env.entities import BoxProp, Pusher
 from ahrm_stack.env.layout import Layout, LayoutSampler
 from ahrm_stack.env.rewards import (NUM_PHASES, ProgressObjective, TimeObjective, avoid_component,
                                     obstacle_touched, penalty_form, progress)
-from ahrm_stack.kinematics.model import ArmKinematics, relative_name
+from ahrm_stack.kinematics.model import make_kinematics, relative_name
 from ahrm_stack.kinematics.scene import CollisionScene, link_capsules
 from ahrm_stack.kinematics.phases import Cylinder, PhaseScene, RegionParams, phase_geometry
 from ahrm_stack.robot import describe, make_arm
@@ -66,6 +66,9 @@ class PushOffTask(composer.Task):
         self._arena = TableArena(config.table)
         self._arm = make_arm(config.robot)
         self.robot = describe(config.robot, self._arm)
+        if len(config.arm.home) != self.robot.num_joints:
+            raise ConfigError(f"task.arm.home_deg: {len(config.arm.home)} angles for robot "
+                              f"{config.robot!r}, which has {self.robot.num_joints} joints")
         self._pusher = Pusher(config.pusher.radius, config.pusher.length, config.pusher.mass)
         self._arm.attach(self._pusher, self._arm.wrist_site)
         frame = self._arena.attach(self._arm)
@@ -73,8 +76,8 @@ class PushOffTask(composer.Task):
         half_yaw = config.arm.base_yaw / 2
         frame.quat = [np.cos(half_yaw), 0, 0, np.sin(half_yaw)]
         self._arena.add_pedestal(config.arm.base_position, config.arm.base_position[2])
-        self.kinematics = ArmKinematics(self._arm.mjcf_model, config.arm.base_position,
-                                        config.arm.base_yaw)
+        self.kinematics = make_kinematics(self.robot, self._arm.mjcf_model, config.arm.base_position,
+                                          config.arm.base_yaw)
         self._tip_frame = self.kinematics.element_frame_id(self._pusher.tip_site)
         self._center_frame = self.kinematics.element_frame_id(self._pusher.center_site)
 

@@ -96,7 +96,7 @@ class SafetyFilter:
                  dt: float, table_height: float, tip_frame: int, wrist_frame: int,
                  scene: CollisionScene | None = None) -> None:
         nv = robot.num_joints
-        if kinematics.model.nq != nv or kinematics.model.nv != nv:
+        if kinematics.model.nv != nv or kinematics.joint_map.nq != kinematics.model.nq:
             raise SafetyFilterError(f"the kinematics model has nq={kinematics.model.nq}, "
                                     f"nv={kinematics.model.nv}; {robot.name} has {nv} joints")
         for name, frame in (("tip_frame", tip_frame), ("wrist_frame", wrist_frame)):
@@ -123,10 +123,10 @@ class SafetyFilter:
                       if config.table_rows else None)
         self.workspace = (WorkspaceLimit(config.workspace_lower, config.workspace_upper, self.horizon,
                                          CONTROL_POINTS) if config.workspace_rows else None)
-        self._snapshot = ArmSnapshot(kinematics.model, kinematics.base)
+        self._snapshot = ArmSnapshot(kinematics.model, kinematics.base, kinematics.configuration)
         self.distances: DistanceLimit | None = None
         if scene is not None:
-            if scene.kinematics.model.nq != nv:
+            if scene.kinematics.model.nq != kinematics.model.nq or scene.kinematics.model.nv != nv:
                 raise SafetyFilterError("the collision scene was built on another kinematics model")
             reference = np.zeros(nv)
             scene.kinematics.update(reference)

@@ -14,7 +14,7 @@ These run every control step, so they are plain named tuples and the per-step me
 
 from __future__ import annotations
 
-from typing import NamedTuple, Sequence
+from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 import pinocchio as pin
@@ -126,18 +126,23 @@ class ArmSnapshot:
     rad/s, then rad/s per rad/s). Call :meth:`update` first.
     """
 
-    def __init__(self, model: pin.Model, base: pin.SE3) -> None:
+    def __init__(self, model: pin.Model, base: pin.SE3,
+                 configuration: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
+        """``configuration`` maps the joint angles (rad) to Pinocchio's configuration vector
+        (:meth:`ArmKinematics.configuration`; default: the identity, for models with nq = nv)."""
         self.model = pin.Model(model)  # a private copy: frames may be attached to it
+        self._configuration = configuration
         self.data = self.model.createData()
         self.base_rotation = np.array(base.rotation)
         self.base_translation = np.array(base.translation)
         self._identity_base = bool(np.array_equal(self.base_rotation, np.eye(3)))
         self._jacobians: dict[int, np.ndarray] = {}
-        self._q = pin.neutral(self.model)
+        self._q = np.zeros(self.model.nv)  # joint angles, rad
 
     def update(self, q: np.ndarray) -> None:
         """Joint placements and joint Jacobians at ``q`` (rad)."""
-        pin.computeJointJacobians(self.model, self.data, q)
+        configuration = q if self._configuration is None else self._configuration(q)
+        pin.computeJointJacobians(self.model, self.data, configuration)
         self._jacobians.clear()
         self._q = q
 
