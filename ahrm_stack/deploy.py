@@ -289,6 +289,7 @@ class ScriptedController:
     """The scripted mink pusher, run on the :class:`WorldModel`'s mirror physics."""
 
     name = "scripted"
+    cartesian = False  # returns joint velocities, rad/s
 
     def __init__(self, world: WorldModel, config: Config) -> None:
         from ahrm_stack.env.scripted import ScriptedPusher
@@ -309,7 +310,10 @@ class ScriptedController:
 
 
 class PolicyController:
-    """A trained policy (deterministic action) on the training observation vector."""
+    """A trained policy (deterministic action) on the training observation vector. Its request is
+    what training's environment made of the action: joint velocities (rad/s, ``action.mode:
+    joint``) or a pusher-tip velocity (m/s, world frame, ``cartesian``: :attr:`cartesian` is
+    then true and the loop hands it to the filter's differential IK)."""
 
     name = "policy"
 
@@ -320,9 +324,8 @@ class PolicyController:
 
         from ahrm_stack.env.torchrl_env import action_to_command
 
-        if config.task.action.mode != "joint":
-            raise DeployConfigError(f"the checkpoint's task.action.mode is "
-                                    f"{config.task.action.mode!r}; deploy supports 'joint'")
+        self.cartesian = config.task.action.mode == "cartesian"
+        self._max_tip_speed = config.task.action.cartesian_max_speed
         self.world = world
         self.actor = actor
         self._torch, self._tensordict = torch, TensorDict
@@ -339,7 +342,11 @@ class PolicyController:
         observation = torch.as_tensor(self.world.observation(), dtype=torch.float32)
         with torch.no_grad(), self._deterministic(self._exploration.DETERMINISTIC):
             action = self.actor(self._tensordict({"observation": observation}, batch_size=[]))
-        return self._to_command(action["action"].numpy(), self._limit, self._commanded)
+        action = action["action"].numpy()
+        if self.cartesian:
+            finite = np.nan_to_num(action, nan=0.0, posinf=0.0, neginf=0.0)
+            return np.clip(finite, -1.0, 1.0) * self._max_tip_speed
+        return self._to_command(action, self._limit, self._commanded)
 
     @property
     def stage(self) -> str:
@@ -412,6 +419,8 @@ class DeployLoop:
                                   control_period=self.period, table_height=task.config.table.height,
                                   tip_site=task.pusher.tip_site, wrist_site=task.arm.wrist_site,
                                   scene=self.scene)
+        # a Cartesian request (tip velocity, m/s) goes through the same QP as differential IK
+        self._solve = self.filter.cartesian if getattr(controller, "cartesian", False) else self.filter
         self.stats = InterventionStats()
         self.latencies: list[float] = []  # s, feedback received -> command sent
         self.deadline_misses = 0
@@ -508,7 +517,7 @@ class DeployLoop:
         self.world.update(feedback, self.arm.perception(), 0.0)
         self.controller.reset()
         self.world.place_objects(self.scene)
-        self.filter(feedback.position, feedback.velocity, self.controller(), u_prev=self._sent)
+        self._solve(feedback.position, feedback.velocity, self.controller(), u_prev=self._sent)
         self.filter.reset()
         self.controller.reset()
         self._sent = np.zeros_like(self._sent)
@@ -549,7 +558,7 @@ class DeployLoop:
                 self._halt("success: the cube left the table", emergency=False, level=logging.INFO)
             u_nom = self.controller()
             self.world.place_objects(self.scene)
-            result = self.filter(feedback.position, feedback.velocity, u_nom, u_prev=self._sent)
+            result = self._solve(feedback.position, feedback.velocity, u_nom, u_prev=self._sent)
             self.stats.add(result)
             if result.violated:
                 self._halt(f"safety filter reports violated constraints {list(result.violated)}",

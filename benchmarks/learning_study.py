@@ -35,6 +35,9 @@ ROWS: dict[str, list[str]] = {
     "default-ls": ["mechanism.method=ls"],
     # ablations of the defaults, one lever each
     "no-anchor-ahrm": ["mechanism.method=ahrm", "ppo.bc_coeff=0"],
+    # the first candidate default: anchor 1, 40 noise-free demonstrations, 200 cloning epochs
+    "anchor1-ahrm": ["mechanism.method=ahrm", "ppo.bc_coeff=1", "train.demo_noise=0",
+                     "train.demo_episodes=40", "train.bc_epochs=200"],
     "normalized-advantage-ahrm": ["mechanism.method=ahrm", "ppo.normalize_advantage=true",
                                   "ppo.target_kl=0"],
     "no-kl-target-ahrm": ["mechanism.method=ahrm", "ppo.target_kl=0"],
@@ -70,6 +73,10 @@ def summarize(run_dir: Path) -> dict:
     episodes = _rows(run_dir / "episodes.csv")
     batches = _rows(run_dir / "batches.csv")
     evaluations = _rows(run_dir / "evaluations.csv")
+    if not evaluations and (run_dir / "evaluation.yaml").is_file():  # the final evaluation only
+        import yaml
+        final = yaml.safe_load((run_dir / "evaluation.yaml").read_text())
+        evaluations = [{**final, "episode": len(episodes)}]
     success = [row["success"] == "True" for row in episodes]
     first = next((i + 1 for i, ok in enumerate(success) if ok), None)
     evals = {int(row["episode"]): (int(row["successes"]), int(row["episodes"]),
@@ -169,7 +176,7 @@ def main(argv: list[str] | None = None) -> int:
     run_parser.add_argument("row")
     run_parser.add_argument("--seed", type=int, default=0)
     run_parser.add_argument("--episodes", type=int, default=300)
-    run_parser.add_argument("--eval-every", type=int, default=25)
+    run_parser.add_argument("--eval-every", type=int, default=50)
     run_parser.add_argument("--runs-dir", type=Path, default=Path("runs/study"))
     report_parser = sub.add_parser("report")
     report_parser.add_argument("runs_dir", type=Path)

@@ -8,7 +8,7 @@ from ahrm_stack.config import ConfigError, load_config, load_raw, config_from_di
 
 
 def test_defaults_load_and_convert_degrees(config):
-    assert config.task.arm.home[0] == pytest.approx(math.radians(275))
+    assert config.task.arm.home[0] == pytest.approx(math.radians(240))
     assert config.task.substeps == 25
     assert config.task.max_steps == 1200
 

@@ -8,7 +8,7 @@ from ahrm_stack.learning.ppo import make_modules
 from ahrm_stack.learning.trainer import Trainer
 
 SMALL = ["ppo.hidden_sizes=[32,32]", "ppo.frames_per_batch=128", "train.demo_episodes=2",
-         "train.bc_epochs=30", "task.episode.duration=4"]
+         "train.bc_epochs=30", "task.episode.duration=8"]
 
 
 def test_demonstrations_are_successful_scripted_episodes():
@@ -31,7 +31,7 @@ def test_behaviour_cloning_fits_the_demonstrations():
 
 
 def test_warm_start_and_anchor_are_config_levers():
-    plain = Trainer(load_config(SMALL))
+    plain = Trainer(load_config(SMALL + ["train.warm_start=none", "ppo.bc_coeff=0"]))
     assert plain.demos is None
     trainer = Trainer(load_config(SMALL + ["train.warm_start=bc", "ppo.bc_coeff=0.5"]))
     assert trainer.demos is not None and trainer.warm_start_report is None

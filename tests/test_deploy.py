@@ -31,7 +31,7 @@ def test_deploy_command_pushes_the_cube_off_with_the_scripted_controller(tmp_pat
     lines = [json.loads(line) for line in telemetry.read_text().splitlines()]
     ticks = [line for line in lines if "latency_ms" in line]
     assert ticks and {"t", "phase", "x", "u_nom", "u", "active", "status"} <= set(ticks[0])
-    assert {1, 3} <= {t["phase"] for t in ticks}  # approached, then manipulated
+    assert {2, 3} <= {t["phase"] for t in ticks}  # pre-manipulated, then manipulated
     for tick in ticks:  # every command sent was within the velocity limits
         assert len(tick["u"]) == 6 and all(np.isfinite(tick["u"]))
     assert lines[-1]["summary"]["success"] is True
@@ -136,18 +136,24 @@ def test_observation_is_built_exactly_like_training():
         assert info.x == pytest.approx(sim_task.step_info.x, abs=1e-9)
 
 
-def test_policy_checkpoint_drives_the_loop(tmp_path):
+ACTION_DIMS = {"joint": 5, "cartesian": 3}  # commanded joints 1-5; the tip's linear velocity
+
+
+@pytest.mark.parametrize("mode", ["cartesian", "joint"])
+def test_policy_checkpoint_drives_the_loop(tmp_path, mode):
     from ahrm_stack.learning.ppo import make_modules
 
-    config = load_config()
+    config = load_config([f"task.action.mode={mode}"])
     world = WorldModel(config.task)
     observation_dim = world.observation().shape[0]
-    modules = make_modules(config.ppo, observation_dim, len(world.robot.commanded_joints))
+    modules = make_modules(config.ppo, observation_dim, ACTION_DIMS[config.task.action.mode])
     run = tmp_path / "run"
     run.mkdir()
-    (run / "config.yaml").write_text(yaml.safe_dump(load_raw(), sort_keys=False))
+    raw = load_raw()
+    raw["task"]["action"]["mode"] = mode
+    (run / "config.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))
     torch.save({"actor": modules.actor.state_dict(), "observation_dim": observation_dim,
-                "action_dim": len(world.robot.commanded_joints), "episodes": 0, "frames": 0},
+                "action_dim": ACTION_DIMS[config.task.action.mode], "episodes": 0, "frames": 0},
                run / "policy.pt")
     telemetry = tmp_path / "policy.jsonl"
     settings = load_deploy_settings(realtime=False, duration=1.0, telemetry=str(telemetry))

@@ -44,6 +44,7 @@ def test_scripted_evaluation_cli(tmp_path):
 def test_run_evaluation_cli(tmp_path):
     run = tmp_path / "run"
     assert train(["ppo.hidden_sizes=[16]", "ppo.frames_per_batch=128", "task.episode.duration=2",
+                  "train.warm_start=none", "ppo.bc_coeff=0",
                   "train.episodes=2", "train.eval_episodes=0", "--run-dir", str(run), "--no-progress"]) == 0
     assert evaluate([str(run), "--episodes", "2"]) == 0
     assert json.loads((run / "evaluation.json").read_text())["episodes"] == 2

@@ -203,9 +203,17 @@ def test_the_robot_choice_reaches_task_kinematics_filter_and_hardware(robot, joi
 
 
 def test_home_pose_holds_the_pusher_above_the_table(runner, config):
+    """The default home: pusher vertical, tip above the obstacles' tops (phase 2); the paper
+    profile's Kinova-like home: tip above the obstacle region (phase 1)."""
     tip = runner.task.step_info.tip
-    assert tip[2] > config.task.table.height + config.task.regions.obstacle_height
-    assert runner.task.step_info.phase == 1
+    top = config.task.table.height + config.task.obstacles.size[2]
+    axis = np.reshape(runner.physics.bind(runner.task.pusher.tip_site).xmat, (3, 3))[:, 2]
+    assert tip[2] > top + 0.05 and axis[2] < -0.99
+    paper = load_config(["task.robot=j2s6s200", "profile=paper"])
+    home = TaskRunner(PushOffTask(paper.task), seed=0, safety=paper.safety)
+    home.reset()
+    assert home.task.step_info.tip[2] > paper.task.table.height + paper.task.regions.obstacle_height
+    assert home.task.step_info.phase == 1
 
 
 def test_the_pusher_replaces_the_hand_and_points_toward_the_end_effector(runner):

@@ -15,7 +15,7 @@ from ahrm_stack.learning.ppo import scheduled_std
 from ahrm_stack.learning.trainer import ENV_SEED_STRIDE, Trainer
 
 TINY = ["ppo.hidden_sizes=[16,16]", "ppo.frames_per_batch=64", "ppo.mini_batch_size=32",
-        "task.episode.duration=1.0"]
+        "task.episode.duration=1.0", "train.warm_start=none", "ppo.bc_coeff=0"]
 
 
 def _trainer(*overrides: str) -> Trainer:
@@ -38,7 +38,7 @@ def test_action_mode_sets_the_action_space():
 def test_network_width_and_activation():
     trainer = _trainer("ppo.hidden_sizes=[24,8]", "ppo.activation=relu")
     sizes = _linear_sizes(trainer.modules.actor)
-    assert sizes == [(60, 24), (24, 8), (8, 5)]
+    assert sizes == [(60, 24), (24, 8), (8, trainer.envs[0].action_spec.shape[-1])]
     assert _linear_sizes(trainer.modules.critic)[-1] == (8, 1)
     assert any(isinstance(m, torch.nn.ReLU) for m in trainer.modules.actor.modules())
 
@@ -138,7 +138,7 @@ def test_standard_deviation_learned_fixed_and_scheduled():
 
 
 def test_kl_target_stops_the_epochs_early():
-    free = _trainer("ppo.epochs=4", "ppo.learning_rate=0.05")
+    free = _trainer("ppo.epochs=4", "ppo.learning_rate=0.05", "ppo.target_kl=0")
     stopped = _trainer("ppo.epochs=4", "ppo.learning_rate=0.05", "ppo.target_kl=1e-6")
     assert free.iteration().batch["updates"] == 8
     assert stopped.iteration().batch["updates"] < 8

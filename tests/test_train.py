@@ -16,7 +16,7 @@ from ahrm_stack.learning.checkpoint import CheckpointManager, load
 from ahrm_stack.train import main
 
 SMALL = ["ppo.hidden_sizes=[32,32]", "ppo.frames_per_batch=256", "task.episode.duration=4",
-         "train.eval_episodes=1", "train.checkpoint_every=1"]
+         "train.eval_episodes=1", "train.checkpoint_every=1", "train.warm_start=none", "ppo.bc_coeff=0"]
 
 
 def _rows(path: Path) -> list[dict]:
