@@ -28,7 +28,7 @@ import traceback
 from pathlib import Path
 from typing import Sequence
 
-from ahrm_stack.config import (ConfigError, ExperimentConfig, VideoConfig, apply_override,
+from ahrm_stack.config import (ConfigError, ExperimentConfig, VideoConfig, apply_overrides,
                                config_from_dict, load_extra, load_raw)
 
 DONE, FAILED, GRID = "done.json", "failed.json", "grid.json"
@@ -76,8 +76,7 @@ def build_grid(args: argparse.Namespace) -> dict:
     experiment = load_extra(ExperimentConfig, "experiment", experiment_overrides)
     load_extra(VideoConfig, "video", video_overrides)  # fail now, not in every task
     raw = load_raw()
-    for override in train_overrides:
-        apply_override(raw, override)
+    apply_overrides(raw, train_overrides)
     config_from_dict(raw)  # fail now, not in every task
     from ahrm_stack.env.layout_catalog import apply_layout
     apply_layout(load_raw(), experiment.eval_layout)
@@ -136,8 +135,7 @@ def run_one(spec: dict) -> dict:
             if not (run_dir / "policy.pt").is_file():
                 from ahrm_stack.train import train
                 raw = load_raw()
-                for override in spec["overrides"]:
-                    apply_override(raw, override)
+                apply_overrides(raw, spec["overrides"])
                 config = config_from_dict(raw)
                 checkpoints = run_dir / "checkpoints"
                 resume = checkpoints.is_dir() and any(checkpoints.glob("ckpt-*.pt"))
