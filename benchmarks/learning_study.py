@@ -73,10 +73,13 @@ def summarize(run_dir: Path) -> dict:
     episodes = _rows(run_dir / "episodes.csv")
     batches = _rows(run_dir / "batches.csv")
     evaluations = _rows(run_dir / "evaluations.csv")
-    if not evaluations and (run_dir / "evaluation.yaml").is_file():  # the final evaluation only
+    if not evaluations:  # the final evaluation only: train's, or the experiment grid's
         import yaml
-        final = yaml.safe_load((run_dir / "evaluation.yaml").read_text())
-        evaluations = [{**final, "episode": len(episodes)}]
+        for final_path in (run_dir / "evaluation.yaml", run_dir / "eval" / "evaluation.json"):
+            if final_path.is_file():
+                final = yaml.safe_load(final_path.read_text())
+                evaluations = [{**final, "episode": len(episodes)}]
+                break
     success = [row["success"] == "True" for row in episodes]
     first = next((i + 1 for i, ok in enumerate(success) if ok), None)
     evals = {int(row["episode"]): (int(row["successes"]), int(row["episodes"]),
@@ -95,7 +98,10 @@ def summarize(run_dir: Path) -> dict:
         "first_success": first,
         "touching_episodes": sum(int(row["touched_steps"]) > 0 for row in episodes),
         "constraint_terminations": sum(row["constraint_terminated"] == "True" for row in episodes),
-        "minutes": sum(float(row["seconds"]) for row in batches) / 60,
+        "ppo_minutes": sum(float(row["seconds"]) for row in batches) / 60,
+        # wall clock: the run folder's config (written at start) to its last episode row
+        "wall_minutes": ((run_dir / "episodes.csv").stat().st_mtime
+                         - (run_dir / "config.yaml").stat().st_mtime) / 60,
         "eval_0": evals.get(0),
         "eval_300": eval_at(300),
         "eval_600": eval_at(600),
@@ -124,7 +130,7 @@ def report(runs_dir: Path, out: Path) -> None:
         groups[row].append(summarize(run_dir))
     lines = ["| row | seed | episodes | training successes | first success (episode) | "
              "touching episodes | deterministic eval before PPO | at 300 | at 600 | "
-             "training minutes |",
+             "wall minutes (collection + updates) |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for row, runs in groups.items():
         for summary in runs:
@@ -133,7 +139,7 @@ def report(runs_dir: Path, out: Path) -> None:
                 f"{summary['train_successes']} | {summary['first_success'] or 'never'} | "
                 f"{summary['touching_episodes']} | {_fmt_eval(summary['eval_0'])} | "
                 f"{_fmt_eval(summary['eval_300'])} | {_fmt_eval(summary['eval_600'])} | "
-                f"{summary['minutes']:.1f} |")
+                f"{summary['wall_minutes']:.1f} ({summary['ppo_minutes']:.1f}) |")
     (out / "table.md").write_text("\n".join(lines) + "\n")
     (out / "summary.json").write_text(json.dumps(
         {row: [{k: v for k, v in s.items() if k != "success"} for s in runs]

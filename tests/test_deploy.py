@@ -8,6 +8,7 @@ import io
 import json
 import os
 import signal
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -163,3 +164,19 @@ def test_policy_checkpoint_drives_the_loop(tmp_path, mode):
     assert summary.deadline_misses == 0 and summary.emergency_stops == 0
     ticks = [json.loads(line) for line in telemetry.read_text().splitlines() if "latency_ms" in line]
     assert len(ticks) == 20 and all(t["stage"] == "policy" for t in ticks)
+
+
+TRAINED = Path(__file__).resolve().parents[1] / "docs" / "policies" / "ahrm-default-seed0"
+
+
+def test_trained_policy_pushes_the_cube_off_through_the_deploy_loop(tmp_path, capsys):
+    """The committed policy of the learnability study's default run (AHRM, seed 0, 600 episodes)
+    drives the sim backend through the whole deploy path and pushes the cube off."""
+    telemetry = tmp_path / "trained.jsonl"
+    code = main(["--backend", "sim", "--fast", "--duration", "20", "--checkpoint", str(TRAINED),
+                 "--telemetry", str(telemetry)])
+    out = capsys.readouterr().out
+    assert code == 0 and "deploy summary: success True" in out, out
+    ticks = [json.loads(line) for line in telemetry.read_text().splitlines() if "latency_ms" in line]
+    assert ticks and all(t["stage"] == "policy" and len(t["u_nom"]) == 3 for t in ticks)
+    assert {2, 3} <= {t["phase"] for t in ticks}
