@@ -43,6 +43,14 @@ ROWS: dict[str, list[str]] = {
     "no-kl-target-ahrm": ["mechanism.method=ahrm", "ppo.target_kl=0"],
     "joint-bc-ahrm": ["mechanism.method=ahrm", "task.action.mode=joint"],
     "two-envs-ahrm": ["mechanism.method=ahrm", "train.num_envs=2"],
+    "wide-1000-ahrm": ["mechanism.method=ahrm", "ppo.hidden_sizes=[1000,1000,1000]"],
+    "lr-1e-3-ahrm": ["mechanism.method=ahrm", "ppo.learning_rate=1e-3"],
+    "entropy-0.01-ahrm": ["mechanism.method=ahrm", "ppo.entropy_coeff=0.01"],
+    "batch-2048-epochs-10-ahrm": ["mechanism.method=ahrm", "ppo.frames_per_batch=2048",
+                                  "ppo.epochs=10"],
+    "std-scheduled-ahrm": ["mechanism.method=ahrm", "ppo.std_mode=scheduled", "ppo.init_std=0.3",
+                           "ppo.final_std=0.05", "ppo.std_schedule_frames=20000"],
+    "no-obs-norm-ahrm": ["mechanism.method=ahrm", "ppo.normalize_observations=false"],
 }
 
 

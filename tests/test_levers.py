@@ -147,11 +147,18 @@ def test_kl_target_stops_the_epochs_early():
 
 
 def test_advantage_normalisation():
-    assert _trainer("ppo.normalize_advantage=true").loss.normalize_advantage
-    trainer = _trainer("ppo.normalize_advantage=false")
-    assert not trainer.loss.normalize_advantage
-    assert trainer.iteration().batch["updates"] == 3 * 64 // 32
-    trainer.close()
+    """Before any update the probability ratio is 1, so the clipped objective is -mean(A): the raw
+    advantages' mean without normalisation, and 0 (whatever their scale) with it."""
+    for normalize in (False, True):
+        trainer = _trainer(f"ppo.normalize_advantage={str(normalize).lower()}")
+        data = trainer._collect().reshape(-1)
+        with torch.no_grad():
+            trainer.advantage(data)
+            data["advantage"] = data["advantage"] * 100 + 1  # a scale and an offset far from 0/1
+            objective = float(trainer.loss(data)["loss_objective"])
+        expected = 0.0 if normalize else -float(data["advantage"].mean())
+        assert objective == pytest.approx(expected, abs=1e-4, rel=1e-4)
+        trainer.close()
 
 
 def test_demonstration_noise_changes_the_states_not_the_labels():
