@@ -35,6 +35,7 @@ ROWS: dict[str, list[str]] = {
     "default-ls": ["mechanism.method=ls"],
     # ablations of the defaults, one lever each
     "no-anchor-ahrm": ["mechanism.method=ahrm", "ppo.bc_coeff=0"],
+    "no-demo-noise-ahrm": ["mechanism.method=ahrm", "train.demo_noise=0"],
     # the first candidate default: anchor 1, 40 noise-free demonstrations, 200 cloning epochs
     "anchor1-ahrm": ["mechanism.method=ahrm", "ppo.bc_coeff=1", "train.demo_noise=0",
                      "train.demo_episodes=40", "train.bc_epochs=200"],
