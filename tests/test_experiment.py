@@ -14,6 +14,7 @@ from ahrm_stack.experiment import main
 
 RAY_TEMP = f"/tmp/ahrm-ray-test-{os.getpid()}"  # short: Ray's socket paths must fit 107 bytes
 TINY = ["task.episode.duration=2", "ppo.hidden_sizes=[16]", "ppo.frames_per_batch=128",
+        "train.warm_start=none", "ppo.bc_coeff=0",
         "experiment.eval_episodes=2", "experiment.scripted_episodes=1",
         f"experiment.ray_temp_dir={RAY_TEMP}", "video.width=160", "video.height=120"]
 

@@ -205,9 +205,11 @@ def test_the_robot_choice_reaches_task_kinematics_filter_and_hardware(robot, joi
 def test_home_pose_holds_the_pusher_above_the_table(runner, config):
     """The default home: pusher vertical, tip above the obstacles' tops (phase 2); the paper
     profile's Kinova-like home: tip above the obstacle region (phase 1)."""
-    tip = runner.task.step_info.tip
+    fresh = TaskRunner(PushOffTask(config.task), seed=0, safety=config.safety)
+    fresh.reset()  # the module's runner has been stepped by earlier tests
+    tip = fresh.task.step_info.tip
     top = config.task.table.height + config.task.obstacles.size[2]
-    axis = np.reshape(runner.physics.bind(runner.task.pusher.tip_site).xmat, (3, 3))[:, 2]
+    axis = np.reshape(fresh.physics.bind(fresh.task.pusher.tip_site).xmat, (3, 3))[:, 2]
     assert tip[2] > top + 0.05 and axis[2] < -0.99
     paper = load_config(["task.robot=j2s6s200", "profile=paper"])
     home = TaskRunner(PushOffTask(paper.task), seed=0, safety=paper.safety)
