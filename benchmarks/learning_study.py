@@ -154,10 +154,22 @@ def report(runs_dir: Path, out: Path) -> None:
         {row: [{k: v for k, v in s.items() if k != "success"} for s in runs]
          for row, runs in groups.items()}, indent=1))
 
+    _plot_curves(plt, {row: runs for row, runs in groups.items() if row in KEY_ROWS},
+                 out / "learning-curves.png")
+    _plot_curves(plt, groups, out / "learning-curves-all.png")
+    print((out / "table.md").read_text())
+
+
+KEY_ROWS = ("default-ahrm", "default-ls", "anchor1-ahrm", "no-anchor-ahrm", "no-demo-noise-ahrm",
+            "paper-ahrm")  # the rows the study's findings rest on
+
+
+def _plot_curves(plt, groups: dict[str, list[dict]], path: Path) -> None:
+    """Training success (rolling 20) and deterministic evaluations per row, seeds in one colour."""
     figure, (top, bottom) = plt.subplots(2, 1, figsize=(10, 8), sharex=True)
-    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    colours = plt.get_cmap("tab20").colors
     for i, (row, runs) in enumerate(groups.items()):
-        colour = colours[i % len(colours)]
+        colour = colours[(2 * i) % 20 if i < 10 else (2 * i + 1) % 20]
         for j, summary in enumerate(runs):
             success = np.asarray(summary["success"], dtype=float)
             if len(success) == 0:
@@ -179,8 +191,8 @@ def report(runs_dir: Path, out: Path) -> None:
         axis.grid(alpha=0.3)
     top.legend(fontsize=8, loc="lower right")
     figure.tight_layout()
-    figure.savefig(out / "learning-curves.png", dpi=110)
-    print((out / "table.md").read_text())
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
 
 
 def main(argv: list[str] | None = None) -> int:
