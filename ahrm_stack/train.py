@@ -30,9 +30,10 @@ import yaml
 from tqdm import tqdm
 
 from ahrm_stack.config import Config, ConfigError, apply_overrides, config_from_dict, load_raw
+from ahrm_stack.env.torchrl_env import PushOffEnv
 from ahrm_stack.learning.checkpoint import CheckpointManager
 from ahrm_stack.learning.diagnostics import plot_run
-from ahrm_stack.learning.evaluation import evaluate_policy
+from ahrm_stack.learning.evaluation import EVAL_SEED_OFFSET, EvaluationTable, run_episodes
 from ahrm_stack.learning.trainer import Trainer, TrainingDiverged
 
 EPISODE_FIELDS = ["episode", "frames", "steps", "duration", "success", "time_to_success",
@@ -162,12 +163,21 @@ def train(config: Config, raw: dict, run_dir: Path, resume: bool, progress: bool
     bar = tqdm(total=config.train.episodes, initial=min(trainer.episodes, config.train.episodes),
                unit="ep", disable=not progress, dynamic_ncols=True)
     recent: list[bool] = []
+    interim = bool(config.train.eval_every and config.train.eval_episodes)
+    # built once: every interim evaluation replays the same evaluation seeds on this environment
+    eval_env = PushOffEnv(config.task, config.safety, seed=EVAL_SEED_OFFSET) if interim else None
+
+    def evaluate_now() -> None:
+        """One interim deterministic evaluation, logged, with the policy it evaluated."""
+        summaries = run_episodes(eval_env, trainer.modules.actor, config.train.eval_episodes)
+        log.evaluation(trainer, EvaluationTable.from_summaries(summaries))
+        trainer.save_policy(run_dir / "policies" / f"episode-{trainer.episodes:05d}.pt")
+
     evaluated = trainer.episodes
     try:
-        if config.train.eval_every and config.train.eval_episodes and trainer.episodes == 0:
+        if interim and trainer.episodes == 0:
             trainer.warm_start()  # the curve's first point: the policy before any PPO update
-            log.evaluation(trainer, evaluate_policy(config, trainer.modules.actor,
-                                                    config.train.eval_episodes))
+            evaluate_now()
         while trainer.episodes < config.train.episodes:
             try:
                 result = trainer.iteration()
@@ -186,12 +196,10 @@ def train(config: Config, raw: dict, run_dir: Path, resume: bool, progress: bool
             phase = result.episodes[-1]["phases_visited"][-1] if result.episodes else "-"
             bar.set_postfix(frames=trainer.frames, success=f"{np.mean(recent) if recent else 0:.2f}",
                             phase=phase, orders=trainer.mechanism_orders())
-            if config.train.eval_every and config.train.eval_episodes and (
-                    trainer.episodes // config.train.eval_every > evaluated // config.train.eval_every):
+            if interim and (trainer.episodes // config.train.eval_every
+                            > evaluated // config.train.eval_every):
                 evaluated = trainer.episodes
-                log.evaluation(trainer, evaluate_policy(config, trainer.modules.actor,
-                                                        config.train.eval_episodes))
-                trainer.save_policy(run_dir / "policies" / f"episode-{trainer.episodes:05d}.pt")
+                evaluate_now()
             if trainer.batches % config.train.checkpoint_every == 0:
                 log.flush()
                 checkpoints.save(trainer.state_dict(), trainer.batches)

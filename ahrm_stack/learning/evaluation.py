@@ -85,13 +85,6 @@ def run_episodes(env: PushOffEnv, policy, episodes: int, seed_offset: int = EVAL
     return summaries
 
 
-def evaluate_policy(config: Config, policy, episodes: int) -> EvaluationTable:
-    """Deterministic evaluation of ``policy`` (an actor) on the evaluation seeds, e.g. during
-    training (``train.eval_every``); the environment has no reward mechanism."""
-    env = PushOffEnv(config.task, config.safety, seed=EVAL_SEED_OFFSET)
-    return EvaluationTable.from_summaries(run_episodes(env, policy, episodes))
-
-
 def evaluate_run(run_dir: Path, episodes: int) -> EvaluationTable:
     config, policy = load_policy(run_dir)
     env = PushOffEnv(config.task, config.safety, seed=EVAL_SEED_OFFSET)
