@@ -71,23 +71,29 @@ def degrees_to_radians(values) -> np.ndarray:
 
 
 def unwrap_positions(measured: np.ndarray, reference: np.ndarray | None,
-                     continuous: np.ndarray) -> np.ndarray:
+                     continuous: np.ndarray, range_centre: np.ndarray | None = None) -> np.ndarray:
     """Joint positions (rad) with each continuous joint moved by whole turns to lie within π of
-    ``reference`` (the previous reading, rad); limited joints are wrapped to (-π, π].
+    ``reference`` (the previous reading, rad), and each limited joint moved by whole turns to lie
+    within π of the centre of its range (``range_centre``, rad; without it, in (-π, π]).
 
     Kortex reports continuous joints in [0°, 360°) and limited ones in (-180°, 180°]; the model's
     continuous joints are unbounded (e.g. the JACO home posture is 275° = 4.80 rad), so a reading
-    near 0° right after 359° must become 2π + small, not 0.
+    near 0° right after 359° must become 2π + small, not 0. A limited joint's range may lie past
+    180° (JACO's joint 2 spans 47°–313°), so -150° read there is 210°, the angle inside the range.
     """
     measured = np.asarray(measured, dtype=float)
     continuous = np.asarray(continuous, dtype=bool)
-    wrapped = np.angle(np.exp(1j * measured))  # (-π, π]
-    wrapped = np.where(wrapped == -np.pi, np.pi, wrapped)
+    if range_centre is None:
+        limited = np.angle(np.exp(1j * measured))  # (-π, π]
+        limited = np.where(limited == -np.pi, np.pi, limited)
+    else:
+        centre = np.asarray(range_centre, dtype=float)
+        limited = measured + 2 * np.pi * np.round((centre - measured) / (2 * np.pi))
     if reference is None:
-        return np.where(continuous, measured, wrapped)
+        return np.where(continuous, measured, limited)
     reference = np.asarray(reference, dtype=float)
     turns = np.round((reference - measured) / (2 * np.pi))
-    return np.where(continuous, measured + 2 * np.pi * turns, wrapped)
+    return np.where(continuous, measured + 2 * np.pi * turns, limited)
 
 
 def joint_speeds_message(speeds_rad_s: Sequence[float]) -> list[dict]:
@@ -142,14 +148,16 @@ def feedback_from_values(*, timestamp: float, frame_id: int, positions_deg, velo
                          torques_nm, arm_state_name: str, base_bank_a: int = 0,
                          base_bank_b: int = 0, actuator_banks: Sequence[int] = (),
                          reference: np.ndarray | None = None,
-                         continuous: np.ndarray | None = None) -> Feedback:
-    """A :class:`Feedback` (SI, radians) from the plain values of a BaseCyclic feedback frame."""
+                         continuous: np.ndarray | None = None,
+                         range_centre: np.ndarray | None = None) -> Feedback:
+    """A :class:`Feedback` (SI, radians) from the plain values of a BaseCyclic feedback frame;
+    ``continuous`` and ``range_centre`` as in :func:`unwrap_positions`."""
     positions = degrees_to_radians(positions_deg)
     if continuous is None:
         continuous = np.zeros(positions.size, dtype=bool)
     state = arm_state_from_kortex(arm_state_name)
     return Feedback(timestamp=float(timestamp), frame_id=int(frame_id),
-                    position=unwrap_positions(positions, reference, continuous),
+                    position=unwrap_positions(positions, reference, continuous, range_centre),
                     velocity=degrees_to_radians(velocities_deg_s),
                     torque=np.asarray(torques_nm, dtype=float),
                     arm_state=state,
@@ -269,6 +277,10 @@ class KortexArm(ArmAdapter):
         self._mode = ServoingMode.SINGLE_LEVEL_SERVOING
         self._previous: np.ndarray | None = None
         self._frame = 0
+        limited = robot.limited
+        self._range_centre = np.where(
+            limited, 0.5 * (np.where(limited, robot.position_lower, 0.0)
+                            + np.where(limited, robot.position_upper, 0.0)), 0.0)
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -370,7 +382,8 @@ class KortexArm(ArmAdapter):
             arm_state_name=names(raw.base.active_state),
             base_bank_a=raw.base.fault_bank_a, base_bank_b=raw.base.fault_bank_b,
             actuator_banks=[a.fault_bank_a for a in actuators],
-            reference=self._previous, continuous=~self._robot.limited)
+            reference=self._previous, continuous=~self._robot.limited,
+            range_centre=self._range_centre)
         self._previous = frame.position
         return frame
 

@@ -42,6 +42,44 @@ def test_continuous_joints_unwrap_to_the_previous_reading():
         pytest.approx(math.radians(275.0))
 
 
+@pytest.mark.parametrize("robot", ["jaco", "j2s6s200"])
+def test_limited_joints_read_inside_their_range_past_180_degrees(robot):
+    """JACO's joints 2 and 3 (and the j2s6s200's joint 5) span more than 180°: Kortex's
+    (-180°, 180°] reading of every angle in the range must come back as that angle."""
+    from ahrm_stack.robot import describe, make_arm
+    description = describe(robot, make_arm(robot))
+    limited = description.limited
+    centre = np.where(limited, 0.5 * (np.where(limited, description.position_lower, 0.0)
+                                      + np.where(limited, description.position_upper, 0.0)), 0.0)
+    for index in np.flatnonzero(limited):
+        lower, upper = description.position_lower[index], description.position_upper[index]
+        for angle in np.linspace(lower, upper, 37):
+            reading = np.zeros(description.num_joints)
+            reading[index] = np.radians((np.degrees(angle) + 180.0) % 360.0 - 180.0)  # Kortex
+            position = unwrap_positions(reading, None, ~limited, centre)
+            assert position[index] == pytest.approx(angle, abs=1e-12)
+    # Hand-computed: JACO's joint 2 (47°..313°) read as -150° is at 210°.
+    assert math.degrees(unwrap_positions(np.array([math.radians(-150.0)]), None,
+                                         np.array([False]), np.array([math.radians(180.0)]))[0]) \
+        == pytest.approx(210.0)
+
+
+def test_kortex_arm_reads_limited_joints_past_180_degrees():
+    """The backend passes each limited joint's range centre: a fake feedback frame with joint 2
+    at -150° (Kortex's reading of 210°) comes back as 210°."""
+    from ahrm_stack.robot import describe, make_arm
+    description = describe("jaco", make_arm("jaco"))
+    arm = KortexArm(description, "192.0.2.1", Credentials("admin", PASSWORD), api={})
+    assert math.degrees(arm._range_centre[1]) == pytest.approx(180.0)
+    assert math.degrees(arm._range_centre[2]) == pytest.approx(180.0)
+    frame = feedback_from_values(timestamp=0.0, frame_id=1,
+                                 positions_deg=[275.0, -150.0, 60.0, 243.0, 83.0, 75.0],
+                                 velocities_deg_s=[0.0] * 6, torques_nm=[0.0] * 6,
+                                 arm_state_name="ARMSTATE_SERVOING_READY",
+                                 continuous=~description.limited, range_centre=arm._range_centre)
+    np.testing.assert_allclose(np.degrees(frame.position), [275.0, 210.0, 60.0, 243.0, 83.0, 75.0])
+
+
 def test_joint_speeds_message_is_plain_degrees_per_second():
     message = joint_speeds_message([math.pi / 4, 0.0, -math.pi])
     assert message == [{"joint_identifier": 0, "value": pytest.approx(45.0), "duration": 0},
