@@ -3,6 +3,7 @@
     python -m ahrm_stack.evaluate RUN_DIR [--episodes 40] [--layout NAME] [--out DIR]
                                   [--video PATH [--video-episodes 0,1]]
     python -m ahrm_stack.evaluate --policy scripted [--episodes 40] [--layout NAME] ...
+                                  [--config key=value ...]
 
 Episodes use fresh seeds (never used in training) and the deterministic policy (the distribution's
 mode), or the mink scripted controller. Every command passes through the safety filter. Prints the
@@ -30,7 +31,7 @@ from typing import Callable, Sequence
 
 import yaml
 
-from ahrm_stack.config import (Config, ConfigError, VideoConfig, apply_override, config_from_dict,
+from ahrm_stack.config import (Config, ConfigError, VideoConfig, apply_overrides, config_from_dict,
                                load_extra, load_raw)
 
 
@@ -61,6 +62,9 @@ def _parse(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--video", metavar="PATH", help="render the chosen episodes into this MP4")
     parser.add_argument("--video-episodes", type=_episode_list, default=[0], metavar="I,J",
                         help="evaluation episodes (0-based) in the video (default: 0)")
+    parser.add_argument("--config", nargs="*", default=[], metavar="key=value",
+                        help="config overrides (profile=NAME among them) applied to the run's "
+                             "config, or to configs/ for --policy scripted, e.g. task.robot=j2s6s200")
     parser.add_argument("--video-config", nargs="*", default=[], metavar="key=value",
                         help="overrides of configs/video.yaml, e.g. width=320 height=240")
     args = parser.parse_args(argv)
@@ -193,8 +197,7 @@ def evaluate(run_dir: Path | None, episodes: int, layout: str | None = None, out
         raw = yaml.safe_load((run_dir / "config.yaml").read_text())
     else:
         raw = load_raw()
-    for override in overrides:
-        apply_override(raw, override)
+    apply_overrides(raw, overrides)
     seed_offset = None
     if layout is not None:
         from ahrm_stack.env.layout_catalog import apply_layout
@@ -245,7 +248,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         evaluate(Path(args.run_dir) if args.run_dir else None, args.episodes, args.layout,
                  Path(args.out) if args.out else None, Path(args.video) if args.video else None,
-                 args.video_episodes, args.video_config)
+                 args.video_episodes, args.video_config, overrides=args.config)
     except (ConfigError, RenderError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2

@@ -41,6 +41,21 @@ def test_scripted_evaluation_cli(tmp_path):
     assert len((tmp_path / "evaluation.csv").read_text().strip().splitlines()) == 3
 
 
+def test_scripted_evaluation_takes_config_overrides(tmp_path, capsys):
+    """``--config`` reaches the scripted controller's config, a profile included: a 1 s episode
+    cannot push the cube off (the controller needs ~4 s), so both episodes end unsuccessful at 1 s."""
+    assert evaluate(["--policy", "scripted", "--episodes", "2", "--out", str(tmp_path),
+                     "--config", "profile=paper", "task.episode.duration=1"]) == 0
+    result = json.loads((tmp_path / "evaluation.json").read_text())
+    assert result["episodes"] == 2 and result["successes"] == 0
+    rows = (tmp_path / "evaluation.csv").read_text().strip().splitlines()
+    header = rows[0].split(",")
+    durations = [float(row.split(",")[header.index("duration")]) for row in rows[1:]]
+    assert durations == pytest.approx([1.0, 1.0])
+    assert evaluate(["--policy", "scripted", "--config", "task.nonsense=1"]) == 2
+    assert "task.nonsense" in capsys.readouterr().err
+
+
 def test_run_evaluation_cli(tmp_path):
     run = tmp_path / "run"
     assert train(["ppo.hidden_sizes=[16]", "ppo.frames_per_batch=128", "task.episode.duration=2",
