@@ -99,10 +99,23 @@ def findings(summaries: dict[str, dict], paper: dict[str, PaperRow], runs: list[
     else:
         rate = summaries["ahrm"]["success_rate"][0]
         position = ranking.index("ahrm") + 1
+        top_rate = summaries[ranking[0]]["success_rate"][0]
         tied = [m for m in ranking if m != "ahrm" and summaries[m]["success_rate"][0] == rate]
-        if position == 1 and tied:
-            lines.append(f"AHRM ties for first with {', '.join(METHOD_NAMES.get(m, m) for m in tied)} "
-                         f"by mean evaluation success rate ({rate:.1%}): it is not ahead of them.")
+        if top_rate == 0:
+            lines.append("**No method succeeded in any evaluation episode**: the ranking below rests on "
+                         "the tiebreak (fewer episodes touching an obstacle) alone.")
+        if tied and rate == top_rate:
+            touches = ", ".join(f"{METHOD_NAMES.get(m, m)} {summaries[m]['touched_episodes'][0]:.1f}"
+                                for m in ranking if m == "ahrm" or m in tied)
+            ahead = "it is not ahead of them" if position == 1 else "**it is not the best method here**"
+            touched = summaries["ahrm"]["touched_episodes"][0]
+            if all(summaries[m]["touched_episodes"][0] == touched for m in tied):
+                ahead, place = "it is not ahead of them", "they tie on it too"
+            else:
+                place = f"it ranks {position} of {len(ranking)}"
+            lines.append(f"AHRM ties with {', '.join(METHOD_NAMES.get(m, m) for m in tied)} on mean "
+                         f"evaluation success rate ({rate:.1%}): {ahead}. On the tiebreak (mean episodes "
+                         f"touching an obstacle: {touches}) {place}.")
         elif position == 1:
             lines.append(f"AHRM ranks first of {len(ranking)} methods by mean evaluation success rate "
                          f"({rate:.1%}).")

@@ -87,3 +87,33 @@ def test_findings_when_ahrm_leads_and_reaches_the_paper():
 def test_seed_band_on_the_common_episodes():
     episode, mean, std = seed_band([np.array([0.0, 1.0, 1.0]), np.array([1.0, 1.0])])
     assert episode.tolist() == [1, 2] and mean.tolist() == [0.5, 1.0] and std.tolist() == [0.5, 0.0]
+
+
+def test_findings_name_a_tie_on_success_rate_and_the_touch_tiebreak():
+    # all methods at 0 successes: the order comes from touches alone (LS 6 < AHRM 39), and the text
+    # must say so instead of calling LS the best by success rate
+    runs = [_run("ahrm", 0, _evaluation(0, 39, float("nan"), 0.01)),
+            _run("ls", 0, _evaluation(0, 6, float("nan"), 0.001))]
+    summaries = {m: method_summary([r for r in runs if r.method == m]) for m in ("ahrm", "ls")}
+    assert rank_methods(summaries) == ["ls", "ahrm"]
+    text = "\n".join(findings(summaries, PAPER, runs))
+    assert "No method succeeded in any evaluation episode" in text
+    assert "AHRM ties with LS on mean evaluation success rate (0.0%)" in text
+    assert "touching an obstacle: LS 6.0, AHRM 39.0) it ranks 2 of 2" in text
+    assert "it is not the best method here" in text and "below the paper's 92.5%" in text
+
+
+def test_findings_when_ahrm_ties_for_first_and_wins_the_tiebreak():
+    runs = [_run("ahrm", 0, _evaluation(40, 0, 4.0, 0.5)), _run("ls", 0, _evaluation(40, 3, 4.5, 0.5))]
+    summaries = {m: method_summary([r for r in runs if r.method == m]) for m in ("ahrm", "ls")}
+    text = "\n".join(findings(summaries, PAPER, runs))
+    assert "AHRM ties with LS on mean evaluation success rate (100.0%): it is not ahead of them" in text
+    assert "it ranks 1 of 2" in text and "No method succeeded" not in text
+
+
+def test_findings_when_every_figure_ties():
+    runs = [_run("ls", 0, _evaluation(40, 0, 4.5, 0.5)), _run("ahrm", 0, _evaluation(40, 0, 4.0, 0.5))]
+    summaries = {m: method_summary([r for r in runs if r.method == m]) for m in ("ls", "ahrm")}
+    text = "\n".join(findings(summaries, PAPER, runs))
+    assert "(100.0%): it is not ahead of them" in text and "they tie on it too" in text
+    assert "not the best" not in text and "ranks" not in text.split("\n")[0]
