@@ -214,7 +214,8 @@ class MechanismConfig:
 
 @dataclasses.dataclass(frozen=True)
 class PPOConfig:
-    """PPO hyper-parameters (spec §6, the paper's Table I as defaults)."""
+    """PPO hyper-parameters (spec §6). ``configs/ppo.yaml`` holds the learnability study's choices;
+    the paper's Table I values are ``configs/profiles/paper.yaml``."""
 
     gamma: float
     gae_lambda: float
@@ -510,12 +511,15 @@ def apply_override(data: dict, override: str) -> None:
     dotted, raw = override.split("=", 1)
     parts = dotted.strip().split(".")
     node = data
-    for i, part in enumerate(parts[:-1]):
-        if not isinstance(node, dict) or part not in node:
-            raise ConfigError(f"unknown config key '{'.'.join(parts[: i + 1])}' in override {override!r}")
-        node = node[part]
-    if not isinstance(node, dict) or parts[-1] not in node:
-        raise ConfigError(f"unknown config key '{dotted}' in override {override!r}")
+    for i, part in enumerate(parts):
+        if not isinstance(node, dict):
+            raise ConfigError(f"config key '{'.'.join(parts[:i])}' in override {override!r} is a value, "
+                              "not a section with keys")
+        if part not in node:
+            raise ConfigError(f"unknown config key '{'.'.join(parts[: i + 1])}' in override {override!r}; "
+                              f"allowed keys here: {sorted(node)}")
+        if i < len(parts) - 1:
+            node = node[part]
     try:
         node[parts[-1]] = yaml.safe_load(raw)
     except yaml.YAMLError:

@@ -1,7 +1,7 @@
 """Train one reward mechanism with PPO on the push-off task.
 
-    python -m ahrm_stack.train [key=value ...] [--run-dir DIR]
-    python -m ahrm_stack.train --resume RUN_DIR
+    python -m ahrm_stack.train [key=value ...] [--run-dir DIR] [--no-progress]
+    python -m ahrm_stack.train --resume RUN_DIR [--no-progress]
 
 Configuration: ``configs/*.yaml``, overridden by dotted ``key=value`` arguments (e.g.
 ``mechanism.method=ls train.episodes=50 ppo.hidden_sizes=[256,256,256]``; ``profile=paper`` applies

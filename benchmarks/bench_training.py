@@ -1,7 +1,8 @@
 """Training throughput: the whole PPO loop against environment-only collection, in one run.
 
 env only : a TorchRL ``Collector`` over the same environment with a random policy;
-training   : ``Trainer.iteration`` (collection with the 3x1000 policy, GAE, 3 epochs of mini-batches).
+training   : ``Trainer.iteration`` (collection with the configured policy — ``ppo.hidden_sizes``,
+             3x256 by default, 3x1000 with ``ppo.hidden_sizes=[1000,1000,1000]`` — GAE, PPO epochs).
 Both in frames per second, interleaved; prints the ratio and the projected wall time of the default
 300-episode run at the measured training rate for 1200-step (unsuccessful) episodes — the worst case.
 

@@ -20,9 +20,13 @@ def test_unknown_key_is_named():
         config_from_dict(raw)
 
 
-def test_unknown_override_is_named():
-    with pytest.raises(ConfigError, match=r"task\.episode\.lenght"):
+def test_unknown_override_is_named_with_the_allowed_keys():
+    with pytest.raises(ConfigError, match=r"'task\.episode\.lenght'.*allowed keys here: \[.*'duration'"):
         load_config(["task.episode.lenght=3"])
+    with pytest.raises(ConfigError, match=r"unknown config key 'tsk' .*allowed keys here: \[.*'task'"):
+        load_config(["tsk.episode.duration=3"])
+    with pytest.raises(ConfigError, match=r"'task\.cube\.size' .* is a value, not a section"):
+        load_config(["task.cube.size.x=3"])
 
 
 def test_negative_size_is_named():

@@ -40,3 +40,34 @@ def test_warm_start_and_anchor_are_config_levers():
     assert "bc_loss" in result.batch
     trainer.close()
     plain.close()
+
+
+def test_demo_episodes_and_bc_epochs_reach_the_trainer(monkeypatch):
+    import ahrm_stack.learning.trainer as trainer_module
+
+    calls = {}
+
+    def spy_collect(config, episodes):
+        calls["episodes"] = episodes
+        return collect_demonstrations(config, episodes)
+
+    def spy_warm_start(modules, demos, epochs, *args):
+        calls["epochs"] = epochs
+        return warm_start(modules, demos, epochs, *args)
+
+    monkeypatch.setattr(trainer_module, "collect_demonstrations", spy_collect)
+    monkeypatch.setattr(trainer_module, "warm_start", spy_warm_start)
+    one = Trainer(load_config(SMALL + ["train.demo_episodes=1", "train.bc_epochs=1"]))
+    assert calls["episodes"] == 1
+    one.warm_start()
+    assert calls["epochs"] == 1
+    three = Trainer(load_config(SMALL + ["train.demo_episodes=3", "train.bc_epochs=7"]))
+    assert calls["episodes"] == 3
+    # three successful pushes hold about three times the steps of one (each ~3-4 s at 20 Hz)
+    assert three.demos.shape[0] > 2 * one.demos.shape[0]
+    three.warm_start()
+    assert calls["epochs"] == 7
+    # more epochs on the same kind of data fit it better than one
+    assert three.warm_start_report["bc_loss"] < one.warm_start_report["bc_loss"]
+    one.close()
+    three.close()
