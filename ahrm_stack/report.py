@@ -107,11 +107,11 @@ def findings(summaries: dict[str, dict], paper: dict[str, PaperRow], runs: list[
         if tied and rate == top_rate:
             touches = ", ".join(f"{METHOD_NAMES.get(m, m)} {summaries[m]['touched_episodes'][0]:.1f}"
                                 for m in ranking if m == "ahrm" or m in tied)
-            ahead = "it is not ahead of them" if position == 1 else "**it is not the best method here**"
             touched = summaries["ahrm"]["touched_episodes"][0]
             if all(summaries[m]["touched_episodes"][0] == touched for m in tied):
                 ahead, place = "it is not ahead of them", "they tie on it too"
             else:
+                ahead = "it is not ahead of them" if position == 1 else "**it is not the best method here**"
                 place = f"it ranks {position} of {len(ranking)}"
             lines.append(f"AHRM ties with {', '.join(METHOD_NAMES.get(m, m) for m in tied)} on mean "
                          f"evaluation success rate ({rate:.1%}): {ahead}. On the tiebreak (mean episodes "
