@@ -46,6 +46,10 @@ class ArmConfig:
     # mapping robot name -> degrees (or one list for the chosen robot); the entry of ``task.robot``
     # is converted
     joint_jitter: float  # uniform per-joint jitter of the initial posture, rad
+    start: Literal["home", "random"]  # home: the jittered home posture; random: the pusher tip
+    # placed by IK at a uniform point of ``start_region`` with the pusher pointing down
+    start_region: tuple[tuple[float, float], tuple[float, float], tuple[float, float]]  # random
+    # start: (lo, hi) of the tip's world x, y and z, m
 
 
 @dataclasses.dataclass(frozen=True)
@@ -74,6 +78,8 @@ class ObstacleConfig:
 @dataclasses.dataclass(frozen=True)
 class LayoutConfig:
     mode: Literal["fixed", "random"]
+    cube_region: tuple[tuple[float, float], tuple[float, float]]  # random mode: the cube centre
+    # uniform in x in [lo, hi] and y in [lo, hi], m (fixed mode: cube.position +- cube.jitter)
     radial_range: tuple[float, float]  # obstacle distance from the cube centre in random mode, m
     min_gap: float  # smallest allowed gap between two obstacles / obstacle and cube, m
     lane_width: float  # width of the free lane the initializer must keep, m
@@ -239,6 +245,8 @@ class PPOConfig:
     normalizer_clip: float  # normalised observations are clipped to +-this
     update_normalizer: bool  # keep updating its statistics from every batch (false: frozen once set)
     bc_coeff: float  # weight of a behaviour-cloning term toward the demonstrations (0: off)
+    bc_coeff_final: float  # the anchor's weight goes linearly from bc_coeff to this ...
+    bc_decay_frames: int  # ... over this many frames (0: constant bc_coeff)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -257,6 +265,10 @@ class TrainConfig:
     bc_learning_rate: float
     demo_noise: float  # std of noise on the executed demonstration actions (normalised; labels clean)
     num_envs: int  # environments stepped together (in one process, sharing the reward mechanism)
+    dagger_rounds: int  # after cloning: rounds of (run the clone, label its states with the
+    # scripted controller, refit on all data so far); 0: none
+    dagger_episodes: int  # episodes per round
+    dagger_duration: float  # s, a round's episode is cut after this much simulated time
 
 
 @dataclasses.dataclass(frozen=True)
@@ -399,6 +411,9 @@ def _check_ranges(obj: Any, key: str) -> None:
             raise ConfigError(f"{key}.control_period ({obj.control_period}) must be a whole multiple "
                               f"of {key}.physics_timestep ({obj.physics_timestep})")
     elif isinstance(obj, LayoutConfig):
+        for axis, (lo, hi) in zip("xy", obj.cube_region):
+            if not lo <= hi:
+                raise ConfigError(f"{key}.cube_region ({axis}): min {lo} must be <= max {hi}")
         lo, hi = obj.radial_range
         if not 0 < lo <= hi:
             raise ConfigError(f"{key}.radial_range must satisfy 0 < min <= max, got {obj.radial_range}")
@@ -416,6 +431,9 @@ def _check_ranges(obj: Any, key: str) -> None:
     elif isinstance(obj, ArmConfig):
         if obj.joint_jitter < 0:
             raise ConfigError(f"{key}.joint_jitter must be >= 0, got {obj.joint_jitter}")
+        for axis, (lo, hi) in zip("xyz", obj.start_region):
+            if not lo <= hi:
+                raise ConfigError(f"{key}.start_region ({axis}): min {lo} must be <= max {hi}")
     elif isinstance(obj, SafetyConfig):
         _positive(obj, key, "acceleration_limit", "osqp_eps", "osqp_max_iter",
                   "cartesian_regularization")
@@ -452,6 +470,8 @@ def _check_ranges(obj: Any, key: str) -> None:
         for name in ("gamma", "gae_lambda"):
             if not 0 <= getattr(obj, name) <= 1:
                 raise ConfigError(f"{key}.{name} must be in [0, 1], got {getattr(obj, name)}")
+        if obj.bc_coeff_final < 0 or obj.bc_decay_frames < 0:
+            raise ConfigError(f"{key}.bc_coeff_final and {key}.bc_decay_frames must be >= 0")
         if obj.entropy_coeff < 0 or obj.critic_coeff < 0 or obj.bc_coeff < 0:
             raise ConfigError(f"{key}.entropy_coeff, critic_coeff and bc_coeff must be >= 0")
         if obj.frames_per_batch % obj.mini_batch_size:
@@ -465,6 +485,9 @@ def _check_ranges(obj: Any, key: str) -> None:
         _positive(obj, key, "demo_episodes", "bc_epochs", "bc_learning_rate", "num_envs")
         if obj.demo_noise < 0:
             raise ConfigError(f"{key}.demo_noise must be >= 0, got {obj.demo_noise}")
+        if obj.dagger_rounds < 0:
+            raise ConfigError(f"{key}.dagger_rounds must be >= 0, got {obj.dagger_rounds}")
+        _positive(obj, key, "dagger_episodes", "dagger_duration")
     elif isinstance(obj, ScriptedConfig):
         _positive(obj, key, "travel_speed", "push_speed", "position_gain", "tilt_gain", "tilt_speed",
                   "tilt_tolerance", "orientation_cost", "damping", "clearance", "push_height",
@@ -625,6 +648,8 @@ class ExperimentConfig:
     success_threshold: float  # fraction of successes for "episodes to reach it"
     success_window: int  # trailing training episodes of that fraction
     curve_window: int  # trailing window of the learning curves, episodes
+    suite: bool  # also evaluate every run (and its clone, and the scripted controller) on the suite
+    bootstrap_samples: int  # resamples of the bootstrap intervals on differences between methods
     paper_table2: dict[str, PaperRow]
 
 

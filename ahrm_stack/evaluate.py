@@ -65,6 +65,13 @@ def _parse(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--config", nargs="*", default=[], metavar="key=value",
                         help="config overrides (profile=NAME among them) applied to the run's "
                              "config, or to configs/ for --policy scripted, e.g. task.robot=j2s6s200")
+    parser.add_argument("--suite", action="store_true",
+                        help="every family of the evaluation suite (layouts.yaml, suite: true), with "
+                             "the scripted controller on the same episodes; writes suite.md/json")
+    parser.add_argument("--no-scripted", action="store_true",
+                        help="--suite without the scripted controller's columns")
+    parser.add_argument("--policy-file", metavar="PT",
+                        help="another policy of the run, e.g. RUN_DIR/policies/episode-00000.pt")
     parser.add_argument("--video-config", nargs="*", default=[], metavar="key=value",
                         help="overrides of configs/video.yaml, e.g. width=320 height=240")
     args = parser.parse_args(argv)
@@ -72,6 +79,10 @@ def _parse(argv: list[str]) -> argparse.Namespace:
         parser.error("give either RUN_DIR or --policy scripted")
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
+    if args.suite and (args.layout or args.video):
+        parser.error("--suite evaluates every family: no --layout or --video with it")
+    if args.policy_file and not args.run_dir:
+        parser.error("--policy-file needs RUN_DIR (the run's config)")
     if args.video and args.video_episodes[-1] >= args.episodes:
         parser.error(f"--video-episodes {args.video_episodes} must be < --episodes ({args.episodes})")
     return args
@@ -137,12 +148,14 @@ def scripted_summaries(config: Config, episodes: int, seed_offset: int, camera_f
 
 
 def policy_summaries(config: Config, run_dir: Path, episodes: int, seed_offset: int,
-                     camera_for: Callable | None = None, filmed: Sequence[int] = ()):
-    """Episodes ``seed_offset + i`` of the run's deterministic policy; the ``filmed`` ones rendered."""
+                     camera_for: Callable | None = None, filmed: Sequence[int] = (),
+                     policy_file: Path | None = None):
+    """Episodes ``seed_offset + i`` of the run's deterministic policy (``policy_file``, default
+    ``policy.pt``); the ``filmed`` ones rendered."""
     from ahrm_stack.env.torchrl_env import PushOffEnv
     from ahrm_stack.learning.evaluation import load_policy, run_episodes
 
-    _, policy = load_policy(run_dir)
+    _, policy = load_policy(run_dir, policy_file)
     env = PushOffEnv(config.task, config.safety, seed=seed_offset)
     camera = camera_for(env.runner.physics) if camera_for and filmed else None
 
@@ -177,11 +190,14 @@ def _write_outputs(out: Path, summaries, table, header: dict) -> None:
 def evaluate(run_dir: Path | None, episodes: int, layout: str | None = None, out: Path | None = None,
              video_path: Path | None = None, video_episodes: Sequence[int] = (0,),
              video_overrides: Sequence[str] = (), quiet: bool = False,
-             overrides: Sequence[str] = ()) -> dict:
+             overrides: Sequence[str] = (), scripted: bool = False,
+             policy_file: Path | None = None) -> dict:
     """Evaluate a run (``run_dir``) or the scripted controller (``None``) and write the outputs.
 
     ``overrides`` (``key=value``) change the run's (or the default) config before the layout is
-    applied. Returns the contents of ``evaluation.json``. Raises :class:`ConfigError` on bad input (a
+    applied. ``scripted=True`` with a ``run_dir`` evaluates the scripted controller on the run's
+    own config (the same episodes the run's policy gets); ``policy_file`` evaluates another policy
+    file of the run (e.g. ``policies/episode-00000.pt``, the clone before any PPO update). Returns the contents of ``evaluation.json``. Raises :class:`ConfigError` on bad input (a
     missing run, an unknown layout, a bad video setting) and ``RenderError`` when a video is asked
     for and offscreen rendering is impossible.
     """
@@ -191,7 +207,10 @@ def evaluate(run_dir: Path | None, episodes: int, layout: str | None = None, out
         select_gl_backend(video.gl_backends)  # before mujoco is imported
     if run_dir is not None:
         run_dir = Path(run_dir)
-        for name in ("config.yaml", "policy.pt"):
+        needed = ["config.yaml"] + ([] if scripted or policy_file else ["policy.pt"])
+        if policy_file is not None and not Path(policy_file).is_file():
+            raise ConfigError(f"--policy-file {policy_file} not found")
+        for name in needed:
             if not (run_dir / name).is_file():
                 raise ConfigError(f"{run_dir / name} not found: RUN_DIR must be a finished training run")
         raw = yaml.safe_load((run_dir / "config.yaml").read_text())
@@ -210,10 +229,11 @@ def evaluate(run_dir: Path | None, episodes: int, layout: str | None = None, out
     camera_for = (lambda physics: Camera(physics, video)) if video is not None else None
     filmed = tuple(video_episodes) if video is not None else ()
     started = time.perf_counter()
-    if run_dir is not None:
-        summaries, camera = policy_summaries(config, run_dir, episodes, seed_offset, camera_for, filmed)
+    if run_dir is not None and not scripted:
+        summaries, camera = policy_summaries(config, run_dir, episodes, seed_offset, camera_for, filmed,
+                                             policy_file)
         out = Path(out) if out else run_dir
-        name = str(run_dir)
+        name = str(policy_file or run_dir)
     else:
         summaries, camera = scripted_summaries(config, episodes, seed_offset, camera_for, filmed)
         out = Path(out) if out else Path(config.train.runs_dir) / "scripted-eval"
@@ -242,13 +262,94 @@ def evaluate(run_dir: Path | None, episodes: int, layout: str | None = None, out
     return result
 
 
+SUITE_COLUMNS = ("successes", "touched_episodes", "time_mean", "time_std")
+
+
+def _cell(result: dict | None) -> list[str]:
+    if result is None:
+        return ["", "", ""]
+    time = "–" if result["successes"] == 0 else f"{result['time_mean']:.2f} ± {result['time_std']:.2f}"
+    return [f"{result['successes']}/{result['episodes']}", str(result["touched_episodes"]), time]
+
+
+def suite_markdown(suite: dict) -> str:
+    """The suite's table: per family the policy's and the scripted controller's success, touching
+    episodes and time to success (mean ± std over successes, s), and their time ratio."""
+    scripted_only = suite["policy"] == "scripted controller"
+    head = ["family"]
+    if not scripted_only:
+        head += ["policy successes", "touching", "time (s)"]
+    head += ["scripted successes", "touching", "time (s)"]
+    if not scripted_only and suite.get("scripted"):
+        head += ["time / scripted"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for family in suite["families"]:
+        mine = suite["results"].get(family)
+        theirs = (suite.get("scripted") or {}).get(family)
+        row = [family]
+        if not scripted_only:
+            row += _cell(mine)
+        row += _cell(theirs if not scripted_only else mine)
+        if not scripted_only and suite.get("scripted"):
+            ok = mine and theirs and mine["successes"] and theirs["successes"]
+            row.append(f"{mine['time_mean'] / theirs['time_mean']:.2f}" if ok else "–")
+        lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def evaluate_suite(run_dir: Path | None, episodes: int, out: Path | None = None,
+                   overrides: Sequence[str] = (), with_scripted: bool = True,
+                   policy_file: Path | None = None, families: Sequence[str] | None = None,
+                   quiet: bool = False) -> dict:
+    """Evaluate a run (or the scripted controller) on every family of the evaluation suite
+    (``configs/layouts.yaml`` entries with ``suite: true``), each on its own seed range, and for a
+    run the scripted controller on the same episodes (the run's config). Writes
+    ``suite.json`` and ``suite.md`` (the table) and each family's ``evaluation.csv`` under
+    ``OUT/<family>/`` (``OUT/<family>/scripted/`` for the controller's row)."""
+    from ahrm_stack.env.layout_catalog import suite_names
+
+    names = list(families) if families else suite_names()
+    if run_dir is not None:
+        run_dir = Path(run_dir)
+        default_out = run_dir / ("suite" if policy_file is None else f"suite-{Path(policy_file).stem}")
+    else:
+        default_out = Path(load_raw()["train"]["runs_dir"]) / "scripted-suite"
+    out = Path(out) if out else default_out
+    suite = {"policy": str(policy_file or run_dir) if run_dir else "scripted controller",
+             "episodes": episodes, "families": names, "results": {}, "scripted": {} if run_dir and with_scripted else None}
+    for family in names:
+        suite["results"][family] = evaluate(run_dir, episodes, family, out / family, quiet=True,
+                                            overrides=overrides, policy_file=policy_file)
+        if run_dir is not None and with_scripted:
+            suite["scripted"][family] = evaluate(run_dir, episodes, family, out / family / "scripted",
+                                                 quiet=True, overrides=overrides, scripted=True)
+        if not quiet:
+            print(f"{family}: " + " | ".join(_cell(suite["results"][family])), flush=True)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "suite.json").write_text(json.dumps(suite, indent=2))
+    table = suite_markdown(suite)
+    (out / "suite.md").write_text(f"Evaluation suite of {suite['policy']}, {episodes} episodes per family "
+                                  f"(deterministic policy; scripted controller on the same episodes)\n\n" + table)
+    if not quiet:
+        print(table)
+        print(f"written: {out / 'suite.md'}, {out / 'suite.json'}")
+    return suite
+
+
 def main(argv: list[str] | None = None) -> int:
     args = _parse(sys.argv[1:] if argv is None else argv)
     from ahrm_stack.env.video import RenderError
     try:
+        if args.suite:
+            evaluate_suite(Path(args.run_dir) if args.run_dir else None, args.episodes,
+                           Path(args.out) if args.out else None, args.config,
+                           with_scripted=not args.no_scripted,
+                           policy_file=Path(args.policy_file) if args.policy_file else None)
+            return 0
         evaluate(Path(args.run_dir) if args.run_dir else None, args.episodes, args.layout,
                  Path(args.out) if args.out else None, Path(args.video) if args.video else None,
-                 args.video_episodes, args.video_config, overrides=args.config)
+                 args.video_episodes, args.video_config, overrides=args.config,
+                 policy_file=Path(args.policy_file) if args.policy_file else None)
     except (ConfigError, RenderError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2

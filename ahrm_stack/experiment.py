@@ -92,6 +92,7 @@ def build_grid(args: argparse.Namespace) -> dict:
                                                 f"train.episodes={experiment.episodes}",
                                                 "train.eval_episodes=0"],
                 "eval_episodes": experiment.eval_episodes, "layout": experiment.eval_layout,
+                "suite": experiment.suite, "suite_clone": experiment.suite and method == experiment.methods[0],
                 "video": str(out / "videos" / f"{method}.mp4") if with_video and seed == 0 else None,
                 "video_episode": experiment.video_episode, "video_overrides": video_overrides})
     return {"out": str(out), "methods": list(experiment.methods), "seeds": experiment.seeds,
@@ -101,7 +102,8 @@ def build_grid(args: argparse.Namespace) -> dict:
             "runs": runs,
             "scripted": {"name": "scripted", "run_dir": str(out / "scripted"),
                          "episodes": experiment.scripted_episodes, "layout": experiment.eval_layout,
-                         "overrides": train_overrides,
+                         "overrides": train_overrides, "suite": experiment.suite,
+                         "suite_episodes": experiment.eval_episodes,
                          "video": str(out / "videos" / "scripted.mp4") if with_video else None,
                          "video_episode": experiment.video_episode, "video_overrides": video_overrides}}
 
@@ -144,9 +146,19 @@ def run_one(spec: dict) -> dict:
             evaluation = evaluate(run_dir, spec["eval_episodes"], spec["layout"], run_dir / "eval",
                                   Path(spec["video"]) if spec["video"] else None,
                                   [spec["video_episode"]], spec["video_overrides"], quiet=True)
+            suites = {}
+            if spec.get("suite"):
+                from ahrm_stack.evaluate import evaluate_suite
+                from ahrm_stack.train import CLONE_POLICY
+                suites["policy"] = evaluate_suite(run_dir, spec["eval_episodes"], run_dir / "suite",
+                                                  with_scripted=False, quiet=True)["results"]
+                if spec.get("suite_clone") and (run_dir / CLONE_POLICY).is_file():
+                    suites["clone"] = evaluate_suite(run_dir, spec["eval_episodes"], run_dir / "suite-clone",
+                                                     with_scripted=False, quiet=True,
+                                                     policy_file=run_dir / CLONE_POLICY)["results"]
         result = {"name": spec["name"], "method": spec["method"], "seed": spec["seed"],
                   "status": "done", "seconds": time.perf_counter() - started, "evaluation": evaluation,
-                  "spec": spec}
+                  "suite": suites, "spec": spec}
         _write_json(run_dir / DONE, result)
         return result
     except BaseException as error:  # noqa: BLE001 - SystemExit from a diverged run included
@@ -172,8 +184,13 @@ def run_scripted(spec: dict) -> dict:
                                   Path(spec["video"]) if spec["video"] else None,
                                   [spec["video_episode"]], spec["video_overrides"], quiet=True,
                                   overrides=spec["overrides"])
+            suite = None
+            if spec.get("suite"):
+                from ahrm_stack.evaluate import evaluate_suite
+                suite = evaluate_suite(None, spec["suite_episodes"], out / "suite", spec["overrides"],
+                                       quiet=True)["results"]
         result = {"name": "scripted", "status": "done", "seconds": time.perf_counter() - started,
-                  "evaluation": evaluation, "spec": spec}
+                  "evaluation": evaluation, "suite": suite, "spec": spec}
         _write_json(out / DONE, result)
         return result
     except BaseException as error:  # noqa: BLE001

@@ -283,6 +283,50 @@ def _safety_rows(runs: list[RunRecord], methods: list[str], summaries: dict, scr
     return rows
 
 
+def _suite_lines(out: Path, grid: dict, runs: list[RunRecord], methods: list[str],
+                 experiment: ExperimentConfig) -> list[str]:
+    """The evaluation-suite section (when the grid evaluated the suite): per-family tables for
+    every method, the clone and the scripted controller, paired bootstrap differences, ranking."""
+    from ahrm_stack.suite_report import rank, read_suite, suite_section
+
+    columns: dict[str, list] = {}
+    for method in methods:
+        seeds = [read_suite(Path(grid["out"]) / "runs" / r.name / "suite")
+                 for r in sorted(runs, key=lambda r: r.seed) if r.method == method and r.status == "done"]
+        if any(s is not None for s in seeds):
+            columns[method] = [s for s in seeds if s is not None]
+    if not columns:
+        return []
+    clone = [read_suite(Path(grid["out"]) / "runs" / r.name / "suite-clone")
+             for r in sorted(runs, key=lambda r: r.seed) if r.method == methods[0] and r.status == "done"]
+    if any(c is not None for c in clone):
+        columns["clone"] = [c for c in clone if c is not None]
+    scripted = read_suite(out / "scripted" / "suite")
+    if scripted is not None:
+        columns["scripted"] = [scripted]
+    families = sorted({f for seeds in columns.values() for s in seeds for f in s},
+                      key=lambda f: next((i for i, s in enumerate(_suite_order()) if s == f), 99))
+    compared = [m for m in methods if m in columns]
+    order = rank(columns, families, compared)
+    lines = ["", "## Evaluation suite", "",
+             f"Every run's final deterministic policy on every family of the evaluation suite "
+             f"(`configs/layouts.yaml`, {grid['eval_episodes']} episodes each, each family on its own "
+             "seeds); `clone` is the first method's policy before any PPO update (the warm start: "
+             "behaviour cloning and DAgger), `scripted` the scripted controller on the same episodes.",
+             "", f"Ranking on the suite (success, then fewer touching episodes): "
+             f"{' > '.join(METHOD_NAMES.get(m, m) for m in order)}. "
+             + ("AHRM ranks first" if order and order[0] == "ahrm" else "AHRM does not rank first")
+             + (" and LS last" if order and order[-1] == "ls" else "; LS is not last")
+             + " (the paper: AHRM first, LS last). Where the intervals below include 0 the "
+             "difference is not resolved by these seeds.", ""]
+    return lines + suite_section(columns, families, compared, experiment.bootstrap_samples)
+
+
+def _suite_order() -> list[str]:
+    from ahrm_stack.env.layout_catalog import suite_names
+    return suite_names()
+
+
 def write_report(out: Path | str, experiment: ExperimentConfig | None = None) -> Path:
     """Write ``report.md`` and the figures into ``out`` (an experiment folder); returns the report."""
     out = Path(out)
@@ -322,6 +366,7 @@ def write_report(out: Path | str, experiment: ExperimentConfig | None = None) ->
     lines += ["", "### Per run", ""]
     lines += _table(["Run", "Status", "Successes", "Touched", "Time (s)", "Cube travel (m)",
                      "Interventions/episode", "Joint-limit violations", "Wall time (min)"], _run_rows(runs))
+    lines += _suite_lines(out, grid, runs, methods, experiment)
     lines += ["", "## Learned priority orders per phase (Fig. 3)", "",
               "The mechanism's order at the end of training (highest priority first), the number of "
               "order changes and where the orders were locked. Only AHRM determines its orders; "

@@ -44,6 +44,7 @@ EPISODE_FIELDS = ["episode", "frames", "steps", "duration", "success", "time_to_
 BATCH_FIELDS = ["batch", "frames", "episodes", "loss_objective", "loss_critic", "loss_entropy",
                 "entropy", "kl_approx", "bc_loss", "std", "updates", "grad_norm", "seconds"]
 
+CLONE_POLICY = "policies/clone.pt"  # the warm-started policy before any PPO update (warm_start: bc)
 EVALUATION_FIELDS = ["episode", "frames", "episodes", "successes", "success_rate", "touched_episodes",
                      "time_mean", "time_std", "interventions_per_episode", "joint_limit_violations"]
 
@@ -175,8 +176,14 @@ def train(config: Config, raw: dict, run_dir: Path, resume: bool, progress: bool
 
     evaluated = trainer.episodes
     try:
-        if interim and trainer.episodes == 0:
-            trainer.warm_start()  # the curve's first point: the policy before any PPO update
+        if trainer.episodes == 0 and config.train.warm_start == "bc":
+            trainer.warm_start()  # the clone, kept: the policy before any PPO update
+            trainer.save_policy(run_dir / CLONE_POLICY)
+            if trainer.warm_start_report is not None:
+                print(f"warm start: {trainer.warm_start_report}")
+            if interim:
+                evaluate_now()  # the curve's first point
+        elif interim and trainer.episodes == 0:
             evaluate_now()
         while trainer.episodes < config.train.episodes:
             try:
@@ -184,8 +191,6 @@ def train(config: Config, raw: dict, run_dir: Path, resume: bool, progress: bool
             except TrainingDiverged as error:
                 raise SystemExit(f"training stopped: {error}. The last good checkpoint is kept in "
                                  f"{checkpoints.directory}; nothing after it was written.") from None
-            if trainer.warm_start_report is not None and trainer.batches == 1:
-                print(f"warm start: {trainer.warm_start_report}")
             for row in result.episodes:
                 log.episode(row)
                 recent = (recent + [bool(row["success"])])[-20:]

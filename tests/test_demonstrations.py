@@ -71,3 +71,53 @@ def test_demo_episodes_and_bc_epochs_reach_the_trainer(monkeypatch):
     assert three.warm_start_report["bc_loss"] < one.warm_start_report["bc_loss"]
     one.close()
     three.close()
+
+
+def test_dagger_labels_are_the_controllers_actions_in_the_states_the_actor_visits():
+    """A still actor (zero actions, no noise) never moves the tip: every label must be what a fresh
+    controller, reset on the same seeded episode, asks for in that same (reset) state."""
+    import numpy as np
+    from tensordict import TensorDict
+
+    from ahrm_stack.env.runner import TaskRunner
+    from ahrm_stack.env.scripted import ScriptedPusher
+    from ahrm_stack.env.task import PushOffTask
+    from ahrm_stack.learning.demonstrations import DEMO_SEED_OFFSET, collect_corrections
+
+    config = load_config(SMALL + ["train.demo_noise=0", "train.dagger_duration=0.5"])
+
+    def still(td):
+        return TensorDict({"action": torch.zeros(3)}, [])
+
+    data = collect_corrections(config, still, episodes=2, first_episode=5)
+    assert data.shape[0] == 2 * 10  # 0.5 s at 20 Hz per episode, no success
+    task = PushOffTask(config.task)
+    runner = TaskRunner(task, seed=0, safety=config.safety)
+    controller = ScriptedPusher(task, config.scripted)
+    for episode in range(2):
+        runner.seed(DEMO_SEED_OFFSET + 5 + episode)
+        runner.reset()
+        controller.reset(runner.physics)
+        expected = controller.tip_velocity(runner.physics) / config.task.action.cartesian_max_speed
+        first = data[episode * 10]
+        np.testing.assert_allclose(first["observation"].numpy(), runner.flat_observation(), atol=1e-6)
+        np.testing.assert_allclose(first["action"].numpy(),
+                                   np.clip(expected, -ACTION_LIMIT, ACTION_LIMIT), atol=1e-6)
+
+
+def test_dagger_rounds_add_corrections_to_the_anchor_data():
+    trainer = Trainer(load_config(SMALL + ["train.dagger_rounds=1", "train.dagger_episodes=1",
+                                           "train.dagger_duration=1", "train.bc_epochs=2"]))
+    before = trainer.demos.shape[0]
+    trainer.warm_start()
+    assert before < trainer.demos.shape[0] <= before + 20  # one episode cut at 1 s (20 steps)
+    assert trainer.warm_start_report["dagger_1_steps"] == trainer.demos.shape[0] - before
+    trainer.close()
+
+
+def test_the_anchor_weight_follows_its_schedule():
+    from ahrm_stack.learning.ppo import anchor_coeff
+
+    ppo = load_config(["ppo.bc_coeff=10", "ppo.bc_coeff_final=2", "ppo.bc_decay_frames=1000"]).ppo
+    assert anchor_coeff(ppo, 0) == 10 and anchor_coeff(ppo, 250) == 8 and anchor_coeff(ppo, 5000) == 2
+    assert anchor_coeff(load_config(["ppo.bc_coeff=3"]).ppo, 10**6) == 3

@@ -20,7 +20,7 @@ def test_fixed_layout_keeps_the_minus_x_lane(config):
 
 
 def test_obstacle_on_the_cube_is_rejected_with_a_clear_error():
-    cfg = load_config(["task.obstacles.fixed_layout=[[0.01, 0.0], [0.16, -0.12]]"])
+    cfg = load_config(["task.layout.mode=fixed", "task.obstacles.fixed_layout=[[0.01, 0.0], [0.16, -0.12]]"])
     with pytest.raises(LayoutError, match=r"obstacle 0 at \[0\.01, 0\.0\] overlaps cube"):
         _make_sampler(cfg)
 

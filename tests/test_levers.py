@@ -12,7 +12,8 @@ from ahrm_stack.config import ConfigError, load_config, profile_overrides
 from ahrm_stack.env.torchrl_env import PushOffEnv
 from ahrm_stack.learning.demonstrations import collect_demonstrations
 from ahrm_stack.learning.ppo import scheduled_std
-from ahrm_stack.learning.trainer import ENV_SEED_STRIDE, Trainer
+from ahrm_stack.learning.trainer import Trainer
+from ahrm_stack.seeds import seed_table
 
 TINY = ["ppo.hidden_sizes=[16,16]", "ppo.frames_per_batch=64", "ppo.mini_batch_size=32",
         "task.episode.duration=1.0", "train.warm_start=none", "ppo.bc_coeff=0"]
@@ -102,8 +103,8 @@ def test_parallel_environments_are_seeded_apart_and_share_the_mechanism():
     trainer = _trainer("train.num_envs=2", "ppo.frames_per_batch=80", "ppo.mini_batch_size=40",
                        "train.seed=3")
     assert len(trainer.envs) == 2
-    for i, env in enumerate(trainer.envs):  # fresh streams train.seed + i * ENV_SEED_STRIDE
-        expected = np.random.RandomState(3 + i * ENV_SEED_STRIDE).get_state()[1]
+    for i, env in enumerate(trainer.envs):  # fresh streams train.seed + i * env_stride
+        expected = np.random.RandomState(3 + i * seed_table().env_stride).get_state()[1]
         np.testing.assert_array_equal(env.runner.random_state.get_state()[1], expected)
     assert trainer.envs[0].mechanism is trainer.envs[1].mechanism is trainer.mechanism
     result = trainer.iteration()

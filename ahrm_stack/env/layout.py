@@ -84,9 +84,12 @@ def validate_layout(layout: Layout, table: TableConfig, cube: CubeConfig, obstac
 
 
 class LayoutSampler:
-    """Seeded per-episode layouts: the fixed layout with cube jitter, or random obstacle positions.
+    """Seeded per-episode layouts: the fixed layout with cube jitter (``mode: fixed``), or the cube
+    uniform in ``rules.cube_region`` with random obstacle positions around it (``mode: random``).
 
-    ``sample(rng)`` always returns a layout that passes :func:`validate_layout`.
+    ``sample(rng)`` always returns a layout that passes :func:`validate_layout`. The fixed layout is
+    checked at construction only when it is used (``mode: fixed``): a random-mode task with a moved
+    cube does not need the unused fixed layout to fit around it.
     """
 
     def __init__(self, table: TableConfig, cube: CubeConfig, obstacles: ObstacleConfig,
@@ -94,17 +97,32 @@ class LayoutSampler:
         self.table, self.cube, self.obstacles, self.rules = table, cube, obstacles, rules
         self.num_obstacles = len(obstacles.fixed_layout)
         fixed = Layout(np.asarray(cube.position, float), np.asarray(obstacles.fixed_layout, float).reshape(-1, 2))
-        validate_layout(fixed, table, cube, obstacles, rules)  # fail at start-up, not mid-training
+        if rules.mode == "fixed":
+            validate_layout(fixed, table, cube, obstacles, rules)  # fail at start-up, not mid-training
+        else:
+            self._check_cube_region()
         self.fixed = fixed
 
+    def _check_cube_region(self) -> None:
+        """The cube region's corners must hold the whole cube on the table (else LayoutError)."""
+        half = self.cube.size / 2
+        for axis, (lo, hi) in enumerate(self.rules.cube_region):
+            edge = self.table.half_extent[axis]
+            if lo - half < -edge or hi + half > edge:
+                raise LayoutError(f"task.layout.cube_region {'xy'[axis]} range [{lo}, {hi}] puts the cube "
+                                  f"(half-size {half} m) off the table (half-extent {edge} m)")
+
     def sample(self, rng: np.random.RandomState) -> Layout:
-        cube_xy = np.asarray(self.cube.position, float) + rng.uniform(-1, 1, 2) * self.cube.jitter
         if self.rules.mode == "fixed":
+            cube_xy = np.asarray(self.cube.position, float) + rng.uniform(-1, 1, 2) * self.cube.jitter
             layout = Layout(cube_xy, self.fixed.obstacle_xy.copy())
             validate_layout(layout, self.table, self.cube, self.obstacles, self.rules)
             return layout
         lo, hi = self.rules.radial_range
-        for _ in range(self.rules.max_tries):
+        (x_lo, x_hi), (y_lo, y_hi) = self.rules.cube_region
+        for attempt in range(self.rules.max_tries):
+            if attempt % 100 == 0:  # the cube is kept for 100 obstacle draws: a near-uniform cube
+                cube_xy = np.array([rng.uniform(x_lo, x_hi), rng.uniform(y_lo, y_hi)])
             radius = rng.uniform(lo, hi, self.num_obstacles)
             angle = rng.uniform(0, 2 * np.pi, self.num_obstacles)
             xy = cube_xy + np.stack([radius * np.cos(angle), radius * np.sin(angle)], axis=1)

@@ -1,7 +1,8 @@
-"""Named evaluation layouts (``configs/layouts.yaml``): fixed layouts and held-out random ranges.
+"""Named evaluation layouts (``configs/layouts.yaml``): fixed layouts and held-out random families.
 
-A named layout turns into config overrides of ``task`` (mode, fixed layout, cube position, radial
-range) plus the seed offset of the evaluation episodes. Fixed layouts are checked with the task's
+A named layout turns into config overrides of ``task`` (mode, fixed layout, cube position, cube
+region, radial range); its evaluation episodes use its own seed range of ``configs/seeds.yaml``
+(episode i: the range's start + i). The evaluation suite is every entry with ``suite: true``. Fixed layouts are checked with the task's
 own placement rules (:func:`validate_layout`) when they are applied, so a bad entry fails with the
 file, the name and the broken rule before any episode runs.
 """
@@ -15,9 +16,10 @@ import numpy as np
 
 from ahrm_stack.config import CONFIG_DIR, ConfigError, _read_yaml, config_from_dict
 from ahrm_stack.env.layout import Layout, LayoutError, validate_layout
+from ahrm_stack.seeds import SEEDS_FILE, seed_table
 
 LAYOUTS_FILE = CONFIG_DIR / "layouts.yaml"
-_KEYS = {"mode", "cube", "obstacles", "radial_range", "seed_offset"}
+_KEYS = {"mode", "cube", "obstacles", "radial_range", "cube_region", "suite"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -27,7 +29,18 @@ class NamedLayout:
     cube: tuple[float, float] | None  # nominal cube (x, y), m; None: the run's own
     obstacles: tuple[tuple[float, float], ...] | None  # obstacle (x, y) centres, m; None: the run's
     radial_range: tuple[float, float] | None  # random mode, m; None: the run's own
-    seed_offset: int | None  # episode i uses seed seed_offset + i; None: the default offset
+    cube_region: tuple[tuple[float, float], tuple[float, float]] | None  # random mode: cube x, y
+    # ranges, m; None: the run's own
+    suite: bool  # part of the evaluation suite (evaluate --suite)
+
+    @property
+    def seed_offset(self) -> int:
+        """Episode i of this family uses seed ``seed_offset + i`` (its range in seeds.yaml)."""
+        table = seed_table()
+        if self.name not in table.ranges:
+            raise ConfigError(f"layout '{self.name}' has no seed range in {SEEDS_FILE}; add one "
+                              "(disjoint from the others)")
+        return table.ranges[self.name].start
 
 
 def _pairs(value, where: str, count: int | None = None) -> tuple:
@@ -57,18 +70,24 @@ def load_layouts(path: Path | str = LAYOUTS_FILE) -> dict[str, NamedLayout]:
             raise ConfigError(f"{where}: mode must be fixed or random, got {mode!r}")
         if mode == "random" and ("cube" in entry or "obstacles" in entry):
             raise ConfigError(f"{where}: cube/obstacles belong to fixed layouts only")
-        if mode == "fixed" and "radial_range" in entry:
-            raise ConfigError(f"{where}: radial_range belongs to random layouts only")
-        seed_offset = entry.get("seed_offset")
-        if seed_offset is not None and (isinstance(seed_offset, bool) or not isinstance(seed_offset, int)
-                                        or seed_offset < 0):
-            raise ConfigError(f"{where}: seed_offset must be an integer >= 0, got {seed_offset!r}")
+        for key in ("radial_range", "cube_region"):
+            if mode == "fixed" and key in entry:
+                raise ConfigError(f"{where}: {key} belongs to random layouts only")
+        suite = entry.get("suite", True)
+        if not isinstance(suite, bool):
+            raise ConfigError(f"{where}.suite: expected true/false, got {suite!r}")
+        region = None
+        if "cube_region" in entry:
+            region = _pairs(entry["cube_region"], f"{where}.cube_region")
+            if len(region) != 2 or any(lo > hi for lo, hi in region):
+                raise ConfigError(f"{where}.cube_region: expected [[x_lo, x_hi], [y_lo, y_hi]] with "
+                                  f"lo <= hi, got {entry['cube_region']!r}")
         layouts[name] = NamedLayout(
             name=name, mode=mode,
             cube=_pair(entry["cube"], f"{where}.cube") if "cube" in entry else None,
             obstacles=_pairs(entry["obstacles"], f"{where}.obstacles") if "obstacles" in entry else None,
             radial_range=_pair(entry["radial_range"], f"{where}.radial_range") if "radial_range" in entry else None,
-            seed_offset=seed_offset)
+            cube_region=region, suite=suite)
     return layouts
 
 
@@ -95,10 +114,23 @@ def apply_layout(raw: dict, name: str, path: Path | str = LAYOUTS_FILE) -> Named
         task["cube"]["position"] = list(entry.cube)
     if entry.radial_range is not None:
         task["layout"]["radial_range"] = list(entry.radial_range)
+    if entry.cube_region is not None:
+        task["layout"]["cube_region"] = [list(r) for r in entry.cube_region]
     config = config_from_dict(raw).task
-    fixed = Layout(np.asarray(config.cube.position, float), np.asarray(config.obstacles.fixed_layout, float))
     try:
-        validate_layout(fixed, config.table, config.cube, config.obstacles, config.layout)
+        if entry.mode == "fixed":
+            fixed = Layout(np.asarray(config.cube.position, float),
+                           np.asarray(config.obstacles.fixed_layout, float))
+            validate_layout(fixed, config.table, config.cube, config.obstacles, config.layout)
+        else:
+            from ahrm_stack.env.layout import LayoutSampler
+            LayoutSampler(config.table, config.cube, config.obstacles, config.layout)
     except LayoutError as error:
         raise ConfigError(f"{path}: layout '{name}': {error}") from None
+    entry.seed_offset  # a family without a seed range fails here, before any episode
     return entry
+
+
+def suite_names(path: Path | str = LAYOUTS_FILE) -> list[str]:
+    """The evaluation suite: the families of the layouts file with ``suite: true``, in file order."""
+    return [name for name, entry in load_layouts(path).items() if entry.suite]

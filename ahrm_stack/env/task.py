@@ -24,6 +24,7 @@ from ahrm_stack.config import ConfigError, TaskConfig
 from ahrm_stack.env.arena import TableArena
 from ahrm_stack.env.entities import BoxProp, Pusher
 from ahrm_stack.env.layout import Layout, LayoutSampler
+from ahrm_stack.env.start_pose import solve_start_pose
 from ahrm_stack.env.rewards import (NUM_PHASES, ProgressObjective, TimeObjective, avoid_component,
                                     obstacle_touched, penalty_form, progress)
 from ahrm_stack.kinematics.model import make_kinematics, relative_name
@@ -32,6 +33,7 @@ from ahrm_stack.kinematics.phases import Cylinder, PhaseScene, RegionParams, pha
 from ahrm_stack.robot import describe, make_arm
 
 CUBE_RGBA = (0.8, 0.1, 0.1, 1.0)
+START_TRIES = 20  # random start targets drawn before the home posture is kept
 OBSTACLE_RGBA = (0.2, 0.35, 0.8, 1.0)
 
 
@@ -101,6 +103,8 @@ class PushOffTask(composer.Task):
         self.progress_objective = ProgressObjective(config.rewards.progress_eps)
         self.time_objective = TimeObjective(config.episode.duration)
         self.layout: Layout | None = None
+        self.start_target: np.ndarray | None = None  # the random start's tip target, m (world)
+        self.start_fallbacks = 0  # random starts that fell back to the home posture
         self.step_info = StepInfo.empty()  # observables are evaluated once before the first reset
         self.previous_action = np.zeros(len(self.robot.commanded_joints))
         self._command = np.zeros(self.robot.num_joints)
@@ -231,6 +235,8 @@ class PushOffTask(composer.Task):
             obstacle.set_pose(physics, [*xy, z_table + cfg.obstacles.size[2] / 2], [1, 0, 0, 0])
         q0 = np.asarray(cfg.arm.home) + random_state.uniform(-1, 1, self.robot.num_joints) * cfg.arm.joint_jitter
         q0 = np.clip(q0, self.robot.position_lower, self.robot.position_upper)
+        if cfg.arm.start == "random":
+            q0 = self._random_start(physics, random_state, q0)
         physics.data.qpos[self._arm_qpos] = q0
         physics.data.ctrl[:] = 0.0
         self._settle(physics, q0)
@@ -240,6 +246,25 @@ class PushOffTask(composer.Task):
         self.time_objective.reset()
         self.step_info = self._measure(physics, phase_time=0.0)
         self.progress_objective.reset(self.step_info.progress)
+
+    def _random_start(self, physics: mjcf.Physics, random_state: np.random.RandomState,
+                      q_home: np.ndarray) -> np.ndarray:
+        """A posture with the pusher tip at a uniform point of ``task.arm.start_region``, pointing
+        down, free of contact (:func:`solve_start_pose` from the jittered home ``q_home``); up to
+        ``START_TRIES`` targets are drawn, then the home posture is kept (and counted)."""
+        region = np.asarray(self.config.arm.start_region, dtype=float)
+        model, data = physics.model.ptr, physics.data.ptr
+        for _ in range(START_TRIES):
+            target = random_state.uniform(region[:, 0], region[:, 1])
+            result = solve_start_pose(model, data, self._arm_qpos, self._arm_dof, self._tip_site_id,
+                                      target, q_home, self.robot.position_lower,
+                                      self.robot.position_upper, self._is_arm)
+            if result.ok:
+                self.start_target = target
+                return result.q
+        self.start_fallbacks += 1
+        self.start_target = None
+        return q_home
 
     def _settle(self, physics: mjcf.Physics, q0: np.ndarray) -> None:
         """Let the free bodies come to rest on the table, then restore the arm and zero velocities."""
@@ -276,6 +301,9 @@ class PushOffTask(composer.Task):
         toucher.append(int(physics.bind(self._cube.geom).element_id))
         self._is_toucher = np.zeros(model.ngeom, dtype=bool)
         self._is_toucher[toucher] = True
+        self._is_arm = np.zeros(model.ngeom, dtype=bool)
+        self._is_arm[[g for g in range(model.ngeom) if int(model.geom_bodyid[g]) in arm_bodies]] = True
+        self._tip_site_id = int(physics.bind(self._pusher.tip_site).element_id)
 
     def before_step(self, physics: mjcf.Physics, action: np.ndarray,
                     random_state: np.random.RandomState) -> None:

@@ -33,8 +33,9 @@ from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.scripted import ScriptedPusher
 from ahrm_stack.env.task import PushOffTask
 from ahrm_stack.learning.mechanisms import RewardMechanism
+from ahrm_stack.seeds import seed_table
 
-DEMO_SEED_OFFSET = 2_000_000  # demonstration seeds never overlap training or evaluation seeds
+DEMO_SEED_OFFSET = seed_table()["demonstrations"].start  # configs/seeds.yaml: disjoint from the rest
 ACTION_LIMIT = 0.995  # demonstrated actions are kept inside the tanh's open interval
 
 
@@ -98,6 +99,73 @@ def collect_demonstrations(config: Config, episodes: int) -> TensorDict:
     }, batch_size=[len(observations)])
 
 
+def _discounted(rewards: list[float], gamma: float) -> list[float]:
+    discounted, running = [], 0.0
+    for reward in reversed(rewards):
+        running = reward + gamma * running
+        discounted.append(running)
+    return discounted[::-1]
+
+
+def collect_corrections(config: Config, actor, episodes: int, first_episode: int) -> TensorDict:
+    """DAgger: run ``actor`` (deterministic, plus ``train.demo_noise`` on the executed action)
+    and label every state it visits with the scripted controller's action for that state.
+
+    Episodes use the demonstration seeds ``DEMO_SEED_OFFSET + first_episode + i`` (after the
+    demonstrations', so new layouts) and stop at success or after ``train.dagger_duration`` s. The
+    controller is reset at each episode start and queried at every step, so its stage follows the
+    tip the actor moves. Returns the same keys as :func:`collect_demonstrations`; ``return`` is
+    the executed episode's discounted return (no bootstrap when cut), only used to warm the critic.
+    """
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    cartesian = config.task.action.mode == "cartesian"
+    task = PushOffTask(config.task)
+    runner = TaskRunner(task, seed=DEMO_SEED_OFFSET, safety=config.safety)
+    controller = ScriptedPusher(task, config.scripted)
+    mechanism = RewardMechanism(config.mechanism)
+    commanded = list(task.robot.commanded_joints)
+    limits = task.robot.velocity_limit[commanded]
+    max_speed = config.task.action.cartesian_max_speed
+    noise = np.random.default_rng(DEMO_SEED_OFFSET + first_episode)
+    max_steps = int(round(config.train.dagger_duration / config.task.episode.control_period))
+    observations, actions, returns = [], [], []
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        for episode in range(first_episode, first_episode + episodes):
+            runner.seed(DEMO_SEED_OFFSET + episode)
+            runner.reset()
+            controller.reset(runner.physics)
+            rewards = []
+            for _ in range(max_steps):
+                observation = runner.flat_observation()
+                if cartesian:
+                    label = controller.tip_velocity(runner.physics) / max_speed
+                else:
+                    label = controller(runner.physics)[commanded] / limits
+                observations.append(observation)
+                actions.append(np.clip(label, -ACTION_LIMIT, ACTION_LIMIT))
+                out = actor(TensorDict({"observation": torch.as_tensor(observation, dtype=torch.float32)}, []))
+                executed = out["action"].numpy().astype(float)
+                if config.train.demo_noise > 0:
+                    executed = executed + noise.normal(0.0, config.train.demo_noise, executed.shape)
+                executed = np.clip(executed, -1.0, 1.0)
+                if cartesian:
+                    info, terminated, truncated = runner.step_cartesian(executed * max_speed)
+                else:
+                    command = np.zeros(task.robot.num_joints)
+                    command[commanded] = executed * limits
+                    info, terminated, truncated = runner.step_only(command)
+                rewards.append(float(mechanism.reward(info.g, info.distances)))
+                if terminated or truncated:
+                    break
+            returns += _discounted(rewards, config.ppo.gamma)
+    return TensorDict({
+        "observation": torch.as_tensor(np.array(observations), dtype=torch.float32),
+        "action": torch.as_tensor(np.array(actions), dtype=torch.float32),
+        "return": torch.as_tensor(np.array(returns), dtype=torch.float32).unsqueeze(-1),
+    }, batch_size=[len(observations)])
+
+
 def bc_loss(actor, batch: TensorDict) -> torch.Tensor:
     """MSE between the actor's pre-tanh mean and atanh of the demonstrated actions."""
     out = actor.module[0](batch.select("observation").clone())  # normaliser + network: loc, scale
@@ -106,9 +174,13 @@ def bc_loss(actor, batch: TensorDict) -> torch.Tensor:
 
 
 def warm_start(modules, demos: TensorDict, epochs: int, learning_rate: float,
-               batch_size: int, generator: torch.Generator) -> dict[str, float]:
-    """Behaviour cloning of the actor and a critic refit to the demonstrations' returns."""
-    modules.normalizer.update(demos["observation"])
+               batch_size: int, generator: torch.Generator,
+               normalizer_data: TensorDict | None = None) -> dict[str, float]:
+    """Behaviour cloning of the actor and a critic refit to the demonstrations' returns.
+
+    The observation normaliser first takes in ``normalizer_data`` (default: ``demos``); a DAgger
+    refit passes only the new observations, since its statistics already hold the older ones."""
+    modules.normalizer.update((demos if normalizer_data is None else normalizer_data)["observation"])
     actor_params = [p for p in modules.actor.parameters() if p.requires_grad]
     critic_params = [p for p in modules.critic.parameters() if p.requires_grad]
     actor_opt = torch.optim.Adam(actor_params, lr=learning_rate)

@@ -23,8 +23,9 @@ from ahrm_stack.env.episode import EpisodeSummary
 from ahrm_stack.env.torchrl_env import PushOffEnv
 from ahrm_stack.learning.checkpoint import load
 from ahrm_stack.learning.ppo import make_modules
+from ahrm_stack.seeds import seed_table
 
-EVAL_SEED_OFFSET = 1_000_000  # evaluation seeds never overlap training seeds
+EVAL_SEED_OFFSET = seed_table()["evaluation"].start  # configs/seeds.yaml: disjoint from training
 
 
 @dataclasses.dataclass
@@ -63,11 +64,12 @@ class EvaluationTable:
                 f"joint-limit violations {self.joint_limit_violations}")
 
 
-def load_policy(run_dir: Path) -> tuple[Config, Callable[[TensorDict], TensorDict]]:
-    """The run's config and its final deterministic policy (``policy.pt``, loaded safely)."""
+def load_policy(run_dir: Path, policy_file: Path | None = None) -> tuple[Config, Callable[[TensorDict], TensorDict]]:
+    """The run's config and its deterministic policy (``policy_file``, default the final
+    ``policy.pt``; loaded safely)."""
     run_dir = Path(run_dir)
     config = config_from_dict(yaml.safe_load((run_dir / "config.yaml").read_text()))
-    saved = load(run_dir / "policy.pt")
+    saved = load(Path(policy_file) if policy_file is not None else run_dir / "policy.pt")
     modules = make_modules(config.ppo, saved["observation_dim"], saved["action_dim"])
     modules.actor.load_state_dict(saved["actor"])
     modules.actor.eval()

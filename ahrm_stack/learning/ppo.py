@@ -118,6 +118,15 @@ def scheduled_std(config: PPOConfig, frames: int) -> float:
     return float(np.exp((1 - fraction) * np.log(config.init_std) + fraction * np.log(config.final_std)))
 
 
+def anchor_coeff(config: PPOConfig, frames: int) -> float:
+    """The BC anchor's weight after ``frames``: linear from ``bc_coeff`` to ``bc_coeff_final`` over
+    ``bc_decay_frames`` (constant ``bc_coeff`` when that is 0)."""
+    if config.bc_decay_frames == 0:
+        return config.bc_coeff
+    fraction = min(1.0, frames / config.bc_decay_frames)
+    return (1 - fraction) * config.bc_coeff + fraction * config.bc_coeff_final
+
+
 def make_loss(config: PPOConfig, modules: Modules) -> tuple[ClipPPOLoss, GAE]:
     loss = ClipPPOLoss(modules.actor, modules.critic, clip_epsilon=config.clip_epsilon,
                        entropy_bonus=config.entropy_coeff > 0, entropy_coeff=config.entropy_coeff,

@@ -19,17 +19,19 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from tensordict import TensorDict
 from torchrl.collectors import Collector
 from torchrl.envs import SerialEnv
 from torchrl.envs.utils import ExplorationType
 
 from ahrm_stack.config import Config, ConfigError
 from ahrm_stack.env.torchrl_env import PushOffEnv
-from ahrm_stack.learning.demonstrations import bc_loss, collect_demonstrations, warm_start
+from ahrm_stack.learning.demonstrations import (bc_loss, collect_corrections, collect_demonstrations,
+                                                warm_start)
 from ahrm_stack.learning.mechanisms import OBJECTIVES, RewardMechanism
-from ahrm_stack.learning.ppo import make_buffer, make_loss, make_modules, scheduled_std
+from ahrm_stack.learning.ppo import anchor_coeff, make_buffer, make_loss, make_modules, scheduled_std
+from ahrm_stack.seeds import training_seeds
 
-ENV_SEED_STRIDE = 10_000  # environment i of a run is seeded train.seed + i * ENV_SEED_STRIDE
 
 
 class TrainingDiverged(RuntimeError):
@@ -61,8 +63,8 @@ class Trainer:
         if config.ppo.frames_per_batch % count:
             raise ConfigError(f"ppo.frames_per_batch ({config.ppo.frames_per_batch}) must be a "
                               f"multiple of train.num_envs ({count})")
-        self.envs = [PushOffEnv(config.task, config.safety, mechanism=self.mechanism,
-                                seed=config.train.seed + i * ENV_SEED_STRIDE) for i in range(count)]
+        self.envs = [PushOffEnv(config.task, config.safety, mechanism=self.mechanism, seed=seed)
+                     for seed in training_seeds(config.train.seed, count)]  # configs/seeds.yaml
         self.env = self.envs[0] if count == 1 else SerialEnv(
             count, [lambda env=env: env for env in self.envs])
         observation_dim = self.envs[0].observation_spec["observation"].shape[-1]
@@ -87,9 +89,17 @@ class Trainer:
         if self.batches or self.config.train.warm_start != "bc" or self.warm_start_report is not None:
             return
         train = self.config.train
-        self.warm_start_report = warm_start(self.modules, self.demos, train.bc_epochs,
-                                            train.bc_learning_rate, self.config.ppo.mini_batch_size,
-                                            self._demo_generator)
+        report = warm_start(self.modules, self.demos, train.bc_epochs, train.bc_learning_rate,
+                            self.config.ppo.mini_batch_size, self._demo_generator)
+        first = train.demo_episodes  # DAgger rounds use the demonstration seeds after the demos'
+        for round_ in range(train.dagger_rounds):
+            new = collect_corrections(self.config, self.modules.actor, train.dagger_episodes, first)
+            first += train.dagger_episodes
+            self.demos = torch.cat([self.demos, new])  # the anchor holds the corrections too
+            report = warm_start(self.modules, self.demos, train.bc_epochs, train.bc_learning_rate,
+                                self.config.ppo.mini_batch_size, self._demo_generator, normalizer_data=new)
+            report[f"dagger_{round_ + 1}_steps"] = float(new.shape[0])
+        self.warm_start_report = report
 
     # ------------------------------------------------------------------ one iteration
     def _collect(self):
@@ -128,11 +138,12 @@ class Trainer:
                     kl_stopped = True  # this mini-batch already moved too far: no step
                     break
                 loss = losses["loss_objective"] + losses["loss_critic"] + losses.get("loss_entropy", 0.0)
-                if ppo.bc_coeff > 0:  # the anchor toward the demonstrations
+                coeff = anchor_coeff(ppo, self.frames)
+                if coeff > 0 and self.demos is not None:  # the anchor toward the demonstrations
                     index = torch.randint(self.demos.shape[0], (ppo.mini_batch_size,),
                                           generator=self._demo_generator)
                     anchor = bc_loss(self.modules.actor, self.demos[index])
-                    loss = loss + ppo.bc_coeff * anchor
+                    loss = loss + coeff * anchor
                     totals.setdefault("bc_loss", []).append(float(anchor.detach()))
                 if not torch.isfinite(loss):
                     raise TrainingDiverged(
@@ -192,6 +203,8 @@ class Trainer:
             "torch_rng": torch.get_rng_state(),
             "env_rng": [_random_state_to_list(env.runner.random_state.get_state())
                         for env in self.envs],
+            # the anchor's data: with DAgger it holds the corrections, which a resume cannot redo
+            "demos": None if self.demos is None else {k: v for k, v in self.demos.items()},
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -212,6 +225,9 @@ class Trainer:
         self.episodes, self.frames, self.batches = (counters["episodes"], counters["frames"],
                                                     counters["batches"])
         torch.set_rng_state(state["torch_rng"])
+        if state.get("demos") is not None:
+            saved = state["demos"]
+            self.demos = TensorDict(saved, batch_size=[saved["observation"].shape[0]])
 
     def save_policy(self, path: Path) -> None:
         """The final policy: actor weights (normaliser included) and what is needed to rebuild it."""

@@ -1,0 +1,81 @@
+"""The task distribution: the cube anywhere in its region, random start postures (both arms)."""
+
+import numpy as np
+import pytest
+
+from ahrm_stack.config import ConfigError, load_config
+from ahrm_stack.env.layout import LayoutError, LayoutSampler, validate_layout
+from ahrm_stack.env.runner import TaskRunner
+from ahrm_stack.env.task import PushOffTask
+
+
+def _sampler(*overrides):
+    task = load_config(list(overrides)).task
+    return task, LayoutSampler(task.table, task.cube, task.obstacles, task.layout)
+
+
+def test_random_cubes_fill_the_region_and_every_layout_is_valid():
+    task, sampler = _sampler("task.layout.mode=random")
+    rng = np.random.RandomState(0)
+    layouts = [sampler.sample(rng) for _ in range(200)]
+    cubes = np.array([layout.cube_xy for layout in layouts])
+    (x_lo, x_hi), (y_lo, y_hi) = task.layout.cube_region
+    assert cubes[:, 0].min() >= x_lo and cubes[:, 0].max() <= x_hi
+    assert cubes[:, 1].min() >= y_lo and cubes[:, 1].max() <= y_hi
+    # spread over the region, not stuck near its centre: each quarter of x and y is visited
+    for axis, (lo, hi) in enumerate(task.layout.cube_region):
+        counts = np.histogram(cubes[:, axis], bins=4, range=(lo, hi))[0]
+        assert counts.min() >= 20, counts
+    for layout in layouts:
+        validate_layout(layout, task.table, task.cube, task.obstacles, task.layout)
+
+
+def test_a_moved_cube_in_random_mode_is_not_checked_against_the_unused_fixed_layout():
+    # the fixed layout does not fit around this cube (obstacle 2 at [-0.02, -0.17] is too close)
+    with pytest.raises(LayoutError):
+        _sampler("task.layout.mode=fixed", "task.cube.position=[0.08,-0.06]")
+    _sampler("task.layout.mode=random", "task.cube.position=[0.08,-0.06]")
+
+
+def test_a_cube_region_off_the_table_fails_naming_the_key():
+    with pytest.raises(ConfigError, match=r"task.layout.cube_region x range \[-0.44, 0.2\]"):
+        _sampler("task.layout.mode=random", "task.layout.cube_region=[[-0.44,0.2],[0.0,0.1]]")
+    with pytest.raises(ConfigError, match=r"task.layout.cube_region \(y\): min 0.2 must be <= max 0.1"):
+        load_config(["task.layout.cube_region=[[0.0,0.1],[0.2,0.1]]"])
+    with pytest.raises(ConfigError, match=r"task.arm.start_region \(z\)"):
+        load_config(["task.arm.start_region=[[0,0.1],[0,0.1],[0.8,0.6]]"])
+
+
+@pytest.mark.parametrize("robot", ["jaco", "j2s6s200"])
+def test_random_starts_put_the_tip_at_the_target_pointing_down(robot):
+    """Checked with Pinocchio's forward kinematics (the IK ran on MuJoCo's model)."""
+    config = load_config([f"task.robot={robot}", "task.arm.start=random"])
+    task = PushOffTask(config.task)
+    runner = TaskRunner(task, seed=0, safety=config.safety)
+    region = np.asarray(config.task.arm.start_region)
+    phases = []
+    for seed in range(12):
+        runner.seed(seed)
+        transition = runner.reset()
+        assert task.start_target is not None, "fell back to the home posture"
+        assert np.all(task.start_target >= region[:, 0]) and np.all(task.start_target <= region[:, 1])
+        q, dq = task.arm_state(runner.physics)
+        np.testing.assert_array_equal(dq, 0.0)
+        task.kinematics.update(q)
+        tip, _ = task.kinematics.frame_pose(task._tip_frame)
+        _, rotation = task.kinematics.frame_pose(task._center_frame)
+        assert np.linalg.norm(tip - task.start_target) < 2e-3
+        assert np.arccos(np.clip(-rotation[2, 2], -1, 1)) < 0.02  # pusher axis (local z) down
+        phases.append(transition.info.phase)
+    assert task.start_fallbacks == 0
+    assert 1 in phases and len(set(phases)) >= 2  # phase 1 (above the obstacle region) is visited
+
+
+def test_home_start_is_the_jittered_home():
+    config = load_config(["task.arm.start=home"])
+    task = PushOffTask(config.task)
+    runner = TaskRunner(task, seed=0, safety=config.safety)
+    runner.reset()
+    q, _ = task.arm_state(runner.physics)
+    assert np.max(np.abs(q - np.asarray(config.task.arm.home))) <= config.task.arm.joint_jitter + 1e-12
+    assert task.start_target is None
