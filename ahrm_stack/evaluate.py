@@ -245,11 +245,12 @@ def evaluate(run_dir: Path | None, episodes: int, layout: str | None = None, out
 def main(argv: list[str] | None = None) -> int:
     args = _parse(sys.argv[1:] if argv is None else argv)
     from ahrm_stack.env.video import RenderError
+    from ahrm_stack.learning.checkpoint import CheckpointError
     try:
         evaluate(Path(args.run_dir) if args.run_dir else None, args.episodes, args.layout,
                  Path(args.out) if args.out else None, Path(args.video) if args.video else None,
                  args.video_episodes, args.video_config, overrides=args.config)
-    except (ConfigError, RenderError) as error:
+    except (ConfigError, RenderError, CheckpointError) as error:  # a refused pickle among them
         print(f"error: {error}", file=sys.stderr)
         return 2
     return 0
