@@ -10,6 +10,18 @@ deterministic policy does (its ``config.yaml`` gives the task, so the arm model 
 Settings come from ``configs/deploy.yaml`` (:func:`load_deploy_settings`); the task, safety and
 scripted sections from ``configs/*.yaml`` as in training.
 
+The safety filter's settings are always deploy's own (``configs/safety.yaml``, plus ``key=value``
+overrides for the scripted controller). A checkpoint's ``safety`` section may only tighten them
+(:func:`merge_safety`: a larger margin, a lower limit, more rows, a smaller workspace box, a row
+family turned on); a weaker value is ignored, and every difference is printed (a WARNING naming the
+key for a weaker one) and written to the telemetry. Ignoring rather than refusing lets a policy
+trained with a lighter filter (or none: an ablation) be deployed behind the full one.
+
+Exit status: 0 success; 1 the run ended without success (duration, watchdog, hardware stop);
+2 bad input (settings, command line, checkpoint, a refused pickle: a one-line error, nothing
+written, the arm never touched); 3 a software fault stopped the arm (:class:`DeployFault`);
+130 Ctrl-C / SIGTERM.
+
 Every control period (``1 / rate_hz`` s) :class:`DeployLoop` does, in this order:
 
 1. ``refresh_feedback`` — a dropped frame, a stale frame (repeated id or older than
@@ -23,10 +35,14 @@ Every control period (``1 / rate_hz`` s) :class:`DeployLoop` does, in this order
 5. ``send_joint_speeds`` — the adapter re-checks the limits and e-stops on a bad command; a command
    not sent within ``watchdog.command_deadline`` periods of the tick is a missed deadline.
 
-Ctrl-C (SIGINT) and SIGTERM stop the arm before the program exits. Every tick and every event is a
-line of the JSONL telemetry log (time, phase, nominal and filtered command, active constraints,
-loop latency); the run ends with a summary (success, duration, interventions, deadline misses,
-latency p50/p99).
+Ctrl-C (SIGINT) and SIGTERM stop the arm before the program exits. So does every fault: an
+exception in start-up, perception, the world model, the controller or the filter, a wrong obstacle
+count, or a controller request that is not finite (NaN from a policy is a fault, never zeroed):
+the arm is commanded to zero velocity in the tick that sees it, the stop and its cause are logged,
+and the run ends (:class:`DeployFault`). Every tick and every event is a line of the JSONL
+telemetry log (time, phase, nominal and filtered command, active constraints, loop latency); every
+run, however it ends, closes with a summary line (success, duration, interventions, deadline
+misses, latency p50/p99, stop reason, fault).
 
 Perception: the sim backend's :meth:`~hardware.sim.SimArm.perception` stands in for a perception
 module (exact poses from the simulator). The scripted controller needs object poses too; it runs on
@@ -210,7 +226,10 @@ def load_deploy_settings(path: Path | str = DEPLOY_CONFIG, **overrides: Any) -> 
     try:
         return deploy_settings_from_dict(data)
     except DeployConfigError as error:
-        raise DeployConfigError(f"{path}: {error}") from None
+        given = [f"{k}={v!r}" for k, v in overrides.items()
+                 if v is not None and f"deploy.{k} " in f"{error} "]
+        where = f"{path} with {', '.join(given)} (command line)" if given else str(path)
+        raise DeployConfigError(f"{where}: {error}") from None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -582,6 +601,7 @@ class DeployLoop:
         self.fault = ""  # the stop reason when a software fault stopped the run
         self.error: BaseException | None = None  # the exception behind the fault, if any
         self.stopped_at: float | None = None  # clock time the arm was stopped / e-stopped
+        self.tick_time: float | None = None  # clock time the current (or last) tick began
         self.halted = False
         self.interrupted = False
         self._sent = np.zeros(robot.num_joints)
@@ -749,6 +769,7 @@ class DeployLoop:
         then stopped and the stop recorded). Never raises but for Ctrl-C (KeyboardInterrupt)."""
         tick_time = self._t0 + self._ticks * self.period
         self.clock.sleep_until(tick_time)
+        self.tick_time = tick_time
         self._ticks += 1
         try:
             self._stage = "feedback"

@@ -425,14 +425,18 @@ class KortexArm(ArmAdapter):
             raise HardwareError(f"connecting to the arm at {self._address}:{self._port} failed: "
                                 f"{failure}")
         self._connected = True
-        actuators = len(self._cyclic.RefreshFeedback().actuators)
-        if actuators != self._robot.num_joints:
+        try:  # a failure from here on closes the session it opened (scrubbed, like every call)
+            actuators = len(self._call("RefreshFeedback", self._cyclic.RefreshFeedback).actuators)
+            if actuators != self._robot.num_joints:
+                raise HardwareError(f"the arm at {self._address} has {actuators} actuators; the "
+                                    f"deployed model {self._robot.name!r} has "
+                                    f"{self._robot.num_joints} joints: the trained arm model must "
+                                    "match the arm")
+            self.set_servoing_mode(ServoingMode.SINGLE_LEVEL_SERVOING)
+            self.stop()
+        except HardwareError:
             self.disconnect()
-            raise HardwareError(f"the arm at {self._address} has {actuators} actuators; the "
-                                f"deployed model {self._robot.name!r} has {self._robot.num_joints} "
-                                "joints: the trained arm model must match the arm")
-        self.set_servoing_mode(ServoingMode.SINGLE_LEVEL_SERVOING)
-        self.stop()
+            raise
         log.info("kortex: connected to %s:%d as %s", self._address, self._port,
                  self._credentials.username)
 

@@ -121,7 +121,7 @@ def test_scrub_leaves_text_without_the_secret_alone():
     assert "p%40ss" in secret_variants("p@ss") and "p\\\\@" not in secret_variants("p@ss")
 
 
-def _api(fail_session=None, fail_feedback=None) -> dict:
+def _api(fail_session=None, fail_feedback=None, healthy_frames: int = 1) -> dict:
     class Transport:
         def connect(self, address, port):
             pass
@@ -158,7 +158,7 @@ def _api(fail_session=None, fail_feedback=None) -> dict:
 
         def RefreshFeedback(self):
             Cyclic.calls += 1
-            if fail_feedback is not None and Cyclic.calls > 1:
+            if fail_feedback is not None and Cyclic.calls > healthy_frames:
                 raise fail_feedback
             return types.SimpleNamespace(actuators=[object()] * 6)
 
@@ -174,19 +174,20 @@ def _api(fail_session=None, fail_feedback=None) -> dict:
 
 
 def test_no_password_reaches_an_exception_or_the_log(task_config, caplog):
-    """Every hostile password x every echo, through the adapter's two error paths (a refused login
-    in connect; a failing call once connected): 0 leaks in the raised error (str, repr, args) and
-    in every log record."""
+    """Every hostile password x every echo, through the adapter's three error paths (a refused
+    login; the first feedback failing inside connect; a failing call once connected): 0 leaks in
+    the raised error (str, repr, args) and in every log record."""
     from ahrm_stack.env.task import PushOffTask
 
     robot = PushOffTask(task_config).robot
     cases = leaks = 0
     for pw in PASSWORDS:
         for name, echo in ECHOES.items():
-            for path in ("connect", "call"):
+            for path in ("login", "first frame", "call"):
                 caplog.clear()
                 credentials = Credentials("admin", pw)
-                api = _api(fail_session=echo(pw)) if path == "connect" else _api(fail_feedback=echo(pw))
+                api = (_api(fail_session=echo(pw)) if path == "login" else
+                       _api(fail_feedback=echo(pw), healthy_frames=int(path == "call")))
                 arm = KortexArm(robot, "192.0.2.10", credentials, api=api)
                 with caplog.at_level(logging.DEBUG), pytest.raises(HardwareError) as error:
                     arm.connect()
@@ -195,7 +196,8 @@ def test_no_password_reaches_an_exception_or_the_log(task_config, caplog):
                          *(r.getMessage() for r in caplog.records)]
                 assert error.value.__cause__ is None and error.value.__context__ is None
                 cases += 1
+                assert path == "call" or not arm.is_connected  # a failed connect closes up
                 found = _leaks(pw, texts)
                 leaks += bool(found)
                 assert not found, (name, path, pw, found)
-    assert cases == len(PASSWORDS) * len(ECHOES) * 2 and leaks == 0
+    assert cases == len(PASSWORDS) * len(ECHOES) * 3 and leaks == 0
