@@ -193,11 +193,11 @@ def deploy_settings_from_dict(data: Any) -> DeploySettings:
     rate_hz = _number(top["rate_hz"], "rate_hz", positive=True)
     duration = _number(top["duration"], "duration", positive=True)
     if control_periods(duration, 1.0 / rate_hz) < 1:
-        raise DeployConfigError(f"deploy.rate_hz {rate_hz!r} Hz with deploy.duration {duration!r} s "
-                                "gives no control period: the loop would not run")
+        raise DeployConfigError(f"deploy.rate_hz {rate_hz!r} Hz with deploy.duration "
+                                f"{duration!r} s gives no control period: the loop would not run")
     if 1e3 / rate_hz > kortex.connection_inactivity_timeout_ms:
-        raise DeployConfigError(f"deploy.rate_hz {rate_hz!r} Hz: a control period of {1 / rate_hz:g} s "
-                                "is longer than deploy.kortex.connection_inactivity_timeout_ms "
+        raise DeployConfigError(f"deploy.rate_hz {rate_hz!r} Hz: a control period of "
+                                f"{1 / rate_hz:g} s is longer than deploy.kortex.connection_inactivity_timeout_ms "
                                 f"({kortex.connection_inactivity_timeout_ms} ms), after which the "
                                 "arm stops itself between two commands")
     return DeploySettings(
@@ -520,7 +520,7 @@ class DeploySummary:
     stop_reason: str
     emergency_stops: int
     adapter_refusals: int
-    fault: str = ""  # a software fault that stopped the run (an exception, a NaN request); '' if none
+    fault: str = ""  # the software fault that stopped the run (exception, NaN request), or ''
 
     def __str__(self) -> str:
         return (f"deploy summary: success {self.success} | duration {self.duration:.2f} s | "

@@ -6,7 +6,8 @@ that raises or returns the wrong number of obstacles or a NaN pose, a controller
 returns the wrong size or NaN (the scripted one wrapped, and a policy whose action is NaN or
 infinite), a safety filter that raises, and faults during start-up. For each run it measures:
 the fault detected (the stop reason names it), the arm commanded to zero within one control
-period of the first tick that could see the fault, a stop event in the telemetry, the summary as
+period of the first moment the loop could see the fault (the start of the tick that meets it; the
+command deadline for a delayed command), a stop event in the telemetry, the summary as
 the telemetry's last line, :class:`~ahrm_stack.deploy.DeployFault` raised for a software fault,
 and no limit violation in the simulated arm.
 
@@ -138,7 +139,11 @@ def _rig(realtime: bool, controller: str | None = None, policy: tuple | None = N
 
 def _adapter_fault(fault: InjectedFault) -> Callable[[Rig], None]:
     def arm(rig: Rig) -> None:
-        rig.trigger.fault_time = rig.loop.next_tick_time  # the next refresh or command sees it
+        # The next tick's refresh (or command) sees it; a delayed command is a fault only from
+        # the command deadline on (before it, a slow command is on time).
+        rig.trigger.fault_time = rig.loop.next_tick_time
+        if fault == InjectedFault.DELAYED_COMMAND:
+            rig.trigger.fault_time += rig.loop.settings.watchdog.command_deadline * rig.loop.period
         rig.arm.inject(fault)
     return arm
 
@@ -217,7 +222,8 @@ SCENARIOS: dict[str, Scenario] = {
            (InjectedFault.FAULT_FLAG, "arm fault"),
            (InjectedFault.LOST_CONNECTION, "connection lost")]},
     "adapter: command raises HardwareError": Scenario(
-        "adapter error", _patch_arm("send_joint_speeds", _raise(HardwareError("bus error"))), False),
+        "adapter error", _patch_arm("send_joint_speeds", _raise(HardwareError("bus error"))),
+        False),
     "adapter: command raises RuntimeError": Scenario(
         "command fault: RuntimeError", _patch_arm("send_joint_speeds",
                                                   _raise(RuntimeError("driver bug"))), True),
@@ -260,7 +266,9 @@ SCENARIOS: dict[str, Scenario] = {
 @dataclasses.dataclass
 class Outcome:
     detected: bool  # the stop reason names the fault
-    latency: float  # s, from the start of the first tick that could see the fault to the stop
+    latency: float  # s, from the first moment the loop could see the fault (the start of the tick
+    # whose refresh, perception, controller or filter meets it; the command deadline for a
+    # delayed command; the call to run() at start-up) to the stop command
     period: float
     zero: bool  # the simulated actuators hold zero velocity
     stop_event: bool  # a stop / emergency stop event with the reason in the telemetry
@@ -350,8 +358,8 @@ def _measure(repeats: int, realtime: bool) -> int:
                     f"{1e3 * max(latencies):7.3f} ms max")
     print("\n".join(rows))
     n = totals["runs"]
-    print(f"{len(SCENARIOS)} scenarios x {repeats} runs ({'wall clock' if realtime else 'fast clock'},"
-          f" {RATE_HZ:g} Hz, period {1e3 / RATE_HZ:.0f} ms): detected {totals['detected']}/{n}, "
+    clock = "wall clock" if realtime else "fast clock"
+    print(f"{len(SCENARIOS)} scenarios x {repeats} runs ({clock}, {RATE_HZ:g} Hz, period {1e3 / RATE_HZ:.0f} ms): detected {totals['detected']}/{n}, "
           f"zero velocity within one period {totals['within']}/{n} (worst {1e3 * worst:.3f} ms), "
           f"arm at zero {totals['zero']}/{n}, stop event {totals['stop']}/{n}, summary "
           f"{totals['summary']}/{n}, DeployFault as expected {totals['raised']}/{n}, "

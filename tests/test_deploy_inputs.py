@@ -116,7 +116,8 @@ def _perturbed(ours, draw):
             changes[field.name] = value * draw(st.floats(0.5, 1.5))
         elif isinstance(value, tuple):
             changes[field.name] = tuple(v + draw(st.floats(-0.3, 0.3)) for v in value)
-    if changes.get("obstacle_activation_distance", 1.0) <= changes.get("obstacle_safe_distance", 0.0):
+    safe = changes.get("obstacle_safe_distance", ours.obstacle_safe_distance)
+    if changes.get("obstacle_activation_distance", math.inf) <= safe:
         changes.pop("obstacle_activation_distance")
     return dataclasses.replace(ours, **changes)
 

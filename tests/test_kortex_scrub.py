@@ -52,7 +52,8 @@ def _lower_hex(text: str) -> str:
 #: real library that writes that format.
 ECHOES = {
     "literal": lambda pw: RuntimeError(f"login refused for admin/{pw}"),
-    "repr of the request": lambda pw: RuntimeError(f"CreateSession({ {'username': 'admin', 'password': pw}!r})"),
+    "repr of the request": lambda pw: RuntimeError(
+        f"CreateSession({ {'username': 'admin', 'password': pw}!r})"),
     "exception args": lambda pw: RuntimeError("session refused", pw),
     "KeyError": lambda pw: KeyError(pw),
     "ascii": lambda pw: RuntimeError(f"bad password {pw!a}"),
