@@ -10,6 +10,18 @@ deterministic policy does (its ``config.yaml`` gives the task, so the arm model 
 Settings come from ``configs/deploy.yaml`` (:func:`load_deploy_settings`); the task, safety and
 scripted sections from ``configs/*.yaml`` as in training.
 
+The safety filter's settings are always deploy's own (``configs/safety.yaml``, plus ``key=value``
+overrides for the scripted controller). A checkpoint's ``safety`` section may only tighten them
+(:func:`merge_safety`: a larger margin, a lower limit, more rows, a smaller workspace box, a row
+family turned on); a weaker value is ignored, and every difference is printed (a WARNING naming the
+key for a weaker one) and written to the telemetry. Ignoring rather than refusing lets a policy
+trained with a lighter filter (or none: an ablation) be deployed behind the full one.
+
+Exit status: 0 success; 1 the run ended without success (duration, watchdog, hardware stop);
+2 bad input (settings, command line, checkpoint, a refused pickle: a one-line error, nothing
+written, the arm never touched); 3 a software fault stopped the arm (:class:`DeployFault`);
+130 Ctrl-C / SIGTERM.
+
 Every control period (``1 / rate_hz`` s) :class:`DeployLoop` does, in this order:
 
 1. ``refresh_feedback`` — a dropped frame, a stale frame (repeated id or older than
@@ -23,10 +35,14 @@ Every control period (``1 / rate_hz`` s) :class:`DeployLoop` does, in this order
 5. ``send_joint_speeds`` — the adapter re-checks the limits and e-stops on a bad command; a command
    not sent within ``watchdog.command_deadline`` periods of the tick is a missed deadline.
 
-Ctrl-C (SIGINT) and SIGTERM stop the arm before the program exits. Every tick and every event is a
-line of the JSONL telemetry log (time, phase, nominal and filtered command, active constraints,
-loop latency); the run ends with a summary (success, duration, interventions, deadline misses,
-latency p50/p99).
+Ctrl-C (SIGINT) and SIGTERM stop the arm before the program exits. So does every fault: an
+exception in start-up, perception, the world model, the controller or the filter, a wrong obstacle
+count, or a controller request that is not finite (NaN from a policy is a fault, never zeroed):
+the arm is commanded to zero velocity in the tick that sees it, the stop and its cause are logged,
+and the run ends (:class:`DeployFault`). Every tick and every event is a line of the JSONL
+telemetry log (time, phase, nominal and filtered command, active constraints, loop latency); every
+run, however it ends, closes with a summary line (success, duration, interventions, deadline
+misses, latency p50/p99, stop reason, fault).
 
 Perception: the sim backend's :meth:`~hardware.sim.SimArm.perception` stands in for a perception
 module (exact poses from the simulator). The scripted controller needs object poses too; it runs on
@@ -106,6 +122,11 @@ class DeploySettings:
         return 1.0 / self.rate_hz
 
 
+def control_periods(duration: float, period: float) -> int:
+    """Ticks of a run of ``duration`` s at ``period`` s per tick."""
+    return int(round(duration / period))
+
+
 def _number(value: Any, key: str, *, integer: bool = False, positive: bool = False,
             nonnegative: bool = False) -> float | int:
     kinds = (int,) if integer else (int, float)
@@ -169,9 +190,19 @@ def deploy_settings_from_dict(data: Any) -> DeploySettings:
                                                  "kortex.connection_inactivity_timeout_ms",
                                                  integer=True, positive=True),
         credentials_file=_optional_str(kx["credentials_file"], "kortex.credentials_file"))
+    rate_hz = _number(top["rate_hz"], "rate_hz", positive=True)
+    duration = _number(top["duration"], "duration", positive=True)
+    if control_periods(duration, 1.0 / rate_hz) < 1:
+        raise DeployConfigError(f"deploy.rate_hz {rate_hz!r} Hz with deploy.duration "
+                                f"{duration!r} s gives no control period: the loop would not run")
+    if 1e3 / rate_hz > kortex.connection_inactivity_timeout_ms:
+        raise DeployConfigError(f"deploy.rate_hz {rate_hz!r} Hz: a control period of "
+                                f"{1 / rate_hz:g} s is longer than deploy.kortex.connection_inactivity_timeout_ms "
+                                f"({kortex.connection_inactivity_timeout_ms} ms), after which the "
+                                "arm stops itself between two commands")
     return DeploySettings(
-        rate_hz=_number(top["rate_hz"], "rate_hz", positive=True),
-        duration=_number(top["duration"], "duration", positive=True),
+        rate_hz=rate_hz,
+        duration=duration,
         realtime=top["realtime"],
         seed=_number(top["seed"], "seed", integer=True, nonnegative=True),
         telemetry=top["telemetry"],
@@ -195,7 +226,118 @@ def load_deploy_settings(path: Path | str = DEPLOY_CONFIG, **overrides: Any) -> 
     try:
         return deploy_settings_from_dict(data)
     except DeployConfigError as error:
-        raise DeployConfigError(f"{path}: {error}") from None
+        given = [f"{k}={v!r}" for k, v in overrides.items()
+                 if v is not None and f"deploy.{k} " in f"{error} "]
+        where = f"{path} with {', '.join(given)} (command line)" if given else str(path)
+        raise DeployConfigError(f"{where}: {error}") from None
+
+
+# ---------------------------------------------------------------------------------------------
+# The safety filter's settings: deploy's own, a checkpoint may only tighten them
+# ---------------------------------------------------------------------------------------------
+
+#: Safety settings with a stricter direction, and which direction that is. A checkpoint's value
+#: is used where it is stricter (per entry for vectors); where it is weaker it is ignored.
+HIGHER_IS_STRICTER = ("position_margin", "velocity_margin", "table_margin", "wrist_table_margin",
+                      "obstacle_safe_distance", "obstacle_activation_distance",
+                      "max_obstacle_rows", "workspace_lower")
+LOWER_IS_STRICTER = ("acceleration_limit", "workspace_upper")
+ON_IS_STRICTER = ("enabled", "braking_horizon", "table_rows", "workspace_rows",
+                  "table_distance_rows", "obstacle_rows")
+# Every other key (solver, osqp_eps, osqp_max_iter, cartesian_regularization,
+# cartesian_orientation_weight, and any key added later) is no bound: deploy's value is used.
+
+
+@dataclasses.dataclass(frozen=True)
+class SafetyNote:
+    """One difference between deploy's and a checkpoint's safety setting ``key``: ``kind`` is
+    ``stricter`` (the checkpoint's value, or its stricter entries, used), ``weaker`` (ignored)
+    or ``other`` (no stricter direction: deploy's value used); ``text`` is the printed line."""
+
+    key: str
+    kind: str
+    text: str
+
+
+def _show(value: Any) -> str:
+    return repr(list(value)) if isinstance(value, tuple) else repr(value)
+
+
+def require_filter(safety) -> None:
+    """:class:`DeployConfigError` unless ``safety`` (a SafetyConfig) turns the filter on."""
+    if not safety.enabled:
+        raise DeployConfigError("safety.enabled is false: the deploy loop never runs without the "
+                                "safety filter")
+
+
+def merge_safety(deploy, checkpoint) -> tuple[Any, list[SafetyNote]]:
+    """The safety settings a checkpoint run is deployed with: ``deploy``'s (configs/safety.yaml as
+    deploy reads it), tightened wherever ``checkpoint`` (the run's ``config.yaml``) is stricter;
+    a weaker checkpoint value is ignored. Both are :class:`~ahrm_stack.config.SafetyConfig`.
+
+    Returns the merged settings and one :class:`SafetyNote` per differing key. Raises
+    :class:`DeployConfigError` when deploy's own settings turn the filter off, or when the
+    tightened settings contradict each other (an empty workspace box, an activation distance not
+    above the safe distance)."""
+    require_filter(deploy)
+    merged, notes = {}, []
+    for field in dataclasses.fields(deploy):
+        key, ours, theirs = field.name, getattr(deploy, field.name), getattr(checkpoint, field.name)
+        if ours == theirs:
+            continue
+        name = f"safety.{key}"
+        said = f"{name}: the checkpoint's {_show(theirs)}"
+        if key in ON_IS_STRICTER:
+            if theirs:
+                merged[key] = True
+                notes.append(SafetyNote(key, "stricter", f"{said} is stricter than deploy's "
+                                        f"{_show(ours)}: using {_show(theirs)}"))
+            else:
+                notes.append(SafetyNote(key, "weaker", f"{said} is weaker than deploy's "
+                                        f"{_show(ours)}: ignored, using {_show(ours)}"))
+        elif key in HIGHER_IS_STRICTER or key in LOWER_IS_STRICTER:
+            pick = max if key in HIGHER_IS_STRICTER else min
+            vector = isinstance(ours, tuple)
+            a, b = (ours, theirs) if vector else ((ours,), (theirs,))
+            if len(a) != len(b):
+                notes.append(SafetyNote(key, "weaker", f"{said} has {len(b)} entries, deploy's "
+                                        f"{len(a)}: ignored, using {_show(ours)}"))
+                continue
+            if not all(math.isfinite(y) for y in b):
+                notes.append(SafetyNote(key, "weaker", f"{said} is not finite: ignored, using "
+                                        f"{_show(ours)}"))
+                continue
+            best = tuple(pick(x, y) for x, y in zip(a, b))
+            value = best if vector else best[0]
+            weaker = [i for i, (x, y) in enumerate(zip(a, b)) if pick(x, y) == x != y]
+            stricter = [i for i, (x, y) in enumerate(zip(a, b)) if pick(x, y) == y != x]
+            if value != ours:
+                merged[key] = value
+            if weaker and stricter:
+                notes.append(SafetyNote(key, "weaker", f"{said} is weaker than deploy's "
+                                        f"{_show(ours)} in entries {weaker} (ignored there) and "
+                                        f"stricter in entries {stricter}: using {_show(value)}"))
+            elif weaker:
+                notes.append(SafetyNote(key, "weaker", f"{said} is weaker than deploy's "
+                                        f"{_show(ours)}: ignored, using {_show(ours)}"))
+            else:
+                notes.append(SafetyNote(key, "stricter", f"{said} is stricter than deploy's "
+                                        f"{_show(ours)}: using {_show(value)}"))
+        else:
+            notes.append(SafetyNote(key, "other", f"{said} differs from deploy's {_show(ours)} "
+                                    f"(not a safety bound): using {_show(ours)}"))
+    result = dataclasses.replace(deploy, **merged)
+    for i, (lo, hi) in enumerate(zip(result.workspace_lower, result.workspace_upper)):
+        if not lo < hi:
+            raise DeployConfigError(f"safety.workspace_lower/workspace_upper: deploy's workspace "
+                                    f"box and the checkpoint's do not overlap on axis {i} "
+                                    f"([{lo}, {hi}] after tightening)")
+    if result.obstacle_activation_distance <= result.obstacle_safe_distance:
+        raise DeployConfigError(
+            f"safety.obstacle_activation_distance {result.obstacle_activation_distance} must "
+            f"exceed safety.obstacle_safe_distance {result.obstacle_safe_distance} after taking "
+            "the checkpoint's stricter values")
+    return result, notes
 
 
 # ---------------------------------------------------------------------------------------------
@@ -338,15 +480,22 @@ class PolicyController:
         pass
 
     def __call__(self) -> np.ndarray:
+        """The request for this tick: joint velocities (rad/s) or the tip velocity (m/s, world
+        frame); an entry whose action was NaN or infinite is NaN (the loop stops on it)."""
         torch = self._torch
         observation = torch.as_tensor(self.world.observation(), dtype=torch.float32)
         with torch.no_grad(), self._deterministic(self._exploration.DETERMINISTIC):
             action = self.actor(self._tensordict({"observation": observation}, batch_size=[]))
-        action = action["action"].numpy()
+        action = np.asarray(action["action"].numpy(), dtype=float).reshape(-1)
+        bad = ~np.isfinite(action)
         if self.cartesian:
-            finite = np.nan_to_num(action, nan=0.0, posinf=0.0, neginf=0.0)
-            return np.clip(finite, -1.0, 1.0) * self._max_tip_speed
-        return self._to_command(action, self._limit, self._commanded)
+            command = np.clip(action, -1.0, 1.0) * self._max_tip_speed
+            command[bad] = np.nan
+            return command
+        command = self._to_command(action, self._limit, self._commanded)
+        # a non-finite action is a fault, not a zero: it stays NaN for the loop to flag
+        command[np.asarray(self._commanded, dtype=int)[bad[:len(self._commanded)]]] = np.nan
+        return command
 
     @property
     def stage(self) -> str:
@@ -371,6 +520,7 @@ class DeploySummary:
     stop_reason: str
     emergency_stops: int
     adapter_refusals: int
+    fault: str = ""  # the software fault that stopped the run (exception, NaN request), or ''
 
     def __str__(self) -> str:
         return (f"deploy summary: success {self.success} | duration {self.duration:.2f} s | "
@@ -380,6 +530,18 @@ class DeploySummary:
                 f"{self.emergency_stops} | stop: {self.stop_reason}")
 
 
+class DeployFault(RuntimeError):
+    """A software fault stopped the run: an exception in start-up, perception, the world model,
+    the controller, the safety filter or the loop itself, or a non-finite controller request. The
+    arm was commanded to zero velocity and the stop and the summary were recorded before this is
+    raised. ``summary`` is the run's :class:`DeploySummary`; ``__cause__`` the original exception
+    (None for a NaN request)."""
+
+    def __init__(self, message: str, summary: DeploySummary) -> None:
+        super().__init__(message)
+        self.summary = summary
+
+
 class _Halt(Exception):
     """Internal: end the run; the arm was already stopped or e-stopped."""
 
@@ -387,6 +549,14 @@ class _Halt(Exception):
 class DeployLoop:
     """One deployment run on ``arm`` (a connected :class:`~hardware.protocol.ArmAdapter` with a
     ``perception()`` method), paced by the adapter's clock.
+
+    Every way a run ends commands the arm to stop (zero velocity, or an e-stop), writes a stop
+    event with its cause to the log and the telemetry, and (through :meth:`run`) the summary: the
+    watchdog and hardware checks, the safety filter's report, an adapter error, success, the
+    duration, Ctrl-C, and any exception in start-up or in a tick's stages (a *fault*: the stop
+    reason names the stage, ``perception fault: ValueError: ...``; :meth:`run` then raises
+    :class:`DeployFault`). A controller request that is not finite (NaN from a policy) is a fault
+    too, never a silent zero.
 
     Args:
         arm: the adapter; its ``clock`` paces the loop and stamps the feedback.
@@ -401,9 +571,7 @@ class DeployLoop:
                  telemetry=None) -> None:
         from ahrm_stack.safety import InterventionStats, make_filter
 
-        if not safety.enabled:
-            raise DeployConfigError("safety.enabled is false: the deploy loop never runs without "
-                                    "the safety filter")
+        require_filter(safety)
         self.arm, self.world, self.controller = arm, world, controller
         self.settings = settings
         self.period = settings.period
@@ -420,7 +588,9 @@ class DeployLoop:
                                   tip_site=task.pusher.tip_site, wrist_site=task.arm.wrist_site,
                                   scene=self.scene)
         # a Cartesian request (tip velocity, m/s) goes through the same QP as differential IK
-        self._solve = self.filter.cartesian if getattr(controller, "cartesian", False) else self.filter
+        cartesian = getattr(controller, "cartesian", False)
+        self._solve = self.filter.cartesian if cartesian else self.filter
+        self._request_size = 3 if cartesian else robot.num_joints
         self.stats = InterventionStats()
         self.latencies: list[float] = []  # s, feedback received -> command sent
         self.deadline_misses = 0
@@ -428,7 +598,10 @@ class DeployLoop:
         self.adapter_refusals = 0
         self.success = False
         self.stop_reason = ""
+        self.fault = ""  # the stop reason when a software fault stopped the run
+        self.error: BaseException | None = None  # the exception behind the fault, if any
         self.stopped_at: float | None = None  # clock time the arm was stopped / e-stopped
+        self.tick_time: float | None = None  # clock time the current (or last) tick began
         self.halted = False
         self.interrupted = False
         self._sent = np.zeros(robot.num_joints)
@@ -436,13 +609,21 @@ class DeployLoop:
         self._ticks = 0
         self._t0 = 0.0
         self._started = False
+        self._stage = "start-up"
 
     # ------------------------------------------------------------------ helpers
+    def _write(self, record: dict) -> None:
+        """A telemetry line; a failing log never stops the stop logic (the error is logged)."""
+        if self.telemetry is None:
+            return
+        try:
+            self.telemetry.write(json.dumps(record) + "\n")
+        except (OSError, ValueError) as error:  # disk full, a closed file
+            log.error("deploy: telemetry write failed (%s: %s)", type(error).__name__, error)
+
     def _event(self, level: int, kind: str, message: str) -> None:
         log.log(level, "deploy: %s: %s", kind.upper(), message)
-        if self.telemetry is not None:
-            self.telemetry.write(json.dumps({"t": round(self.clock.now() - self._t0, 6),
-                                             "event": kind, "reason": message}) + "\n")
+        self._write({"t": round(self.clock.now() - self._t0, 6), "event": kind, "reason": message})
 
     def _halt(self, reason: str, emergency: bool, level: int = logging.WARNING) -> None:
         """Stop (or e-stop) the arm, log why (``level``; e-stops at ERROR), end the run."""
@@ -455,13 +636,31 @@ class DeployLoop:
                 self.emergency_stops += 1
             else:
                 self.arm.stop()
-        except HardwareError as error:  # e.g. the link is gone: the arm's own watchdog stops it
+        except Exception as error:  # e.g. the link is gone: the arm's own watchdog stops it
             log.error("deploy: could not %s the arm (%s)", "e-stop" if emergency else "stop",
                       type(error).__name__)
+            if emergency:  # a plain stop is the next best command
+                try:
+                    self.arm.stop()
+                except Exception:  # noqa: BLE001 - nothing more to try from here
+                    pass
         self.stopped_at = self.clock.now()
         self._event(logging.ERROR if emergency else level,
                     "emergency stop" if emergency else "stop", reason)
         raise _Halt(reason)
+
+    def _stop_on_fault(self, error: BaseException | None, reason: str) -> None:
+        """Record a software fault (``reason``; ``error`` the exception, if any), stop the arm."""
+        self.fault = reason
+        self.error = error
+        try:
+            self._halt(reason, emergency=False, level=logging.ERROR)
+        except _Halt:
+            pass
+
+    def _fault_reason(self, error: BaseException) -> str:
+        text = (str(error).splitlines() or [""])[0][:300]
+        return f"{self._stage} fault: {type(error).__name__}" + (f": {text}" if text else "")
 
     def _check_feedback(self, feedback) -> None:
         age = self.clock.now() - feedback.timestamp
@@ -490,6 +689,26 @@ class DeployLoop:
             self._halt(f"limit violation: joint {i} moving at {feedback.velocity[i]:.3f} rad/s, "
                        f"alarm at {self._speed_alarm[i]:.3f} rad/s", emergency=True)
 
+    def _check_request(self, u_nom) -> np.ndarray:
+        """The controller's request as a float vector; a wrong size or a non-finite entry (NaN
+        from a policy) is a controller fault: the arm stops and the run ends."""
+        try:
+            request = np.asarray(u_nom, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            request = None
+        if request is None or request.size != self._request_size:
+            reason = (f"controller fault: request {u_nom!r:.80} is not {self._request_size} "
+                      "numbers")
+            self._stop_on_fault(None, reason)
+            raise _Halt(reason)
+        bad = np.flatnonzero(~np.isfinite(request))
+        if bad.size:
+            reason = (f"controller fault: non-finite request u_nom[{bad[0]}] = {request[bad[0]]} "
+                      f"({bad.size} of {request.size} entries)")
+            self._stop_on_fault(None, reason)
+            raise _Halt(reason)
+        return request
+
     def _deadline(self, tick_time: float, where: str) -> None:
         late = self.clock.now() - (tick_time + self.settings.watchdog.command_deadline * self.period)
         if late > 0:
@@ -508,6 +727,8 @@ class DeployLoop:
     def start(self) -> None:
         """Synchronise with the arm: first feedback, plan, warm the controller and filter (so
         their first-call costs do not hit a deadline), then schedule tick 0 at the clock's now."""
+        self._stage = "start-up"
+        self._t0 = self.clock.now()
         if self.arm.servoing_mode != ServoingMode.SINGLE_LEVEL_SERVOING:
             self.arm.set_servoing_mode(ServoingMode.SINGLE_LEVEL_SERVOING)
         self.arm.stop()
@@ -517,7 +738,14 @@ class DeployLoop:
         self.world.update(feedback, self.arm.perception(), 0.0)
         self.controller.reset()
         self.world.place_objects(self.scene)
-        self._solve(feedback.position, feedback.velocity, self.controller(), u_prev=self._sent)
+        request = np.asarray(self.controller(), dtype=float).reshape(-1)
+        if request.size != self._request_size:
+            raise ValueError(f"the controller's request has {request.size} entries, not "
+                             f"{self._request_size}")
+        if not np.isfinite(request).all():  # never sent: each tick checks its own request
+            log.warning("deploy: the controller's warm-up request is not finite: %s", request)
+            request = np.zeros_like(request)
+        self._solve(feedback.position, feedback.velocity, request, u_prev=self._sent)
         self.filter.reset()
         self.controller.reset()
         self._sent = np.zeros_like(self._sent)
@@ -528,6 +756,8 @@ class DeployLoop:
         """Continue after a halt (the caller cleared the arm's faults / reconnected it)."""
         self.halted = False
         self.stop_reason = ""
+        self.fault = ""
+        self.error = None
         self._sent = np.zeros_like(self._sent)
         self.filter.reset()
         feedback = self.arm.refresh_feedback()
@@ -535,11 +765,14 @@ class DeployLoop:
         self._ticks = int(math.ceil((self.clock.now() - self._t0) / self.period))
 
     def tick(self) -> bool:
-        """One control period; False when the run ended (success or a halt)."""
+        """One control period; False when the run ended (success, a halt or a fault: the arm is
+        then stopped and the stop recorded). Never raises but for Ctrl-C (KeyboardInterrupt)."""
         tick_time = self._t0 + self._ticks * self.period
         self.clock.sleep_until(tick_time)
+        self.tick_time = tick_time
         self._ticks += 1
         try:
+            self._stage = "feedback"
             try:
                 feedback = self.arm.refresh_feedback()
             except FeedbackTimeoutError:
@@ -548,6 +781,7 @@ class DeployLoop:
                 self._halt("connection lost: the arm's own watchdog stops it", emergency=False)
             received = time.perf_counter()
             self._check_feedback(feedback)
+            self._stage = "perception"
             poses = self.arm.perception()
             if not poses.finite:
                 self._halt("non-finite perception (object poses)", emergency=False)
@@ -556,7 +790,9 @@ class DeployLoop:
             if info.success:
                 self.success = True
                 self._halt("success: the cube left the table", emergency=False, level=logging.INFO)
-            u_nom = self.controller()
+            self._stage = "controller"
+            u_nom = self._check_request(self.controller())
+            self._stage = "safety filter"
             self.world.place_objects(self.scene)
             result = self._solve(feedback.position, feedback.velocity, u_nom, u_prev=self._sent)
             self.stats.add(result)
@@ -564,6 +800,7 @@ class DeployLoop:
                 self._halt(f"safety filter reports violated constraints {list(result.violated)}",
                            emergency=True)
             self._deadline(tick_time, "before the command")
+            self._stage = "command"
             try:
                 sent = self.arm.send_joint_speeds(result.command)
             except CommandRefusedError as error:
@@ -578,14 +815,14 @@ class DeployLoop:
             self.latencies.append(latency)
             self._sent = sent
             self._deadline(tick_time, "sending the command")
+            self._stage = "telemetry"
             self.world.record_command(sent)
-            if self.telemetry is not None:
-                self.telemetry.write(json.dumps({
-                    "t": round(elapsed, 6), "phase": int(info.phase), "x": round(float(info.x), 6),
-                    "stage": self.controller.stage,
-                    "u_nom": [round(float(v), 6) for v in u_nom],
-                    "u": [round(float(v), 6) for v in sent], "active": list(result.active),
-                    "status": result.status, "latency_ms": round(latency * 1e3, 4)}) + "\n")
+            self._write({
+                "t": round(elapsed, 6), "phase": int(info.phase), "x": round(float(info.x), 6),
+                "stage": self.controller.stage,
+                "u_nom": [round(float(v), 6) for v in u_nom],
+                "u": [round(float(v), 6) for v in sent], "active": list(result.active),
+                "status": result.status, "latency_ms": round(latency * 1e3, 4)})
             return True
         except _Halt:
             return False
@@ -594,15 +831,28 @@ class DeployLoop:
                 self._halt(f"adapter error {type(error).__name__}: {error}", emergency=True)
             except _Halt:
                 return False
+        except Exception as error:  # noqa: BLE001 - a crash in a stage: stop, record, end the run
+            self._stop_on_fault(error, self._fault_reason(error))
+            return False
 
     def run(self, duration: float) -> DeploySummary:
-        """Tick until success, a halt or ``duration`` s, then stop the arm. Ctrl-C (SIGINT) stops
-        the arm too, sets :attr:`interrupted` and returns the summary."""
-        ticks = int(round(duration / self.period))
+        """Tick until success, a halt or ``duration`` s, then stop the arm; the summary is the
+        telemetry's last line. Ctrl-C (SIGINT) stops the arm too, sets :attr:`interrupted` and
+        returns the summary. A software fault (start-up, a stage's exception, a NaN request)
+        raises :class:`DeployFault` once the arm is stopped and the summary written; any other
+        exception escaping the loop (e.g. SystemExit) stops the arm, is recorded, and propagates."""
+        ticks = control_periods(duration, self.period)
         try:
             if not self._started:
-                self.start()
-            while self._ticks < ticks and self.tick():
+                try:
+                    self.start()
+                except HardwareError as error:
+                    self._stage = "start-up"
+                    self._stop_on_fault(error, f"start-up fault: adapter error "
+                                               f"{type(error).__name__}: {error}")
+                except Exception as error:  # noqa: BLE001 - perception, controller, filter
+                    self._stop_on_fault(error, self._fault_reason(error))
+            while not self.halted and self._ticks < ticks and self.tick():
                 pass
             if not self.halted:
                 try:
@@ -616,10 +866,25 @@ class DeployLoop:
                 self._halt("interrupted (Ctrl-C / SIGINT / SIGTERM)", emergency=False)
             except _Halt:
                 pass
-        finally:
-            if self.telemetry is not None:
+        except BaseException as error:  # SystemExit, MemoryError, a bug in the loop itself
+            if not self.halted:
+                self._stop_on_fault(error, self._fault_reason(error))
+            self._finish()
+            raise
+        summary = self._finish()
+        if self.fault:
+            raise DeployFault(self.fault, summary) from self.error
+        return summary
+
+    def _finish(self) -> DeploySummary:
+        summary = self.summary()
+        self._write({"summary": dataclasses.asdict(summary)})
+        if self.telemetry is not None:
+            try:
                 self.telemetry.flush()
-        return self.summary()
+            except (OSError, ValueError):
+                pass
+        return summary
 
     def summary(self) -> DeploySummary:
         latencies = np.asarray(self.latencies) * 1e3
@@ -629,7 +894,8 @@ class DeployLoop:
             interventions=self.stats.interventions, fallbacks=self.stats.fallbacks,
             deadline_misses=self.deadline_misses, latency_p50_ms=float(p50),
             latency_p99_ms=float(p99), stop_reason=self.stop_reason,
-            emergency_stops=self.emergency_stops, adapter_refusals=self.adapter_refusals)
+            emergency_stops=self.emergency_stops, adapter_refusals=self.adapter_refusals,
+            fault=self.fault)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -641,49 +907,130 @@ def make_controller(world: WorldModel, config: Config, actor=None):
     return ScriptedController(world, config) if actor is None else PolicyController(world, actor, config)
 
 
-def load_controller_config(checkpoint: Path | None,
-                           overrides: Sequence[str] = ()) -> tuple[Config, object]:
+def load_controller_config(checkpoint: Path | None, overrides: Sequence[str] = (),
+                           notes: list[SafetyNote] | None = None) -> tuple[Config, object]:
     """The config (and actor) of a checkpoint run, or the repository's config with ``overrides``
-    (``key=value``, e.g. ``task.robot=j2s6s200``) and no actor. A checkpoint fixes its own config
-    (the arm it was trained on), so it takes no overrides."""
+    (``key=value``, e.g. ``task.robot=j2s6s200``) and no actor. A checkpoint fixes its own task
+    (the arm it was trained on), so it takes no overrides; its safety section never weakens the
+    repository's ``configs/safety.yaml`` (:func:`merge_safety`: each difference is logged, and
+    appended to ``notes``). Errors are one line: :class:`ConfigError` (the run folder or its
+    ``config.yaml``), :class:`~ahrm_stack.learning.checkpoint.CheckpointError` (``policy.pt``,
+    e.g. a refused pickle), :class:`DeployConfigError` (the merged safety settings)."""
     if checkpoint is None:
-        return load_config(overrides), None
+        config = load_config(overrides)
+        require_filter(config.safety)
+        return config, None
     if overrides:
         raise ConfigError(f"overrides {list(overrides)} cannot change a checkpoint's config "
                           f"({checkpoint}/config.yaml fixes the arm and the task)")
+    run = Path(checkpoint)
+    for name in ("config.yaml", "policy.pt"):
+        if not (run / name).is_file():
+            raise ConfigError(f"--checkpoint {run}: no {name} there (a training run folder holds "
+                              "config.yaml and policy.pt)")
+    deploy_safety = load_config().safety
     import torch
 
+    from ahrm_stack.learning.checkpoint import CheckpointError
     from ahrm_stack.learning.evaluation import load_policy
 
     torch.set_num_threads(1)
-    return load_policy(Path(checkpoint))
+    try:
+        config, actor = load_policy(run)
+    except (ConfigError, CheckpointError):
+        raise
+    except yaml.YAMLError as error:
+        raise ConfigError(f"{run / 'config.yaml'} is not valid YAML "
+                          f"({str(error).splitlines()[0]})") from None
+    except (KeyError, TypeError, ValueError, RuntimeError) as error:
+        first = (str(error).splitlines() or [""])[0][:200]
+        raise CheckpointError(f"{run / 'policy.pt'} does not fit {run / 'config.yaml'} "
+                              f"({type(error).__name__}: {first})") from None
+    safety, differences = merge_safety(deploy_safety, config.safety)
+    for note in differences:
+        log.log(logging.WARNING if note.kind == "weaker" else logging.INFO, "deploy: %s", note.text)
+    if notes is not None:
+        notes.extend(differences)
+    return dataclasses.replace(config, safety=safety), actor
+
+
+def open_telemetry(path: str):
+    """The JSONL telemetry file opened for writing (its folder made), or None for ''; a path that
+    cannot be written is a one-line :class:`DeployConfigError`."""
+    if not path:
+        return None
+    target = Path(path)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        return target.open("w")
+    except OSError as error:
+        raise DeployConfigError(f"deploy.telemetry: cannot write {target}: "
+                                f"{error.strerror or error}") from None
+
+
+def _start_up_fault(arm, telemetry, error: BaseException) -> DeployFault:
+    """A fault before the loop existed (building the sim, the world model, the controller, the
+    filter): stop the arm if it is connected, record the stop and a summary; the DeployFault to
+    raise."""
+    text = (str(error).splitlines() or [""])[0][:300]
+    reason = f"start-up fault: {type(error).__name__}" + (f": {text}" if text else "")
+    if arm is not None and arm.is_connected:
+        try:
+            arm.stop()
+        except Exception as stop_error:  # noqa: BLE001 - disconnecting stops it as well
+            log.error("deploy: could not stop the arm (%s)", type(stop_error).__name__)
+    log.error("deploy: STOP: %s", reason)
+    summary = DeploySummary(success=False, duration=0.0, ticks=0, interventions=0, fallbacks=0,
+                            deadline_misses=0, latency_p50_ms=math.nan, latency_p99_ms=math.nan,
+                            stop_reason=reason, emergency_stops=0, adapter_refusals=0, fault=reason)
+    if telemetry is not None:
+        try:
+            telemetry.write(json.dumps({"t": 0.0, "event": "stop", "reason": reason}) + "\n")
+            telemetry.write(json.dumps({"summary": dataclasses.asdict(summary)}) + "\n")
+        except (OSError, ValueError):
+            pass
+    return DeployFault(reason, summary)
 
 
 def deploy_sim(settings: DeploySettings, checkpoint: Path | None = None,
                overrides: Sequence[str] = ()) -> DeployLoop:
     """One run of the deploy loop against the sim backend; returns the finished loop (its
     :meth:`DeployLoop.summary`, :attr:`DeployLoop.interrupted`). ``overrides``: config
-    ``key=value`` pairs for the scripted controller's run (no checkpoint)."""
+    ``key=value`` pairs for the scripted controller's run (no checkpoint).
+
+    Bad input (the settings, the checkpoint, its safety settings, the telemetry path) raises a
+    one-line error before anything is written or the arm is touched. From then on every end is
+    recorded: a fault in set-up, start-up or the loop stops the arm, writes the stop event and the
+    summary to the telemetry and raises :class:`DeployFault`."""
     from hardware.sim import SimArm
 
-    config, actor = load_controller_config(checkpoint, overrides)
-    clock = WallClock() if settings.realtime else FastClock()
-    arm = SimArm(config.task, seed=settings.seed, clock=clock,
-                 command_delay=settings.sim.command_delay)
-    world = WorldModel(config.task, seed=settings.seed)
-    controller = make_controller(world, config, actor)
-    telemetry = None
-    if settings.telemetry:
-        path = Path(settings.telemetry)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        telemetry = path.open("w")
+    notes: list[SafetyNote] = []
+    config, actor = load_controller_config(checkpoint, overrides, notes)
+    control_period = config.task.episode.control_period
+    if not math.isclose(settings.period, control_period, rel_tol=1e-9):
+        log.warning("deploy: the loop runs at %g Hz; the controller was built for %g Hz "
+                    "(task.episode.control_period %g s)", settings.rate_hz, 1.0 / control_period,
+                    control_period)
+    telemetry = open_telemetry(settings.telemetry)
+    arm = None
     try:
-        with arm:
+        for note in notes if telemetry is not None else ():
+            telemetry.write(json.dumps({"t": 0.0, "event": "safety setting", "key": note.key,
+                                        "kind": note.kind, "reason": note.text}) + "\n")
+        try:
+            clock = WallClock() if settings.realtime else FastClock()
+            arm = SimArm(config.task, seed=settings.seed, clock=clock,
+                         command_delay=settings.sim.command_delay)
+            world = WorldModel(config.task, seed=settings.seed)
+            controller = make_controller(world, config, actor)
+            arm.connect()
             loop = DeployLoop(arm, world, controller, config.safety, settings, telemetry)
-            summary = loop.run(settings.duration)
-        if telemetry is not None:
-            telemetry.write(json.dumps({"summary": dataclasses.asdict(summary)}) + "\n")
+        except Exception as error:  # noqa: BLE001 - recorded, then raised as a fault
+            raise _start_up_fault(arm, telemetry, error) from error
+        loop.run(settings.duration)
     finally:
+        if arm is not None and arm.is_connected:
+            arm.disconnect()  # stops the arm as well
         if telemetry is not None:
             telemetry.close()
     return loop
@@ -733,12 +1080,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     def terminate(signum, frame):  # SIGTERM stops the arm like Ctrl-C
         raise KeyboardInterrupt
 
+    from ahrm_stack.learning.checkpoint import CheckpointError
+
     previous = signal.signal(signal.SIGTERM, terminate)
     try:
         loop = deploy_sim(settings, args.checkpoint, args.overrides)
-    except ConfigError as error:
+    except (ConfigError, DeployConfigError, CheckpointError) as error:  # before anything moved
         print(f"python -m ahrm_stack.deploy: error: {error}", file=sys.stderr)
         return 2
+    except DeployFault as error:  # the arm was stopped; the stop and the summary are recorded
+        print(error.summary)
+        print(f"python -m ahrm_stack.deploy: error: the arm was stopped on a fault: {error}",
+              file=sys.stderr)
+        return 3
     except KeyboardInterrupt:  # during set-up, before the arm moved
         print("interrupted before the loop started", file=sys.stderr)
         return 130

@@ -339,6 +339,7 @@ def evaluate_suite(run_dir: Path | None, episodes: int, out: Path | None = None,
 def main(argv: list[str] | None = None) -> int:
     args = _parse(sys.argv[1:] if argv is None else argv)
     from ahrm_stack.env.video import RenderError
+    from ahrm_stack.learning.checkpoint import CheckpointError
     try:
         if args.suite:
             evaluate_suite(Path(args.run_dir) if args.run_dir else None, args.episodes,
@@ -350,7 +351,7 @@ def main(argv: list[str] | None = None) -> int:
                  Path(args.out) if args.out else None, Path(args.video) if args.video else None,
                  args.video_episodes, args.video_config, overrides=args.config,
                  policy_file=Path(args.policy_file) if args.policy_file else None)
-    except (ConfigError, RenderError) as error:
+    except (ConfigError, RenderError, CheckpointError) as error:  # a refused pickle among them
         print(f"error: {error}", file=sys.stderr)
         return 2
     return 0

@@ -113,7 +113,9 @@ def test_sigint_stops_the_arm_before_exit():
     summary = loop.run(10.0)
     assert loop.interrupted and "interrupted" in summary.stop_reason
     np.testing.assert_array_equal(arm.command, 0.0)  # stopped before returning
-    assert json.loads(telemetry.getvalue().splitlines()[-1])["event"] == "stop"
+    *_, stop, last = [json.loads(line) for line in telemetry.getvalue().splitlines()]
+    assert stop["event"] == "stop" and "interrupted" in stop["reason"]
+    assert last["summary"]["stop_reason"] == summary.stop_reason  # the run writes its summary
     assert arm.violations == 0
 
 

@@ -8,10 +8,20 @@ the new one, never a torn file. Only the newest ``keep`` checkpoints are kept.
 from __future__ import annotations
 
 import os
+import pickle
+import re
 import sys
 from pathlib import Path
 
 import torch
+
+
+class CheckpointError(ValueError):
+    """A checkpoint or policy file cannot be loaded safely; a one-line message names the file."""
+
+
+class MissingCheckpointError(CheckpointError, FileNotFoundError):
+    """The checkpoint or policy file does not exist."""
 
 
 class CheckpointManager:
@@ -49,8 +59,23 @@ class CheckpointManager:
 
 
 def load(path: Path) -> dict:
-    """Load a checkpoint or policy file safely (tensors and plain containers only)."""
+    """Load a checkpoint or policy file safely (tensors and plain containers only).
+
+    A file that holds any other Python object (a pickle that would run code when loaded) is
+    refused with a one-line :class:`CheckpointError` naming the file and the object; so is a file
+    that is not a PyTorch checkpoint at all. The refused object is never imported or called."""
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"no such checkpoint or policy file: {path}")
-    return torch.load(path, map_location="cpu", weights_only=True)
+        raise MissingCheckpointError(f"no such checkpoint or policy file: {path}")
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as error:
+        found = re.search(r"GLOBAL ([\w.]+)", str(error))
+        what = f"the Python object {found.group(1)}" if found else "a Python object"
+        raise CheckpointError(
+            f"{path}: refused to load: it holds {what}, and a weights_only load (tensors and plain "
+            "containers only) never unpickles objects that could run code") from None
+    except Exception as error:  # noqa: BLE001 - torch raises anything on a foreign file
+        first_line = (str(error).splitlines() or [""])[0][:200]
+        raise CheckpointError(f"{path}: not a readable PyTorch checkpoint "
+                              f"({type(error).__name__}: {first_line})") from None
