@@ -31,7 +31,7 @@ def read_suite(suite_dir: Path) -> Episodes | None:
             rows = list(csv.DictReader(handle))
         families[path.parent.name] = {
             "success": np.array([r["success"] == "True" for r in rows], dtype=float),
-            "touched": np.array([r["touched"] == "True" for r in rows], dtype=float),
+            "touched": np.array([int(r["touched_steps"]) > 0 for r in rows], dtype=float),
             "time": np.array([float(r["time_to_success"]) if r["time_to_success"] not in ("", "None")
                               else np.nan for r in rows]),
         }

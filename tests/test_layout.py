@@ -69,7 +69,8 @@ def test_random_layouts_are_valid_seeded_and_varied():
     assert len({tuple(np.round(l.obstacle_xy.ravel(), 6)) for l in layouts}) == 200
 
 
-def test_fixed_mode_jitters_only_the_cube(config):
+def test_fixed_mode_jitters_only_the_cube():
+    config = load_config(["task.layout.mode=fixed"])
     sampler = _make_sampler(config)
     a = sampler.sample(np.random.RandomState(0))
     b = sampler.sample(np.random.RandomState(1))

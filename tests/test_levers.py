@@ -86,14 +86,16 @@ def test_entropy_coefficient():
 
 def test_initial_pose():
     home = [240.0, 204.2, 55.4, 350.7, 36.2, 75.0]
-    config = load_config([*TINY, f"task.arm.home_deg={home}", "task.arm.joint_jitter=1e-9"])
+    config = load_config([*TINY, f"task.arm.home_deg={home}", "task.arm.joint_jitter=1e-9",
+                          "task.arm.start=home"])
     env = PushOffEnv(config.task, config.safety, seed=0)
     q, _ = env.task.arm_state(env.runner.physics)
     np.testing.assert_allclose(np.degrees(q), home, atol=1e-3)
 
 
 def test_batch_size_and_epochs_set_the_number_of_updates():
-    trainer = _trainer("ppo.frames_per_batch=96", "ppo.mini_batch_size=32", "ppo.epochs=2")
+    trainer = _trainer("ppo.frames_per_batch=96", "ppo.mini_batch_size=32", "ppo.epochs=2",
+                       "ppo.target_kl=0")  # no early stop: every mini-batch of every epoch
     result = trainer.iteration()
     assert result.batch["frames"] == 96 and result.batch["updates"] == 2 * 96 // 32
     trainer.close()

@@ -112,7 +112,8 @@ def collect_corrections(config: Config, actor, episodes: int, first_episode: int
     and label every state it visits with the scripted controller's action for that state.
 
     Episodes use the demonstration seeds ``DEMO_SEED_OFFSET + first_episode + i`` (after the
-    demonstrations', so new layouts) and stop at success or after ``train.dagger_duration`` s. The
+    demonstrations', so new layouts) and stop at success, after ``train.dagger_duration`` s, or
+    when the controller has pushed past the table edge without success (its ``hold`` stage). The
     controller is reset at each episode start and queried at every step, so its stage follows the
     tip the actor moves. Returns the same keys as :func:`collect_demonstrations`; ``return`` is
     the executed episode's discounted return (no bootstrap when cut), only used to warm the critic.
@@ -142,6 +143,8 @@ def collect_corrections(config: Config, actor, episodes: int, first_episode: int
                     label = controller.tip_velocity(runner.physics) / max_speed
                 else:
                     label = controller(runner.physics)[commanded] / limits
+                if controller.stage == "hold":  # the push ran past the edge: no label means much
+                    break
                 observations.append(observation)
                 actions.append(np.clip(label, -ACTION_LIMIT, ACTION_LIMIT))
                 out = actor(TensorDict({"observation": torch.as_tensor(observation, dtype=torch.float32)}, []))
