@@ -842,6 +842,36 @@ def _overlap_certified(lower: float, n: tuple[float, float, float], cd: tuple, b
     return upper <= 0.0 and upper - lower <= POLISH_TOL
 
 
+_PAIRS = np.array([(i, j) for i in range(8) for j in range(i + 1, 8)])
+
+
+def _prism_certified(lower: float, n: tuple[float, float, float], cd: tuple, b: Bounds) -> bool:
+    """Like :func:`_overlap_certified`, with a fatter inner body: the prism over the polygon
+    inscribed in the cap disc whose vertices are the disc's extreme points along n and along the
+    three world axes (so its extents along the six box face normals and along n equal the
+    cylinder's). A centrally symmetric polygon is a zonogon, so box - prism is a zonotope of at
+    most 8 generators, whose facet normals are their pairwise cross products (vectorised)."""
+    (cx, cy, cz), a, r, h = cd[0], np.array(cd[1]), cd[2], cd[3]
+    ex, ey = np.array(cd[4])[:, 0], np.array(cd[4])[:, 1]  # an orthonormal basis of the disc plane
+    wanted = np.array([n, (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)])
+    u, v = wanted @ ex, wanted @ ey  # in-plane components: the extreme direction is (u, v)/|(u, v)|
+    keep = np.hypot(u, v) > 1e-9
+    angle = np.unique(np.mod(np.arctan2(v[keep], u[keep]), math.pi))  # diameters, sorted
+    if angle.size == 0:
+        return False
+    verts = r * (np.cos(angle)[:, None] * ex + np.sin(angle)[:, None] * ey)  # half the polygon
+    edges = np.diff(np.vstack([verts, -verts[:1]]), axis=0) / 2.0  # zonogon generators
+    gens = np.vstack([np.diag(np.array(b[3:]) - np.array(b[:3])) / 2.0, h * a, edges])
+    m = gens.shape[0]
+    pairs = _PAIRS[(_PAIRS[:, 1] < m)]
+    normals = np.cross(gens[pairs[:, 0]], gens[pairs[:, 1]])
+    norm = np.sqrt((normals * normals).sum(axis=1))
+    normals = normals[norm > 1e-15] / norm[norm > 1e-15, None]
+    d = np.array([(b[0] + b[3]) / 2 - cx, (b[1] + b[4]) / 2 - cy, (b[2] + b[5]) / 2 - cz])
+    upper = float((np.abs(normals @ d) - np.abs(normals @ gens.T).sum(axis=1)).max())
+    return upper <= 0.0 and upper - lower <= POLISH_TOL
+
+
 def _fast_distance(cd: tuple, b: Bounds) -> float | None:
     """Signed distance (m) by certified shortcuts; None when none applies (then the reference runs).
 
@@ -854,7 +884,7 @@ def _fast_distance(cd: tuple, b: Bounds) -> float | None:
     inside = _point_box_signed_distance(cd[0], b) <= 0.0  # the centre is in the box: overlapping
     if inside:
         lower, n = _crossing_gap(cd, b)
-        if _overlap_certified(lower, n, cd, b):
+        if _overlap_certified(lower, n, cd, b) or _prism_certified(lower, n, cd, b):
             return lower
     d, normal, witness = _coal_query(cd, b)
     nx, ny, nz = normal.tolist()
@@ -876,10 +906,10 @@ def _fast_distance(cd: tuple, b: Bounds) -> float | None:
         return upper if upper > POLISH_TOL else min(lower, 0.0)
     if not inside:
         lower, n = _crossing_gap(cd, b)
-        if lower <= 0.0 and _overlap_certified(lower, n, cd, b):
+        if lower <= 0.0 and (_overlap_certified(lower, n, cd, b) or _prism_certified(lower, n, cd, b)):
             return lower
     g, m = _polished_gap(n0, cd, b)
-    if g > lower and _overlap_certified(g, m, cd, b):
+    if g > lower and (_overlap_certified(g, m, cd, b) or _prism_certified(g, m, cd, b)):
         return g
     return None
 
