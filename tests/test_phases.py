@@ -897,3 +897,20 @@ def test_coal_failure_falls_back_to_reference(monkeypatch):
     for reply in bad:
         monkeypatch.setattr(_phases, "_coal_query", lambda cd, b, reply=reply: reply)
         assert general_distance(cyl, box) == pytest.approx(want, abs=1e-9)
+
+
+def test_unchecked_constructors_match_checked_ones():
+    # The per-step constructors (inputs from the simulator) give the same scene and pusher.
+    args = dict(GOOD_SCENE_ARGS)
+    fast = PhaseScene.unchecked(args["table_height"], args["target_center"], args["obstacle_centers"],
+                                args["obstacle_half_sizes"], args["params"])
+    slow = PhaseScene(**args)
+    assert fast._target_bounds == slow._target_bounds and fast._obstacle_bounds == slow._obstacle_bounds
+    rot = _rot_xyz(0.3, -0.2, 1.0)
+    a, b = Cylinder(np.array([0.1, 0.0, 0.6]), rot, R_P, H_P), Cylinder.unchecked(np.array([0.1, 0.0, 0.6]), rot, R_P, H_P)
+    assert _phase_geometry(slow, a, 0.1)[:2] == _phase_geometry(fast, b, 0.1)[:2]
+    with pytest.raises(ValueError, match="pusher pose must be finite"):
+        Cylinder.unchecked(np.array([0.0, np.nan, 0.0]), rot, R_P, H_P)
+    with pytest.raises(ValueError, match="must be finite"):
+        PhaseScene.unchecked(0.5, np.array([np.inf, 0.0, 0.0]), args["obstacle_centers"], args["obstacle_half_sizes"],
+                             args["params"])
