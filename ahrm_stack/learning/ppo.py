@@ -11,11 +11,13 @@ import dataclasses
 
 import numpy as np
 import torch
-from tensordict.nn import TensorDictModule, TensorDictSequential
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModule, TensorDictModuleBase, TensorDictSequential
 from torch import nn
 from torchrl.data import LazyTensorStorage, ReplayBuffer
 from torchrl.data.replay_buffers.samplers import SamplerWithoutReplacement
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal
+from torchrl.modules.distributions.continuous import SafeTanhTransform
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
@@ -109,6 +111,51 @@ def make_modules(config: PPOConfig, observation_dim: int, action_dim: int) -> Mo
     critic = TensorDictSequential(
         norm_module, TensorDictModule(critic_net, in_keys=["observation_norm"], out_keys=["state_value"]))
     return Modules(normalizer, head, actor, critic)
+
+
+class LeanActor(TensorDictModuleBase):
+    """The actor's deterministic action as one plain torch forward: normaliser, MLP, squashing.
+
+    For deploy and evaluation. It shares (does not copy) the actor's normaliser and network, and
+    gives the action of the :class:`ProbabilisticActor` under ``ExplorationType.DETERMINISTIC``
+    (TanhNormal's deterministic sample: the safe tanh of the mean; a test checks 1e-6) at a
+    fraction of the cost: no distribution object, log-probability or per-module TensorDict
+    plumbing per call (measured with the default 3x256 network: ~0.15 ms against ~1 ms).
+    Called with a TensorDict it writes ``"action"`` (what ``env.rollout`` and deploy use);
+    :meth:`act` maps an observation tensor (..., obs_dim) to the action (..., action_dim) in [-1, 1].
+    """
+
+    in_keys = ["observation"]
+    out_keys = ["action"]
+
+    def __init__(self, normalizer: RunningNorm, net: nn.Module) -> None:
+        super().__init__()
+        self.normalizer, self.net = normalizer, net
+        self._squash = SafeTanhTransform()
+
+    def act(self, observation: torch.Tensor) -> torch.Tensor:
+        with torch.no_grad():
+            loc, _ = self.net(self.normalizer(observation))
+            return self._squash(loc)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        return tensordict.set("action", self.act(tensordict.get("observation")))
+
+
+def lean_actor(actor) -> LeanActor | None:
+    """The :class:`LeanActor` of an actor built by :func:`make_modules` (sharing its parameters),
+    or None for anything else (e.g. a wrapper function)."""
+    if isinstance(actor, LeanActor):
+        return actor
+    if not isinstance(actor, ProbabilisticActor):
+        return None
+    body = actor.module[0] if len(actor.module) else None
+    if not isinstance(body, TensorDictSequential) or len(body.module) != 2:
+        return None
+    norm, net = body.module[0].module, body.module[1].module
+    if not (isinstance(norm, RunningNorm) and isinstance(net, nn.Sequential) and isinstance(net[-1], GaussianHead)):
+        return None
+    return LeanActor(norm, net)
 
 
 def scheduled_std(config: PPOConfig, frames: int) -> float:
