@@ -20,6 +20,7 @@ RATIO_LINE = {  # a line each benchmark prints when it got to its figures
     "bench_deploy.py": "share of the summed tick time",
     "bench_env_step.py": "ratio full/bare",
     "bench_phases.py": "ratio reference/fast",
+    "bench_policy.py": "ratio to the TorchRL deterministic actor",
     "bench_safety.py": "ratios osqp / daqp",
     "bench_training.py": "ratio training/env",
 }
