@@ -2,7 +2,8 @@
 and replayed.
 
 The scripted pusher (mink IK) approaches, descends and pushes the cube off the table, so its
-episodes visit phases 1-3 (random commands stay mostly in phase 1). :func:`record` runs it through
+episodes visit phases 1-3 (random commands stay mostly in phase 1); the benchmarks record both
+layout modes (:func:`layout_configs`). :func:`record` runs it through
 the full task step in the configured action mode and keeps, per step, the request (a tip velocity
 in m/s for ``action.mode: cartesian``, joint velocities in rad/s for ``joint``) and the joint
 command the safety filter let through (rad/s; what the bare physics replays). Replaying the
@@ -63,6 +64,18 @@ def record(config: Config, episodes: int, seed: int = 0) -> list[Episode]:
         out.append(Episode(episode_seed, np.array(requests), np.array(commands), np.array(phases),
                            bool(success)))
     return out
+
+
+LAYOUTS = ("fixed", "random")
+"""Both layout modes: from the fixed layout the pusher starts inside B_obstacles (phases 2-3); the
+random layouts also start it in phase 1."""
+
+
+def layout_configs(overrides=()) -> list[Config]:
+    """The config (with ``overrides``) once per layout mode of :data:`LAYOUTS`."""
+    from ahrm_stack.config import load_config
+
+    return [load_config([*overrides, f"task.layout.mode={mode}"]) for mode in LAYOUTS]
 
 
 def phase_counts(episodes: list[Episode]) -> str:

@@ -1,7 +1,7 @@
 """Bare physics step vs the full task step, timed in one run on the same trajectories.
 
-The scripted controller's episodes (phases 1-3, in the configured action mode: ``cartesian`` by
-default) are recorded once (:mod:`_scripted`) and replayed three ways:
+The scripted controller's episodes (both layout modes: phases 1-3; in the configured action mode,
+``cartesian`` by default) are recorded once (:mod:`_scripted`) and replayed three ways:
 
 * bare: the joint commands that reached the actuators, ``physics.step(substeps)`` only (one
   0.05 s control step of 2 ms MuJoCo steps);
@@ -26,8 +26,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from _scripted import phase_counts, quick_parser, quiet, record  # noqa: E402
-from ahrm_stack.config import load_config  # noqa: E402
+from _scripted import layout_configs, phase_counts, quick_parser, quiet, record  # noqa: E402
 from ahrm_stack.env.runner import TaskRunner  # noqa: E402
 from ahrm_stack.env.task import PushOffTask  # noqa: E402
 from ahrm_stack.env.torchrl_env import PushOffEnv  # noqa: E402
@@ -35,46 +34,28 @@ from ahrm_stack.env.torchrl_env import PushOffEnv  # noqa: E402
 GOAL_RATIO = 0.9
 
 
-def main() -> None:
-    parser = quick_parser(__doc__.splitlines()[0])
-    parser.add_argument("--episodes", type=int, default=4, help="scripted episodes (default 4)")
-    parser.add_argument("--repeats", type=int, default=3, help="replays of each episode (default 3)")
-    parser.add_argument("overrides", nargs="*", help="config overrides, e.g. task.action.mode=joint")
-    args = parser.parse_args()
-    if args.quick:
-        args.episodes, args.repeats = 1, 1
-    quiet()
-    torch.set_num_threads(1)
-    cfg = load_config(args.overrides)
-    mode = cfg.task.action.mode
-    cartesian = mode == "cartesian"
-    episodes = record(cfg, args.episodes)
+def replay(cfg, episodes: list, repeats: int, times: dict, phases: list) -> None:
+    """Replay ``episodes`` (recorded with ``cfg``) ``repeats`` times: bare, full and TorchRL, interleaved
+    episode by episode; adds the seconds to ``times`` and the full step's phases to ``phases``."""
+    cartesian = cfg.task.action.mode == "cartesian"
     bare_runner = TaskRunner(PushOffTask(cfg.task), seed=0)  # no filter: raw physics
     full_runner = TaskRunner(PushOffTask(cfg.task), seed=0, safety=cfg.safety)
     env = PushOffEnv(cfg.task, cfg.safety, seed=0)
+    commanded = list(env.robot.commanded_joints)
+    scale = torch.as_tensor(1.0 / cfg.task.action.cartesian_max_speed if cartesian
+                            else 1.0 / env.robot.velocity_limit[commanded], dtype=torch.float32)
     substeps = cfg.task.substeps
-    actuators = None
-    scale = (1.0 / cfg.task.action.cartesian_max_speed if cartesian
-             else 1.0 / env.robot.velocity_limit[list(env.robot.commanded_joints)])
-
-    bare = full = torchrl = 0.0
-    steps = 0
-    replayed_phases = []
-    for _ in range(args.repeats):
+    for _ in range(repeats):
         for episode in episodes:
-            n = len(episode.requests)
-            steps += n
             bare_runner.seed(episode.seed)
             bare_runner.reset()
-            if actuators is None:
-                actuators = bare_runner.task._arm_actuators
-            ctrl = bare_runner.physics.data.ctrl
-            step = bare_runner.physics.step
+            actuators = bare_runner.task._arm_actuators
+            ctrl, step = bare_runner.physics.data.ctrl, bare_runner.physics.step
             t0 = time.perf_counter()
             for command in episode.commands:
                 ctrl[actuators] = command
                 step(substeps)
-            bare += time.perf_counter() - t0
+            times["bare"] += time.perf_counter() - t0
 
             full_runner.seed(episode.seed)
             full_runner.reset()
@@ -83,27 +64,48 @@ def main() -> None:
             for request in episode.requests:
                 info, _, _ = advance(request)
                 full_runner.flat_observation()
-                replayed_phases.append(info.phase)
-            full += time.perf_counter() - t0
+                phases.append(info.phase)
+            times["full"] += time.perf_counter() - t0
 
             env.set_seed(episode.seed)
             td = env.reset()
-            actions = torch.as_tensor(
-                episode.requests if cartesian else episode.requests[:, list(env.robot.commanded_joints)],
-                dtype=torch.float32) * torch.as_tensor(scale, dtype=torch.float32)
+            requests = episode.requests if cartesian else episode.requests[:, commanded]
+            actions = torch.as_tensor(requests, dtype=torch.float32) * scale
             t0 = time.perf_counter()
             for action in actions:
                 td["action"] = action
                 td = env.step(td)["next"]
-            torchrl += time.perf_counter() - t0
-    counts = np.bincount(replayed_phases, minlength=4)
-    print(f"action mode {mode}; {len(episodes)} scripted episodes x {args.repeats}, {steps} control "
-          f"steps; recorded {phase_counts(episodes)}; replayed 1/2/3: {counts[1]}/{counts[2]}/{counts[3]}")
-    for name, total in (("bare physics step", bare), ("full task step", full), ("TorchRL env.step", torchrl)):
+            times["torchrl"] += time.perf_counter() - t0
+
+
+def main() -> None:
+    parser = quick_parser(__doc__.splitlines()[0])
+    parser.add_argument("--episodes", type=int, default=2, help="scripted episodes per layout mode (default 2)")
+    parser.add_argument("--repeats", type=int, default=3, help="replays of each episode (default 3)")
+    parser.add_argument("overrides", nargs="*", help="config overrides, e.g. task.action.mode=joint")
+    args = parser.parse_args()
+    if args.quick:
+        args.episodes, args.repeats = 1, 1
+    quiet()
+    torch.set_num_threads(1)
+    times = {"bare": 0.0, "full": 0.0, "torchrl": 0.0}
+    recorded, replayed = [], []
+    for cfg in layout_configs(args.overrides):
+        episodes = record(cfg, args.episodes)
+        recorded += episodes
+        replay(cfg, episodes, args.repeats, times, replayed)
+    mode = cfg.task.action.mode
+    steps = len(replayed)
+    counts = np.bincount(replayed, minlength=4)
+    print(f"action mode {mode}; {len(recorded)} scripted episodes (both layout modes) x {args.repeats}, "
+          f"{steps} control steps; recorded {phase_counts(recorded)}; replayed 1/2/3: "
+          f"{counts[1]}/{counts[2]}/{counts[3]}")
+    for name, key in (("bare physics step", "bare"), ("full task step", "full"), ("TorchRL env.step", "torchrl")):
+        total = times[key]
         print(f"{name:18s}: {steps / total:8.0f} control steps/s ({total / steps * 1e6:7.1f} us)")
-    ratio = bare / full
+    ratio = times["bare"] / times["full"]
     print(f"ratio full/bare   : {ratio:.3f}   (goal >= {GOAL_RATIO}: {'met' if ratio >= GOAL_RATIO else 'NOT met'})")
-    print(f"ratio torchrl/bare: {bare / torchrl:.3f}")
+    print(f"ratio torchrl/bare: {times['bare'] / times['torchrl']:.3f}")
 
 
 if __name__ == "__main__":

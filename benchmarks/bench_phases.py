@@ -25,15 +25,15 @@ import numpy as np  # noqa: E402
 
 import ahrm_stack.env.task as task_module  # noqa: E402
 import ahrm_stack.kinematics.phases as phases  # noqa: E402
-from _scripted import quick_parser, quiet, record  # noqa: E402
-from ahrm_stack.config import load_config  # noqa: E402
+from _scripted import layout_configs, quick_parser, quiet, record  # noqa: E402
 from ahrm_stack.kinematics.phases import Cylinder, PhaseScene, phase_geometry  # noqa: E402
 
 GOAL_MEDIAN_US, GOAL_MAX_US = 20.0, 100.0
 
 
 def scripted_inputs(episodes: int) -> list[tuple]:
-    """(scene, pusher, clip) of every phase_geometry call of the scripted episodes."""
+    """(scene, pusher, clip) of every phase_geometry call of the scripted episodes (``episodes``
+    per layout mode)."""
     calls = []
     shipped = task_module.phase_geometry
 
@@ -43,7 +43,8 @@ def scripted_inputs(episodes: int) -> list[tuple]:
 
     task_module.phase_geometry = spy
     try:
-        record(load_config(), episodes)
+        for config in layout_configs():
+            record(config, episodes)
     finally:
         task_module.phase_geometry = shipped
     return calls
@@ -143,7 +144,7 @@ def report(name: str, inputs: list[tuple], repeats: int) -> bool:
 
 def main() -> None:
     parser = quick_parser(__doc__.splitlines()[0])
-    parser.add_argument("--episodes", type=int, default=6, help="scripted episodes (default 6)")
+    parser.add_argument("--episodes", type=int, default=3, help="scripted episodes per layout mode (default 3)")
     parser.add_argument("--random", type=int, default=2000, help="random tilted poses (default 2000)")
     parser.add_argument("--repeats", type=int, default=5, help="timing repeats; each call's minimum counts")
     args = parser.parse_args()
@@ -151,7 +152,7 @@ def main() -> None:
         args.episodes, args.random, args.repeats = 1, 50, 1
     quiet()
     scripted = scripted_inputs(args.episodes)
-    ok = report(f"scripted controller, {args.episodes} episodes", scripted, args.repeats)
+    ok = report(f"scripted controller, {args.episodes} episodes per layout mode", scripted, args.repeats)
     ok &= report("random tilted poses", random_inputs(scripted[0], args.random), args.repeats)
     if not ok:
         raise SystemExit("fast and reference routines disagree")

@@ -57,3 +57,20 @@ def test_lean_actor_passes_other_policies_through():
     modules = _modules()
     lean = lean_actor(modules.actor)
     assert lean_actor(lean) is lean
+
+
+@pytest.mark.parametrize("mode", [ExplorationType.RANDOM, ExplorationType.DETERMINISTIC])
+def test_lean_collection_actor_matches_torchrl_actor(mode):
+    from ahrm_stack.learning.ppo import lean_collection_actor
+
+    modules = _modules()
+    lean = lean_collection_actor(modules.actor)
+    for obs, batch in ((torch.randn(300, 40) * 3.0, [300]), (torch.randn(40), [])):
+        torch.manual_seed(7)
+        with torch.no_grad(), set_exploration_type(mode):
+            want = modules.actor(TensorDict({"observation": obs}, batch_size=batch))
+        torch.manual_seed(7)  # the same normal draw: the same sampled action
+        with set_exploration_type(mode):
+            got = lean(TensorDict({"observation": obs}, batch_size=batch))
+        for key in ("observation_norm", "loc", "scale", "action", "action_log_prob"):
+            np.testing.assert_allclose(got[key].numpy(), want[key].numpy(), atol=1e-6, rtol=1e-6, err_msg=key)
