@@ -38,6 +38,7 @@ near touching).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -886,6 +887,7 @@ def _overlap_certified(lower: float, n: tuple[float, float, float], cd: tuple, b
     return upper <= 0.0 and upper - lower <= POLISH_TOL
 
 
+@functools.lru_cache(maxsize=None)
 def _cross_gathers(m: int) -> tuple[np.ndarray, ...]:
     """Flat indices into an (m, 3) array such that g_i x g_j over all pairs i < j is
     f[a] * f[b] - f[c] * f[d] with f = g.ravel() (np.cross costs ~25 us on such small arrays)."""
@@ -897,42 +899,66 @@ def _cross_gathers(m: int) -> tuple[np.ndarray, ...]:
             np.array([[3 * j + first[k] for k in range(3)] for _, j in pairs]))
 
 
-_CROSS = {m: _cross_gathers(m) for m in range(2, 9)}  # by the number of zonotope generators
+_CHORD = 1e-4  # rad: half the chord around n's extreme point (the rim bulges r * 5e-9 beyond it)
+_PRISM_ROUNDS = 4  # polygon refinements of the prism certificate
 
 
 def _prism_certified(lower: float, n: tuple[float, float, float], cd: tuple, b: Bounds) -> bool:
-    """Like :func:`_overlap_certified`, with a fatter inner body: the prism over the polygon
-    inscribed in the cap disc whose vertices are the disc's extreme points along n and along the
-    three world axes (so its extents along the six box face normals and along n equal the
-    cylinder's). A centrally symmetric polygon is a zonogon, so box - prism is a zonotope of at
-    most 8 generators g; its facet normals are the cross products g_i x g_j, and along each the
-    signed distance is (|n.d| - sum_k |n.g_k|) / |n| (vectorised: ~10 numpy calls)."""
+    """Like :func:`_overlap_certified`, with a fatter inner body: a prism over a polygon inscribed in
+    the cap disc (times the axis segment). Its vertices: the disc's extreme points along n and along
+    the three world axes (so its extents along n and the six box face normals equal the
+    cylinder's), two at +-_CHORD around n's (an optimum of a box edge against the cap rim, where n
+    is not a crossing, is then matched to ~r * _CHORD^2), then, for up to _PRISM_ROUNDS rounds,
+    the extreme point along the prism's own worst facet normal (a cutting-plane refinement where
+    the polygon was too coarse). A centrally symmetric polygon is a zonogon, so box - prism is a
+    zonotope; its facet normals are the cross products g_i x g_j of its generators, and along each
+    the signed distance is (|n.d| - sum_k |n.g_k|) / |n| (vectorised)."""
     (cx, cy, cz), (ax, ay, az), r, h, rot = cd[0], cd[1], cd[2], cd[3], cd[4]
     ex, ey = (rot[0][0], rot[1][0], rot[2][0]), (rot[0][1], rot[1][1], rot[2][1])  # disc plane basis
-    angles = set()
-    for w in (n, (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)):
+
+    def angle(w) -> float | None:  # of the disc's extreme point along w (mod pi: a diameter)
         u = w[0] * ex[0] + w[1] * ex[1] + w[2] * ex[2]
         v = w[0] * ey[0] + w[1] * ey[1] + w[2] * ey[2]
-        if u * u + v * v > 1e-18:  # the disc's extreme point along w is at this angle (mod pi)
-            angles.add(math.atan2(v, u) % math.pi)
+        return math.atan2(v, u) if u * u + v * v > 1e-18 else None
+
+    angles = {t % math.pi for t in map(angle, ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)))
+              if t is not None}
+    t = angle(n)
+    if t is not None:
+        angles.update((t % math.pi, (t - _CHORD) % math.pi, (t + _CHORD) % math.pi))
     if not angles:
         return False
-    verts = [(r * (math.cos(t) * ex[0] + math.sin(t) * ey[0]), r * (math.cos(t) * ex[1] + math.sin(t) * ey[1]),
-              r * (math.cos(t) * ex[2] + math.sin(t) * ey[2])) for t in sorted(angles)]
-    verts.append((-verts[0][0], -verts[0][1], -verts[0][2]))
-    gens = [((b[3] - b[0]) / 2, 0.0, 0.0), (0.0, (b[4] - b[1]) / 2, 0.0), (0.0, 0.0, (b[5] - b[2]) / 2),
-            (h * ax, h * ay, h * az)]
-    gens += [((q[0] - p[0]) / 2, (q[1] - p[1]) / 2, (q[2] - p[2]) / 2) for p, q in zip(verts, verts[1:])]
-    g = np.array(gens)
-    f = g.ravel()
-    a1, b2, a2, b1 = _CROSS[len(gens)]
-    normals = f[a1] * f[b2] - f[a2] * f[b1]  # g_i x g_j: the (unnormalised) facet normals
+    box_gens = [((b[3] - b[0]) / 2, 0.0, 0.0), (0.0, (b[4] - b[1]) / 2, 0.0), (0.0, 0.0, (b[5] - b[2]) / 2),
+                (h * ax, h * ay, h * az)]
     d = np.array([(b[0] + b[3]) / 2 - cx, (b[1] + b[4]) / 2 - cy, (b[2] + b[5]) / 2 - cz])
-    norm = np.sqrt(np.einsum("ij,ij->i", normals, normals))
-    value = np.abs(normals @ d) - np.abs(normals @ g.T).sum(axis=1)
-    keep = norm > 1e-15
-    upper = float((value[keep] / norm[keep]).max())
-    return upper <= 0.0 and upper - lower <= POLISH_TOL
+    for _ in range(_PRISM_ROUNDS):
+        verts = [(r * (math.cos(t) * ex[0] + math.sin(t) * ey[0]), r * (math.cos(t) * ex[1] + math.sin(t) * ey[1]),
+                  r * (math.cos(t) * ex[2] + math.sin(t) * ey[2])) for t in sorted(angles)]
+        verts.append((-verts[0][0], -verts[0][1], -verts[0][2]))
+        gens = box_gens + [((q[0] - p[0]) / 2, (q[1] - p[1]) / 2, (q[2] - p[2]) / 2)
+                           for p, q in zip(verts, verts[1:])]
+        g = np.array(gens)
+        f = g.ravel()
+        a1, b2, a2, b1 = _cross_gathers(len(gens))
+        normals = f[a1] * f[b2] - f[a2] * f[b1]  # g_i x g_j: the (unnormalised) facet normals
+        norm = np.sqrt(np.einsum("ij,ij->i", normals, normals))
+        value = (np.abs(normals @ d) - np.abs(normals @ g.T).sum(axis=1)) / np.maximum(norm, 1e-300)
+        value[norm <= 1e-15] = -np.inf
+        k = int(value.argmax())
+        upper = float(value[k])
+        if upper > 0.0:
+            return False
+        if upper - lower <= POLISH_TOL:
+            return True
+        sign = 1.0 if float(normals[k] @ d) >= 0.0 else -1.0  # the facet side that attains the max
+        worst = tuple((normals[k] * (sign / norm[k])).tolist())  # refine the polygon where it is too coarse
+        if _support_gap(worst, cd, b) > lower + POLISH_TOL:
+            return False  # a better direction than n: lower is not the signed distance
+        t = angle(worst)
+        if t is None or t % math.pi in angles:
+            return False
+        angles.add(t % math.pi)
+    return False
 
 
 def _crossing_overlap(cd: tuple, b: Bounds) -> tuple[float | None, float, tuple[float, float, float]]:
