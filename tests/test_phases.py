@@ -907,7 +907,8 @@ def test_unchecked_constructors_match_checked_ones():
     slow = PhaseScene(**args)
     assert fast._target_bounds == slow._target_bounds and fast._obstacle_bounds == slow._obstacle_bounds
     rot = _rot_xyz(0.3, -0.2, 1.0)
-    a, b = Cylinder(np.array([0.1, 0.0, 0.6]), rot, R_P, H_P), Cylinder.unchecked(np.array([0.1, 0.0, 0.6]), rot, R_P, H_P)
+    centre = np.array([0.1, 0.0, 0.6])
+    a, b = Cylinder(centre, rot, R_P, H_P), Cylinder.unchecked(centre, rot, R_P, H_P)
     assert _phase_geometry(slow, a, 0.1)[:2] == _phase_geometry(fast, b, 0.1)[:2]
     with pytest.raises(ValueError, match="pusher pose must be finite"):
         Cylinder.unchecked(np.array([0.0, np.nan, 0.0]), rot, R_P, H_P)
