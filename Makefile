@@ -42,8 +42,10 @@ demo: $(STAMP)
 test: $(STAMP)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m pytest -q
 
+# Every benchmark compares two things in one run and prints the ratio; BENCH_ARGS=--quick: brief runs.
 bench: $(STAMP)
-	for b in benchmarks/bench_*.py; do $(PY) $$b || exit 1; done
+	@for b in benchmarks/bench_*.py; do echo "== $$b"; \
+	  MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) $$b $(BENCH_ARGS) || { echo "$$b failed"; exit 1; }; done
 
 clean:
 	rm -rf $(VENV) .pytest_cache .hypothesis

@@ -1,17 +1,23 @@
-"""Bare physics step vs the full task step, timed in one run on the same composer model.
+"""Bare physics step vs the full task step, timed in one run on the same trajectories.
 
-bare: ``physics.step(substeps)`` only (25 MuJoCo steps of 2 ms = one 0.05 s control step).
-full: the task's control step — actuation, the same physics, Pinocchio FK of the pusher, phase and
-boundary distance (FCL / closed form), contacts, reward components, success — plus the flat
-observation. Also shown: the TorchRL ``EnvBase.step`` (tensors, specs) for reference.
+The scripted controller's episodes (both layout modes: phases 1-3; in the configured action mode,
+``cartesian`` by default) are recorded once (:mod:`_scripted`) and replayed three ways:
 
-The two are interleaved in blocks so that machine noise hits both alike; the ratio is the figure.
-Usage: python benchmarks/bench_env_step.py [--steps N] [--blocks B]
+* bare: the joint commands that reached the actuators, ``physics.step(substeps)`` only (one
+  0.05 s control step of 2 ms MuJoCo steps);
+* full: the task's control step on the recorded requests — safety filter (its differential IK in
+  cartesian mode), actuation, the same physics, Pinocchio FK, phase geometry, contacts, reward
+  components, success — plus the flat observation;
+* TorchRL: ``PushOffEnv.step`` (``EnvBase.step``: the full step plus tensors and specs) on the
+  recorded requests as normalised actions.
+
+The three are interleaved episode by episode so that machine noise hits them alike; the ratios
+are the figures. Goal: full/bare >= 0.9.
+Usage: python benchmarks/bench_env_step.py [--episodes N] [--repeats R] [--quick] [key=value ...]
 """
 
 from __future__ import annotations
 
-import argparse
 import os
 import time
 
@@ -20,55 +26,86 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from ahrm_stack.config import load_config  # noqa: E402
+from _scripted import layout_configs, phase_counts, quick_parser, quiet, record  # noqa: E402
 from ahrm_stack.env.runner import TaskRunner  # noqa: E402
 from ahrm_stack.env.task import PushOffTask  # noqa: E402
 from ahrm_stack.env.torchrl_env import PushOffEnv  # noqa: E402
 
+GOAL_RATIO = 0.9
+
+
+def replay(cfg, episodes: list, repeats: int, times: dict, phases: list) -> None:
+    """Replay ``episodes`` (recorded with ``cfg``) ``repeats`` times: bare, full and TorchRL, interleaved
+    episode by episode; adds the seconds to ``times`` and the full step's phases to ``phases``."""
+    cartesian = cfg.task.action.mode == "cartesian"
+    bare_runner = TaskRunner(PushOffTask(cfg.task), seed=0)  # no filter: raw physics
+    full_runner = TaskRunner(PushOffTask(cfg.task), seed=0, safety=cfg.safety)
+    env = PushOffEnv(cfg.task, cfg.safety, seed=0)
+    commanded = list(env.robot.commanded_joints)
+    scale = torch.as_tensor(1.0 / cfg.task.action.cartesian_max_speed if cartesian
+                            else 1.0 / env.robot.velocity_limit[commanded], dtype=torch.float32)
+    substeps = cfg.task.substeps
+    for _ in range(repeats):
+        for episode in episodes:
+            bare_runner.seed(episode.seed)
+            bare_runner.reset()
+            actuators = bare_runner.task._arm_actuators
+            ctrl, step = bare_runner.physics.data.ctrl, bare_runner.physics.step
+            t0 = time.perf_counter()
+            for command in episode.commands:
+                ctrl[actuators] = command
+                step(substeps)
+            times["bare"] += time.perf_counter() - t0
+
+            full_runner.seed(episode.seed)
+            full_runner.reset()
+            advance = full_runner.step_cartesian if cartesian else full_runner.step_only
+            t0 = time.perf_counter()
+            for request in episode.requests:
+                info, _, _ = advance(request)
+                full_runner.flat_observation()
+                phases.append(info.phase)
+            times["full"] += time.perf_counter() - t0
+
+            env.set_seed(episode.seed)
+            td = env.reset()
+            requests = episode.requests if cartesian else episode.requests[:, commanded]
+            actions = torch.as_tensor(requests, dtype=torch.float32) * scale
+            t0 = time.perf_counter()
+            for action in actions:
+                td["action"] = action
+                td = env.step(td)["next"]
+            times["torchrl"] += time.perf_counter() - t0
+
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=200, help="control steps per block")
-    parser.add_argument("--blocks", type=int, default=10)
+    parser = quick_parser(__doc__.splitlines()[0])
+    parser.add_argument("--episodes", type=int, default=2, help="scripted episodes per layout mode (default 2)")
+    parser.add_argument("--repeats", type=int, default=3, help="replays of each episode (default 3)")
+    parser.add_argument("overrides", nargs="*", help="config overrides, e.g. task.action.mode=joint")
     args = parser.parse_args()
+    if args.quick:
+        args.episodes, args.repeats = 1, 1
+    quiet()
     torch.set_num_threads(1)
-    cfg = load_config()
-    runner = TaskRunner(PushOffTask(cfg.task), seed=0)
-    runner.reset()
-    substeps = cfg.task.substeps
-    rng = np.random.default_rng(0)
-    limits = runner.task.robot.velocity_limit
-    commands = rng.uniform(-0.3, 0.3, (args.steps, 6)) * limits
-    env = PushOffEnv(cfg.task, cfg.safety, seed=0)
-    td = env.reset()
-
-    bare = full = torchrl = 0.0
-    for _ in range(args.blocks):
-        runner.reset()
-        t0 = time.perf_counter()
-        for i in range(args.steps):
-            runner.physics.data.ctrl[:6] = commands[i]
-            runner.physics.step(substeps)
-        bare += time.perf_counter() - t0
-        runner.reset()
-        t0 = time.perf_counter()
-        for i in range(args.steps):
-            runner.step_only(commands[i])
-            runner.flat_observation()
-        full += time.perf_counter() - t0
-        td = env.reset()
-        t0 = time.perf_counter()
-        for i in range(args.steps):
-            td["action"] = torch.as_tensor(commands[i][:5] / limits[:5], dtype=torch.float32)
-            td = env.step(td)["next"]
-        torchrl += time.perf_counter() - t0
-    n = args.steps * args.blocks
-    bare_rate, full_rate, torchrl_rate = n / bare, n / full, n / torchrl
-    print(f"bare physics step : {bare_rate:8.0f} control steps/s ({bare / n * 1e6:7.1f} us)")
-    print(f"full task step    : {full_rate:8.0f} control steps/s ({full / n * 1e6:7.1f} us)")
-    print(f"TorchRL env.step  : {torchrl_rate:8.0f} control steps/s ({torchrl / n * 1e6:7.1f} us)")
-    print(f"ratio full/bare   : {full_rate / bare_rate:.3f}   (goal >= 0.9)")
-    print(f"ratio torchrl/bare: {torchrl_rate / bare_rate:.3f}")
+    times = {"bare": 0.0, "full": 0.0, "torchrl": 0.0}
+    recorded, replayed = [], []
+    for cfg in layout_configs(args.overrides):
+        episodes = record(cfg, args.episodes)
+        recorded += episodes
+        replay(cfg, episodes, args.repeats, times, replayed)
+    mode = cfg.task.action.mode
+    steps = len(replayed)
+    counts = np.bincount(replayed, minlength=4)
+    print(f"action mode {mode}; {len(recorded)} scripted episodes (both layout modes) x {args.repeats}, "
+          f"{steps} control steps; recorded {phase_counts(recorded)}; replayed 1/2/3: "
+          f"{counts[1]}/{counts[2]}/{counts[3]}")
+    for name, key in (("bare physics step", "bare"), ("full task step", "full"), ("TorchRL env.step", "torchrl")):
+        total = times[key]
+        print(f"{name:18s}: {steps / total:8.0f} control steps/s ({total / steps * 1e6:7.1f} us)")
+    ratio = times["bare"] / times["full"]
+    print(f"ratio full/bare   : {ratio:.3f}   (goal >= {GOAL_RATIO}: {'met' if ratio >= GOAL_RATIO else 'NOT met'})")
+    print(f"ratio torchrl/bare: {times['bare'] / times['torchrl']:.3f}")
 
 
 if __name__ == "__main__":

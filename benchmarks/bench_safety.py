@@ -12,7 +12,7 @@ Rows of the table (each for daqp and for the persistent OSQP workspace):
 latencies are measured inside a random-policy episode, alternating with ``runner.step_only`` (the
 real use: MuJoCo evicts the filter's working set between calls), and the step share is
 sum(filter time) / sum(step_only time) over that episode.
-Usage: python benchmarks/bench_safety.py [--repeats R] [--steps N]
+Usage: python benchmarks/bench_safety.py [--repeats R] [--steps N] [--quick]
 """
 
 from __future__ import annotations
@@ -135,7 +135,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5, help="replays of the recorded inputs")
     parser.add_argument("--steps", type=int, default=600, help="control steps recorded / in loop")
+    parser.add_argument("--quick", action="store_true", default=os.environ.get("AHRM_BENCH_QUICK") == "1",
+                        help="a brief run (40 steps, 1 repeat): checks that the benchmark works")
     args = parser.parse_args()
+    if args.quick:
+        args.repeats, args.steps = 1, 40
     cfg = load_config()
     runner = TaskRunner(PushOffTask(cfg.task), seed=0)
     stream = record_stream(runner, cfg.safety, args.steps)

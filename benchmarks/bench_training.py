@@ -6,7 +6,7 @@ training   : ``Trainer.iteration`` (collection with the configured policy — ``
 Both in frames per second, interleaved; prints the ratio and the projected wall time of the default
 300-episode run at the measured training rate for 1200-step (unsuccessful) episodes — the worst case.
 
-Usage: python benchmarks/bench_training.py [--batches N] [key=value overrides]
+Usage: python benchmarks/bench_training.py [--batches N] [--quick] [key=value overrides]
 """
 
 from __future__ import annotations
@@ -25,11 +25,20 @@ from ahrm_stack.env.torchrl_env import PushOffEnv  # noqa: E402
 from ahrm_stack.learning.trainer import Trainer  # noqa: E402
 
 
+QUICK_OVERRIDES = ("ppo.frames_per_batch=64", "ppo.mini_batch_size=32", "ppo.epochs=1",
+                   "train.demo_episodes=1", "train.bc_epochs=1")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--batches", type=int, default=4)
     parser.add_argument("overrides", nargs="*")
+    parser.add_argument("--quick", action="store_true", default=os.environ.get("AHRM_BENCH_QUICK") == "1",
+                        help="a brief run (1 batch of 64 frames, 1 demonstration): checks that the benchmark works")
     args = parser.parse_args()
+    if args.quick:
+        args.batches = 1
+        args.overrides = [*args.overrides, *QUICK_OVERRIDES]
     config = load_config(args.overrides)
     torch.set_num_threads(config.train.threads)
     trainer = Trainer(config)

@@ -821,3 +821,97 @@ def test_phase_geometry_matches_phase_and_x_and_clipped_distances(xy_z, z, tilt,
     assert (phase, x) == phase_and_x(scene, pusher)
     exact = _region_distances(scene, pusher)
     np.testing.assert_allclose(clipped, np.clip(exact, -0.1, 0.1), atol=1e-9)
+
+
+# --------------------------------------------------------------------------- fast path (certified shortcuts)
+# The fast path (coal's directions, exact bounds) must agree with the reference routine whenever
+# it answers, and answer the task's usual poses; coal's own values are never trusted.
+import ahrm_stack.kinematics.phases as _phases  # noqa: E402
+
+
+def _pusher_like(draw, box: Box) -> Cylinder:
+    """The task's pusher (r 0.02, h 0.075) tilted up to ~0.5 rad, around and inside ``box``."""
+    tilt = _rotation_from(np.array([draw(_st.floats(-0.5, 0.5)), draw(_st.floats(-0.5, 0.5)), 0.0]))
+    yaw = rot_z(draw(angle))
+    u = np.array([draw(_st.floats(-1.3, 1.3)) for _ in range(3)])
+    return Cylinder(box.center + u * (box.half_size + np.array([0.02, 0.02, 0.075])), yaw @ tilt, 0.02, 0.075)
+
+
+@_settings(max_examples=300, deadline=None)
+@_given(upright_placements(), random_rotations())
+def test_fast_path_agrees_with_reference_on_random_poses(placement, rot):
+    cyl0, box = placement
+    cd = _phases._cyl_data(Cylinder(cyl0.center, rot, cyl0.radius, cyl0.half_length))
+    fast = _phases._fast_distance(cd, box.bounds())
+    if fast is not None:
+        # The fast value is bracketed to POLISH_TOL (1e-9 m) by its own bounds. The reference's
+        # arc search is that good except on nearly axis-aligned poses (tilts ~1e-5 rad), where it
+        # falls short by up to ~3e-8 m; there the fast value is the higher lower bound, i.e. closer.
+        ref = _phases._reference_distance(cd, box.bounds())
+        assert ref - 2e-9 <= fast <= ref + 1e-7
+
+
+@_settings(max_examples=300, deadline=None)
+@_given(_st.data())
+def test_fast_path_agrees_with_reference_on_pusher_poses(data):
+    box = Box(np.array([0.0, 0.0, 0.475]), np.array([0.08, 0.08, 0.075]))  # a B_target
+    cd = _phases._cyl_data(_pusher_like(data.draw, box))
+    fast = _phases._fast_distance(cd, box.bounds())
+    if fast is not None:  # both certified to POLISH_TOL (1e-9 m): they may differ by twice that
+        assert fast == pytest.approx(_phases._reference_distance(cd, box.bounds()), abs=2e-9)
+
+
+def test_fast_path_answers_most_pusher_poses():
+    # Task-like poses from a fixed seed: the pusher's tip (its lower end) in and around a B_target,
+    # tilted up to 0.4 rad. The certified shortcut answers nearly all of them (it is what makes
+    # the step fast; measured 94%); the rest (a box edge against the cap rim) take the reference.
+    rng = np.random.default_rng(0)
+    box = Box(np.array([0.0, 0.0, 0.475]), np.array([0.08, 0.08, 0.075]))
+    answered = overlapping = 0
+    for _ in range(400):
+        rot = rot_z(rng.uniform(0.0, 2 * math.pi)) @ _rotation_from(np.array([*rng.uniform(-0.4, 0.4, 2), 0.0]))
+        tip = np.array([*rng.uniform(-0.11, 0.11, 2), rng.uniform(0.405, 0.6)])
+        cd = _phases._cyl_data(Cylinder(tip + 0.075 * rot[:, 2], rot, 0.02, 0.075))
+        fast = _phases._fast_distance(cd, box.bounds())
+        answered += fast is not None
+        overlapping += fast is not None and fast < 0.0
+    assert answered >= 0.85 * 400 and overlapping >= 200
+
+
+def test_coal_epa_wrong_face_is_not_trusted():
+    # Found by hypothesis: coal's EPA reports -0.046875 (a face) for this lying pusher; the truth
+    # (the relabelled closed form of test_lying_cylinder_agrees_with_relabelled_closed_form) is
+    # -0.0096224657881. The fast path must not return coal's value.
+    cyl = pusher((-0.140625, -0.140625, -0.17578125), rot_y(math.pi / 2), radius=10 / 64, half_length=11 / 64)
+    box = Box(np.zeros(3), np.array([0.015625, 0.03125, 0.078125]))
+    assert general_distance(cyl, box) == pytest.approx(-0.009622465788097972, abs=1e-9)
+
+
+def test_coal_failure_falls_back_to_reference(monkeypatch):
+    # coal's EPA failure value (-DBL_MAX) or a garbage direction: the reference routine answers.
+    cyl = pusher((0.02, 0.01, 0.6), TILT_45)
+    box = target_region(hand_scene())
+    want = _phases._reference_distance(_phases._cyl_data(cyl), box.bounds())
+    bad = [(-1.7976931348623157e308, np.array([1.0, 0.0, 0.0]), np.zeros(3)),
+           (0.3, np.array([0.0, 0.0, 0.0]), np.zeros(3)), (0.3, np.array([0.6, 0.8, 0.0]), np.zeros(3))]
+    for reply in bad:
+        monkeypatch.setattr(_phases, "_coal_query", lambda cd, b, reply=reply: reply)
+        assert general_distance(cyl, box) == pytest.approx(want, abs=1e-9)
+
+
+def test_unchecked_constructors_match_checked_ones():
+    # The per-step constructors (inputs from the simulator) give the same scene and pusher.
+    args = dict(GOOD_SCENE_ARGS)
+    fast = PhaseScene.unchecked(args["table_height"], args["target_center"], args["obstacle_centers"],
+                                args["obstacle_half_sizes"], args["params"])
+    slow = PhaseScene(**args)
+    assert fast._target_bounds == slow._target_bounds and fast._obstacle_bounds == slow._obstacle_bounds
+    rot = _rot_xyz(0.3, -0.2, 1.0)
+    centre = np.array([0.1, 0.0, 0.6])
+    a, b = Cylinder(centre, rot, R_P, H_P), Cylinder.unchecked(centre, rot, R_P, H_P)
+    assert _phase_geometry(slow, a, 0.1)[:2] == _phase_geometry(fast, b, 0.1)[:2]
+    with pytest.raises(ValueError, match="pusher pose must be finite"):
+        Cylinder.unchecked(np.array([0.0, np.nan, 0.0]), rot, R_P, H_P)
+    with pytest.raises(ValueError, match="must be finite"):
+        PhaseScene.unchecked(0.5, np.array([np.inf, 0.0, 0.0]), args["obstacle_centers"], args["obstacle_half_sizes"],
+                             args["params"])

@@ -22,7 +22,7 @@ from ahrm_stack.config import Config, config_from_dict
 from ahrm_stack.env.episode import EpisodeSummary
 from ahrm_stack.env.torchrl_env import PushOffEnv
 from ahrm_stack.learning.checkpoint import load
-from ahrm_stack.learning.ppo import make_modules
+from ahrm_stack.learning.ppo import lean_actor, make_modules
 from ahrm_stack.seeds import seed_table
 
 EVAL_SEED_OFFSET = seed_table()["evaluation"].start  # configs/seeds.yaml: disjoint from training
@@ -66,17 +66,24 @@ class EvaluationTable:
 
 def load_policy(run_dir: Path, policy_file: Path | None = None) -> tuple[Config, Callable[[TensorDict], TensorDict]]:
     """The run's config and its deterministic policy (``policy_file``, default the final
-    ``policy.pt``; loaded safely)."""
+    ``policy.pt``; loaded safely).
+
+    The policy is the actor's lean inference path (:class:`~ahrm_stack.learning.ppo.LeanActor`:
+    TensorDict in, ``"action"`` written; ``.act(observation)`` on a plain tensor), which gives the
+    deterministic action of the TorchRL actor at a fraction of its per-call cost."""
     run_dir = Path(run_dir)
     config = config_from_dict(yaml.safe_load((run_dir / "config.yaml").read_text()))
     saved = load(Path(policy_file) if policy_file is not None else run_dir / "policy.pt")
     modules = make_modules(config.ppo, saved["observation_dim"], saved["action_dim"])
     modules.actor.load_state_dict(saved["actor"])
     modules.actor.eval()
-    return config, modules.actor
+    return config, lean_actor(modules.actor)
 
 
 def run_episodes(env: PushOffEnv, policy, episodes: int, seed_offset: int = EVAL_SEED_OFFSET) -> list[EpisodeSummary]:
+    """Deterministic episodes ``seed_offset + i``. An actor built by ``make_modules`` runs through
+    its lean inference path (same action, cheaper); any other callable is used as it is."""
+    policy = lean_actor(policy) or policy
     summaries = []
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         for i in range(episodes):

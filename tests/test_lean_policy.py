@@ -1,0 +1,76 @@
+"""The lean inference path (LeanActor) gives the TorchRL actor's deterministic action."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from tensordict import TensorDict
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from ahrm_stack.config import load_config
+from ahrm_stack.learning.ppo import LeanActor, lean_actor, make_modules
+
+
+def _modules(overrides=(), obs_dim=40, act_dim=3, seed=0):
+    torch.manual_seed(seed)
+    config = load_config(list(overrides))
+    modules = make_modules(config.ppo, obs_dim, act_dim)
+    for p in modules.actor.parameters():  # non-trivial weights, and a large mean to reach tanh's tails
+        p.data.normal_(0.0, 0.5)
+    modules.normalizer.update(torch.randn(500, obs_dim) * 3.0 + 1.0)  # non-trivial statistics
+    return modules
+
+
+def _reference(actor, observation: torch.Tensor) -> torch.Tensor:
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        out = actor(TensorDict({"observation": observation}, batch_size=observation.shape[:-1]))
+    return out["action"]
+
+
+@pytest.mark.parametrize("overrides", [(), ("ppo.activation=relu", "ppo.hidden_sizes=[64,32]"),
+                                       ("ppo.normalize_observations=false",)])
+def test_lean_actor_matches_deterministic_actor(overrides):
+    modules = _modules(overrides)
+    lean = lean_actor(modules.actor)
+    assert isinstance(lean, LeanActor)
+    obs = torch.randn(200, 40) * 4.0
+    want = _reference(modules.actor, obs)
+    np.testing.assert_allclose(lean.act(obs).numpy(), want.numpy(), atol=1e-6, rtol=0)
+    for row in obs[:20]:  # one observation at a time, through a TensorDict (deploy's call)
+        got = lean(TensorDict({"observation": row}, batch_size=[]))["action"]
+        np.testing.assert_allclose(got.numpy(), _reference(modules.actor, row).numpy(), atol=1e-6, rtol=0)
+
+
+def test_lean_actor_shares_parameters_and_statistics():
+    modules = _modules()
+    lean = lean_actor(modules.actor)
+    obs = torch.randn(10, 40)
+    modules.normalizer.update(torch.randn(100, 40) * 10.0)  # training goes on: the lean path follows
+    with torch.no_grad():
+        next(modules.actor.parameters()).add_(0.1)
+    np.testing.assert_allclose(lean.act(obs).numpy(), _reference(modules.actor, obs).numpy(), atol=1e-6, rtol=0)
+
+
+def test_lean_actor_passes_other_policies_through():
+    assert lean_actor(lambda td: td) is None
+    modules = _modules()
+    lean = lean_actor(modules.actor)
+    assert lean_actor(lean) is lean
+
+
+@pytest.mark.parametrize("mode", [ExplorationType.RANDOM, ExplorationType.DETERMINISTIC])
+def test_lean_collection_actor_matches_torchrl_actor(mode):
+    from ahrm_stack.learning.ppo import lean_collection_actor
+
+    modules = _modules()
+    lean = lean_collection_actor(modules.actor)
+    for obs, batch in ((torch.randn(300, 40) * 3.0, [300]), (torch.randn(40), [])):
+        torch.manual_seed(7)
+        with torch.no_grad(), set_exploration_type(mode):
+            want = modules.actor(TensorDict({"observation": obs}, batch_size=batch))
+        torch.manual_seed(7)  # the same normal draw: the same sampled action
+        with set_exploration_type(mode):
+            got = lean(TensorDict({"observation": obs}, batch_size=batch))
+        for key in ("observation_norm", "loc", "scale", "action", "action_log_prob"):
+            np.testing.assert_allclose(got[key].numpy(), want[key].numpy(), atol=1e-6, rtol=1e-6, err_msg=key)
