@@ -126,14 +126,16 @@ def _write_atomically(path: Path, text: str) -> None:
         raise
 
 
-def _complete_lines(path: Path) -> list[str]:
-    """The file's lines that end in a newline (a line cut off by a kill is dropped)."""
+def _complete_lines(path: Path) -> tuple[list[str], int]:
+    """The file's lines that end in a newline, and 1 when a last line cut off by a kill was
+    dropped (else 0)."""
     if not path.is_file():
-        return []
+        return [], 0
     lines = path.read_text(errors="replace").splitlines(keepends=True)
     if lines and not lines[-1].endswith("\n"):
         lines.pop()
-    return lines
+        return lines, 1
+    return lines, 0
 
 
 def _number(value: object) -> int | None:
@@ -148,13 +150,12 @@ def repair_csv(path: Path, fields: list[str], key: str, limit: int) -> tuple[int
     evaluations, whose first row is episode 0), each number once (the last row written wins: it
     came from the run that continued), in order. A missing header (a file created empty and then
     appended to) is restored, a row cut off by a kill dropped. Returns (rows kept, rows dropped)."""
-    lines = _complete_lines(path)
+    lines, dropped = _complete_lines(path)
     rows = list(csv.reader(lines))
     header = fields
     if rows and rows[0] and _number(rows[0][0]) is None:  # a header line (ours or an older one)
         header, rows = rows[0], rows[1:]
     kept: dict[int, dict] = {}
-    dropped = 0
     for cells in rows:
         row = dict(zip(header, cells))
         number = _number(row.get(key))
@@ -187,8 +188,9 @@ class _LineBuffer:
 
 def repair_events(path: Path, limit: int) -> tuple[int, int]:
     """Keep the reward-mechanism events of episodes 1..``limit`` (complete JSON lines only)."""
-    kept, dropped = [], 0
-    for line in _complete_lines(path):
+    lines, dropped = _complete_lines(path)
+    kept = []
+    for line in lines:
         try:
             episode = json.loads(line).get("episode")
         except (json.JSONDecodeError, AttributeError):
