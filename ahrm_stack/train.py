@@ -28,8 +28,8 @@ import csv
 import dataclasses
 import json
 import os
+import shutil
 import sys
-import tempfile
 import time
 import warnings
 from pathlib import Path
@@ -114,16 +114,12 @@ LOGS = {"episodes.csv": (EPISODE_FIELDS, "episode"), "batches.csv": (BATCH_FIELD
 
 def _write_atomically(path: Path, text: str) -> None:
     """Replace ``path`` by ``text`` so that a kill at any moment leaves the old or the new file."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", newline="") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    tmp = path.with_name(f".{path.name}.tmp")  # one writer per run folder
+    with open(tmp, "w", newline="") as handle:
+        handle.write(text)
+        handle.flush()
+        os.fsync(handle.fileno())
+    os.replace(tmp, path)
 
 
 def _complete_lines(path: Path) -> tuple[list[str], int]:
@@ -304,7 +300,9 @@ def _write_config(run_dir: Path, raw: dict) -> None:
         _write_atomically(run_dir / "config.yaml", text)
         return
     run_dir.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{run_dir.name}.", dir=run_dir.parent))
+    staging = run_dir.with_name(f".{run_dir.name}.{os.getpid()}.tmp")
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir()
     _write_atomically(staging / "config.yaml", text)
     try:
         os.rename(staging, run_dir)

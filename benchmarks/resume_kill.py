@@ -3,14 +3,15 @@ repeated.
 
     python benchmarks/resume_kill.py [--kills 10] [--seed 0] [--workdir DIR] [key=value ...]
 
-A tiny run (:data:`TINY`, plus any ``key=value`` given) is timed once uninterrupted (T s, imports
-included). Then the same run is started in a subprocess and killed after a delay drawn uniformly
-from [0, T]; the next start is ``--resume RUN`` (or a fresh start when the kill came before the
-run folder existed), again killed at a random time, until ``--kills`` kills have hit a running
-process; the last start runs to the end. A start that finishes before its kill is due completes
-its run (checked), and the next kill goes to a new run. Delays from [0, T] land in every stage: imports,
-environment building, before the first checkpoint, between checkpoints, while saving, in the
-final evaluation.
+A tiny run (:data:`TINY`, plus any ``key=value`` given) is timed once uninterrupted: T s in all,
+S s until its run folder appears (imports, validation, building the environments). Then the same
+run is started in a subprocess and killed after a delay drawn uniformly over that start's expected
+life (S plus the share of T - S still to do, from the newest checkpoint); the next start is
+``--resume RUN`` (or a fresh start when the kill came before the run folder existed), again killed
+at a random time, until ``--kills`` kills have hit a running process; the last start runs to the
+end. A start that finishes before its kill is due completes its run (checked), and the next kill
+goes to a new run. The kills land in every stage: imports, environment building, before the first
+checkpoint, between checkpoints, while saving, in the final evaluation.
 
 Checked after every kill: every episode the newest intact checkpoint counts has its row on disk
 (no work lost). Checked at the end: every start that was not killed exited 0; ``episodes.csv``
@@ -35,6 +36,7 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 ROOT = Path(__file__).resolve().parent.parent
 TINY = ["train.episodes=6", "task.episode.duration=2", "train.warm_start=none", "ppo.bc_coeff=0",
@@ -183,10 +185,14 @@ def _run(command: list[str], kill: float | str | None, run_dir: Path, logs: Path
     return killed_at, returncode, stage, out.read_text(), err.read_text()
 
 
-def kill_and_resume(workdir: Path, kills: list[float | str], overrides: list[str]) -> Report:
-    """Start a run, kill it at each of ``kills`` (delays in s, or the stages "config" /
-    "checkpoint") in turn, resuming after each kill; a start that ends before its kill is due
-    completes that run (checked), and the remaining kills go to a new run. The last run finishes."""
+Kill = float | str | Callable[[Path], float]
+
+
+def kill_and_resume(workdir: Path, kills: list[Kill], overrides: list[str]) -> Report:
+    """Start a run, kill it at each of ``kills`` in turn (a delay in s; a function of the run
+    folder giving the delay, drawn when the start begins; or the stages "config" / "checkpoint"),
+    resuming after each kill; a start that ends before its kill is due completes that run
+    (checked), and the remaining kills go to a new run. The last run finishes."""
     logs = workdir / "logs"
     logs.mkdir(parents=True, exist_ok=True)
     report = Report()
@@ -196,6 +202,8 @@ def kill_and_resume(workdir: Path, kills: list[float | str], overrides: list[str
     index = 0
     while index < 5 * (len(kills) + 1):
         kill = pending[0] if pending else None
+        if callable(kill):
+            kill = float(kill(run_dir))
         fresh = not (run_dir / "config.yaml").is_file()
         killed_at, returncode, stage, stdout, stderr = _run(
             _command(run_dir, overrides, fresh), kill, run_dir, logs, index)
@@ -223,12 +231,32 @@ def kill_and_resume(workdir: Path, kills: list[float | str], overrides: list[str
     return report
 
 
-def measure(workdir: Path, overrides: list[str]) -> float:
-    """Seconds of one uninterrupted run (imports, build, training, evaluation)."""
+def measure(workdir: Path, overrides: list[str]) -> tuple[float, float]:
+    """One uninterrupted run: (seconds to its end, seconds until its run folder appears: imports,
+    validation and building the environments)."""
+    run_dir = workdir / "reference"
     started = time.perf_counter()
-    subprocess.run(_command(workdir / "reference", overrides, fresh=True), env=_environment(),
-                   cwd=workdir, check=True, capture_output=True)
-    return time.perf_counter() - started
+    proc = subprocess.Popen(_command(run_dir, overrides, fresh=True), env=_environment(), cwd=workdir,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    setup = None
+    while proc.poll() is None:
+        if setup is None and (run_dir / "config.yaml").is_file():
+            setup = time.perf_counter() - started
+        time.sleep(0.005)
+    if proc.returncode != 0:
+        raise SystemExit(f"the uninterrupted run failed (exit {proc.returncode})")
+    total = time.perf_counter() - started
+    return total, setup if setup is not None else total
+
+
+def lifetime_delay(total: float, setup: float, episodes: int, rng: random.Random) -> Callable[[Path], float]:
+    """A kill time drawn uniformly over the expected life of the next start: setup (imports,
+    building) plus the share of the run's work still to do, from the newest intact checkpoint."""
+    def delay(run_dir: Path) -> float:
+        _, state = _newest_checkpoint(run_dir) if (run_dir / "checkpoints").is_dir() else ("", None)
+        done = min(state["counters"]["episodes"] / episodes, 1.0) if state else 0.0
+        return rng.uniform(0.0, setup + (total - setup) * max(1.0 - done, 0.1))
+    return delay
 
 
 def main() -> int:
@@ -241,15 +269,20 @@ def main() -> int:
     workdir = Path(args.workdir or tempfile.mkdtemp(prefix="resume-kill-"))
     workdir.mkdir(parents=True, exist_ok=True)
     overrides = [*TINY, *args.overrides]
-    total = measure(workdir, overrides)
+    total, setup = measure(workdir, overrides)
+    from ahrm_stack.config import load_config
+
+    episodes = load_config(overrides).train.episodes
     rng = random.Random(args.seed)
-    kills = [rng.uniform(0.0, total) for _ in range(args.kills)]
-    print(f"one uninterrupted run: {total:.1f} s; kill delays drawn from [0, {total:.1f}] s; "
-          f"folder {workdir}")
+    kills: list[Kill] = [lifetime_delay(total, setup, episodes, rng) for _ in range(args.kills)]
+    print(f"one uninterrupted run: {total:.1f} s, its run folder after {setup:.1f} s; each start is "
+          f"killed at a time drawn uniformly from [0, {setup:.1f} s + the rest of the run's share "
+          f"of the remaining {total - setup:.1f} s]; folder {workdir}")
     report = kill_and_resume(workdir, kills, overrides)
+    print("    start    when                        folder at the kill                     the start said")
     for i, attempt in enumerate(report.attempts):
         when = f"killed at {attempt.killed_at:5.2f} s" if attempt.killed_at is not None else "ran to the end"
-        print(f"{i:2d} {attempt.command:6s} {when:>20s}  rc {attempt.returncode:>3}  "
+        print(f"{i:2d} {attempt.command:6s} {when:>18s}  rc {attempt.returncode:>3}  "
               f"{attempt.stage:42s} {attempt.said[:110]}")
     before_first = sum(a.killed_at is not None and a.stage.startswith("before") for a in report.attempts)
     print(f"{report.kills} kills ({before_first} before the first checkpoint), "

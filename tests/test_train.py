@@ -37,6 +37,7 @@ def test_training_writes_the_run_folder_and_resumes(tmp_path):
     assert state["counters"]["episodes"] == len(episodes)
     # resume: continues the numbering and the mechanism state
     assert main(["--resume", str(run), "train.episodes=40", "--no-progress"]) == 0
+    assert "episodes: 40" in (run / "config.yaml").read_text()  # the folder says what ran
     resumed = _rows(run / "episodes.csv")
     assert [int(r["episode"]) for r in resumed] == list(range(1, len(resumed) + 1))
     assert len(resumed) >= 40
