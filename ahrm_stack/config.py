@@ -497,6 +497,7 @@ LIMITS = {
     "bc_epochs": 100_000,
     "eval_episodes": 100_000,
     "num_envs": 256,
+    "threads": 256,  # torch threads; training also stays within the machine's CPU count
     "keep_checkpoints": 1000,
     "seed": 2**31 - 1,  # numpy seeds are < 2**32; environment i adds i x 10_000
     "frames_per_batch": 1_000_000,  # the replay buffer holds one batch
@@ -514,7 +515,7 @@ LIMITS = {
 def _at_most(obj: Any, key: str, name: str, limit: float, what: str = "") -> None:
     value = getattr(obj, name)
     if value > limit:
-        raise ConfigError(f"{key}.{name} must be <= {limit:g}{what}, got {value!r}")
+        raise ConfigError(f"{key}.{name} must be <= {limit}{what}, got {value!r}")
 
 
 def _check_limits(obj: Any, key: str) -> None:
@@ -579,10 +580,8 @@ def _check_limits(obj: Any, key: str) -> None:
             _at_most(obj, key, name, LIMITS[name])
         if obj.seed < 0:
             raise ConfigError(f"{key}.seed must be >= 0, got {obj.seed}")
-        import os
-
-        cpus = os.cpu_count() or 1
-        _at_most(obj, key, "threads", cpus, " (the CPU count of this machine)")
+        _at_most(obj, key, "threads", LIMITS["threads"], " (train.py also refuses more than this "
+                 "machine's CPU count)")
         if not obj.runs_dir.strip():
             raise ConfigError(f"{key}.runs_dir must name a folder, got {obj.runs_dir!r}")
     elif isinstance(obj, Config):

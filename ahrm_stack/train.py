@@ -359,6 +359,10 @@ def train(config: Config, raw: dict, run_dir: Path, resume: bool, progress: bool
     before anything is written. ``rewrite_config``: on resume, store ``raw`` (the run's config with
     this resume's overrides) as the run's config.yaml.
     """
+    cpus = os.cpu_count() or 1
+    if config.train.threads > cpus:
+        raise ConfigError(f"train.threads ({config.train.threads}) must be <= the {cpus} CPUs of this "
+                          "machine")
     torch.set_num_threads(config.train.threads)
     checkpoints = CheckpointManager(run_dir / "checkpoints", config.train.keep_checkpoints)
     try:  # building the environments checks what the configuration alone cannot

@@ -184,6 +184,16 @@ def test_bad_evaluate_config_is_one_line_naming_the_key(overrides, key, tmp_path
 ROOT = Path(__file__).resolve().parent.parent
 
 
+def test_training_threads_stay_within_this_machine(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    more = (os.cpu_count() or 1) + 1
+    assert train.main([*BASE, f"train.threads={more}", "--run-dir", str(tmp_path / "run"),
+                       "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "train.threads" in err[0] and "CPUs of this machine" in err[0]
+    assert not list(tmp_path.iterdir())
+
+
 def _cli(module, args, cwd):
     """``python -m module args`` in ``cwd``, importing this checkout's package."""
     env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"), "PYTHONPATH": str(ROOT)}
