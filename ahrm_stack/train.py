@@ -300,8 +300,9 @@ def _write_config(run_dir: Path, raw: dict) -> None:
         _write_atomically(run_dir / "config.yaml", text)
         return
     run_dir.parent.mkdir(parents=True, exist_ok=True)
+    for stale in run_dir.parent.glob(f".{run_dir.name}.*.tmp"):  # left by a start killed here
+        shutil.rmtree(stale, ignore_errors=True)
     staging = run_dir.with_name(f".{run_dir.name}.{os.getpid()}.tmp")
-    shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir()
     _write_atomically(staging / "config.yaml", text)
     try:

@@ -146,3 +146,23 @@ def test_repair_events_keeps_complete_lines_up_to_the_checkpoint(tmp_path):
     path.write_text('{"episode": 1}\n{"episode": 3}\nnot json\n{"episode": 2}\n{"epi')
     assert repair_events(path, 2) == (2, 3)
     assert path.read_text() == '{"episode": 1}\n{"episode": 2}\n'
+
+
+def test_a_flipped_bit_is_caught_by_the_checksum(tmp_path):
+    """torch.load itself loads a checkpoint with a flipped bit in a tensor without complaint."""
+    import torch
+
+    from ahrm_stack.learning.checkpoint import CheckpointError, CheckpointManager
+
+    manager = CheckpointManager(tmp_path, keep=2)
+    state = {"actor": {"w": torch.arange(1000, dtype=torch.float32)}, "critic": {}, "optimizer": {},
+             "mechanism": {}, "time_objective": [], "torch_rng": torch.get_rng_state(), "env_rng": [],
+             "counters": {"episodes": 3, "frames": 64, "batches": 1}}
+    path = manager.save(state, 1)
+    assert manager.restore().state["counters"]["episodes"] == 3
+    data = bytearray(path.read_bytes())
+    data[data.find(torch.tensor([500.0]).numpy().tobytes())] ^= 0xFF
+    path.write_bytes(bytes(data))
+    assert torch.load(path, weights_only=True)["actor"]["w"][500] != 500  # silently wrong
+    with pytest.raises(CheckpointError, match=r"ckpt-0000001\.pt .*SHA-256 .* differs"):
+        manager.restore()

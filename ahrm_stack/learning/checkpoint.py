@@ -2,17 +2,21 @@
 
 A checkpoint is written to a temporary file in the same folder, flushed to disk and renamed into
 place, so a run killed at any moment (SIGKILL included) leaves either the previous checkpoint or
-the new one, never a torn file. Only the newest ``keep`` checkpoints are kept.
+the new one, never a torn file; its SHA-256 follows in ``ckpt-N.pt.sha256``. Only the newest
+``keep`` checkpoints are kept.
 
-A file torn or truncated by other means (a full disk, a copy cut short, a foreign file) is detected
-when a run is resumed: :meth:`CheckpointManager.restore` names it and returns the newest intact
-checkpoint (:meth:`CheckpointManager.discard` then moves the bad one aside, ``ckpt-N.pt.corrupt``);
-when every checkpoint is unreadable it raises :class:`CheckpointError` instead of starting over.
+A file torn, truncated or changed by other means (a full disk, a copy cut short, a flipped bit, a
+foreign file) is detected when a run is resumed (zip structure, SHA-256, contents):
+:meth:`CheckpointManager.restore` names it and returns the newest intact checkpoint
+(:meth:`CheckpointManager.discard` then moves the bad one aside, ``ckpt-N.pt.corrupt``); when
+every checkpoint is unreadable it raises :class:`CheckpointError` instead of starting over.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import io
 import os
 import sys
 from pathlib import Path
@@ -73,17 +77,20 @@ class CheckpointManager:
         return sorted(self.directory.glob("ckpt-*.pt"))
 
     def save(self, state: dict, step: int) -> Path:
+        """Write ``ckpt-<step>.pt`` atomically, then its SHA-256 (``ckpt-<step>.pt.sha256``);
+        keep the newest ``keep``."""
         self.directory.mkdir(parents=True, exist_ok=True)
         path = self.directory / f"ckpt-{step:07d}.pt"
-        tmp = path.with_suffix(".tmp")
-        with open(tmp, "wb") as handle:
-            torch.save(state, handle)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
+        buffer = io.BytesIO()
+        torch.save(state, buffer)
+        payload = buffer.getvalue()
+        _digest_path(path).unlink(missing_ok=True)  # never a digest of what this replaces
+        _write_durably(path, payload)
+        _write_durably(_digest_path(path), hashlib.sha256(payload).hexdigest().encode() + b"\n")
         _fsync_dir(self.directory)
         for old in self.paths()[:-self.keep]:
             old.unlink()
+            _digest_path(old).unlink(missing_ok=True)
         return path
 
     def restore(self) -> Restored:
@@ -98,7 +105,7 @@ class CheckpointManager:
         skipped: list[tuple[Path, str]] = []
         for path in reversed(paths):
             try:
-                state = check_state(load(path), path)
+                state = check_state(_load_verified(path), path)
             except Exception as error:  # noqa: BLE001 - torn, truncated or foreign: try the previous
                 text = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
                 skipped.append((path, f"torn or truncated checkpoint {path} ({path.stat().st_size} "
@@ -116,7 +123,8 @@ class CheckpointManager:
         loaded or rotated) and delete temporary files of saves cut short."""
         for bad, _ in skipped:
             os.replace(bad, bad.with_name(bad.name + ".corrupt"))
-        for tmp in self.directory.glob("ckpt-*.tmp"):
+            _digest_path(bad).unlink(missing_ok=True)
+        for tmp in [*self.directory.glob(".ckpt-*.tmp"), *self.directory.glob("ckpt-*.tmp")]:
             tmp.unlink()
 
     def load_latest(self) -> dict | None:
@@ -126,6 +134,36 @@ class CheckpointManager:
         for _, reason in restored.skipped:
             print(f"warning: {reason}; skipped", file=sys.stderr)
         return restored.state
+
+
+def _digest_path(path: Path) -> Path:
+    return path.with_name(path.name + ".sha256")
+
+
+def _write_durably(path: Path, payload: bytes) -> None:
+    """``path`` holds ``payload`` or is untouched, whenever the process dies (temp file, fsync,
+    rename)."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "wb") as handle:
+        handle.write(payload)
+        handle.flush()
+        os.fsync(handle.fileno())
+    os.replace(tmp, path)
+
+
+def _load_verified(path: Path) -> dict:
+    """Load a checkpoint, first checking its bytes against its ``.sha256`` when it has one (a
+    kill between the two renames of :meth:`CheckpointManager.save` leaves none: the zip
+    structure is then the only check)."""
+    payload = Path(path).read_bytes()
+    digest_file = _digest_path(Path(path))
+    if digest_file.is_file():
+        expected = digest_file.read_text().strip()
+        actual = hashlib.sha256(payload).hexdigest()
+        if actual != expected:
+            raise ValueError(f"its SHA-256 {actual[:12]}... differs from {digest_file.name} "
+                             f"({expected[:12]}...): the file changed after it was written")
+    return torch.load(io.BytesIO(payload), map_location="cpu", weights_only=True)
 
 
 def _fsync_dir(directory: Path) -> None:
