@@ -92,7 +92,7 @@ def _newest_checkpoint(run_dir: Path) -> tuple[str, dict | None]:
 
 def _stage(run_dir: Path) -> str:
     if not (run_dir / "config.yaml").is_file():
-        return "before the run folder"
+        return "start-up; before the run folder"
     checkpoints = sorted((run_dir / "checkpoints").glob("ckpt-*.pt"))
     if not checkpoints:
         return "before the first checkpoint"
@@ -160,17 +160,21 @@ def _said(stdout: str, stderr: str) -> str:
 
 
 def _run(command: list[str], kill: float | str | None, run_dir: Path, logs: Path,
-         index: int) -> tuple[float | None, int, str, str, str]:
+         index: int) -> tuple[float | None, int, str, str, str, float | None]:
     """Run ``command``; kill it after ``kill`` s (a float) or once ``run_dir`` reaches a stage
     (``"config"``: config.yaml exists; ``"checkpoint"``: a checkpoint exists). Returns
-    (killed_at or None, returncode, stage at the kill, stdout, stderr)."""
+    (killed_at or None, returncode, stage at the kill, stdout, stderr, seconds until the run
+    folder held config.yaml or None)."""
     out, err = logs / f"{index:02d}.out", logs / f"{index:02d}.err"
     with open(out, "w") as stdout, open(err, "w") as stderr:
         started = time.perf_counter()
         proc = subprocess.Popen(command, stdout=stdout, stderr=stderr, env=_environment(), cwd=logs)
-        killed_at, stage = None, "completed"
+        killed_at, stage, setup = None, "completed", None
+        existed = (run_dir / "config.yaml").is_file()
         while proc.poll() is None:
             now = time.perf_counter() - started
+            if setup is None and not existed and (run_dir / "config.yaml").is_file():
+                setup = now
             due = (isinstance(kill, float) and now >= kill) or (
                 kill == "config" and (run_dir / "config.yaml").is_file()) or (
                 kill == "checkpoint" and any((run_dir / "checkpoints").glob("ckpt-*.pt")))
@@ -182,13 +186,14 @@ def _run(command: list[str], kill: float | str | None, run_dir: Path, logs: Path
                 break
             time.sleep(0.005)
         returncode = proc.wait()
-    return killed_at, returncode, stage, out.read_text(), err.read_text()
+    return killed_at, returncode, stage, out.read_text(), err.read_text(), setup
 
 
 Kill = float | str | Callable[[Path], float]
 
 
-def kill_and_resume(workdir: Path, kills: list[Kill], overrides: list[str]) -> Report:
+def kill_and_resume(workdir: Path, kills: list[Kill], overrides: list[str],
+                    timing: Timing | None = None) -> Report:
     """Start a run, kill it at each of ``kills`` in turn (a delay in s; a function of the run
     folder giving the delay, drawn when the start begins; or the stages "config" / "checkpoint"),
     resuming after each kill; a start that ends before its kill is due completes that run
@@ -205,8 +210,13 @@ def kill_and_resume(workdir: Path, kills: list[Kill], overrides: list[str]) -> R
         if callable(kill):
             kill = float(kill(run_dir))
         fresh = not (run_dir / "config.yaml").is_file()
-        killed_at, returncode, stage, stdout, stderr = _run(
+        started = time.perf_counter()
+        killed_at, returncode, stage, stdout, stderr, setup = _run(
             _command(run_dir, overrides, fresh), kill, run_dir, logs, index)
+        if killed_at is None and fresh and timing is not None:
+            timing.observe(time.perf_counter() - started, setup)
+        if killed_at is not None and not fresh and not _said(stdout, stderr):
+            stage = f"start-up; folder {stage}"
         index += 1
         attempt = Attempt("fresh" if fresh else "resume", killed_at, returncode, stage,
                           _said(stdout, stderr))
@@ -249,13 +259,28 @@ def measure(workdir: Path, overrides: list[str]) -> tuple[float, float]:
     return total, setup if setup is not None else total
 
 
-def lifetime_delay(total: float, setup: float, episodes: int, rng: random.Random) -> Callable[[Path], float]:
+@dataclass
+class Timing:
+    """Seconds of one uninterrupted start: in all, and until its run folder appears. Updated
+    from every start that runs to its end (the machine's load changes)."""
+
+    total: float
+    setup: float
+
+    def observe(self, total: float, setup: float | None) -> None:
+        self.total = 0.5 * (self.total + total)
+        if setup is not None:
+            self.setup = 0.5 * (self.setup + setup)
+
+
+def lifetime_delay(timing: Timing, episodes: int, rng: random.Random) -> Callable[[Path], float]:
     """A kill time drawn uniformly over the expected life of the next start: setup (imports,
     building) plus the share of the run's work still to do, from the newest intact checkpoint."""
     def delay(run_dir: Path) -> float:
         _, state = _newest_checkpoint(run_dir) if (run_dir / "checkpoints").is_dir() else ("", None)
         done = min(state["counters"]["episodes"] / episodes, 1.0) if state else 0.0
-        return rng.uniform(0.0, setup + (total - setup) * max(1.0 - done, 0.1))
+        rest = (timing.total - timing.setup) * max(1.0 - done, 0.1)
+        return rng.uniform(0.0, timing.setup + rest)
     return delay
 
 
@@ -269,22 +294,22 @@ def main() -> int:
     workdir = Path(args.workdir or tempfile.mkdtemp(prefix="resume-kill-"))
     workdir.mkdir(parents=True, exist_ok=True)
     overrides = [*TINY, *args.overrides]
-    total, setup = measure(workdir, overrides)
+    timing = Timing(*measure(workdir, overrides))
     from ahrm_stack.config import load_config
 
     episodes = load_config(overrides).train.episodes
     rng = random.Random(args.seed)
-    kills: list[Kill] = [lifetime_delay(total, setup, episodes, rng) for _ in range(args.kills)]
-    print(f"one uninterrupted run: {total:.1f} s, its run folder after {setup:.1f} s; each start is "
-          f"killed at a time drawn uniformly from [0, {setup:.1f} s + the rest of the run's share "
-          f"of the remaining {total - setup:.1f} s]; folder {workdir}")
-    report = kill_and_resume(workdir, kills, overrides)
+    kills: list[Kill] = [lifetime_delay(timing, episodes, rng) for _ in range(args.kills)]
+    print(f"one uninterrupted run: {timing.total:.1f} s, its run folder after {timing.setup:.1f} s; "
+          f"each start is killed at a time drawn uniformly from [0, start-up + the share of the "
+          f"training still to do]; folder {workdir}")
+    report = kill_and_resume(workdir, kills, overrides, timing)
     print("    start    when                        folder at the kill                     the start said")
     for i, attempt in enumerate(report.attempts):
         when = f"killed at {attempt.killed_at:5.2f} s" if attempt.killed_at is not None else "ran to the end"
         print(f"{i:2d} {attempt.command:6s} {when:>18s}  rc {attempt.returncode:>3}  "
               f"{attempt.stage:42s} {attempt.said[:110]}")
-    before_first = sum(a.killed_at is not None and a.stage.startswith("before") for a in report.attempts)
+    before_first = sum(a.killed_at is not None and "before" in a.stage for a in report.attempts)
     print(f"{report.kills} kills ({before_first} before the first checkpoint), "
           f"{len(report.attempts)} starts, {report.runs} runs finished, {report.episodes} episodes")
     if report.problems:
