@@ -161,13 +161,12 @@ def repair_csv(path: Path, fields: list[str], key: str, limit: int) -> tuple[int
         if number in kept:
             dropped += 1
         kept[number] = row
-    out = [",".join(fields) + "\n"]
-    buffer = _LineBuffer()
+    buffer = _LineBuffer()  # the dialect RunLog appends with
     writer = csv.DictWriter(buffer, fieldnames=fields, restval="", extrasaction="ignore")
+    writer.writeheader()
     for number in sorted(kept):
         writer.writerow(kept[number])
-    out += buffer.lines
-    _write_atomically(path, "".join(out))
+    _write_atomically(path, "".join(buffer.lines))
     return len(kept), dropped
 
 

@@ -127,18 +127,18 @@ def test_repair_restores_the_header_drops_late_torn_and_repeated_rows(tmp_path):
     # second time by the run that continued), a row past the checkpoint, a row cut off
     path.write_text("1,a\n2,b\n3,c\n2,B\n3,C\n4,D\n5,E\n6,F")
     assert repair_csv(path, ["episode", "x"], "episode", 4) == (4, 4)
-    assert path.read_text() == "episode,x\n1,a\n2,B\n3,C\n4,D\n"
+    assert path.read_bytes() == b"episode,x\r\n1,a\r\n2,B\r\n3,C\r\n4,D\r\n"  # csv's line ends
     # idempotent, and a missing file gets its header
     assert repair_csv(path, ["episode", "x"], "episode", 4) == (4, 0)
     assert repair_csv(tmp_path / "new.csv", ["episode", "x"], "episode", 4) == (0, 0)
-    assert (tmp_path / "new.csv").read_text() == "episode,x\n"
+    assert (tmp_path / "new.csv").read_bytes() == b"episode,x\r\n"
 
 
 def test_repair_keeps_an_older_header_s_columns_by_name(tmp_path):
     path = tmp_path / "log.csv"
     path.write_text("x,episode\na,1\nb,2\n")
     assert repair_csv(path, ["episode", "x", "y"], "episode", 1) == (1, 1)
-    assert path.read_text() == "episode,x,y\n1,a,\n"
+    assert path.read_bytes() == b"episode,x,y\r\n1,a,\r\n"
 
 
 def test_repair_events_keeps_complete_lines_up_to_the_checkpoint(tmp_path):
