@@ -10,7 +10,7 @@ life (S plus the share of T - S still to do, from the newest checkpoint); the ne
 ``--resume RUN`` (or a fresh start when the kill came before the run folder existed), again killed
 at a random time, until ``--kills`` kills have hit a running process; the last start runs to the
 end. A start that finishes before its kill is due completes its run (checked), and the next kill
-goes to a new run. The kills land in every stage: imports, environment building, before the first
+goes to a new run; so does a run whose training is complete (its next start runs to the end). The kills land in every stage: imports, environment building, before the first
 checkpoint, between checkpoints, while saving, in the final evaluation.
 
 Checked after every kill: every episode the newest intact checkpoint counts has its row on disk
@@ -275,11 +275,15 @@ class Timing:
 
 def lifetime_delay(timing: Timing, episodes: int, rng: random.Random) -> Callable[[Path], float]:
     """A kill time drawn uniformly over the expected life of the next start: setup (imports,
-    building) plus the share of the run's work still to do, from the newest intact checkpoint."""
+    building) plus the share of the run's work still to do, from the newest intact checkpoint.
+    A run whose training is complete is let finish (infinite delay): the next kill goes to a new
+    run instead of to the start-up of one more resume with nothing left to train."""
     def delay(run_dir: Path) -> float:
         _, state = _newest_checkpoint(run_dir) if (run_dir / "checkpoints").is_dir() else ("", None)
         done = min(state["counters"]["episodes"] / episodes, 1.0) if state else 0.0
-        rest = (timing.total - timing.setup) * max(1.0 - done, 0.1)
+        if done >= 1.0:
+            return float("inf")
+        rest = (timing.total - timing.setup) * (1.0 - done)
         return rng.uniform(0.0, timing.setup + rest)
     return delay
 
