@@ -54,7 +54,8 @@ def test_resume_after_sigkill(tmp_path):
         "resume_kill", Path(__file__).resolve().parent.parent / "benchmarks" / "resume_kill.py")
     resume_kill = sys.modules.setdefault("resume_kill", importlib.util.module_from_spec(spec))
     spec.loader.exec_module(resume_kill)
-    report = resume_kill.kill_and_resume(tmp_path, ["config", "checkpoint"], resume_kill.TINY)
+    report = resume_kill.kill_and_resume(tmp_path, ["config", "checkpoint"],
+                                         [*resume_kill.TINY, "train.eval_episodes=0"])
     assert report.problems == [], report.problems
     assert report.kills == 2 and report.runs == 1 and report.episodes >= 6
     assert report.attempts[0].stage == "before the first checkpoint"
