@@ -378,6 +378,7 @@ def _build(cls: type, data: Any, key: str) -> Any:
     values = {name: _convert(hints[name], data[name], f"{prefix}{name}") for name in fields}
     obj = cls(**values)
     _check_ranges(obj, key)
+    _check_limits(obj, key)
     return obj
 
 
@@ -505,6 +506,128 @@ def _check_ranges(obj: Any, key: str) -> None:
         if obj.solver not in qpsolvers.available_solvers:
             raise ConfigError(f"{key}.solver: {obj.solver!r} is not installed; choose one of "
                               f"{sorted(qpsolvers.available_solvers)}")
+
+
+# Upper bounds: values past these would run (nearly) forever or exhaust the machine. They are
+# limits of this program, not tunables, and sit far above any configuration in use.
+LIMITS = {
+    "substeps": 1000,  # physics steps per control step (control_period / physics_timestep)
+    "control_period": 1.0,  # s
+    "episode_steps": 100_000,  # control steps per episode (duration / control_period)
+    "episodes": 1_000_000,  # training episodes
+    "demo_episodes": 10_000,
+    "demo_steps": 5_000_000,  # demo_episodes x episode steps: the demonstrations held in memory
+    "bc_epochs": 100_000,
+    "eval_episodes": 100_000,
+    "num_envs": 256,
+    "threads": 256,  # torch threads; training also stays within the machine's CPU count
+    "keep_checkpoints": 1000,
+    "seed": 2**31 - 1,  # numpy seeds are < 2**32; environment i adds i x 10_000
+    "frames_per_batch": 1_000_000,  # the replay buffer holds one batch
+    "epochs": 1000,
+    "hidden_layers": 16,
+    "hidden_width": 8192,
+    "max_tries": 1_000_000,  # layout rejection sampling
+    "settle_steps": 100_000,  # physics steps at reset
+    "osqp_max_iter": 1_000_000,
+    "max_obstacle_rows": 100,
+    "window": 1_000_000,  # mechanism windows and periods, episodes or steps
+}
+
+
+def _at_most(obj: Any, key: str, name: str, limit: float, what: str = "") -> None:
+    value = getattr(obj, name)
+    if value > limit:
+        raise ConfigError(f"{key}.{name} must be <= {limit}{what}, got {value!r}")
+
+
+def _check_limits(obj: Any, key: str) -> None:
+    """Upper bounds (:data:`LIMITS`) and the checks that span several keys or sections."""
+    if isinstance(obj, EpisodeConfig):
+        _at_most(obj, key, "control_period", LIMITS["control_period"], " s")
+        if obj.physics_timestep > obj.control_period:
+            raise ConfigError(f"{key}.physics_timestep ({obj.physics_timestep} s) must be <= "
+                              f"{key}.control_period ({obj.control_period} s): substeps is an integer >= 1")
+        if obj.control_period / obj.physics_timestep > LIMITS["substeps"] + 0.5:
+            raise ConfigError(f"{key}.physics_timestep ({obj.physics_timestep} s) gives "
+                              f"{obj.control_period / obj.physics_timestep:.4g} physics steps per "
+                              f"control period; at most {LIMITS['substeps']} (>= "
+                              f"{obj.control_period / LIMITS['substeps']:g} s)")
+        if obj.duration < obj.control_period:
+            raise ConfigError(f"{key}.duration ({obj.duration} s) must be >= {key}.control_period "
+                              f"({obj.control_period} s): an episode has at least one step")
+        if obj.duration / obj.control_period > LIMITS["episode_steps"] + 0.5:
+            raise ConfigError(f"{key}.duration ({obj.duration} s) gives more than "
+                              f"{LIMITS['episode_steps']} control steps per episode")
+    elif isinstance(obj, LayoutConfig):
+        _at_most(obj, key, "max_tries", LIMITS["max_tries"])
+        _at_most(obj, key, "settle_steps", LIMITS["settle_steps"])
+    elif isinstance(obj, TaskConfig):
+        import numpy as np
+
+        from ahrm_stack.env.layout import Layout, LayoutError, validate_layout  # imports this module
+
+        layout = Layout(np.asarray(obj.cube.position, float),
+                        np.asarray(obj.obstacles.fixed_layout, float).reshape(-1, 2))
+        try:
+            validate_layout(layout, obj.table, obj.cube, obj.obstacles, obj.layout)
+        except LayoutError as error:
+            raise ConfigError(f"{key}.obstacles.fixed_layout / {key}.cube.position: {error}") from None
+        if obj.layout.mode == "random":  # the nearest allowed obstacle centre must fit on the table
+            room = np.asarray(obj.table.half_extent) - np.asarray(obj.obstacles.size[:2]) / 2
+            corners = np.array([[sx * room[0], sy * room[1]] for sx in (-1, 1) for sy in (-1, 1)])
+            reach = float(np.max(np.linalg.norm(corners - layout.cube_xy, axis=1)))
+            if obj.layout.radial_range[0] > reach:
+                raise ConfigError(f"{key}.layout.radial_range {list(obj.layout.radial_range)}: no "
+                                  f"obstacle that far from the cube fits on the table (at most "
+                                  f"{reach:.3f} m)")
+    elif isinstance(obj, SafetyConfig):
+        _at_most(obj, key, "osqp_max_iter", LIMITS["osqp_max_iter"])
+        _at_most(obj, key, "max_obstacle_rows", LIMITS["max_obstacle_rows"])
+    elif isinstance(obj, MechanismConfig):
+        for name in ("convergence_window", "constraint_window", "constraint_min_steps",
+                     "priority_period"):
+            _at_most(obj, key, name, LIMITS["window"])
+    elif isinstance(obj, PPOConfig):
+        _at_most(obj, key, "frames_per_batch", LIMITS["frames_per_batch"])
+        _at_most(obj, key, "epochs", LIMITS["epochs"])
+        if not 1 <= len(obj.hidden_sizes) <= LIMITS["hidden_layers"]:
+            raise ConfigError(f"{key}.hidden_sizes must list 1 to {LIMITS['hidden_layers']} layer "
+                              f"widths, got {list(obj.hidden_sizes)}")
+        if max(obj.hidden_sizes) > LIMITS["hidden_width"]:
+            raise ConfigError(f"{key}.hidden_sizes: layer widths must be <= {LIMITS['hidden_width']}, "
+                              f"got {list(obj.hidden_sizes)}")
+    elif isinstance(obj, TrainConfig):
+        for name in ("episodes", "demo_episodes", "bc_epochs", "eval_episodes", "num_envs",
+                     "keep_checkpoints", "seed"):
+            _at_most(obj, key, name, LIMITS[name])
+        if obj.seed < 0:
+            raise ConfigError(f"{key}.seed must be >= 0, got {obj.seed}")
+        _at_most(obj, key, "threads", LIMITS["threads"], " (train.py also refuses more than this "
+                 "machine's CPU count)")
+        if not obj.runs_dir.strip():
+            raise ConfigError(f"{key}.runs_dir must name a folder, got {obj.runs_dir!r}")
+    elif isinstance(obj, Config):
+        ppo, train, episode = obj.ppo, obj.train, obj.task.episode
+        if ppo.frames_per_batch % train.num_envs:
+            raise ConfigError(f"ppo.frames_per_batch ({ppo.frames_per_batch}) must be a multiple of "
+                              f"train.num_envs ({train.num_envs})")
+        steps = round(episode.duration / episode.control_period)
+        uses_demos = train.warm_start == "bc" or ppo.bc_coeff > 0
+        if uses_demos and train.demo_episodes * steps > LIMITS["demo_steps"]:
+            raise ConfigError(f"train.demo_episodes ({train.demo_episodes}) x {steps} steps per "
+                              f"episode (task.episode.duration) exceeds {LIMITS['demo_steps']} "
+                              "demonstration steps held in memory")
+        if len(obj.safety.acceleration_limit) != len(obj.task.arm.home):
+            raise ConfigError(f"safety.acceleration_limit has {len(obj.safety.acceleration_limit)} "
+                              f"values, task.arm.home_deg {len(obj.task.arm.home)}: both give one "
+                              f"value per joint of task.robot ({obj.task.robot})")
+        if obj.task.action.mode == "cartesian" and not obj.safety.enabled:
+            raise ConfigError("safety.enabled: false needs task.action.mode: joint (cartesian "
+                              "actions are turned into joint velocities by the safety filter)")
+        if obj.task.regions.distance_clip < obj.mechanism.blend_band:
+            raise ConfigError(f"task.regions.distance_clip ({obj.task.regions.distance_clip} m) must "
+                              f"be >= mechanism.blend_band ({obj.mechanism.blend_band} m)")
 
 
 # ----------------------------------------------------------------------------------------------

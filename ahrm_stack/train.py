@@ -12,6 +12,13 @@ events), TensorBoard logs in ``tb/``, with ``train.eval_every`` interim determin
 ``evaluations.csv`` and their policies in ``policies/``, and at the end ``policy.pt`` and
 ``diagnostics.png`` (per-episode diagnostics: where a failing run fails). ``--resume`` continues a run
 that was stopped or killed from its last checkpoint, reward-mechanism state included.
+
+Resume never loses or repeats an episode and says what it did: the logs are cut back to the
+checkpoint it continues from (rows logged after it are dropped: the resumed run logs those
+episodes again), a torn or truncated checkpoint is named and skipped for the newest intact one,
+a run killed before its first checkpoint starts over (its logs reset), and a folder whose
+checkpoints are all unreadable is an error, never a silent restart. The whole configuration is
+checked, and the environments built, before anything is written.
 """
 
 from __future__ import annotations
@@ -20,21 +27,32 @@ import argparse
 import csv
 import dataclasses
 import json
+import os
+import shutil
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
-import torch
 import yaml
-from tqdm import tqdm
 
 from ahrm_stack.config import Config, ConfigError, apply_overrides, config_from_dict, load_raw
-from ahrm_stack.env.torchrl_env import PushOffEnv
-from ahrm_stack.learning.checkpoint import CheckpointManager
-from ahrm_stack.learning.diagnostics import plot_run
-from ahrm_stack.learning.evaluation import EVAL_SEED_OFFSET, EvaluationTable, run_episodes
-from ahrm_stack.learning.trainer import Trainer, TrainingDiverged
+
+# torchrl announces its own deprecations at import, and dm_control turns every DeprecationWarning
+# on (warnings.simplefilter('always')): on stderr they would bury a one-line error. The warnings
+# of these imports are recorded and dropped; the warning filters are restored afterwards.
+with warnings.catch_warnings(record=True):
+    import torch
+    from tqdm import tqdm
+
+    from ahrm_stack.env.torchrl_env import PushOffEnv
+    from ahrm_stack.learning.checkpoint import CheckpointError, CheckpointManager, Restored
+    from ahrm_stack.learning.diagnostics import plot_run
+    from ahrm_stack.learning.evaluation import EVAL_SEED_OFFSET, EvaluationTable, run_episodes
+    from ahrm_stack.learning.trainer import DemonstrationsFailed, Trainer, TrainingDiverged
+    from ahrm_stack.safety.constraints.base import ConstraintDefinitionError
+    from ahrm_stack.safety.filter import SafetyFilterError
 
 EPISODE_FIELDS = ["episode", "frames", "steps", "duration", "success", "time_to_success",
                   "touched_steps", "learning_return", "phase_steps", "phases_visited",
@@ -62,9 +80,17 @@ def resolve_config(args: argparse.Namespace) -> tuple[Config, dict, Path]:
     if args.resume:
         run_dir = Path(args.resume)
         path = run_dir / "config.yaml"
+        if not run_dir.is_dir():
+            raise ConfigError(f"--resume {run_dir}: no such folder")
         if not path.is_file():
-            raise ConfigError(f"--resume {run_dir}: no config.yaml there; is it a run folder?")
-        raw = yaml.safe_load(path.read_text())
+            raise ConfigError(f"--resume {run_dir}: no config.yaml there; is it a run folder? (a run "
+                              "killed before writing it has nothing to resume: start it again)")
+        try:
+            raw = yaml.safe_load(path.read_text())
+        except yaml.YAMLError as error:
+            raise ConfigError(f"{path}: not valid YAML ({str(error).splitlines()[0]})") from None
+        if not isinstance(raw, dict):
+            raise ConfigError(f"{path}: expected a mapping at the top level")
     else:
         raw = load_raw()
     apply_overrides(raw, args.overrides)
@@ -79,8 +105,124 @@ def resolve_config(args: argparse.Namespace) -> tuple[Config, dict, Path]:
     return config, raw, run_dir
 
 
+# ----------------------------------------------------------------------------------------------
+# Logs that always match the checkpoint: written atomically when repaired, cut back on resume.
+# ----------------------------------------------------------------------------------------------
+
+LOGS = {"episodes.csv": (EPISODE_FIELDS, "episode"), "batches.csv": (BATCH_FIELDS, "batch"),
+        "evaluations.csv": (EVALUATION_FIELDS, "episode")}  # file: (columns, the row's number)
+
+
+def _write_atomically(path: Path, text: str) -> None:
+    """Replace ``path`` by ``text`` so that a kill at any moment leaves the old or the new file."""
+    tmp = path.with_name(f".{path.name}.tmp")  # one writer per run folder
+    with open(tmp, "w", newline="") as handle:
+        handle.write(text)
+        handle.flush()
+        os.fsync(handle.fileno())
+    os.replace(tmp, path)
+
+
+def _complete_lines(path: Path) -> tuple[list[str], int]:
+    """The file's lines that end in a newline, and 1 when a last line cut off by a kill was
+    dropped (else 0)."""
+    if not path.is_file():
+        return [], 0
+    lines = path.read_text(errors="replace").splitlines(keepends=True)
+    if lines and not lines[-1].endswith("\n"):
+        lines.pop()
+        return lines, 1
+    return lines, 0
+
+
+def _number(value: object) -> int | None:
+    try:
+        return int(str(value))
+    except ValueError:
+        return None
+
+
+def repair_csv(path: Path, fields: list[str], key: str, limit: int) -> tuple[int, int]:
+    """Rewrite ``path`` as its header and the rows whose ``key`` is 1..``limit`` (0..``limit`` for
+    evaluations, whose first row is episode 0), each number once (the last row written wins: it
+    came from the run that continued), in order. A missing header (a file created empty and then
+    appended to) is restored, a row cut off by a kill dropped. Returns (rows kept, rows dropped)."""
+    lines, dropped = _complete_lines(path)
+    rows = list(csv.reader(lines))
+    header = fields
+    if rows and rows[0] and _number(rows[0][0]) is None:  # a header line (ours or an older one)
+        header, rows = rows[0], rows[1:]
+    kept: dict[int, dict] = {}
+    for cells in rows:
+        row = dict(zip(header, cells))
+        number = _number(row.get(key))
+        if len(cells) != len(header) or number is None or number < 0 or number > limit:
+            dropped += 1
+            continue
+        if number in kept:
+            dropped += 1
+        kept[number] = row
+    buffer = _LineBuffer()  # the dialect RunLog appends with
+    writer = csv.DictWriter(buffer, fieldnames=fields, restval="", extrasaction="ignore")
+    writer.writeheader()
+    for number in sorted(kept):
+        writer.writerow(kept[number])
+    _write_atomically(path, "".join(buffer.lines))
+    return len(kept), dropped
+
+
+class _LineBuffer:
+    """A file-like sink for ``csv.writer`` that keeps what it writes."""
+
+    def __init__(self) -> None:
+        self.lines: list[str] = []
+
+    def write(self, text: str) -> int:
+        self.lines.append(text)
+        return len(text)
+
+
+def repair_events(path: Path, limit: int) -> tuple[int, int]:
+    """Keep the reward-mechanism events of episodes 1..``limit`` (complete JSON lines only)."""
+    lines, dropped = _complete_lines(path)
+    kept = []
+    for line in lines:
+        try:
+            episode = json.loads(line).get("episode")
+        except (json.JSONDecodeError, AttributeError):
+            episode = None
+        if isinstance(episode, int) and 1 <= episode <= limit:
+            kept.append(line)
+        else:
+            dropped += 1
+    _write_atomically(path, "".join(kept))
+    return len(kept), dropped
+
+
+def repair_logs(run_dir: Path, episodes: int, batches: int) -> dict[str, int]:
+    """Cut the run's logs back to a checkpoint of ``episodes`` episodes and ``batches`` batches
+    (0, 0: a run that starts over); returns the rows dropped per file. Interim policies past it
+    are removed with their evaluations."""
+    dropped = {}
+    limits = {"episodes.csv": episodes, "batches.csv": batches,
+              "evaluations.csv": episodes if batches else -1}  # before the first batch: none kept
+    for name, (fields, key) in LOGS.items():
+        kept, dropped[name] = repair_csv(run_dir / name, fields, key, limits[name])
+        if name == "episodes.csv" and kept != episodes:
+            print(f"warning: {run_dir / name} holds {kept} of the {episodes} episodes of the "
+                  "checkpoint (rows were removed by hand?); the missing ones cannot be rebuilt",
+                  file=sys.stderr)
+    _, dropped["events.jsonl"] = repair_events(run_dir / "events.jsonl", episodes)
+    for policy in sorted((run_dir / "policies").glob("episode-*.pt")):
+        number = _number(policy.stem.removeprefix("episode-"))
+        if number is not None and (number > episodes or not batches):
+            policy.unlink()
+    return dropped
+
+
 class RunLog:
-    """CSV, JSONL and TensorBoard logs of one run (appending on resume)."""
+    """CSV, JSONL and TensorBoard logs of one run (appending on resume, after
+    :func:`repair_logs` has cut them back to the checkpoint)."""
 
     def __init__(self, run_dir: Path) -> None:
         self.episodes = self._csv(run_dir / "episodes.csv", EPISODE_FIELDS)
@@ -92,11 +234,12 @@ class RunLog:
 
     @staticmethod
     def _csv(path: Path, fields: list[str]):
-        new = not path.exists()
+        new = not path.exists() or path.stat().st_size == 0
         handle = open(path, "a", newline="")
         writer = csv.DictWriter(handle, fieldnames=fields)
         if new:
             writer.writeheader()
+            handle.flush()
         return handle, writer
 
     def episode(self, row: dict) -> None:
@@ -130,9 +273,10 @@ class RunLog:
                                       "phase": event.phase, "detail": event.detail}) + "\n")
 
     def flush(self) -> None:
-        for handle, _ in (self.episodes, self.batches, self.evaluations):
+        """Everything logged so far, on disk (before a checkpoint that counts it is written)."""
+        for handle in (*(h for h, _ in (self.episodes, self.batches, self.evaluations)), self.events):
             handle.flush()
-        self.events.flush()
+            os.fsync(handle.fileno())
         self.tb.flush()
 
     def close(self) -> None:
@@ -143,23 +287,97 @@ class RunLog:
         self.tb.close()
 
 
-def train(config: Config, raw: dict, run_dir: Path, resume: bool, progress: bool = True) -> Path:
-    """Run (or continue) training; returns the run folder."""
-    run_dir.mkdir(parents=True, exist_ok=True)
-    if not resume:
-        if (run_dir / "checkpoints").exists() and any((run_dir / "checkpoints").iterdir()):
-            raise ConfigError(f"{run_dir} already holds checkpoints; use --resume {run_dir}")
-        (run_dir / "config.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))
+# ----------------------------------------------------------------------------------------------
+# The run.
+# ----------------------------------------------------------------------------------------------
+
+
+def _write_config(run_dir: Path, raw: dict) -> None:
+    """``run_dir/config.yaml``, atomically; a new folder appears only once it holds it, so a run
+    folder without a config.yaml is never left behind by a kill."""
+    text = yaml.safe_dump(raw, sort_keys=False)
+    if run_dir.is_dir():
+        _write_atomically(run_dir / "config.yaml", text)
+        return
+    run_dir.parent.mkdir(parents=True, exist_ok=True)
+    for stale in run_dir.parent.glob(f".{run_dir.name}.*.tmp"):  # left by a start killed here
+        shutil.rmtree(stale, ignore_errors=True)
+    staging = run_dir.with_name(f".{run_dir.name}.{os.getpid()}.tmp")
+    staging.mkdir()
+    _write_atomically(staging / "config.yaml", text)
+    try:
+        os.rename(staging, run_dir)
+    except OSError:  # created meanwhile by someone else
+        (staging / "config.yaml").unlink()
+        staging.rmdir()
+        _write_atomically(run_dir / "config.yaml", text)
+
+
+def _start_run(config: Config, raw: dict, run_dir: Path, resume: bool, rewrite_config: bool,
+               checkpoints: CheckpointManager, trainer: Trainer) -> Restored:
+    """Everything a run checks before it writes, then the writes: config.yaml, corrupt
+    checkpoints moved aside, the logs cut back to the checkpoint. Says what it did."""
+    if run_dir.exists() and not run_dir.is_dir():
+        raise ConfigError(f"--run-dir {run_dir}: exists and is not a folder")
+    if not resume and checkpoints.paths():
+        raise ConfigError(f"{run_dir} already holds checkpoints; use --resume {run_dir}")
+    restored = checkpoints.restore() if resume else Restored(None, None, [])
+    if restored.state is not None:
+        try:
+            trainer.load_state_dict(restored.state)
+        except (RuntimeError, KeyError, ValueError, TypeError) as error:
+            first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+            raise CheckpointError(f"{restored.path} does not fit this run's configuration (changed "
+                                  f"by an override?): {first}") from None
+    # validated: from here on the run folder is written
+    if not resume or rewrite_config:
+        _write_config(run_dir, raw)
+    for path, reason in restored.skipped:
+        print(f"warning: {reason}; moved aside to {path.name}.corrupt", file=sys.stderr)
+    checkpoints.discard(restored.skipped)
+    leftovers = any((run_dir / name).exists() for name in (*LOGS, "events.jsonl"))
+    dropped = repair_logs(run_dir, trainer.episodes, trainer.batches)
+    dropped_text = ", ".join(f"{n} {name}" for name, n in dropped.items() if n)
+    if restored.state is not None:
+        print(f"resumed {run_dir} from {restored.path.name}: episode {trainer.episodes}, batch "
+              f"{trainer.batches}, {trainer.frames} frames"
+              + (f"; dropped the rows logged after it ({dropped_text})" if dropped_text else ""))
+    elif resume:
+        print(f"resume: {run_dir} has no checkpoint (stopped before its first one); starting it "
+              "from scratch" + (f", logs reset ({dropped_text} rows dropped)" if dropped_text else ""))
+    elif leftovers:
+        print(f"note: {run_dir} held the logs of a run stopped before its first checkpoint; starting "
+              "from scratch" + (f", logs reset ({dropped_text} rows dropped)" if dropped_text else ""))
+    return restored
+
+
+def train(config: Config, raw: dict, run_dir: Path, resume: bool, progress: bool = True,
+          rewrite_config: bool = False) -> Path:
+    """Run (or continue) training; returns the run folder.
+
+    Raises ``ConfigError`` (a bad value that only the built environment reveals, a fresh run into
+    a folder with checkpoints) or :class:`CheckpointError` (no usable checkpoint to resume from)
+    before anything is written. ``rewrite_config``: on resume, store ``raw`` (the run's config with
+    this resume's overrides) as the run's config.yaml.
+    """
+    cpus = os.cpu_count() or 1
+    if config.train.threads > cpus:
+        raise ConfigError(f"train.threads ({config.train.threads}) must be <= the {cpus} CPUs of this "
+                          "machine")
     torch.set_num_threads(config.train.threads)
     checkpoints = CheckpointManager(run_dir / "checkpoints", config.train.keep_checkpoints)
-    trainer = Trainer(config)
-    if resume:
-        state = checkpoints.load_latest()
-        if state is None:
-            print(f"{run_dir}: no checkpoint yet, starting from scratch", file=sys.stderr)
-        else:
-            trainer.load_state_dict(state)
-            print(f"resumed {run_dir} at episode {trainer.episodes}, {trainer.frames} frames")
+    try:  # building the environments checks what the configuration alone cannot
+        trainer = Trainer(config, collect_demos=False)
+    except (SafetyFilterError, ConstraintDefinitionError) as error:
+        raise ConfigError(f"safety: {error}") from None
+    try:
+        restored = _start_run(config, raw, run_dir, resume, rewrite_config, checkpoints, trainer)
+        trainer.collect_demos()
+        if restored.state is not None:  # exactly the state saved, whatever the demos drew
+            torch.set_rng_state(restored.state["torch_rng"])
+    except BaseException:
+        trainer.close()
+        raise
     log = RunLog(run_dir)
     bar = tqdm(total=config.train.episodes, initial=min(trainer.episodes, config.train.episodes),
                unit="ep", disable=not progress, dynamic_ncols=True)
@@ -176,14 +394,14 @@ def train(config: Config, raw: dict, run_dir: Path, resume: bool, progress: bool
 
     evaluated = trainer.episodes
     try:
-        if trainer.episodes == 0 and config.train.warm_start == "bc":
+        if trainer.batches == 0 and config.train.warm_start == "bc":
             trainer.warm_start()  # the clone, kept: the policy before any PPO update
             trainer.save_policy(run_dir / CLONE_POLICY)
             if trainer.warm_start_report is not None:
                 print(f"warm start: {trainer.warm_start_report}")
             if interim:
                 evaluate_now()  # the curve's first point
-        elif interim and trainer.episodes == 0:
+        elif interim and trainer.batches == 0:
             evaluate_now()
         while trainer.episodes < config.train.episodes:
             try:
@@ -206,12 +424,15 @@ def train(config: Config, raw: dict, run_dir: Path, resume: bool, progress: bool
                 evaluated = trainer.episodes
                 evaluate_now()
             if trainer.batches % config.train.checkpoint_every == 0:
-                log.flush()
+                log.flush()  # the rows first: a checkpoint never counts a row that is not on disk
                 checkpoints.save(trainer.state_dict(), trainer.batches)
         log.flush()
         checkpoints.save(trainer.state_dict(), trainer.batches)
         trainer.save_policy(run_dir / "policy.pt")
-        plot_run(run_dir)
+        try:
+            plot_run(run_dir)
+        except (ValueError, FileNotFoundError) as error:  # a plot is not worth losing the run over
+            print(f"warning: no diagnostics plot: {error}", file=sys.stderr)
     finally:
         bar.close()
         log.close()
@@ -221,13 +442,20 @@ def train(config: Config, raw: dict, run_dir: Path, resume: bool, progress: bool
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(sys.argv[1:] if argv is None else argv)
+    started = time.perf_counter()
     try:
         config, raw, run_dir = resolve_config(args)
+        run_dir = train(config, raw, run_dir, resume=bool(args.resume), progress=not args.no_progress,
+                        rewrite_config=bool(args.resume and args.overrides))
     except ConfigError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    started = time.perf_counter()
-    run_dir = train(config, raw, run_dir, resume=bool(args.resume), progress=not args.no_progress)
+    except (CheckpointError, DemonstrationsFailed) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    except OSError as error:  # the run folder cannot be created or written
+        print(f"error: {error.filename or ''}: {error.strerror or error}", file=sys.stderr)
+        return 1
     minutes = (time.perf_counter() - started) / 60
     print(f"run folder: {run_dir}  ({minutes:.1f} min)")
     if config.train.eval_episodes:

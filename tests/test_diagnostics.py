@@ -28,3 +28,17 @@ def test_moving_average_by_hand():
     np.testing.assert_allclose(moving_average(np.array([1.0, 2.0, 3.0, 4.0, 5.0]), 2),
                                [1.0, 1.5, 2.5, 3.5, 4.5])
     np.testing.assert_allclose(moving_average(np.array([0.0, 1.0, 1.0]), 10), [0.0, 0.5, 2 / 3])
+
+
+def test_a_log_without_its_header_is_a_clear_error_not_a_crash(tmp_path):
+    import pytest
+
+    from ahrm_stack.learning.diagnostics import main, read_episodes
+
+    (tmp_path / "episodes.csv").write_text('1,64,40,2.0,False,nan,0,0.0,"[0, 40, 0]"\n')
+    with pytest.raises(ValueError, match=r"the first line is not the header .*--resume"):
+        read_episodes(tmp_path)
+    assert main([str(tmp_path)]) == 2
+    (tmp_path / "episodes.csv").write_text("")
+    with pytest.raises(ValueError, match="holds no episodes yet"):
+        read_episodes(tmp_path)

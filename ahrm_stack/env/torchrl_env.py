@@ -29,14 +29,25 @@ from ahrm_stack.env.episode import EpisodeRecorder, EpisodeSummary
 from ahrm_stack.env.task import PushOffTask, StepInfo
 
 
+def check_action_shape(action: np.ndarray, expected: tuple[int, ...], mode: str) -> None:
+    """Raise ``ValueError`` unless ``action`` has exactly shape ``expected``: a wrong-sized action
+    is a bug upstream, and broadcasting it would drive every joint with one value."""
+    if np.shape(action) != expected:
+        raise ValueError(f"action.mode {mode}: the action must have shape {expected}, got "
+                         f"{np.shape(action)}")
+
+
 def action_to_command(action: np.ndarray, velocity_limit: np.ndarray,
                       commanded: tuple[int, ...]) -> np.ndarray:
     """Map a normalised action of the commanded joints to joint velocities (rad/s) for all joints.
 
-    Non-finite entries become 0 and the action is clipped to [-1, 1]; joints that are not
-    commanded get 0.
+    ``action`` must have shape ``(len(commanded),)``: one value per commanded joint, never
+    broadcast (a ``ValueError`` says what came). Non-finite entries become 0 and the action is
+    clipped to [-1, 1]; joints that are not commanded get 0.
     """
-    action = np.nan_to_num(np.asarray(action, dtype=float), nan=0.0, posinf=0.0, neginf=0.0)
+    action = np.asarray(action, dtype=float)
+    check_action_shape(action, (len(commanded),), "joint")
+    action = np.nan_to_num(action, nan=0.0, posinf=0.0, neginf=0.0)
     command = np.zeros(len(velocity_limit))
     command[list(commanded)] = np.clip(action, -1.0, 1.0) * velocity_limit[list(commanded)]
     return command
@@ -109,6 +120,8 @@ class PushOffEnv(EnvBase):
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict["action"].detach().cpu().numpy()
+        check_action_shape(action, tuple(self.action_spec.shape),
+                           "cartesian" if self._cartesian else "joint")
         if self._cartesian:
             tip_velocity = np.clip(np.nan_to_num(action, nan=0.0, posinf=0.0, neginf=0.0), -1, 1)
             info, terminated, truncated = self.runner.step_cartesian(tip_velocity * self._max_tip_speed)

@@ -21,6 +21,9 @@ import numpy as np
 FAILURE_MODES = ("success", "touched", "never reached the cube", "reached the cube, could not push",
                  "hit obstacles", "stalled")
 OBJECTIVES = ("avoid", "manipulate", "time")
+REQUIRED = ("episode", "success", "constraint_terminated", "failure_mode", "learning_return",
+            "closest_approach", "cube_displacement", "phase_steps", "touched_steps", "interventions",
+            "component_sums", "levels")  # the columns the plot reads
 
 
 def read_episodes(run_dir: Path) -> dict[str, np.ndarray]:
@@ -28,21 +31,31 @@ def read_episodes(run_dir: Path) -> dict[str, np.ndarray]:
     path = Path(run_dir) / "episodes.csv"
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no episodes.csv; is {run_dir} a run folder?")
-    with open(path) as handle:
-        rows = list(csv.DictReader(handle))
+    with open(path, newline="") as handle:
+        reader = csv.DictReader(handle)
+        header = reader.fieldnames or []
+        rows = list(reader)
+    needed = [key for key in REQUIRED if key not in header]
+    if header and needed:
+        raise ValueError(f"{path}: the first line is not the header (no column {needed[0]!r}: "
+                         f"{','.join(header)[:60]!r}); `python -m ahrm_stack.train --resume "
+                         f"{Path(run_dir)}` repairs it")
     if not rows:
         raise ValueError(f"{path} holds no episodes yet")
     out: dict[str, np.ndarray] = {}
-    for key in rows[0]:
+    for key in header:
         values = [row[key] for row in rows]
-        if key in ("phase_steps", "component_sums", "levels"):
-            out[key] = np.array([ast.literal_eval(v) for v in values], dtype=float)
-        elif key in ("success", "constraint_terminated"):
-            out[key] = np.array([v == "True" for v in values])
-        elif key in ("phases_visited", "failure_mode", "orders"):
-            out[key] = np.array(values)
-        else:
-            out[key] = np.array([float(v) for v in values])
+        try:
+            if key in ("phase_steps", "component_sums", "levels"):
+                out[key] = np.array([ast.literal_eval(v) for v in values], dtype=float)
+            elif key in ("success", "constraint_terminated"):
+                out[key] = np.array([v == "True" for v in values])
+            elif key in ("phases_visited", "failure_mode", "orders"):
+                out[key] = np.array(values)
+            else:
+                out[key] = np.array([float(v) for v in values])
+        except (ValueError, SyntaxError, TypeError) as error:
+            raise ValueError(f"{path}: column {key!r} holds a malformed value ({error})") from None
     return out
 
 

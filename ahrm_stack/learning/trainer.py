@@ -14,6 +14,7 @@ the single-environment case); each keeps its own seed stream and its own f3 phas
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 from pathlib import Path
 
@@ -38,6 +39,10 @@ class TrainingDiverged(RuntimeError):
     """A loss became NaN or infinite."""
 
 
+class DemonstrationsFailed(RuntimeError):
+    """The scripted controller succeeded in none of the demonstration episodes."""
+
+
 @dataclasses.dataclass
 class IterationResult:
     episodes: list[dict]
@@ -54,15 +59,15 @@ def _random_state_from_list(state: list) -> tuple:
 
 
 class Trainer:
-    def __init__(self, config: Config) -> None:
+    def __init__(self, config: Config, collect_demos: bool = True) -> None:
+        """Build the environments (which checks what the configuration alone cannot: the layout
+        on the table, the arm's joint count), the networks and the optimiser. ``collect_demos``
+        false: the scripted demonstrations (slow) wait for :meth:`collect_demos`."""
         self.config = config
         torch.manual_seed(config.train.seed)
         np.random.seed(config.train.seed)
         self.mechanism = RewardMechanism(config.mechanism)
-        count = config.train.num_envs
-        if config.ppo.frames_per_batch % count:
-            raise ConfigError(f"ppo.frames_per_batch ({config.ppo.frames_per_batch}) must be a "
-                              f"multiple of train.num_envs ({count})")
+        count = config.train.num_envs  # ppo.frames_per_batch is a multiple of it (config.py)
         self.envs = [PushOffEnv(config.task, config.safety, mechanism=self.mechanism, seed=seed)
                      for seed in training_seeds(config.train.seed, count)]  # configs/seeds.yaml
         self.env = self.envs[0] if count == 1 else SerialEnv(
@@ -79,9 +84,24 @@ class Trainer:
         self._collector: Collector | None = None
         self._iterator = None
         self.warm_start_report: dict[str, float] | None = None
-        uses_demos = config.train.warm_start == "bc" or config.ppo.bc_coeff > 0
-        self.demos = collect_demonstrations(config, config.train.demo_episodes) if uses_demos else None
+        self.demos = None
         self._demo_generator = torch.Generator().manual_seed(config.train.seed)
+        if collect_demos:
+            self.collect_demos()
+
+    def collect_demos(self) -> None:
+        """Record the scripted demonstrations when warm start or the BC anchor needs them (once).
+        Raises ``RuntimeError`` with a one-line message when none of them succeeds."""
+        config = self.config
+        if self.demos is not None or not (config.train.warm_start == "bc" or config.ppo.bc_coeff > 0):
+            return
+        try:
+            self.demos = collect_demonstrations(config, config.train.demo_episodes)
+        except RuntimeError as error:
+            raise DemonstrationsFailed(
+                f"{error} in train.demo_episodes={config.train.demo_episodes} episodes of "
+                f"task.episode.duration={config.task.episode.duration} s; give more or longer "
+                "episodes, or train.warm_start=none ppo.bc_coeff=0") from None
 
     def warm_start(self) -> None:
         """Behaviour cloning and critic refit (``train.warm_start: bc``), once, before the first
@@ -232,10 +252,12 @@ class Trainer:
     def save_policy(self, path: Path) -> None:
         """The final policy: actor weights (normaliser included) and what is needed to rebuild it."""
         path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.tmp")  # written whole, then renamed: never torn
         torch.save({"actor": self.modules.actor.state_dict(),
                     "observation_dim": int(self.envs[0].observation_spec["observation"].shape[-1]),
                     "action_dim": int(self.envs[0].action_spec.shape[-1]),
-                    "episodes": self.episodes, "frames": self.frames}, path)
+                    "episodes": self.episodes, "frames": self.frames}, tmp)
+        os.replace(tmp, path)
 
     def close(self) -> None:
         if self._collector is not None:
