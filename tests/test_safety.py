@@ -57,7 +57,7 @@ def build(**changes):
     runner = world()
     task, config = runner.task, dataclasses.replace(_CFG.safety, **changes)
     scene = None
-    if config.table_distance_rows or config.obstacle_rows:
+    if config.table_distance_rows or config.obstacle_rows or config.self_collision_rows:
         scene = task.make_collision_scene(runner.physics)
     return make_filter(task.robot, task.kinematics, config,
                        control_period=task.config.episode.control_period,
@@ -795,13 +795,14 @@ def test_construction_rejects_inconsistent_settings():
     with pytest.raises(ConstraintDefinitionError, match="leaves no room"):
         build(position_margin=3.0)
     task = world().task
-    for switch in ("obstacle_rows", "table_distance_rows"):
+    for switch in ("obstacle_rows", "table_distance_rows", "self_collision_rows"):
         with pytest.raises(SafetyFilterError, match=f"{switch} is on but no collision scene"):
-            changes = {"obstacle_rows": False, "table_distance_rows": False, switch: True}
+            changes = {"obstacle_rows": False, "table_distance_rows": False, "self_collision_rows": False,
+                       switch: True}
             make_filter(task.robot, task.kinematics, dataclasses.replace(_CFG.safety, **changes),
                         control_period=DT, table_height=TABLE, tip_site=task.pusher.tip_site,
                         wrist_site=task.arm.wrist_site)
-    safety = build(table_distance_rows=False)
+    safety = build(table_distance_rows=False, self_collision_rows=False)
     with pytest.raises(SafetyFilterError, match="no collision scene"):
         safety(HOME, np.zeros(6), np.zeros(6), obstacles=True)
     with pytest.raises(SafetyFilterError, match="u_nom must have shape"):
@@ -813,6 +814,11 @@ def test_construction_rejects_inconsistent_settings():
     ("safety.obstacle_activation_distance=0.005", "obstacle_activation_distance"),
     ("safety.wrist_table_margin=-0.1", "wrist_table_margin"),
     ("safety.cartesian_regularization=0.0", "cartesian_regularization"),
+    ("safety.self_collision_pairs.jaco=[[base, base]]",
+     r"safety\.self_collision_pairs\.jaco\[0\]: a part cannot be paired with itself"),
+    ("safety.self_collision_pairs.jaco=[[base, elbow]]",
+     r"safety\.self_collision_pairs\.jaco\[0\]: 'elbow' is not an arm part"),
+    ("safety.self_collision_pairs.ur5=[]", r"unknown config key 'safety\.self_collision_pairs\.ur5'"),
 ])
 def test_config_rejects_bad_safety_values(override, message):
     with pytest.raises(ConfigError, match=message):

@@ -29,8 +29,10 @@ from ahrm_stack.kinematics.phases import Box
 
 _REQUEST = coal.DistanceRequest()
 _REQUEST.enable_signed_distance = True  # nearest points are always computed
+_REQUEST.gjk_tolerance = 1e-8  # m: separated distances to ~3e-7 m (coal's default, 1e-6, gives 1e-6)
 _RIM_POINTS = 256  # points per rim when a cylinder geom is enclosed by a capsule
 _UNIT_TOLERANCE = 1e-6  # a normal further than this from unit length is not trusted
+_SIDE_TOLERANCE = 1e-9  # m, a centre this far on the wrong side of its witness point
 
 
 @dataclasses.dataclass
@@ -40,6 +42,7 @@ class GuardCounter:
 
     failures: int = 0
     last_error: str = ""
+    normals: int = 0  # answers whose normal did not separate the shapes and was replaced
 
 
 GUARD = GuardCounter()
@@ -220,6 +223,18 @@ def signed_distance(a: coal.CollisionObject, b: coal.CollisionObject
         normal = -np.array(result.normal, dtype=float)  # coal's normal points from a to b
         if (np.isfinite(d) and np.isfinite(point_a).all() and np.isfinite(point_b).all()
                 and abs(float(normal @ normal) - 1.0) <= _UNIT_TOLERANCE):
+            # A valid normal separates: a's witness is a's lowest point along it, b's is b's
+            # highest, so a's centre lies on its far side and b's centre on the near one. At an
+            # exact touch on an edge coal can return a normal that fails this; then the normal is
+            # taken from b's centre to a's (the distance and the witness points stand).
+            center_a = np.asarray(a.getTranslation(), dtype=float)
+            center_b = np.asarray(b.getTranslation(), dtype=float)
+            if (normal @ (center_a - point_a) < -_SIDE_TOLERANCE
+                    or normal @ (center_b - point_b) > _SIDE_TOLERANCE):
+                GUARD.normals += 1
+                offset = center_a - center_b
+                length = float(np.linalg.norm(offset))
+                normal = offset / length if length > 0 else np.array([0.0, 0.0, 1.0])
             return float(d), point_a, point_b, normal, True
         error = f"non-finite or non-unit answer: d={d!r}, normal={normal.tolist()}"
     except Exception as exc:  # noqa: BLE001 - any failure of the library takes the guarded path
