@@ -54,6 +54,8 @@ class Tally:
     contact_pairs: collections.Counter = dataclasses.field(default_factory=collections.Counter)
     violated_rows: collections.Counter = dataclasses.field(default_factory=collections.Counter)
     fast_joints: collections.Counter = dataclasses.field(default_factory=collections.Counter)
+    external_contacts: collections.Counter = dataclasses.field(default_factory=collections.Counter)
+    overspeed_in_contact: int = 0  # velocity violations while the arm touches the table or a prop
 
 
 def arm_bodies(physics, task) -> dict[int, str]:
@@ -113,18 +115,24 @@ def run(robot_name: str, mode: str, steps: int, episode: int, self_rows: bool, s
         for _ in range(nstep):
             step_physics(1)
             tally.substeps += 1
-            touching = False
+            touching = external = False
             for c in data.contact[:data.ncon]:
-                a, b = parts.get(int(model.geom_bodyid[c.geom1])), parts.get(int(model.geom_bodyid[c.geom2]))
+                body1, body2 = int(model.geom_bodyid[c.geom1]), int(model.geom_bodyid[c.geom2])
+                a, b = parts.get(body1), parts.get(body2)
                 if a is not None and b is not None:
                     touching = True
                     tally.contact_pairs["/".join(sorted((a, b)))] += 1
+                elif a is not None or b is not None:
+                    external = True
+                    other = model.body(body2 if a is not None else body1).name.split("/")[0] or "world"
+                    tally.external_contacts[f"{a or b}/{other}"] += 1
             tally.self_contact_substeps += touching
             q, dq = data.qpos[qadr], data.qvel[dofadr]
             tally.position_violations += int(np.any(limited & ((q < robot.position_lower) | (q > robot.position_upper))))
             ratio = float(np.max(np.abs(dq) / robot.velocity_limit))
             tally.peak_speed_ratio = max(tally.peak_speed_ratio, ratio)
             tally.velocity_violations += int(ratio > 1.0)
+            tally.overspeed_in_contact += int(ratio > 1.0 and external)
             if ratio > 1.0:
                 tally.fast_joints[int(np.argmax(np.abs(dq) / robot.velocity_limit)) + 1] += 1
 
@@ -182,7 +190,8 @@ def main() -> None:
                   f"velocity violations {t.velocity_violations} (peak |qvel|/v_max "
                   f"{t.peak_speed_ratio:.3f}); filter {dict(t.statuses)}, fallbacks {t.fallbacks}, "
                   f"violated {t.violated} {dict(t.violated_rows)}; contact pairs {dict(t.contact_pairs)}; "
-                  f"overspeeding joints {dict(t.fast_joints)}", flush=True)
+                  f"overspeeding joints {dict(t.fast_joints)} ({t.overspeed_in_contact} while touching the "
+                  f"table or a prop); arm-environment contacts {dict(t.external_contacts)}", flush=True)
             total.steps += t.steps
             total.self_contact_substeps += t.self_contact_substeps
             total.position_violations += t.position_violations

@@ -192,7 +192,7 @@ def test_near_touching_placements_through_the_filter_keep_the_process_alive():
 # The guard
 # ----------------------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("failure", ["raise", "nan"])
+@pytest.mark.parametrize("failure", ["raise", "nan", "dbl_max"])
 def test_a_failing_library_gives_a_conservative_bound(monkeypatch, failure):
     rng = np.random.default_rng(3)
     cases = []
@@ -205,7 +205,7 @@ def test_a_failing_library_gives_a_conservative_bound(monkeypatch, failure):
     def broken(*args):
         if failure == "raise":
             raise RuntimeError("std::logic_error: simulated")
-        return float("nan")
+        return float("nan") if failure == "nan" else np.finfo(float).max  # coal's failed GJK
 
     monkeypatch.setattr(scene_module.coal, "distance", broken)
     before = GUARD.failures

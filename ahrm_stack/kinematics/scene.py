@@ -8,7 +8,7 @@ MuJoCo compiled it, is enclosed by the tightest capsule along its principal axis
 Distances come from coal (the hpp-fcl successor that Pinocchio ships), through
 :func:`signed_distance`, which never lets a query fail: python-fcl, used here before, aborted the
 whole process (an uncaught C++ ``std::logic_error``) on some touching poses, which no ``try``
-catches. coal's bindings turn C++ exceptions into Python ones; such an exception, or a non-finite
+catches. coal's bindings turn C++ exceptions into Python ones; such an exception, or a non-finite or absurd
 answer, gives the conservative bound of :func:`bounding_distance` instead (counted in
 :data:`GUARD`). coal sizes are full lengths (``coal.Box(2 hx, 2 hy, 2 hz)``,
 ``coal.Cylinder(r, 2 h)``, ``coal.Capsule(r, segment length)``); capsules and cylinders lie along
@@ -32,12 +32,13 @@ _REQUEST.enable_signed_distance = True  # nearest points are always computed
 _REQUEST.gjk_tolerance = 1e-8  # m: separated distances to ~3e-7 m (coal's default, 1e-6, gives 1e-6)
 _RIM_POINTS = 256  # points per rim when a cylinder geom is enclosed by a capsule
 _UNIT_TOLERANCE = 1e-6  # a normal further than this from unit length is not trusted
+_SANE_DISTANCE = 1e3  # m: a larger answer is a failed query (coal reports DBL_MAX when GJK fails)
 _SIDE_TOLERANCE = 1e-9  # m, a centre this far on the wrong side of its witness point
 
 
 @dataclasses.dataclass
 class GuardCounter:
-    """How many queries coal failed (raised, or answered with non-finite numbers) and were
+    """How many queries coal failed (raised, or answered with non-finite or absurd numbers) and were
     answered by the conservative bound instead."""
 
     failures: int = 0
@@ -221,7 +222,7 @@ def signed_distance(a: coal.CollisionObject, b: coal.CollisionObject
         point_a = np.array(result.getNearestPoint1(), dtype=float)
         point_b = np.array(result.getNearestPoint2(), dtype=float)
         normal = -np.array(result.normal, dtype=float)  # coal's normal points from a to b
-        if (np.isfinite(d) and np.isfinite(point_a).all() and np.isfinite(point_b).all()
+        if (abs(d) < _SANE_DISTANCE and np.isfinite(point_a).all() and np.isfinite(point_b).all()
                 and abs(float(normal @ normal) - 1.0) <= _UNIT_TOLERANCE):
             # A valid normal separates: a's witness is a's lowest point along it, b's is b's
             # highest, so a's centre lies on its far side and b's centre on the near one. At an
@@ -236,7 +237,7 @@ def signed_distance(a: coal.CollisionObject, b: coal.CollisionObject
                 length = float(np.linalg.norm(offset))
                 normal = offset / length if length > 0 else np.array([0.0, 0.0, 1.0])
             return float(d), point_a, point_b, normal, True
-        error = f"non-finite or non-unit answer: d={d!r}, normal={normal.tolist()}"
+        error = f"non-finite, absurd or non-unit answer: d={d!r}, normal={normal.tolist()}"
     except Exception as exc:  # noqa: BLE001 - any failure of the library takes the guarded path
         error = f"{type(exc).__name__}: {exc}"
     GUARD.failures += 1
