@@ -1,7 +1,9 @@
 """Adversarial joint-velocity requests through the deployment filter: does the arm ever touch itself?
 
 For each arm, three kinds of request, each for ``--steps`` control steps (episodes of
-``--episode`` steps on random layouts, or until the cube falls off), every one through the safety
+``--episode`` steps; by default with the cube and obstacles moved off to the floor, so that only
+the arm, its base and the table are within reach — ``--props task`` keeps the random layout, and
+the arm then also shoves the props about), every one through the safety
 filter of deployment (``configs/safety.yaml`` with ``obstacle_rows: true``) and into the simulator:
 
 * ``fold``   — drive every joint at up to 1.5x its velocity limit toward a configuration drawn
@@ -91,12 +93,29 @@ def folded_targets(task, scene, rng, count: int) -> np.ndarray:
     return np.array(found)
 
 
-def run(robot_name: str, mode: str, steps: int, episode: int, self_rows: bool, seed: int = 0) -> Tally:
+def clear_props(physics, task) -> None:
+    """Move the cube and the obstacles onto the floor far from the arm (their free joints)."""
+    model = physics.model.ptr
+    for n, prop in enumerate([task.cube, *task.obstacles]):
+        body = int(physics.bind(prop.geom).bodyid)
+        address = int(model.jnt_qposadr[model.body_jntadr[body]])
+        physics.data.qpos[address:address + 7] = [4.0 + n, 4.0, 0.1, 1.0, 0.0, 0.0, 0.0]
+        physics.data.qvel[int(model.jnt_dofadr[model.body_jntadr[body]]) + np.arange(6)] = 0.0
+    mujoco.mj_forward(model, physics.data.ptr)
+
+
+def run(robot_name: str, mode: str, steps: int, episode: int, self_rows: bool, seed: int = 0,
+        props: str = "away") -> Tally:
+    """``props``: ``away`` moves the cube and obstacles off to the floor after every reset (the
+    arm, its base and the table remain: only the arm can touch itself, and no prop pushes it);
+    ``task`` keeps the task's layout (the arm also shoves the cube and obstacles about)."""
     config = load_config([f"task.robot={robot_name}", "task.layout.mode=random",
                           "safety.obstacle_rows=true", f"safety.self_collision_rows={str(self_rows).lower()}"])
     runner = TaskRunner(PushOffTask(config.task), seed=seed, safety=config.safety)
     runner.reset()
     task, physics = runner.task, runner.physics
+    if props == "away":
+        clear_props(physics, task)
     robot = task.robot
     model, data = physics.model.ptr, physics.data.ptr
     parts = arm_bodies(physics, task)
@@ -165,8 +184,10 @@ def run(robot_name: str, mode: str, steps: int, episode: int, self_rows: bool, s
         tally.violated += int(bool(result.violated))
         tally.violated_rows.update(result.violated)
         in_episode += 1
-        if terminated or truncated or in_episode >= episode:
+        if (props == "task" and (terminated or truncated)) or in_episode >= episode:
             runner.reset()
+            if props == "away":
+                clear_props(physics, task)
             in_episode = 0
     return tally
 
@@ -178,12 +199,14 @@ def main() -> None:
     parser.add_argument("--robot", choices=["jaco", "j2s6s200"], action="append")
     parser.add_argument("--mode", choices=MODES, action="append")
     parser.add_argument("--no-self-rows", action="store_true", help="self-collision rows off")
+    parser.add_argument("--props", choices=["away", "task"], default="away",
+                        help="away: cube and obstacles moved off (default); task: the random layout")
     args = parser.parse_args()
     total = Tally()
     for robot in args.robot or ["jaco", "j2s6s200"]:
         for mode in args.mode or MODES:
             start = time.perf_counter()
-            t = run(robot, mode, args.steps, args.episode, not args.no_self_rows)
+            t = run(robot, mode, args.steps, args.episode, not args.no_self_rows, props=args.props)
             print(f"{robot:9s} {mode:7s} {t.steps} steps ({t.substeps} physics steps, "
                   f"{time.perf_counter() - start:.0f} s): self-contact physics steps "
                   f"{t.self_contact_substeps}, position violations {t.position_violations}, "

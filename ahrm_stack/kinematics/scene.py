@@ -218,26 +218,27 @@ def signed_distance(a: coal.CollisionObject, b: coal.CollisionObject
     :data:`GUARD`."""
     result = coal.DistanceResult()
     try:
-        d = coal.distance(a, b, _REQUEST, result)
-        point_a = np.array(result.getNearestPoint1(), dtype=float)
-        point_b = np.array(result.getNearestPoint2(), dtype=float)
-        normal = -np.array(result.normal, dtype=float)  # coal's normal points from a to b
-        if (abs(d) < _SANE_DISTANCE and np.isfinite(point_a).all() and np.isfinite(point_b).all()
-                and abs(float(normal @ normal) - 1.0) <= _UNIT_TOLERANCE):
+        d = float(coal.distance(a, b, _REQUEST, result))
+        ax, ay, az = result.getNearestPoint1().tolist()
+        bx, by, bz = result.getNearestPoint2().tolist()
+        nx, ny, nz = (-result.normal).tolist()  # coal's normal points from a to b
+        # one sum is NaN or huge when any term is (plain floats: this runs for every query)
+        if (abs(d) < _SANE_DISTANCE and abs(ax + ay + az + bx + by + bz) < _SANE_DISTANCE
+                and abs(nx * nx + ny * ny + nz * nz - 1.0) <= _UNIT_TOLERANCE):
             # A valid normal separates: a's witness is a's lowest point along it, b's is b's
             # highest, so a's centre lies on its far side and b's centre on the near one. At an
             # exact touch on an edge coal can return a normal that fails this; then the normal is
             # taken from b's centre to a's (the distance and the witness points stand).
-            center_a = np.asarray(a.getTranslation(), dtype=float)
-            center_b = np.asarray(b.getTranslation(), dtype=float)
-            if (normal @ (center_a - point_a) < -_SIDE_TOLERANCE
-                    or normal @ (center_b - point_b) > _SIDE_TOLERANCE):
+            cax, cay, caz = a.getTranslation().tolist()
+            cbx, cby, cbz = b.getTranslation().tolist()
+            if (nx * (cax - ax) + ny * (cay - ay) + nz * (caz - az) < -_SIDE_TOLERANCE
+                    or nx * (cbx - bx) + ny * (cby - by) + nz * (cbz - bz) > _SIDE_TOLERANCE):
                 GUARD.normals += 1
-                offset = center_a - center_b
+                offset = np.array([cax - cbx, cay - cby, caz - cbz])
                 length = float(np.linalg.norm(offset))
-                normal = offset / length if length > 0 else np.array([0.0, 0.0, 1.0])
-            return float(d), point_a, point_b, normal, True
-        error = f"non-finite, absurd or non-unit answer: d={d!r}, normal={normal.tolist()}"
+                nx, ny, nz = (offset / length).tolist() if length > 0 else (0.0, 0.0, 1.0)
+            return d, np.array([ax, ay, az]), np.array([bx, by, bz]), np.array([nx, ny, nz]), True
+        error = f"non-finite, absurd or non-unit answer: d={d!r}, normal={[nx, ny, nz]}"
     except Exception as exc:  # noqa: BLE001 - any failure of the library takes the guarded path
         error = f"{type(exc).__name__}: {exc}"
     GUARD.failures += 1

@@ -8,6 +8,7 @@ Joint mode (:meth:`SafetyFilter.__call__`)::
               p_z + T (J u)_z >= table + margin              tip and wrist
               lower <= p + T J u <= upper                    tip and wrist (workspace box)
               d_i + T n_i^T J_i u >= d_safe                  robot parts / table; / obstacles (optional)
+              d_ab + T n_ab^T (J_a - J_b) u >= d_safe        pairs of arm parts (self-collision)
 
 Cartesian mode (:meth:`SafetyFilter.cartesian`): the same constraints, objective
 ``||J_tip u - v_nom||^2 + lambda ||u||^2 + w ||P_perp J_w u||^2`` (the last term holds the pusher's
@@ -81,8 +82,9 @@ class SafetyFilter:
         dt: the control period, s (a command is held this long).
         table_height: z of the table top, m, world frame.
         tip_frame, wrist_frame: frame ids (in ``kinematics``) of the pusher tip and the wrist.
-        scene: the FCL scene, needed for the distance rows (``config.table_distance_rows``,
-            ``config.obstacle_rows``, or a call with ``obstacles=True``). The filter places its
+        scene: the collision scene, needed for the distance rows (``config.table_distance_rows``,
+            ``config.obstacle_rows``, ``config.self_collision_rows``, or a call with
+            ``obstacles=True``). The filter places its
             robot parts; the caller keeps its environment objects current
             (``scene.update_objects``). Building the filter calls ``scene.kinematics.update`` (at
             q = 0) and ``scene.update_robot`` once, to learn where each part sits on its link.

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 from typing import Mapping, Sequence
 
-import coal
 import numpy as np
 
 from ahrm_stack.kinematics.scene import CollisionScene, bounding_radius, local_extent, signed_distance
@@ -165,8 +164,8 @@ class DistanceLimit:
         for kind, i, j in candidates:
             for k in ((i, j) if kind == _SELF else (i,)):
                 if k not in placed:
-                    rotation = snapshot.placement(self._part_frames[k])[1]
-                    self._parts[k].setTransform(coal.Transform3s(rotation, centers[k]))
+                    self._parts[k].setRotation(snapshot.placement(self._part_frames[k])[1])
+                    self._parts[k].setTranslation(centers[k])
                     placed.add(k)
             other = self._parts[j] if kind == _SELF else self._objects[j]
             d, point_a, point_b, normal, _ = signed_distance(self._parts[i], other)
