@@ -196,7 +196,7 @@ class SafetyConfig:
     workspace_rows: bool  # the tip and wrist stay inside the workspace box
     workspace_lower: tuple[float, float, float]  # m, world-frame box the tip and wrist stay in
     workspace_upper: tuple[float, float, float]
-    table_distance_rows: bool  # distance rows robot part-table (pusher body, link capsules; FCL)
+    table_distance_rows: bool  # distance rows robot part-table (pusher body, link capsules)
     obstacle_rows: bool  # distance rows robot part-obstacle (off in training, on in deployment)
     obstacle_safe_distance: float  # m, d_safe
     obstacle_activation_distance: float  # m, pairs farther than this add no row

@@ -127,7 +127,7 @@ class DistanceLimit:
         self_collision = self_collision and len(self.self_pairs) > 0
         if not (table or obstacles or self_collision):
             return Rows.empty(nv)
-        centers = snapshot.positions(self._part_frames)
+        centers, part_rotations = snapshot.placements(self._part_frames)
         candidates = []  # (kind, part index, object index or part index)
         if table or obstacles:
             # Bounding test: each moving part's ball against each object's world-aligned box.
@@ -164,7 +164,7 @@ class DistanceLimit:
         for kind, i, j in candidates:
             for k in ((i, j) if kind == _SELF else (i,)):
                 if k not in placed:
-                    self._parts[k].setRotation(snapshot.placement(self._part_frames[k])[1])
+                    self._parts[k].setRotation(part_rotations[k])
                     self._parts[k].setTranslation(centers[k])
                     placed.add(k)
             other = self._parts[j] if kind == _SELF else self._objects[j]
