@@ -31,7 +31,7 @@ from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.task import PushOffTask
 from ahrm_stack.kinematics import scene as scene_module
 from ahrm_stack.kinematics.phases import Box, Cylinder, cylinder_box_distance
-from ahrm_stack.kinematics.scene import GUARD, signed_distance
+from ahrm_stack.kinematics.scene import GUARD, capsule_distance, signed_distance
 from ahrm_stack.safety import make_filter
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -106,12 +106,27 @@ def test_capsule_capsule_matches_a_segment_search(seed):
     d, pa, pb, normal, exact = signed_distance(_placed(coal.Capsule(r1, 2 * h1), R1, c1),
                                                _placed(coal.Capsule(r2, 2 * h2), R2, c2))
     assert exact
-    assert d == pytest.approx(between - r1 - r2, abs=EXACT)
-    assert np.linalg.norm(normal) == pytest.approx(1.0, abs=1e-9)
-    # the witness points lie on the surfaces and are d apart along the normal
-    assert _point_segment(pa, a0, a1) == pytest.approx(r1, abs=EXACT)
-    assert _point_segment(pb, b0, b1) == pytest.approx(r2, abs=EXACT)
-    np.testing.assert_allclose(pa - pb, d * normal, atol=2 * EXACT)
+    closed = capsule_distance(c1, R1[:, 2], h1, r1, c2, R2[:, 2], h2, r2)  # the filter's self rows
+    for d, pa, pb, normal, tolerance in ((d, pa, pb, normal, EXACT), (*closed, 1e-9)):
+        assert d == pytest.approx(between - r1 - r2, abs=tolerance)
+        assert np.linalg.norm(normal) == pytest.approx(1.0, abs=1e-9)
+        # the witness points lie on the surfaces and are d apart along the normal
+        assert _point_segment(pa, a0, a1) == pytest.approx(r1, abs=tolerance)
+        assert _point_segment(pb, b0, b1) == pytest.approx(r2, abs=tolerance)
+        np.testing.assert_allclose(pa - pb, d * normal, atol=2 * tolerance)
+
+
+@pytest.mark.parametrize("h1,h2,offset", [(0.0, 0.0, (0.1, 0.0, 0.0)),  # two spheres
+                                          (0.1, 0.0, (0.02, 0.0, 0.08)),  # a sphere by a segment
+                                          (0.1, 0.1, (0.1, 0.0, 0.05))])  # parallel segments
+def test_closed_form_capsule_distance_on_degenerate_pairs(h1, h2, offset):
+    """Points and parallel segments, by hand: two capsules along z."""
+    z = np.array([0.0, 0.0, 1.0])
+    d, pa, pb, normal = capsule_distance(np.zeros(3), z, h1, 0.02, np.asarray(offset), z, h2, 0.03)
+    gap_z = max(0.0, abs(offset[2]) - h1 - h2)
+    expected = math.hypot(math.hypot(offset[0], offset[1]), gap_z) - 0.05
+    assert d == pytest.approx(expected, abs=1e-12)
+    np.testing.assert_allclose(pa - pb, d * normal, atol=1e-12)
 
 
 @settings(max_examples=150, deadline=None)
@@ -309,12 +324,18 @@ def test_the_self_row_is_the_hand_computed_one(jaco):
     assert found.distance - row @ result.command == pytest.approx(safety_config.obstacle_safe_distance, abs=1e-9)
 
 
+@pytest.mark.parametrize("mode", ["fold", "limits"])
 @pytest.mark.parametrize("robot", ["jaco", "j2s6s200"])
-def test_adversarial_folding_in_the_simulator_never_touches_itself(robot):
+def test_adversarial_requests_in_the_simulator_never_make_the_arm_touch_itself(robot, mode):
     """The brief version of benchmarks/adversarial_self_collision.py (30,000 steps per arm there):
-    requests that fold the arm onto itself, through the deployment filter, in MuJoCo."""
+    requests that fold the arm onto itself or drive every joint to a limit, through the
+    deployment filter, in MuJoCo. Without the self-collision rows the same limit-seeking requests
+    make the arm touch itself within the first hundred steps (checked for jaco)."""
     adversarial = _benchmark("adversarial_self_collision")
-    tally = adversarial.run(robot, "fold", steps=150, episode=150, self_rows=True, seed=2)
-    assert tally.steps == 150
+    tally = adversarial.run(robot, mode, steps=200, episode=200, self_rows=True, seed=2)
+    assert tally.steps == 200
     assert tally.self_contact_substeps == 0
     assert tally.position_violations == 0
+    if robot == "jaco" and mode == "limits":
+        unguarded = adversarial.run(robot, mode, steps=200, episode=200, self_rows=False, seed=2)
+        assert unguarded.self_contact_substeps > 0

@@ -4,7 +4,8 @@ from the obstacles and from each other.
 For each pair (robot part a, object b) closer than the activation distance, the collision scene
 gives the signed distance ``d``, the witness points ``p_a`` (on a) and ``p_b`` (on b) and the unit
 normal ``n`` from b towards a (:func:`~ahrm_stack.kinematics.scene.signed_distance`: coal, guarded
-so that no query can fail or abort the process). With ``J_a`` the linear Jacobian of the witness
+so that no query can fail or abort the process; two capsules in closed form,
+:func:`~ahrm_stack.kinematics.scene.capsule_distance`). With ``J_a`` the linear Jacobian of the witness
 point ``p_a`` carried by part a (and ``J_b`` that of ``p_b`` carried by part b, zero for the table,
 the obstacles and the base), the row is
 
@@ -22,9 +23,11 @@ from __future__ import annotations
 
 from typing import Mapping, Sequence
 
+import coal
 import numpy as np
 
-from ahrm_stack.kinematics.scene import CollisionScene, bounding_radius, local_extent, signed_distance
+from ahrm_stack.kinematics.scene import (CollisionScene, bounding_radius, capsule_distance, local_extent,
+                                         signed_distance)
 from ahrm_stack.safety.constraints.base import ArmSnapshot, ConstraintDefinitionError, Rows
 
 TABLE = "table"
@@ -111,6 +114,11 @@ class DistanceLimit:
         self._names = [[f"table:{a}"] + [f"obstacle:{a}/{b}" for b in self.object_names[1:]]
                        for a in self.part_names]
         self._self_names = [f"self:{a}/{b}" for a, b in self.self_pairs]
+        # Two capsules are measured in closed form (no library call): each part's half length
+        # and radius, and whether it is a capsule (the pusher is a cylinder).
+        self._capsule = [isinstance(o.collisionGeometry(), coal.Capsule) for o in self._parts]
+        self._half_radius = [(float(o.collisionGeometry().halfLength), float(o.collisionGeometry().radius))
+                             for o in self._parts]
         self.last_queries = 0  # distance queries made by the last call (after the bounding test)
 
     def max_rows(self, table: bool, obstacles: bool, self_collision: bool = False) -> int:
@@ -162,6 +170,13 @@ class DistanceLimit:
         placed = set()
         found = []
         for kind, i, j in candidates:
+            if kind == _SELF and self._capsule[i] and self._capsule[j]:
+                d, point_a, point_b, normal = capsule_distance(
+                    centers[i].tolist(), part_rotations[i][:, 2].tolist(), *self._half_radius[i],
+                    centers[j].tolist(), part_rotations[j][:, 2].tolist(), *self._half_radius[j])
+                if d <= self.activation_distance:
+                    found.append((kind, d, i, j, point_a, point_b, normal))
+                continue
             for k in ((i, j) if kind == _SELF else (i,)):
                 if k not in placed:
                     self._parts[k].setRotation(part_rotations[k])
