@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import typing
 from pathlib import Path
 from typing import Any, Literal, Sequence
@@ -169,6 +170,18 @@ class ScriptedConfig:
 
 
 @dataclasses.dataclass(frozen=True)
+class SelfCollisionPairs:
+    """Per arm (``task.robot``), the pairs of arm parts that get a self-collision distance row.
+    Parts are named ``base``, ``link1`` ... ``link6`` (the body each joint turns) and ``pusher``."""
+
+    jaco: tuple[tuple[str, str], ...]
+    j2s6s200: tuple[tuple[str, str], ...]
+
+
+SELF_COLLISION_PART = re.compile(r"^(base|pusher|link[1-9])$")
+
+
+@dataclasses.dataclass(frozen=True)
 class SafetyConfig:
     """The QP action filter (spec §5). Joint limits and velocity limits come from the robot
     description; only margins and the extra limits the description lacks live here."""
@@ -189,11 +202,14 @@ class SafetyConfig:
     workspace_rows: bool  # the tip and wrist stay inside the workspace box
     workspace_lower: tuple[float, float, float]  # m, world-frame box the tip and wrist stay in
     workspace_upper: tuple[float, float, float]
-    table_distance_rows: bool  # distance rows robot part-table (pusher body, link capsules; FCL)
+    table_distance_rows: bool  # distance rows robot part-table (pusher body, link capsules)
     obstacle_rows: bool  # distance rows robot part-obstacle (off in training, on in deployment)
     obstacle_safe_distance: float  # m, d_safe
     obstacle_activation_distance: float  # m, pairs farther than this add no row
     max_obstacle_rows: int  # the nearest pairs within the activation distance get a row
+    self_collision_rows: bool  # distance rows between the arm's own parts (the pairs below), with
+    # the obstacle rows' safe distance, activation distance and horizon
+    self_collision_pairs: SelfCollisionPairs
     osqp_eps: float  # OSQP absolute and relative tolerance
     osqp_max_iter: int
     cartesian_regularization: float  # lambda of ||u||^2 in cartesian mode, (m/rad)^2
@@ -450,6 +466,16 @@ def _check_ranges(obj: Any, key: str) -> None:
         for i, (lo, hi) in enumerate(zip(obj.workspace_lower, obj.workspace_upper)):
             if not lo < hi:
                 raise ConfigError(f"{key}.workspace_lower[{i}] ({lo}) must be < workspace_upper[{i}] ({hi})")
+    elif isinstance(obj, SelfCollisionPairs):
+        for robot in (f.name for f in dataclasses.fields(obj)):
+            for i, pair in enumerate(getattr(obj, robot)):
+                where = f"{key}.{robot}[{i}]"
+                for name in pair:
+                    if not SELF_COLLISION_PART.match(name):
+                        raise ConfigError(f"{where}: {name!r} is not an arm part; use base, link1 ... "
+                                          "link9 or pusher")
+                if pair[0] == pair[1]:
+                    raise ConfigError(f"{where}: a part cannot be paired with itself ({list(pair)})")
     elif isinstance(obj, MechanismConfig):
         orders = [("fixed_order", obj.fixed_order)]
         orders += [(f"manual_orders[{k}]", o) for k, o in enumerate(obj.manual_orders)]
@@ -720,7 +746,20 @@ def load_config(overrides: Sequence[str] = (), config_dir: Path | str = CONFIG_D
     return config_from_dict(data)
 
 
+# Keys added after runs were recorded: a run's config.yaml that lacks them takes them from the
+# repository's configs (so the committed run folders and older checkpoints still load).
+BACKFILLED = {"safety": ("self_collision_rows", "self_collision_pairs")}
+
+
 def config_from_dict(data: dict) -> Config:
+    if isinstance(data, dict) and any(isinstance(data.get(section), dict) and
+                                      any(k not in data[section] for k in keys)
+                                      for section, keys in BACKFILLED.items()):
+        data = dict(data)
+        for section, keys in BACKFILLED.items():
+            if isinstance(data.get(section), dict):
+                defaults = _read_yaml(CONFIG_DIR / SECTIONS[section])
+                data[section] = {**{k: defaults[k] for k in keys}, **data[section]}
     return _build(Config, data, "")
 
 

@@ -41,6 +41,7 @@ class RobotDescription:
     velocity_limit: np.ndarray  # rad/s, symmetric: |dq| <= velocity_limit
     commanded_joints: tuple[int, ...]  # indices driven by the policy; the rest hold zero velocity
     link_bodies: tuple[str, ...]  # body names of the links, base to wrist (arm-model names)
+    base_body: str  # arm-model name of the fixed body the first link turns on (the base)
     attachment_site: str  # arm-model name of the site the pusher is attached to
     urdf: Path | None = None  # the URDF the arm is built from (None: the MJCF is the source); the
     # kinematics then read the URDF directly
@@ -110,6 +111,7 @@ def describe(name: str, arm: composer.Entity) -> RobotDescription:
         velocity_limit=ctrl[:, 1].copy(),
         commanded_joints=ARMS[name].commanded_joints,
         link_bodies=tuple(j.parent.name for j in arm.joints),
+        base_body=arm.joints[0].parent.parent.name,
         attachment_site=arm.wrist_site.name,
         urdf=arm.urdf.path if isinstance(arm, UrdfArm) else None,
     )

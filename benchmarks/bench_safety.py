@@ -4,7 +4,9 @@ Rows of the table (each for daqp and for the persistent OSQP workspace):
 
 * box          — hard bounds only (position, velocity, acceleration): coupled rows off;
 * table+ws     — plus the table and workspace rows of the tip and the wrist (the spec's training rows);
-* default      — the shipped configs/safety.yaml: plus the table distance rows (pusher, links; FCL);
+* no self      — default without the self-collision rows (the default before they existed);
+* default      — the shipped configs/safety.yaml: plus the table distance rows (pusher, links) and
+                 the self-collision rows (coal);
 * 8 obstacles  — default plus obstacle rows, in a scene where the four obstacles crowd the pusher
                  and wrist so that 8 robot-obstacle pairs are within the activation distance.
 
@@ -32,8 +34,10 @@ from ahrm_stack.env.task import PushOffTask  # noqa: E402
 from ahrm_stack.safety import make_filter  # noqa: E402
 
 VARIANTS = {
-    "box": dict(table_rows=False, workspace_rows=False, table_distance_rows=False),
-    "table+ws": dict(table_distance_rows=False),
+    "box": dict(table_rows=False, workspace_rows=False, table_distance_rows=False,
+                self_collision_rows=False),
+    "table+ws": dict(table_distance_rows=False, self_collision_rows=False),
+    "no self": dict(self_collision_rows=False),
     "default": {},
     "8 obstacles": dict(obstacle_rows=True),
 }
@@ -43,7 +47,7 @@ GOALS_US = {("daqp", "table+ws"): 50.0, ("daqp", "8 obstacles"): 150.0}
 def build(runner, config, changes, scene=None):
     task = runner.task
     config = dataclasses.replace(config, **changes)
-    if scene is None and (config.table_distance_rows or config.obstacle_rows):
+    if scene is None and (config.table_distance_rows or config.obstacle_rows or config.self_collision_rows):
         scene = task.make_collision_scene(runner.physics)
     return make_filter(task.robot, task.kinematics, config,
                        control_period=task.config.episode.control_period,
@@ -182,6 +186,9 @@ def main() -> None:
                   f"{step50:9.1f} {share:7.1%}  {mark}")
     print("ratios osqp / daqp (hot p50): " + ", ".join(
         f"{name} {results[('osqp', name)][0] / results[('daqp', name)][0]:.1f}x" for name in VARIANTS))
+    print("ratio default / no self (hot p50, daqp): "
+          f"{results[('daqp', 'default')][0] / results[('daqp', 'no self')][0]:.2f}x; in loop "
+          f"{results[('daqp', 'default')][2] / results[('daqp', 'no self')][2]:.2f}x")
     print("ratios in-loop / hot (p50, daqp): " + ", ".join(
         f"{name} {results[('daqp', name)][2] / results[('daqp', name)][0]:.1f}x"
         for name in VARIANTS if name != "8 obstacles"))

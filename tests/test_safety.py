@@ -57,7 +57,7 @@ def build(**changes):
     runner = world()
     task, config = runner.task, dataclasses.replace(_CFG.safety, **changes)
     scene = None
-    if config.table_distance_rows or config.obstacle_rows:
+    if config.table_distance_rows or config.obstacle_rows or config.self_collision_rows:
         scene = task.make_collision_scene(runner.physics)
     return make_filter(task.robot, task.kinematics, config,
                        control_period=task.config.episode.control_period,
@@ -359,7 +359,8 @@ FINITE_REQUESTS = ("zero", "tiny", "small", "inside", "at_limit", "beyond", "hug
 
 @pytest.mark.parametrize("solver, examples", [("daqp", 10_000), ("osqp", 8_000)])
 def test_box_only_qp_equals_the_analytic_clip(solver, examples):
-    safety = cached(solver=solver, table_rows=False, workspace_rows=False, table_distance_rows=False)
+    safety = cached(solver=solver, table_rows=False, workspace_rows=False, table_distance_rows=False,
+                    self_collision_rows=False)
 
     def check(case):
         q, dq, u_prev, kind, rng = case
@@ -401,7 +402,8 @@ def point_rows(config, q):
 
 @pytest.mark.parametrize("solver, examples", [("daqp", 7_000), ("osqp", 5_000)])
 def test_qp_equals_the_clip_whenever_the_clip_meets_every_coupled_row(solver, examples):
-    safety = cached(solver=solver, table_distance_rows=False)  # the point rows, computed below
+    safety = cached(solver=solver, table_distance_rows=False,
+                    self_collision_rows=False)  # the point rows, computed below
 
     def check(case, offset_seed):
         _, dq, u_prev, kind, rng = case
@@ -496,7 +498,7 @@ FAST_ACCEL = tuple([1e3] * 6)  # so that only the row under test binds
 @pytest.mark.parametrize("braking", [False, True])
 def test_tip_2cm_above_the_table_moving_down_at_full_speed_is_slowed_to_the_margin(solver, braking):
     safety = build(solver=solver, braking_horizon=braking, acceleration_limit=FAST_ACCEL,
-                   table_distance_rows=False)  # the tip row alone
+                   table_distance_rows=False, self_collision_rows=False)  # the tip row alone
     t = DT if braking is False else safety.horizon
     q = pose_pointing_down(np.array([0.1, 0.1, TABLE + 0.02]))
     KIN.update(q)
@@ -522,7 +524,7 @@ def test_tip_pressing_into_the_workspace_x_face_is_slowed_to_it(solver):
     p, _ = KIN.frame_pose(TIP)
     upper = (p[0] + 0.01, 1.0, 1.4)
     safety = build(solver=solver, braking_horizon=False, acceleration_limit=FAST_ACCEL,
-                   workspace_upper=upper, table_distance_rows=False)
+                   workspace_upper=upper, table_distance_rows=False, self_collision_rows=False)
     jx = KIN.frame_jacobian(TIP)[0]
     u_nom = np.sign(jx) * V_MAX * (np.abs(jx) > 1e-6)
     expected = halfspace_projection(u_nom, DT * jx, upper[0] - p[0])
@@ -553,7 +555,8 @@ def test_pusher_heading_into_an_obstacle_keeps_the_safe_distance(solver):
     scene.update_objects(np.array([3.0, -3.0, 0.0]), np.eye(3), centers, rotations)
     safety = make_filter(task.robot, kin, dataclasses.replace(
         _CFG.safety, solver=solver, braking_horizon=False, acceleration_limit=FAST_ACCEL,
-        table_rows=False, table_distance_rows=False, obstacle_rows=True), control_period=DT,
+        table_rows=False, table_distance_rows=False, self_collision_rows=False, obstacle_rows=True),
+        control_period=DT,
         table_height=TABLE,
         tip_site=task.pusher.tip_site, wrist_site=task.arm.wrist_site, scene=scene)
     # the row, independently: FCL distance and witness points, Jacobian of the witness point
@@ -624,7 +627,8 @@ def test_with_the_one_period_rows_the_same_descent_overruns_the_margin():
 
 @pytest.mark.parametrize("solver", SOLVERS)
 def test_joint_past_its_limit_and_moving_further_decelerates_at_the_limit(solver):
-    safety = build(solver=solver, table_rows=False, workspace_rows=False)  # the box alone
+    safety = build(solver=solver, table_rows=False, workspace_rows=False,
+                   self_collision_rows=False)  # the box alone
     q = HOME.copy()
     q[1] = ROBOT.position_upper[1] + 0.2
     u_prev = np.array([0.3, V_MAX[1], -0.1, 0.0, 0.5, 0.0])
@@ -638,7 +642,7 @@ def test_joint_past_its_limit_and_moving_further_decelerates_at_the_limit(solver
 
 @pytest.mark.parametrize("solver", SOLVERS)
 def test_tip_below_the_margin_and_falling_gets_the_least_violating_command(solver):
-    safety = build(solver=solver, table_distance_rows=False)  # the tip row alone
+    safety = build(solver=solver, table_distance_rows=False, self_collision_rows=False)  # the tip row alone
     q = pose_pointing_down(np.array([0.1, 0.1, TABLE + 0.005]))
     KIN.update(q)
     p, _ = KIN.frame_pose(TIP)
@@ -795,13 +799,14 @@ def test_construction_rejects_inconsistent_settings():
     with pytest.raises(ConstraintDefinitionError, match="leaves no room"):
         build(position_margin=3.0)
     task = world().task
-    for switch in ("obstacle_rows", "table_distance_rows"):
+    for switch in ("obstacle_rows", "table_distance_rows", "self_collision_rows"):
         with pytest.raises(SafetyFilterError, match=f"{switch} is on but no collision scene"):
-            changes = {"obstacle_rows": False, "table_distance_rows": False, switch: True}
+            changes = {"obstacle_rows": False, "table_distance_rows": False, "self_collision_rows": False,
+                       switch: True}
             make_filter(task.robot, task.kinematics, dataclasses.replace(_CFG.safety, **changes),
                         control_period=DT, table_height=TABLE, tip_site=task.pusher.tip_site,
                         wrist_site=task.arm.wrist_site)
-    safety = build(table_distance_rows=False)
+    safety = build(table_distance_rows=False, self_collision_rows=False)
     with pytest.raises(SafetyFilterError, match="no collision scene"):
         safety(HOME, np.zeros(6), np.zeros(6), obstacles=True)
     with pytest.raises(SafetyFilterError, match="u_nom must have shape"):
@@ -813,6 +818,11 @@ def test_construction_rejects_inconsistent_settings():
     ("safety.obstacle_activation_distance=0.005", "obstacle_activation_distance"),
     ("safety.wrist_table_margin=-0.1", "wrist_table_margin"),
     ("safety.cartesian_regularization=0.0", "cartesian_regularization"),
+    ("safety.self_collision_pairs.jaco=[[base, base]]",
+     r"safety\.self_collision_pairs\.jaco\[0\]: a part cannot be paired with itself"),
+    ("safety.self_collision_pairs.jaco=[[base, elbow]]",
+     r"safety\.self_collision_pairs\.jaco\[0\]: 'elbow' is not an arm part"),
+    ("safety.self_collision_pairs.ur5=[]", r"unknown config key 'safety\.self_collision_pairs\.ur5'"),
 ])
 def test_config_rejects_bad_safety_values(override, message):
     with pytest.raises(ConfigError, match=message):

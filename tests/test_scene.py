@@ -1,4 +1,5 @@
-"""FCL scene: capsules enclose the link meshes; distances and witness points agree with geometry."""
+"""Collision scene: capsules enclose the base's and every link's collision geoms; distances and
+witness points agree with geometry (coal, to 1e-6 m)."""
 
 import mujoco
 import numpy as np
@@ -45,25 +46,43 @@ def scene_and_runner(task_config):
     return runner.task.make_collision_scene(runner.physics), runner
 
 
-def test_link_capsules_enclose_the_compiled_link_meshes(scene_and_runner):
+def _enclosed_points(model, geom) -> np.ndarray:
+    """Points of a geom in its body's frame, computed here: a mesh's vertices, or 2000 points on
+    each rim of a cylinder (exactly on the circles)."""
+    if model.geom_type[geom] == mujoco.mjtGeom.mjGEOM_MESH:
+        mesh = model.geom_dataid[geom]
+        local = model.mesh_vert[model.mesh_vertadr[mesh]:model.mesh_vertadr[mesh] + model.mesh_vertnum[mesh]]
+    else:
+        assert model.geom_type[geom] == mujoco.mjtGeom.mjGEOM_CYLINDER
+        r, h = model.geom_size[geom][:2]
+        a = np.linspace(0, 2 * np.pi, 2000, endpoint=False)
+        rim = np.stack([r * np.cos(a), r * np.sin(a), np.zeros_like(a)], axis=1)
+        local = np.concatenate([rim - [0, 0, h], rim + [0, 0, h]])
+    rot = np.zeros(9)
+    mujoco.mju_quat2Mat(rot, model.geom_quat[geom])
+    return np.asarray(local) @ rot.reshape(3, 3).T + model.geom_pos[geom]
+
+
+def test_capsules_enclose_the_base_and_every_links_collision_geoms(scene_and_runner):
     scene, runner = scene_and_runner
     model = runner.physics.model.ptr
-    assert len(scene.capsules) == 5
+    robot = runner.task.robot
+    assert [c.frame for c in scene.capsules] == [robot.base_body, *robot.link_bodies]
+    kinds = set()
     for capsule in scene.capsules:
         body = model.body(f"jaco/{capsule.frame}").id
-        for geom in range(model.ngeom):
-            if model.geom_bodyid[geom] != body or model.geom_type[geom] != mujoco.mjtGeom.mjGEOM_MESH:
-                continue
-            mesh = model.geom_dataid[geom]
-            verts = model.mesh_vert[model.mesh_vertadr[mesh]:model.mesh_vertadr[mesh] + model.mesh_vertnum[mesh]]
-            rot = np.zeros(9)
-            mujoco.mju_quat2Mat(rot, model.geom_quat[geom])
-            local = verts @ rot.reshape(3, 3).T + model.geom_pos[geom]
+        geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] == body
+                 and (model.geom_contype[g] or model.geom_conaffinity[g])]
+        assert geoms
+        for geom in geoms:
+            kinds.add(int(model.geom_type[geom]))
+            local = _enclosed_points(model, geom)
             assert np.all(_segment_distance(local, capsule.start, capsule.end) <= capsule.radius + 1e-9)
+    assert kinds == {mujoco.mjtGeom.mjGEOM_MESH, mujoco.mjtGeom.mjGEOM_CYLINDER}
 
 
 def test_pusher_to_table_distance_matches_mujoco_geometry(scene_and_runner):
-    """Compare FCL's pusher-table distance with the pusher's lowest point from MuJoCo's pose."""
+    """Compare the scene's pusher-table distance with the pusher's lowest point from MuJoCo's pose."""
     scene, runner = scene_and_runner
     task, physics = runner.task, runner.physics
     rng = np.random.default_rng(1)
@@ -79,7 +98,9 @@ def test_pusher_to_table_distance_matches_mujoco_geometry(scene_and_runner):
         # lowest point of a cylinder: centre - h |a_z| - r sqrt(1 - a_z^2) in z
         lowest = geom.xpos[2] - task.pusher.half_length * abs(axis[2]) - task.pusher.radius * np.sqrt(1 - axis[2] ** 2)
         d = scene.distance("pusher", "table")
-        if lowest - task.config.table.height > 1e-3:  # well above: FCL GJK accuracy ~2e-4 m
-            assert d.distance == pytest.approx(lowest - task.config.table.height, abs=5e-4)
-            assert np.linalg.norm(d.point_a - d.point_b) == pytest.approx(d.distance, abs=5e-4)
-            assert d.point_b[2] == pytest.approx(task.config.table.height, abs=5e-4)
+        inside = np.all(np.abs(geom.xpos[:2]) < np.asarray(task.config.table.half_extent) - 0.1)
+        if lowest - task.config.table.height > 1e-3 and inside:  # above the top, not its edge
+            assert d.distance == pytest.approx(lowest - task.config.table.height, abs=1e-6)
+            assert np.linalg.norm(d.point_a - d.point_b) == pytest.approx(d.distance, abs=1e-6)
+            assert d.point_b[2] == pytest.approx(task.config.table.height, abs=1e-6)
+            np.testing.assert_allclose(d.normal, [0, 0, 1], atol=1e-4)

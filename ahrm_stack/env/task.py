@@ -205,17 +205,19 @@ class PushOffTask(composer.Task):
                              data.xmat[self._obstacle_bodies].reshape(-1, 3, 3))
 
     def make_collision_scene(self, physics: mjcf.Physics) -> CollisionScene:
-        """The FCL scene of this task: pusher and link capsules (from the compiled link meshes),
-        table, cube and obstacles, placed at the current state of ``physics``."""
+        """The collision scene of this task: pusher, base and link capsules (from the compiled
+        geoms), table, cube and obstacles, placed at the current state of ``physics``."""
         kin = self.kinematics
+        parts = (self.robot.base_body, *self.robot.link_bodies)
         bodies = [(int(physics.bind(body).element_id), relative_name(body, self._arm.mjcf_model))
                   for body in self._arm.mjcf_model.find_all("body")
-                  if relative_name(body, self._arm.mjcf_model) in self.robot.link_bodies]
+                  if relative_name(body, self._arm.mjcf_model) in parts]
         scene = CollisionScene(
             kin, link_capsules(physics.model.ptr, bodies),
             relative_name(self._pusher.center_site, self._arm.mjcf_model), self._pusher.radius,
             self._pusher.half_length, self.config.table.half_extent, self.config.table.height,
-            self.config.table.thickness, self.config.cube.size, self._obstacle_half_sizes)
+            self.config.table.thickness, self.config.cube.size, self._obstacle_half_sizes,
+            base_frame=self.robot.base_body)
         kin.update(physics.data.qpos[self._arm_qpos])
         scene.update_robot()
         self.place_objects(scene, physics)

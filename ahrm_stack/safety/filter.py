@@ -8,6 +8,7 @@ Joint mode (:meth:`SafetyFilter.__call__`)::
               p_z + T (J u)_z >= table + margin              tip and wrist
               lower <= p + T J u <= upper                    tip and wrist (workspace box)
               d_i + T n_i^T J_i u >= d_safe                  robot parts / table; / obstacles (optional)
+              d_ab + T n_ab^T (J_a - J_b) u >= d_safe        pairs of arm parts (self-collision)
 
 Cartesian mode (:meth:`SafetyFilter.cartesian`): the same constraints, objective
 ``||J_tip u - v_nom||^2 + lambda ||u||^2 + w ||P_perp J_w u||^2`` (the last term holds the pusher's
@@ -81,8 +82,9 @@ class SafetyFilter:
         dt: the control period, s (a command is held this long).
         table_height: z of the table top, m, world frame.
         tip_frame, wrist_frame: frame ids (in ``kinematics``) of the pusher tip and the wrist.
-        scene: the FCL scene, needed for the distance rows (``config.table_distance_rows``,
-            ``config.obstacle_rows``, or a call with ``obstacles=True``). The filter places its
+        scene: the collision scene, needed for the distance rows (``config.table_distance_rows``,
+            ``config.obstacle_rows``, ``config.self_collision_rows``, or a call with
+            ``obstacles=True``). The filter places its
             robot parts; the caller keeps its environment objects current
             (``scene.update_objects``). Building the filter calls ``scene.kinematics.update`` (at
             q = 0) and ``scene.update_robot`` once, to learn where each part sits on its link.
@@ -104,7 +106,7 @@ class SafetyFilter:
                 raise SafetyFilterError(f"{name}={frame!r} is not a frame of the kinematics model")
         if config.solver not in ("daqp", "osqp"):
             raise SafetyFilterError(f"safety.solver is {config.solver!r}; choose daqp or osqp")
-        for switch in ("table_distance_rows", "obstacle_rows"):
+        for switch in ("table_distance_rows", "obstacle_rows", "self_collision_rows"):
             if getattr(config, switch) and scene is None:
                 raise SafetyFilterError(f"safety.{switch} is on but no collision scene was given "
                                         "(pass task.make_collision_scene(physics))")
@@ -136,14 +138,16 @@ class SafetyFilter:
             frames["pusher"] = int(tip_frame)  # the pusher is one rigid body with its tip
             self.distances = DistanceLimit(
                 scene, self._snapshot, frames, config.obstacle_safe_distance,
-                config.obstacle_activation_distance, config.max_obstacle_rows, self.horizon)
+                config.obstacle_activation_distance, config.max_obstacle_rows, self.horizon,
+                self_collision_pairs(robot, config, scene))
         self._frames = (int(tip_frame), int(wrist_frame))
         self._commanded = np.zeros(nv, dtype=bool)
         self._commanded[list(robot.commanded_joints)] = True
         point_families = [f for f in (self.table, self.workspace) if f is not None]
         self._point_rows = CoordinateRows.stacked(point_families) if point_families else None
         self.max_rows = (len(self._point_rows.names) if self._point_rows else 0) + \
-            (self.distances.max_rows(config.table_distance_rows, True) if self.distances else 0)
+            (self.distances.max_rows(config.table_distance_rows, True, config.self_collision_rows)
+             if self.distances else 0)
         self.solver: QPSolver = (DaqpSolver(nv, self.max_rows) if config.solver == "daqp" else
                                  OsqpSolver(nv, self.max_rows, config.osqp_eps, config.osqp_max_iter))
         self._fallback_solver = DaqpSolver(nv + 1, self.max_rows)
@@ -296,9 +300,9 @@ class SafetyFilter:
         parts = []
         if self._point_rows is not None:
             parts.append(self._point_rows.rows(self._control_points()))
-        if with_obstacles or self.config.table_distance_rows:
+        if with_obstacles or self.config.table_distance_rows or self.config.self_collision_rows:
             distance_rows = self.distances.rows(self._snapshot, self.config.table_distance_rows,
-                                                with_obstacles)
+                                                with_obstacles, self.config.self_collision_rows)
             if len(distance_rows.bound) or not parts:
                 parts.append(distance_rows)
         if len(parts) == 1:
@@ -399,6 +403,33 @@ class SafetyFilter:
         return tuple(names)
 
 
+def self_collision_pairs(robot: RobotDescription, config: SafetyConfig,
+                         scene: CollisionScene) -> tuple[tuple[str, str], ...]:
+    """The configured self-collision pairs of ``robot`` (``safety.self_collision_pairs.<robot>``),
+    as the scene's part names: ``base`` is the robot's base body, ``link<i>`` the body joint i
+    turns, ``pusher`` the pusher. Empty when ``safety.self_collision_rows`` is off.
+
+    Raises:
+        SafetyFilterError: no pair list for the robot, or a part the arm or the scene lacks.
+    """
+    if not config.self_collision_rows:
+        return ()
+    listed = getattr(config.self_collision_pairs, robot.name, None)
+    if listed is None:
+        raise SafetyFilterError(f"safety.self_collision_pairs has no entry for robot {robot.name!r}")
+    names = {"base": robot.base_body, "pusher": "pusher"}
+    names.update({f"link{i + 1}": body for i, body in enumerate(robot.link_bodies)})
+    pairs = []
+    for k, pair in enumerate(listed):
+        for part in pair:
+            if names.get(part) not in scene.robot:
+                raise SafetyFilterError(
+                    f"safety.self_collision_pairs.{robot.name}[{k}]: {part!r} is not a part of the "
+                    f"{robot.name} collision scene; its parts: {sorted(names)}")
+        pairs.append((names[pair[0]], names[pair[1]]))
+    return tuple(pairs)
+
+
 def _vector(value, size: int, name: str) -> np.ndarray:
     array = np.asarray(value, dtype=float)
     if array.shape != (size,):
@@ -423,4 +454,4 @@ def make_filter(robot: RobotDescription, kinematics: ArmKinematics, config: Safe
                         wrist_frame=kinematics.element_frame_id(wrist_site), scene=scene)
 
 
-__all__ = ["SafetyFilter", "SafetyFilterError", "braking_time", "make_filter"]
+__all__ = ["SafetyFilter", "SafetyFilterError", "braking_time", "make_filter", "self_collision_pairs"]

@@ -176,6 +176,17 @@ class ArmSnapshot:
             return local + self.base_translation
         return local @ self.base_rotation.T + self.base_translation
 
+    def placements(self, frames: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
+        """World positions (k x 3, m) and rotation matrices (k x 3 x 3) of several frames."""
+        model, data = self.model, self.data
+        placed = [pin.updateFramePlacement(model, data, f) for f in frames]
+        local = np.array([p.translation for p in placed])
+        rotations = np.array([p.rotation for p in placed])
+        if self._identity_base:
+            return local + self.base_translation, rotations
+        return (local @ self.base_rotation.T + self.base_translation,
+                np.einsum("ij,kjl->kil", self.base_rotation, rotations))
+
     def attach_frame(self, name: str, frame: int, position: np.ndarray, rotation: np.ndarray) -> int:
         """Add a frame rigidly attached to ``frame`` at world ``position`` (m) and ``rotation``, as
         they are at the configuration of the last :meth:`update`; returns its id."""

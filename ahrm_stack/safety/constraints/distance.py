@@ -1,75 +1,64 @@
-"""The distance rows: the robot parts (pusher, link capsules) keep a safe distance from the table
-and from the obstacles.
+"""The distance rows: the robot parts (pusher, link capsules) keep a safe distance from the table,
+from the obstacles and from each other.
 
-For each pair (robot part a, environment object b) closer than the activation distance, FCL gives
-the signed distance ``d`` and the witness points ``p_a`` (on the part) and ``p_b``; with
-``n = sign(d) (p_a - p_b) / |p_a - p_b|`` (from b towards a) and ``J_a`` the linear Jacobian of the
-witness point ``p_a`` on the part, the row is
+For each pair (robot part a, object b) closer than the activation distance, the collision scene
+gives the signed distance ``d``, the witness points ``p_a`` (on a) and ``p_b`` (on b) and the unit
+normal ``n`` from b towards a (:func:`~ahrm_stack.kinematics.scene.signed_distance`: coal, guarded
+so that no query can fail or abort the process; two capsules in closed form,
+:func:`~ahrm_stack.kinematics.scene.capsule_distance`). With ``J_a`` the linear Jacobian of the witness
+point ``p_a`` carried by part a (and ``J_b`` that of ``p_b`` carried by part b, zero for the table,
+the obstacles and the base), the row is
 
-    d + horizon * n^T J_a u >= d_safe        stored as   -horizon * n^T J_a u <= d - d_safe.
+    d + horizon * n^T (J_a - J_b) u >= d_safe     stored as   -horizon * n^T (J_a - J_b) u <= d - d_safe.
 
-Rows against the table are named ``table:<part>`` (one per part at most); rows against obstacles
-``obstacle:<part>/<obstacle>``, of which only the ``max_obstacle_rows`` nearest are kept. Pairs that
-cannot be within the activation distance are skipped without an FCL query, by a bound of each
-part's bounding sphere against each object's world-aligned bounding box; the sizes are measured
-from the FCL objects once, at construction.
+Rows against the table are named ``table:<part>`` (one per moving part at most); rows against
+obstacles ``obstacle:<part>/<obstacle>``, of which only the ``max_obstacle_rows`` nearest are kept;
+rows between two parts of the arm (the configured self-collision pairs) ``self:<a>/<b>``, all kept.
+The base never moves: it only takes part in self-collision pairs. Pairs that cannot be within the
+activation distance are skipped without a query, by a bound of each part's bounding ball against
+each object's world-aligned bounding box (or the other part's ball).
 """
 
 from __future__ import annotations
 
-from typing import Mapping
+from typing import Mapping, Sequence
 
-import fcl
+import coal
 import numpy as np
 
-from ahrm_stack.kinematics.scene import CollisionScene
+from ahrm_stack.kinematics.scene import (CollisionScene, bounding_radius, capsule_distance, local_extent,
+                                         signed_distance)
 from ahrm_stack.safety.constraints.base import ArmSnapshot, ConstraintDefinitionError, Rows
 
-_REQUEST = fcl.DistanceRequest(enable_signed_distance=True, enable_nearest_points=True)
-_PROBE_DISTANCE = 10.0  # m, far outside any part or object: probes measure their extents
-_PROBE_RADIUS = 1e-3  # m
-_EXTENT_PAD = 1e-3  # m added to each measured extent (FCL's accuracy on the probes is far better)
-_DEGENERATE = 1e-9  # m, witness points closer than this give no direction
 TABLE = "table"
-
-
-def local_extent(obj: fcl.CollisionObject) -> np.ndarray:
-    """Half extents (m) of ``obj``'s geometry along its local axes about its origin (the larger
-    of the + and - side per axis), measured with FCL against a small far-away probe sphere. For
-    FCL's primitives (box, capsule, cylinder, sphere) this is their local bounding box."""
-    rotation, origin = obj.getRotation(), obj.getTranslation()
-    extent = np.zeros(3)
-    probe = fcl.CollisionObject(fcl.Sphere(_PROBE_RADIUS))
-    for axis in range(3):
-        for side in (1.0, -1.0):
-            probe.setTransform(fcl.Transform(np.eye(3), origin + side * _PROBE_DISTANCE * rotation[:, axis]))
-            d = fcl.distance(obj, probe, _REQUEST, fcl.DistanceResult())
-            extent[axis] = max(extent[axis], _PROBE_DISTANCE - _PROBE_RADIUS - d)
-    return extent + _EXTENT_PAD
+_TABLE, _OBSTACLE, _SELF = 0, 1, 2  # kinds of row, in the order they are stacked
 
 
 class DistanceLimit:
-    """Distance rows between every robot part of ``scene`` and its ``table`` and ``obstacle_i``.
+    """Distance rows between the robot parts of ``scene`` and its ``table`` and ``obstacle_i``,
+    and between the given pairs of robot parts.
 
     The robot parts are placed here, from the filter's own kinematics snapshot: each part gets a
     frame of its own, fixed where the scene placed it relative to the frame carrying it; the
     caller keeps the environment objects current (``scene.update_objects``).
 
     Args:
-        scene: the FCL scene; its robot parts must be placed (``scene.update_robot``) at the
-            configuration of ``snapshot`` when this is built.
+        scene: the collision scene; its robot parts must be placed (``scene.update_robot``) at
+            the configuration of ``snapshot`` when this is built.
         snapshot: kinematics updated at the configuration the scene's robot parts are placed at
             (the parts' frames are attached to its model).
         part_frames: frame id rigidly carrying each robot part of the scene.
-        safe_distance: d_safe, m.
+        safe_distance: d_safe, m (every row).
         activation_distance: m; pairs farther apart add no row. Must exceed ``safe_distance``.
         max_obstacle_rows: at most this many obstacle rows (the nearest pairs).
         horizon: s over which the command is linearised (see ``PositionLimit``).
+        self_pairs: pairs of robot part names (scene names) that keep ``safe_distance`` from each
+            other.
     """
 
     def __init__(self, scene: CollisionScene, snapshot: ArmSnapshot, part_frames: Mapping[str, int],
                  safe_distance: float, activation_distance: float, max_obstacle_rows: int,
-                 horizon: float) -> None:
+                 horizon: float, self_pairs: Sequence[tuple[str, str]] = ()) -> None:
         if not (np.isfinite(safe_distance) and safe_distance >= 0):
             raise ConstraintDefinitionError(f"safe distance must be finite and >= 0 m, got {safe_distance!r}")
         if not (np.isfinite(activation_distance) and activation_distance > safe_distance):
@@ -92,6 +81,21 @@ class DistanceLimit:
         self.horizon = float(horizon)
         self.part_names = tuple(scene.robot)
         self._parts = [scene.robot[name] for name in self.part_names]
+        index = {name: i for i, name in enumerate(self.part_names)}
+        self._moving = np.array([index[name] for name in scene.moving_parts], dtype=int)
+        pairs = []
+        for pair in self_pairs:
+            a, b = pair
+            for name in (a, b):
+                if name not in index:
+                    raise ConstraintDefinitionError(f"self-collision pair {list(pair)}: {name!r} is not a "
+                                                    f"robot part of the scene {list(self.part_names)}")
+            if a == b or (index[a], index[b]) in pairs or (index[b], index[a]) in pairs:
+                raise ConstraintDefinitionError(f"self-collision pair {list(pair)} repeats a part or a pair")
+            pairs.append((index[a], index[b]))
+        self.self_pairs = tuple((self.part_names[i], self.part_names[j]) for i, j in pairs)
+        self._pair_a = np.array([p[0] for p in pairs], dtype=int)
+        self._pair_b = np.array([p[1] for p in pairs], dtype=int)
         # A frame at each part's origin, fixed to the frame carrying it, as the scene placed it.
         self._part_frames = [snapshot.attach_frame(f"safety/{name}", int(part_frames[name]),
                                                    obj.getTranslation(), obj.getRotation())
@@ -99,74 +103,111 @@ class DistanceLimit:
         # Column 0 is the table, then the obstacles.
         self.object_names = (TABLE,) + tuple(n for n in scene.environment if n.startswith("obstacle_"))
         self._objects = [scene.environment[name] for name in self.object_names]
-        self._part_radius = np.array([np.linalg.norm(local_extent(o)) for o in self._parts])
+        self._part_radius = np.array([bounding_radius(o.collisionGeometry()) for o in self._parts])
         # For the bounding test: the table's world-aligned box as it lies (the scene never moves
         # it); each obstacle's local box, turned with it at every call.
         table = self._objects[0]
-        self._table_origin = table.getTranslation()
-        self._table_half = np.abs(table.getRotation()) @ local_extent(table)
-        self._obstacle_extent = np.array([local_extent(o) for o in self._objects[1:]]).reshape(-1, 3)
+        self._table_origin = np.array(table.getTranslation())
+        self._table_half = np.abs(np.array(table.getRotation())) @ local_extent(table.collisionGeometry())
+        self._obstacle_extent = np.array([local_extent(o.collisionGeometry())
+                                          for o in self._objects[1:]]).reshape(-1, 3)
         self._names = [[f"table:{a}"] + [f"obstacle:{a}/{b}" for b in self.object_names[1:]]
                        for a in self.part_names]
-        self.last_queries = 0  # FCL queries made by the last call (after the bounding test)
+        self._self_names = [f"self:{a}/{b}" for a, b in self.self_pairs]
+        # Two capsules are measured in closed form (no library call): each part's half length
+        # and radius, and whether it is a capsule (the pusher is a cylinder).
+        self._capsule = [isinstance(o.collisionGeometry(), coal.Capsule) for o in self._parts]
+        self._half_radius = [(float(o.collisionGeometry().halfLength), float(o.collisionGeometry().radius))
+                             for o in self._parts]
+        self.last_queries = 0  # distance queries made by the last call (after the bounding test)
 
-    def max_rows(self, table: bool, obstacles: bool) -> int:
-        return (len(self._parts) if table else 0) + (self.max_obstacle_rows if obstacles else 0)
+    def max_rows(self, table: bool, obstacles: bool, self_collision: bool = False) -> int:
+        return ((len(self._moving) if table else 0) + (self.max_obstacle_rows if obstacles else 0)
+                + (len(self.self_pairs) if self_collision else 0))
 
-    def rows(self, snapshot: ArmSnapshot, table: bool = True, obstacles: bool = True) -> Rows:
-        """Rows against the table and/or the obstacles at the configuration ``snapshot`` was
-        updated at."""
+    def rows(self, snapshot: ArmSnapshot, table: bool = True, obstacles: bool = True,
+             self_collision: bool = False) -> Rows:
+        """Rows against the table, the obstacles and/or between the self-collision pairs at the
+        configuration ``snapshot`` was updated at."""
         nv = snapshot.model.nv
         self.last_queries = 0
         obstacles = obstacles and self.max_obstacle_rows > 0 and len(self._objects) > 1
-        if not (table or obstacles):
+        self_collision = self_collision and len(self.self_pairs) > 0
+        if not (table or obstacles or self_collision):
             return Rows.empty(nv)
-        first = 0 if table else 1
-        # Bounding test: each part's sphere against each object's world-aligned box.
-        centers = snapshot.positions(self._part_frames)
-        if obstacles:
-            others = self._objects[1:]
-            rotations = np.abs(np.array([o.getRotation() for o in others]))
-            origins = np.array(([self._table_origin] if table else []) + [o.getTranslation() for o in others])
-            half = np.einsum("kij,kj->ki", rotations, self._obstacle_extent)
-            half = np.concatenate(([self._table_half], half)) if table else half
-        else:
-            origins, half = self._table_origin[None], self._table_half[None]
-        gap = np.maximum(np.abs(centers[:, None, :] - origins) - half, 0.0)
-        near = np.sqrt(np.einsum("ijk,ijk->ij", gap, gap)) - self._part_radius[:, None] \
-            <= self.activation_distance
-        parts, objects = np.nonzero(near)
-        self.last_queries = len(parts)
-        if not len(parts):
+        centers, part_rotations = snapshot.placements(self._part_frames)
+        candidates = []  # (kind, part index, object index or part index)
+        if table or obstacles:
+            # Bounding test: each moving part's ball against each object's world-aligned box.
+            first = 0 if table else 1
+            if obstacles:
+                others = self._objects[1:]
+                rotations = np.abs(np.array([o.getRotation() for o in others]))
+                origins = np.array(([self._table_origin] if table else []) +
+                                   [o.getTranslation() for o in others])
+                half = np.einsum("kij,kj->ki", rotations, self._obstacle_extent)
+                half = np.concatenate(([self._table_half], half)) if table else half
+            else:
+                origins, half = self._table_origin[None], self._table_half[None]
+            moving = centers[self._moving]
+            gap = np.maximum(np.abs(moving[:, None, :] - origins) - half, 0.0)
+            near = np.sqrt(np.einsum("ijk,ijk->ij", gap, gap)) - self._part_radius[self._moving, None] \
+                <= self.activation_distance
+            parts, objects = np.nonzero(near)
+            candidates += [(_TABLE if j == 0 else _OBSTACLE, i, j)
+                           for i, j in zip(self._moving[parts].tolist(), (objects + first).tolist())]
+        if self_collision:
+            offset = centers[self._pair_a] - centers[self._pair_b]
+            reach = np.sqrt(np.einsum("ij,ij->i", offset, offset)) \
+                - self._part_radius[self._pair_a] - self._part_radius[self._pair_b]
+            near = np.flatnonzero(reach <= self.activation_distance)
+            candidates += [(_SELF, i, j) for i, j in zip(self._pair_a[near].tolist(),
+                                                         self._pair_b[near].tolist())]
+        self.last_queries = len(candidates)
+        if not candidates:
             return Rows.empty(nv)
-        # Exact signed distances and witness points of the candidates.
+        # Signed distances, witness points and normals of the candidates.
         placed = set()
         found = []
-        for i, j in zip(parts.tolist(), (objects + first).tolist()):
-            part = self._parts[i]
-            if i not in placed:
-                part.setTransform(fcl.Transform(snapshot.placement(self._part_frames[i])[1], centers[i]))
-                placed.add(i)
-            result = fcl.DistanceResult()
-            d = fcl.distance(part, self._objects[j], _REQUEST, result)
+        for kind, i, j in candidates:
+            if kind == _SELF and self._capsule[i] and self._capsule[j]:
+                d, point_a, point_b, normal = capsule_distance(
+                    centers[i].tolist(), part_rotations[i][:, 2].tolist(), *self._half_radius[i],
+                    centers[j].tolist(), part_rotations[j][:, 2].tolist(), *self._half_radius[j])
+                if d <= self.activation_distance:
+                    found.append((kind, d, i, j, point_a, point_b, normal))
+                continue
+            for k in ((i, j) if kind == _SELF else (i,)):
+                if k not in placed:
+                    self._parts[k].setRotation(part_rotations[k])
+                    self._parts[k].setTranslation(centers[k])
+                    placed.add(k)
+            other = self._parts[j] if kind == _SELF else self._objects[j]
+            d, point_a, point_b, normal, _ = signed_distance(self._parts[i], other)
             if d <= self.activation_distance:
-                found.append((j > 0, d, i, j, result.nearest_points))
+                found.append((kind, d, i, j, point_a, point_b, normal))
         if not found:
             return Rows.empty(nv)
-        table_rows = [f for f in found if not f[0]]
-        obstacle_rows = sorted((f for f in found if f[0]), key=lambda f: f[1])[:self.max_obstacle_rows]
-        found = table_rows + obstacle_rows
-        # The rows, all at once: n = sign(d) (p_part - p_object)/|.|, row = -T n^T J_witness.
+        obstacle_rows = sorted((f for f in found if f[0] == _OBSTACLE), key=lambda f: f[1])
+        found = ([f for f in found if f[0] == _TABLE] + obstacle_rows[:self.max_obstacle_rows]
+                 + [f for f in found if f[0] == _SELF])
+        # The rows, all at once: row = -T n^T (J_a(p_a) - J_b(p_b)), J_b = 0 off the arm.
         distance = np.array([f[1] for f in found])
-        on_part = np.array([f[4][0] for f in found])
-        direction = on_part - np.array([f[4][1] for f in found])
-        length = np.sqrt(np.einsum("ij,ij->i", direction, direction))
-        if length.min() < _DEGENERATE:  # touching: push away from the object's origin instead
-            for k in np.flatnonzero(length < _DEGENERATE):
-                direction[k] = on_part[k] - self._objects[found[k][3]].getTranslation()
-            length = np.maximum(np.sqrt(np.einsum("ij,ij->i", direction, direction)), _DEGENERATE)
-        normal = direction * (np.where(distance < 0, -1.0, 1.0) / length)[:, None]
+        normal = np.array([f[6] for f in found])
         frames = [self._part_frames[f[2]] for f in found]
-        matrix = -self.horizon * snapshot.point_rows(frames, on_part, normal)
-        names = tuple(self._names[f[2]][f[3]] for f in found)
-        return Rows(matrix, distance - self.safe_distance, names)
+        points = [f[4] for f in found]
+        directions = list(normal)
+        moving_b = [k for k, f in enumerate(found) if f[0] == _SELF]
+        frames += [self._part_frames[found[k][3]] for k in moving_b]
+        points += [found[k][5] for k in moving_b]
+        directions += [-normal[k] for k in moving_b]
+        rates = snapshot.point_rows(frames, np.array(points), np.array(directions))
+        matrix = rates[:len(found)]
+        if moving_b:
+            matrix[moving_b] += rates[len(found):]
+        names = tuple(self._self_names[self._pair_index(f[2], f[3])] if f[0] == _SELF
+                      else self._names[f[2]][f[3]] for f in found)
+        return Rows(-self.horizon * matrix, distance - self.safe_distance, names)
+
+    def _pair_index(self, a: int, b: int) -> int:
+        return int(np.flatnonzero((self._pair_a == a) & (self._pair_b == b))[0])
