@@ -10,6 +10,7 @@ are parsed as YAML scalars/lists.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 import re
@@ -119,6 +120,12 @@ class ActionConfig:
 
 
 @dataclasses.dataclass(frozen=True)
+class ObservationConfig:
+    relative: bool  # append the tip and each obstacle relative to the cube (m, world frame)
+    lanes: bool  # append each reachable lane's clearance (m; see env.layout.lane_clearance)
+
+
+@dataclasses.dataclass(frozen=True)
 class TaskConfig:
     robot: Literal["jaco", "j2s6s200"]  # an arm of ahrm_stack.robot.ARMS
     table: TableConfig
@@ -131,6 +138,7 @@ class TaskConfig:
     episode: EpisodeConfig
     rewards: RewardConfig
     action: ActionConfig
+    observation: ObservationConfig
 
     @property
     def substeps(self) -> int:
@@ -751,7 +759,47 @@ def load_config(overrides: Sequence[str] = (), config_dir: Path | str = CONFIG_D
 BACKFILLED = {"safety": ("self_collision_rows", "self_collision_pairs")}
 
 
+def _legacy_fill(data: dict) -> dict:
+    """A run folder's config.yaml written before the task distribution (2026-12-01) lacks its
+    keys: fill them so that the run keeps its old behaviour — the home start, the cube at
+    ``cube.position`` ± ``cube.jitter`` in random mode, no DAgger, a constant BC anchor."""
+    def section(*path):
+        node = data
+        for key in path:
+            node = node.get(key) if isinstance(node, dict) else None
+        return node if isinstance(node, dict) else None
+
+    arm, layout, cube = section("task", "arm"), section("task", "layout"), section("task", "cube")
+    train, ppo = section("train"), section("ppo")
+    if not any(s is not None and any(k not in s for k in keys) for s, keys in (
+            (arm, ("start",)), (layout, ("cube_region",)), (train, ("dagger_rounds",)),
+            (ppo, ("bc_coeff_final",)), (section("task"), ("observation",)))):
+        return data
+    data = copy.deepcopy(data)
+    defaults = {name: _read_yaml(CONFIG_DIR / file) for name, file in SECTIONS.items()}
+    if arm is not None and "start" not in arm:
+        data["task"]["arm"].setdefault("start", "home")
+        data["task"]["arm"].setdefault("start_region", defaults["task"]["arm"]["start_region"])
+    if layout is not None and "cube_region" not in layout and cube is not None:
+        try:
+            (x, y), jitter = cube["position"], float(cube["jitter"])
+            data["task"]["layout"]["cube_region"] = [[x - jitter, x + jitter], [y - jitter, y + jitter]]
+        except (KeyError, TypeError, ValueError):
+            pass  # the schema check names what is wrong
+    if train is not None:
+        for key in ("dagger_rounds", "dagger_episodes", "dagger_duration"):
+            data["train"].setdefault(key, 0 if key == "dagger_rounds" else defaults["train"][key])
+    if isinstance(data.get("task"), dict) and "observation" not in data["task"]:
+        data["task"]["observation"] = {"relative": False, "lanes": False}
+    if ppo is not None and "bc_coeff_final" not in ppo and "bc_coeff" in ppo:
+        data["ppo"].setdefault("bc_coeff_final", ppo["bc_coeff"])
+        data["ppo"].setdefault("bc_decay_frames", 0)
+    return data
+
+
 def config_from_dict(data: dict) -> Config:
+    if isinstance(data, dict):
+        data = _legacy_fill(data)
     if isinstance(data, dict) and any(isinstance(data.get(section), dict) and
                                       any(k not in data[section] for k in keys)
                                       for section, keys in BACKFILLED.items()):

@@ -53,7 +53,7 @@ def test_observation_normalisation_on_and_off():
     on.iteration()
     off.iteration()
     assert on.modules.normalizer.count == 64 and off.modules.normalizer.count == 0
-    observation = torch.randn(60) * 5
+    observation = torch.randn(on.envs[0].observation_spec["observation"].shape[-1]) * 5
     assert torch.equal(off.modules.normalizer(observation), observation)
     assert not torch.equal(on.modules.normalizer(observation), observation)
     on.close()

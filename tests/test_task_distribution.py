@@ -79,3 +79,34 @@ def test_home_start_is_the_jittered_home():
     q, _ = task.arm_state(runner.physics)
     assert np.max(np.abs(q - np.asarray(config.task.arm.home))) <= config.task.arm.joint_jitter + 1e-12
     assert task.start_target is None
+
+
+def test_observation_features_relative_to_the_cube_and_lane_clearance():
+    """Hand-checked: the appended features against the positions in the same vector."""
+    from ahrm_stack.env.layout import lane_clearance
+    config = load_config([])
+    task = PushOffTask(config.task)
+    runner = TaskRunner(task, seed=0, safety=config.safety)
+    runner.reset()
+    obs = runner.flat_observation()
+    spec = load_config(["task.observation.relative=false", "task.observation.lanes=false"])
+    plain = TaskRunner(PushOffTask(spec.task), seed=0, safety=spec.safety)
+    plain.reset()
+    base = plain.flat_observation()
+    assert base.shape == (60,) and obs.shape == (73,)
+    np.testing.assert_array_equal(obs[:60], base)
+    tip, cube = obs[18:21], obs[21:24]
+    obstacles = np.array([obs[27 + 6 * i: 29 + 6 * i] for i in range(4)])
+    np.testing.assert_allclose(obs[60:63], tip - cube)
+    np.testing.assert_allclose(obs[63:71], (obstacles - cube[:2]).ravel())
+    # lane clearance by hand for one simple layout: an obstacle right in the +x lane, none in -x
+    t = config.task
+    clearance = lane_clearance(np.zeros(2), np.array([[0.2, 0.0], [-0.1, 0.3]]), 0.025,
+                               np.array([0.03, 0.03]), t.table, t.layout)
+    assert clearance[0] == pytest.approx(-0.055)  # overlap: strip half-width 0.025 + 0.03 in y
+    # -x: the strip spans x in [-0.45, 0.105] (approach room 0.08 behind the cube's back face),
+    # y in [-0.025, 0.025]; the obstacle at (-0.1, 0.3) is 0.3 - 0.03 - 0.025 = 0.245 away in y,
+    # the one at (0.2, 0) 0.2 - 0.03 - 0.105 = 0.065 in x: the nearer one counts
+    assert clearance[1] == pytest.approx(0.065)
+    np.testing.assert_allclose(obs[71:73], lane_clearance(cube[:2], obstacles, 0.025,
+                                                          np.array([0.03, 0.03]), t.table, t.layout))

@@ -58,6 +58,31 @@ def free_lanes(layout: Layout, cube_half: float, obstacle_half: np.ndarray, tabl
     return free
 
 
+LANE_CLEARANCE_CLIP = (-0.1, 0.3)  # m: the lane feature saturates here
+
+
+def lane_clearance(cube_xy: np.ndarray, obstacle_xy: np.ndarray, cube_half: float,
+                   obstacle_half: np.ndarray, table: TableConfig, rules: LayoutConfig) -> np.ndarray:
+    """Clearance (m) of each lane of ``rules.lane_directions``: the smallest signed gap between an
+    obstacle footprint and the strip the cube sweeps — its width, from ``approach_room`` behind
+    its back face to the table edge — clipped to :data:`LANE_CLEARANCE_CLIP` (negative: blocked).
+
+    Positions (x, y) in m, world frame. An observation feature: the same geometry as
+    :func:`free_lanes`, measured instead of thresholded."""
+    cx, cy = cube_xy
+    out = np.empty(len(rules.lane_directions))
+    for i, direction in enumerate(rules.lane_directions):
+        sign = 1.0 if direction == "+x" else -1.0
+        lo, hi = sorted((cx - sign * (cube_half + rules.approach_room), sign * table.half_extent[0]))
+        center = np.array([(lo + hi) / 2, cy])
+        half = np.array([(hi - lo) / 2, cube_half])
+        sep = np.abs(obstacle_xy - center) - (half + obstacle_half)
+        gaps = np.where(np.all(sep < 0, axis=1), sep.max(axis=1),
+                        np.linalg.norm(np.maximum(sep, 0.0), axis=1))
+        out[i] = gaps.min() if len(gaps) else LANE_CLEARANCE_CLIP[1]
+    return np.clip(out, *LANE_CLEARANCE_CLIP)
+
+
 def validate_layout(layout: Layout, table: TableConfig, cube: CubeConfig, obstacles: ObstacleConfig,
                     rules: LayoutConfig) -> None:
     """Raise :class:`LayoutError` naming the first rule that ``layout`` breaks."""

@@ -23,7 +23,7 @@ from dm_env import specs
 from ahrm_stack.config import ConfigError, TaskConfig
 from ahrm_stack.env.arena import TableArena
 from ahrm_stack.env.entities import BoxProp, Pusher
-from ahrm_stack.env.layout import Layout, LayoutSampler
+from ahrm_stack.env.layout import Layout, LayoutSampler, lane_clearance
 from ahrm_stack.env.start_pose import solve_start_pose
 from ahrm_stack.env.rewards import (NUM_PHASES, ProgressObjective, TimeObjective, avoid_component,
                                     obstacle_touched, penalty_form, progress)
@@ -146,6 +146,12 @@ class PushOffTask(composer.Task):
             "boundary_distance": observable.Generic(
                 lambda physics: np.array([self.step_info.x])),
         }
+        if self.config.observation.relative:
+            self._task_observables["relative_to_cube"] = observable.Generic(
+                lambda physics: self._relative_to_cube(physics))
+        if self.config.observation.lanes:
+            self._task_observables["lane_clearance"] = observable.Generic(
+                lambda physics: self._lane_clearance(physics))
         for obs in self._task_observables.values():
             obs.enabled = True
         # Sample once per control step (at its last substep), not at every physics substep.
@@ -175,7 +181,22 @@ class PushOffTask(composer.Task):
                 "pusher_tip"]
         for prop in props:
             keys += [f"{prop.mjcf_model.model}/position", f"{prop.mjcf_model.model}/linear_velocity"]
-        return keys + ["previous_action", "phase", "boundary_distance"]
+        keys += ["previous_action", "phase", "boundary_distance"]
+        return keys + [k for k in ("relative_to_cube", "lane_clearance") if k in self._task_observables]
+
+    def _relative_to_cube(self, physics: mjcf.Physics) -> np.ndarray:
+        """Tip - cube (3) and each obstacle - cube in (x, y) (2 each), m, world frame."""
+        xpos = physics.data.xpos
+        cube = xpos[self._cube_body]
+        return np.concatenate([self.step_info.tip - cube,
+                               (xpos[self._obstacle_bodies, :2] - cube[:2]).ravel()])
+
+    def _lane_clearance(self, physics: mjcf.Physics) -> np.ndarray:
+        """Each reachable lane's clearance from the current cube and obstacle positions, m."""
+        xpos = physics.data.xpos
+        cfg = self.config
+        return lane_clearance(xpos[self._cube_body, :2], xpos[self._obstacle_bodies, :2],
+                              cfg.cube.size / 2, self._obstacle_half_sizes[0, :2], cfg.table, cfg.layout)
 
     def flat_observation(self, physics: mjcf.Physics) -> np.ndarray:
         """The observation vector in :attr:`observation_order`, read straight from the physics.
@@ -191,6 +212,10 @@ class PushOffTask(composer.Task):
                                 axis=1).ravel(),
                  self.previous_action, np.eye(NUM_PHASES)[self.step_info.phase - 1],
                  (self.step_info.x,)]
+        if self.config.observation.relative:
+            parts.append(self._relative_to_cube(physics))
+        if self.config.observation.lanes:
+            parts.append(self._lane_clearance(physics))
         return np.concatenate(parts)
 
     def arm_state(self, physics: mjcf.Physics) -> tuple[np.ndarray, np.ndarray]:
