@@ -68,3 +68,23 @@ def test_scripted_evaluation_on_the_mirrored_layout(tmp_path):
     assert result["successes"] == 1 and result["touched_episodes"] == 0
     assert json.loads((tmp_path / "evaluation.json").read_text())["seed_offset"] == \
         load_layouts()["mirrored"].seed_offset
+
+
+def test_the_suite_is_every_family_marked_suite_and_evaluates_with_the_scripted_row(tmp_path):
+    from ahrm_stack.env.layout_catalog import suite_names
+    from ahrm_stack.evaluate import evaluate_suite
+
+    names = suite_names()
+    assert "fixed" not in names and "random" not in names
+    assert {"default", "heldout", "heldout_far", "edge_plus_x", "edge_minus_x", "toward_arm"} <= set(names)
+    # the committed policy (an older run folder: its missing keys keep the old behaviour)
+    suite = evaluate_suite("docs/policies/ahrm-default-seed0", 1, tmp_path, families=["default", "mirrored"],
+                           quiet=True)
+    assert set(suite["results"]) == set(suite["scripted"]) == {"default", "mirrored"}
+    assert suite["scripted"]["default"]["successes"] == 1
+    for family in ("default", "mirrored"):  # the same episodes for the policy and the controller
+        assert suite["results"][family]["seed_offset"] == suite["scripted"][family]["seed_offset"] \
+            == load_layouts()[family].seed_offset
+    table = (tmp_path / "suite.md").read_text()
+    assert "| default | 1/1 | 0 |" in table and "scripted successes" in table
+    assert json.loads((tmp_path / "suite.json").read_text())["families"] == ["default", "mirrored"]
