@@ -603,14 +603,16 @@ def _check_limits(obj: Any, key: str) -> None:
 
         layout = Layout(np.asarray(obj.cube.position, float),
                         np.asarray(obj.obstacles.fixed_layout, float).reshape(-1, 2))
-        try:
-            validate_layout(layout, obj.table, obj.cube, obj.obstacles, obj.layout)
-        except LayoutError as error:
-            raise ConfigError(f"{key}.obstacles.fixed_layout / {key}.cube.position: {error}") from None
+        if obj.layout.mode == "fixed":  # random mode never uses the fixed layout
+            try:
+                validate_layout(layout, obj.table, obj.cube, obj.obstacles, obj.layout)
+            except LayoutError as error:
+                raise ConfigError(f"{key}.obstacles.fixed_layout / {key}.cube.position: {error}") from None
         if obj.layout.mode == "random":  # the nearest allowed obstacle centre must fit on the table
             room = np.asarray(obj.table.half_extent) - np.asarray(obj.obstacles.size[:2]) / 2
             corners = np.array([[sx * room[0], sy * room[1]] for sx in (-1, 1) for sy in (-1, 1)])
-            reach = float(np.max(np.linalg.norm(corners - layout.cube_xy, axis=1)))
+            middle = np.mean(np.asarray(obj.layout.cube_region, float), axis=1)  # the region's centre
+            reach = float(np.max(np.linalg.norm(corners - middle, axis=1)))
             if obj.layout.radial_range[0] > reach:
                 raise ConfigError(f"{key}.layout.radial_range {list(obj.layout.radial_range)}: no "
                                   f"obstacle that far from the cube fits on the table (at most "
@@ -656,9 +658,6 @@ def _check_limits(obj: Any, key: str) -> None:
             raise ConfigError(f"safety.acceleration_limit has {len(obj.safety.acceleration_limit)} "
                               f"values, task.arm.home_deg {len(obj.task.arm.home)}: both give one "
                               f"value per joint of task.robot ({obj.task.robot})")
-        if obj.task.action.mode == "cartesian" and not obj.safety.enabled:
-            raise ConfigError("safety.enabled: false needs task.action.mode: joint (cartesian "
-                              "actions are turned into joint velocities by the safety filter)")
         if obj.task.regions.distance_clip < obj.mechanism.blend_band:
             raise ConfigError(f"task.regions.distance_clip ({obj.task.regions.distance_clip} m) must "
                               f"be >= mechanism.blend_band ({obj.mechanism.blend_band} m)")
@@ -797,7 +796,7 @@ def _legacy_fill(data: dict) -> dict:
     return data
 
 
-def config_from_dict(data: dict) -> Config:
+def config_from_dict(data: dict, runnable: bool = True) -> Config:
     if isinstance(data, dict):
         data = _legacy_fill(data)
     if isinstance(data, dict) and any(isinstance(data.get(section), dict) and
@@ -808,7 +807,13 @@ def config_from_dict(data: dict) -> Config:
             if isinstance(data.get(section), dict):
                 defaults = _read_yaml(CONFIG_DIR / SECTIONS[section])
                 data[section] = {**{k: defaults[k] for k in keys}, **data[section]}
-    return _build(Config, data, "")
+    config = _build(Config, data, "")
+    if runnable and config.task.action.mode == "cartesian" and not config.safety.enabled:
+        # a rule for running the task, not for reading a run's file: deploy reads a checkpoint's
+        # config (and replaces its safety settings with its own) with runnable=False
+        raise ConfigError("safety.enabled: false needs task.action.mode: joint (cartesian "
+                          "actions are turned into joint velocities by the safety filter)")
+    return config
 
 
 # ----------------------------------------------------------------------------------------------

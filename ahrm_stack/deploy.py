@@ -936,7 +936,7 @@ def load_controller_config(checkpoint: Path | None, overrides: Sequence[str] = (
 
     torch.set_num_threads(1)
     try:
-        config, actor = load_policy(run)
+        config, actor = load_policy(run, runnable=False)  # its safety section is replaced below
     except (ConfigError, CheckpointError):
         raise
     except yaml.YAMLError as error:

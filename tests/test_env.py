@@ -106,7 +106,8 @@ def test_flat_observation_equals_the_declared_observables(runner):
     expected = np.concatenate([np.ravel(observation[k]) for k in runner.observation_order])
     np.testing.assert_array_equal(runner.flat_observation(), expected)
     n_obstacles = len(runner.task.obstacles)
-    assert expected.shape == (12 + 6 + 3 + 6 * (1 + n_obstacles) + 5 + 3 + 1,)
+    assert expected.shape == (12 + 6 + 3 + 6 * (1 + n_obstacles) + 5 + 3 + 1  # spec §1
+                              + 3 + 2 * n_obstacles + 2,)  # relative to the cube, lane clearance
 
 
 def test_composer_environment_runs_the_same_task(task_config):

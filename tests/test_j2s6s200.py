@@ -255,5 +255,5 @@ def test_a_home_pose_per_robot_is_checked():
     raw["task"]["arm"]["home_deg"]["ur5"] = [0] * 6
     with pytest.raises(ConfigError, match=r"task\.arm\.home_deg\.ur5: no such robot"):
         config_from_dict(raw)
-    with pytest.raises(ConfigError, match=r"task\.arm\.home_deg: 5 angles for robot 'j2s6s200'"):
+    with pytest.raises(ConfigError, match=r"task\.arm\.home_deg 5: both give one value per joint"):
         PushOffTask(load_config(["task.robot=j2s6s200", "task.arm.home_deg=[0, 90, 90, 0, 90]"]).task)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from ahrm_stack.config import load_config
+from ahrm_stack.config import ConfigError, load_config
 from ahrm_stack.env.layout import Layout, LayoutError, LayoutSampler, free_lanes, validate_layout
 
 
@@ -20,9 +20,9 @@ def test_fixed_layout_keeps_the_minus_x_lane(config):
 
 
 def test_obstacle_on_the_cube_is_rejected_with_a_clear_error():
-    cfg = load_config(["task.layout.mode=fixed", "task.obstacles.fixed_layout=[[0.01, 0.0], [0.16, -0.12]]"])
-    with pytest.raises(LayoutError, match=r"obstacle 0 at \[0\.01, 0\.0\] overlaps cube"):
-        _make_sampler(cfg)
+    with pytest.raises(ConfigError, match=r"obstacle 0 at \[0\.01, 0\.0\] overlaps cube"):
+        _make_sampler(load_config(["task.layout.mode=fixed",
+                                   "task.obstacles.fixed_layout=[[0.01, 0.0], [0.16, -0.12]]"]))
 
 
 def _make_sampler(cfg):

@@ -39,7 +39,8 @@ def test_action_mode_sets_the_action_space():
 def test_network_width_and_activation():
     trainer = _trainer("ppo.hidden_sizes=[24,8]", "ppo.activation=relu")
     sizes = _linear_sizes(trainer.modules.actor)
-    assert sizes == [(60, 24), (24, 8), (8, trainer.envs[0].action_spec.shape[-1])]
+    observation = trainer.envs[0].observation_spec["observation"].shape[-1]
+    assert sizes == [(observation, 24), (24, 8), (8, trainer.envs[0].action_spec.shape[-1])]
     assert _linear_sizes(trainer.modules.critic)[-1] == (8, 1)
     assert any(isinstance(m, torch.nn.ReLU) for m in trainer.modules.actor.modules())
 
@@ -166,7 +167,7 @@ def test_advantage_normalisation():
 
 def test_demonstration_noise_changes_the_states_not_the_labels():
     base = ["task.action.mode=cartesian", "task.arm.home_deg=[240,204.2,55.4,350.7,36.2,75]",
-            "task.episode.duration=8"]
+            "task.episode.duration=8", "task.arm.start=home", "task.layout.mode=fixed"]
     clean = collect_demonstrations(load_config(base), 1)
     noisy = collect_demonstrations(load_config([*base, "train.demo_noise=0.3"]), 1)
     assert clean.shape[0] > 0 and noisy.shape[0] > 0

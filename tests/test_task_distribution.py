@@ -32,7 +32,7 @@ def test_random_cubes_fill_the_region_and_every_layout_is_valid():
 
 def test_a_moved_cube_in_random_mode_is_not_checked_against_the_unused_fixed_layout():
     # the fixed layout does not fit around this cube (obstacle 2 at [-0.02, -0.17] is too close)
-    with pytest.raises(LayoutError):
+    with pytest.raises(ConfigError, match="task.obstacles.fixed_layout / task.cube.position: no free lane"):
         _sampler("task.layout.mode=fixed", "task.cube.position=[0.08,-0.06]")
     _sampler("task.layout.mode=random", "task.cube.position=[0.08,-0.06]")
 

@@ -126,12 +126,13 @@ CASES = [
     ("mechanism.method=sarsa", "mechanism.method"),
     ("mechanism.fixed_order=[avoid,avoid,time]", "mechanism.fixed_order"),
     # layouts that do not fit the table
-    ("task.obstacles.fixed_layout=[[0.0,0.0]]", "task.obstacles.fixed_layout"),
-    ("task.obstacles.fixed_layout=[[5,5],[0.16,-0.12],[-0.02,-0.17],[-0.15,0.16]]",
+    (["task.layout.mode=fixed", "task.obstacles.fixed_layout=[[0.0,0.0]]"], "task.obstacles.fixed_layout"),
+    (["task.layout.mode=fixed",
+      "task.obstacles.fixed_layout=[[5,5],[0.16,-0.12],[-0.02,-0.17],[-0.15,0.16]]"],
      "task.obstacles.fixed_layout"),
-    ("task.obstacles.fixed_layout=[[0.12,0.0],[-0.12,0.0]]", "task.obstacles.fixed_layout"),
-    ("task.cube.position=[2,2]", "task.cube.position"),
-    ("task.cube.size=1", "task.cube.position"),
+    (["task.layout.mode=fixed", "task.obstacles.fixed_layout=[[0.12,0.0],[-0.12,0.0]]"], "task.obstacles.fixed_layout"),
+    (["task.layout.mode=fixed", "task.cube.position=[2,2]"], "task.cube.position"),
+    (["task.layout.mode=fixed", "task.cube.size=1"], "task.cube.position"),
     (["task.layout.mode=random", "task.layout.radial_range=[5,6]"], "task.layout.radial_range"),
     # malformed overrides, unknown keys and profiles
     ("tsk.episode.duration=3", "tsk"),

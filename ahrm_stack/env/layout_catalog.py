@@ -116,7 +116,10 @@ def apply_layout(raw: dict, name: str, path: Path | str = LAYOUTS_FILE) -> Named
         task["layout"]["radial_range"] = list(entry.radial_range)
     if entry.cube_region is not None:
         task["layout"]["cube_region"] = [list(r) for r in entry.cube_region]
-    config = config_from_dict(raw).task
+    try:
+        config = config_from_dict(raw).task
+    except ConfigError as error:
+        raise ConfigError(f"{path}: layout '{name}': {error}") from None
     try:
         if entry.mode == "fixed":
             fixed = Layout(np.asarray(config.cube.position, float),

@@ -186,6 +186,8 @@ class PushOffTask(composer.Task):
 
     def _relative_to_cube(self, physics: mjcf.Physics) -> np.ndarray:
         """Tip - cube (3) and each obstacle - cube in (x, y) (2 each), m, world frame."""
+        if not hasattr(self, "_cube_body"):  # composer evaluates observables before the first reset
+            self._bind(physics)
         xpos = physics.data.xpos
         cube = xpos[self._cube_body]
         return np.concatenate([self.step_info.tip - cube,
@@ -193,6 +195,8 @@ class PushOffTask(composer.Task):
 
     def _lane_clearance(self, physics: mjcf.Physics) -> np.ndarray:
         """Each reachable lane's clearance from the current cube and obstacle positions, m."""
+        if not hasattr(self, "_cube_body"):
+            self._bind(physics)
         xpos = physics.data.xpos
         cfg = self.config
         return lane_clearance(xpos[self._cube_body, :2], xpos[self._obstacle_bodies, :2],

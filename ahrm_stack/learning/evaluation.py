@@ -64,7 +64,8 @@ class EvaluationTable:
                 f"joint-limit violations {self.joint_limit_violations}")
 
 
-def load_policy(run_dir: Path, policy_file: Path | None = None) -> tuple[Config, Callable[[TensorDict], TensorDict]]:
+def load_policy(run_dir: Path, policy_file: Path | None = None,
+                runnable: bool = True) -> tuple[Config, Callable[[TensorDict], TensorDict]]:
     """The run's config and its deterministic policy (``policy_file``, default the final
     ``policy.pt``; loaded safely).
 
@@ -72,7 +73,7 @@ def load_policy(run_dir: Path, policy_file: Path | None = None) -> tuple[Config,
     TensorDict in, ``"action"`` written; ``.act(observation)`` on a plain tensor), which gives the
     deterministic action of the TorchRL actor at a fraction of its per-call cost."""
     run_dir = Path(run_dir)
-    config = config_from_dict(yaml.safe_load((run_dir / "config.yaml").read_text()))
+    config = config_from_dict(yaml.safe_load((run_dir / "config.yaml").read_text()), runnable)
     saved = load(Path(policy_file) if policy_file is not None else run_dir / "policy.pt")
     modules = make_modules(config.ppo, saved["observation_dim"], saved["action_dim"])
     modules.actor.load_state_dict(saved["actor"])
