@@ -39,59 +39,50 @@ DEMO_SEED_OFFSET = seed_table()["demonstrations"].start  # configs/seeds.yaml: d
 ACTION_LIMIT = 0.995  # demonstrated actions are kept inside the tanh's open interval
 
 
-def collect_demonstrations(config: Config, episodes: int) -> TensorDict:
-    """Run the scripted controller for ``episodes`` seeded episodes; successful episodes only.
+class _Teacher:
+    """The scripted controller on its own task and runner, in the learner's action mode: labels a
+    state with the controller's normalised action and executes a normalised action through the
+    safety filter, as the learner's actions are."""
 
-    Returns a flat TensorDict with ``observation``, ``action`` (normalised, commanded joints) and
-    ``return`` (discounted return under the initial reward-mechanism state, ``ppo.gamma``).
-    """
-    cartesian = config.task.action.mode == "cartesian"
-    task = PushOffTask(config.task)
-    runner = TaskRunner(task, seed=DEMO_SEED_OFFSET, safety=config.safety)
-    controller = ScriptedPusher(task, config.scripted)
-    mechanism = RewardMechanism(config.mechanism)
-    commanded = list(task.robot.commanded_joints)
-    limits = task.robot.velocity_limit[commanded]
-    max_speed = config.task.action.cartesian_max_speed
-    noise_std = config.train.demo_noise
-    noise = np.random.default_rng(DEMO_SEED_OFFSET)
-    observations, actions, returns = [], [], []
-    for episode in range(episodes):
-        runner.seed(DEMO_SEED_OFFSET + episode)
-        runner.reset()
-        controller.reset(runner.physics)
-        obs, act, rewards = [], [], []
-        terminated = truncated = False
-        while not (terminated or truncated):
-            obs.append(runner.flat_observation())
-            if cartesian:
-                action = np.clip(controller.tip_velocity(runner.physics) / max_speed,
-                                 -ACTION_LIMIT, ACTION_LIMIT)
-            else:
-                request = controller(runner.physics)
-                action = np.clip(request[commanded] / limits, -ACTION_LIMIT, ACTION_LIMIT)
-            act.append(action)
-            executed = action
-            if noise_std > 0:
-                executed = np.clip(action + noise.normal(0.0, noise_std, action.shape), -1.0, 1.0)
-            if cartesian:
-                info, terminated, truncated = runner.step_cartesian(executed * max_speed)
-            else:
-                command = np.zeros(task.robot.num_joints)
-                command[commanded] = executed * limits
-                info, terminated, truncated = runner.step_only(command)
-            rewards.append(float(mechanism.reward(info.g, info.distances)))
-        if not terminated:
-            continue
-        discounted, running = [], 0.0
-        for reward in reversed(rewards):  # success is terminal: no bootstrap after it
-            running = reward + config.ppo.gamma * running
-            discounted.append(running)
-        observations += obs
-        actions += act
-        returns += discounted[::-1]
-    if not observations:
-        raise RuntimeError("the scripted controller produced no successful demonstration")
+    def __init__(self, config: Config) -> None:
+        self.cartesian = config.task.action.mode == "cartesian"
+        self.task = PushOffTask(config.task)
+        self.runner = TaskRunner(self.task, seed=DEMO_SEED_OFFSET, safety=config.safety)
+        self.controller = ScriptedPusher(self.task, config.scripted)
+        self.mechanism = RewardMechanism(config.mechanism)
+        self.commanded = list(self.task.robot.commanded_joints)
+        self.limits = self.task.robot.velocity_limit[self.commanded]
+        self.max_speed = config.task.action.cartesian_max_speed
+
+    def reset(self, episode: int) -> None:
+        """Demonstration episode ``episode``: seed ``DEMO_SEED_OFFSET + episode``."""
+        self.runner.seed(DEMO_SEED_OFFSET + episode)
+        self.runner.reset()
+        self.controller.reset(self.runner.physics)
+
+    def label(self) -> np.ndarray:
+        """The controller's action in the current state, normalised and clipped to ACTION_LIMIT."""
+        physics = self.runner.physics
+        if self.cartesian:
+            action = self.controller.tip_velocity(physics) / self.max_speed
+        else:
+            action = self.controller(physics)[self.commanded] / self.limits
+        return np.clip(action, -ACTION_LIMIT, ACTION_LIMIT)
+
+    def execute(self, action: np.ndarray) -> tuple[float, bool, bool]:
+        """One control step with the normalised ``action`` (clipped to [-1, 1]); returns the
+        mechanism's reward, terminated (success) and truncated."""
+        action = np.clip(action, -1.0, 1.0)
+        if self.cartesian:
+            info, terminated, truncated = self.runner.step_cartesian(action * self.max_speed)
+        else:
+            command = np.zeros(self.task.robot.num_joints)
+            command[self.commanded] = action * self.limits
+            info, terminated, truncated = self.runner.step_only(command)
+        return float(self.mechanism.reward(info.g, info.distances)), terminated, truncated
+
+
+def _dataset(observations: list, actions: list, returns: list) -> TensorDict:
     return TensorDict({
         "observation": torch.as_tensor(np.array(observations), dtype=torch.float32),
         "action": torch.as_tensor(np.array(actions), dtype=torch.float32),
@@ -107,66 +98,75 @@ def _discounted(rewards: list[float], gamma: float) -> list[float]:
     return discounted[::-1]
 
 
+def collect_demonstrations(config: Config, episodes: int) -> TensorDict:
+    """Run the scripted controller for ``episodes`` seeded episodes; successful episodes only.
+
+    Returns a flat TensorDict with ``observation``, ``action`` (normalised, commanded joints) and
+    ``return`` (discounted return under the initial reward-mechanism state, ``ppo.gamma``).
+    """
+    teacher = _Teacher(config)
+    noise_std = config.train.demo_noise
+    noise = np.random.default_rng(DEMO_SEED_OFFSET)
+    observations, actions, returns = [], [], []
+    for episode in range(episodes):
+        teacher.reset(episode)
+        obs, act, rewards = [], [], []
+        terminated = truncated = False
+        while not (terminated or truncated):
+            obs.append(teacher.runner.flat_observation())
+            action = teacher.label()
+            act.append(action)
+            executed = action + noise.normal(0.0, noise_std, action.shape) if noise_std > 0 else action
+            reward, terminated, truncated = teacher.execute(executed)
+            rewards.append(reward)
+        if not terminated:
+            continue
+        observations += obs
+        actions += act
+        returns += _discounted(rewards, config.ppo.gamma)  # success is terminal: no bootstrap
+    if not observations:
+        raise RuntimeError("the scripted controller produced no successful demonstration")
+    return _dataset(observations, actions, returns)
+
+
 def collect_corrections(config: Config, actor, episodes: int, first_episode: int) -> TensorDict:
     """DAgger: run ``actor`` (deterministic, plus ``train.demo_noise`` on the executed action)
     and label every state it visits with the scripted controller's action for that state.
 
     Episodes use the demonstration seeds ``DEMO_SEED_OFFSET + first_episode + i`` (after the
     demonstrations', so new layouts) and stop at success, after ``train.dagger_duration`` s, or
-    when the controller has pushed past the table edge without success (its ``hold`` stage). The
-    controller is reset at each episode start and queried at every step, so its stage follows the
-    tip the actor moves. Returns the same keys as :func:`collect_demonstrations`; ``return`` is
+    when the controller has pushed past the table edge without success (its ``hold`` stage).
+    The controller is reset at each episode start and queried at every step, so its stage follows
+    the tip the actor moves. Returns the same keys as :func:`collect_demonstrations`; ``return`` is
     the executed episode's discounted return (no bootstrap when cut), only used to warm the critic.
     """
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-    cartesian = config.task.action.mode == "cartesian"
-    task = PushOffTask(config.task)
-    runner = TaskRunner(task, seed=DEMO_SEED_OFFSET, safety=config.safety)
-    controller = ScriptedPusher(task, config.scripted)
-    mechanism = RewardMechanism(config.mechanism)
-    commanded = list(task.robot.commanded_joints)
-    limits = task.robot.velocity_limit[commanded]
-    max_speed = config.task.action.cartesian_max_speed
+    teacher = _Teacher(config)
     noise = np.random.default_rng(DEMO_SEED_OFFSET + first_episode)
     max_steps = int(round(config.train.dagger_duration / config.task.episode.control_period))
     observations, actions, returns = [], [], []
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
         for episode in range(first_episode, first_episode + episodes):
-            runner.seed(DEMO_SEED_OFFSET + episode)
-            runner.reset()
-            controller.reset(runner.physics)
+            teacher.reset(episode)
             rewards = []
             for _ in range(max_steps):
-                observation = runner.flat_observation()
-                if cartesian:
-                    label = controller.tip_velocity(runner.physics) / max_speed
-                else:
-                    label = controller(runner.physics)[commanded] / limits
-                if controller.stage == "hold":  # the push ran past the edge: no label means much
+                observation = teacher.runner.flat_observation()
+                label = teacher.label()
+                if teacher.controller.stage == "hold":  # pushed past the edge: no useful label
                     break
                 observations.append(observation)
-                actions.append(np.clip(label, -ACTION_LIMIT, ACTION_LIMIT))
+                actions.append(label)
                 out = actor(TensorDict({"observation": torch.as_tensor(observation, dtype=torch.float32)}, []))
                 executed = out["action"].numpy().astype(float)
                 if config.train.demo_noise > 0:
                     executed = executed + noise.normal(0.0, config.train.demo_noise, executed.shape)
-                executed = np.clip(executed, -1.0, 1.0)
-                if cartesian:
-                    info, terminated, truncated = runner.step_cartesian(executed * max_speed)
-                else:
-                    command = np.zeros(task.robot.num_joints)
-                    command[commanded] = executed * limits
-                    info, terminated, truncated = runner.step_only(command)
-                rewards.append(float(mechanism.reward(info.g, info.distances)))
+                reward, terminated, truncated = teacher.execute(executed)
+                rewards.append(reward)
                 if terminated or truncated:
                     break
             returns += _discounted(rewards, config.ppo.gamma)
-    return TensorDict({
-        "observation": torch.as_tensor(np.array(observations), dtype=torch.float32),
-        "action": torch.as_tensor(np.array(actions), dtype=torch.float32),
-        "return": torch.as_tensor(np.array(returns), dtype=torch.float32).unsqueeze(-1),
-    }, batch_size=[len(observations)])
+    return _dataset(observations, actions, returns)
 
 
 def bc_loss(actor, batch: TensorDict) -> torch.Tensor:
