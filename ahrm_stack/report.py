@@ -312,11 +312,12 @@ def _suite_lines(out: Path, grid: dict, runs: list[RunRecord], methods: list[str
              f"Every run's final deterministic policy on every family of the evaluation suite "
              f"(`configs/layouts.yaml`, {grid['eval_episodes']} episodes each, each family on its own "
              "seeds); `clone` is the first method's policy before any PPO update (the warm start: "
-             "behaviour cloning and DAgger), `scripted` the scripted controller on the same episodes.",
+             "behaviour cloning, plus DAgger when `train.dagger_rounds` > 0), `scripted` the scripted "
+             "controller on the same episodes.",
              "", f"Ranking on the suite (success, then fewer touching episodes): "
              f"{' > '.join(METHOD_NAMES.get(m, m) for m in order)}. "
              + ("AHRM ranks first" if order and order[0] == "ahrm" else "AHRM does not rank first")
-             + (" and LS last" if order and order[-1] == "ls" else "; LS is not last")
+             + ("" if "ls" not in order else " and LS last" if order[-1] == "ls" else "; LS is not last")
              + " (the paper: AHRM first, LS last). Where the intervals below include 0 the "
              "difference is not resolved by these seeds.", ""]
     return lines + suite_section(columns, families, compared, experiment.bootstrap_samples)

@@ -98,11 +98,12 @@ def suite_section(columns: dict[str, list[Episodes]], families: Sequence[str], m
     first method's warm start, before PPO) and ``scripted`` (one entry). ``methods`` are the
     compared ones (the first is the reference of the differences)."""
     names = [m for m in columns]
+    shown = [n.upper() if n in methods else n for n in names]  # methods in capitals, as elsewhere
     lines = []
     for title, key, digits in (("Successes", "successes", 1), ("Episodes touching an obstacle", "touched", 1),
                                ("Time to success (s)", "time", 2)):
         lines += [f"### {title} per family (mean over seeds)", "",
-                  "| family | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
+                  "| family | " + " | ".join(shown) + " |", "|---|" + "---|" * len(names)]
         total = {n: [] for n in names}
         for family in families:
             row = [family]
@@ -130,7 +131,7 @@ def suite_section(columns: dict[str, list[Episodes]], families: Sequence[str], m
             d, lo, hi = paired_difference(columns[reference], b, families, column, samples, rng)
             unit = " pp" if scale == 100 else ""
             cells.append(f"{_fmt(d * scale, digits)}{unit} [{_fmt(lo * scale, digits)}, {_fmt(hi * scale, digits)}]")
-        lines.append(f"| {other} | " + " | ".join(cells) + " |")
+        lines.append(f"| {other.upper() if other in methods else other} | " + " | ".join(cells) + " |")
     return lines + [""]
 
 

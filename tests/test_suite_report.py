@@ -53,5 +53,5 @@ def test_family_means_and_rank_and_the_section():
     text = "\n".join(suite_section({"ahrm": ahrm, "ls": ls, "scripted": [{"f": _suite([1] * 4)}]},
                                    ["f"], ["ahrm", "ls"], 100))
     assert "| f | 3.5 | 1.0 | 4.0 |" in text
-    assert "| ls | 62.5 pp" in text  # (3/4 + 4/4) / 2 - (1/4 + 1/4) / 2 = 0.875 - 0.25
+    assert "| LS | 62.5 pp" in text  # (3/4 + 4/4) / 2 - (1/4 + 1/4) / 2 = 0.875 - 0.25
     assert "| scripted | -12.5 pp" in text
