@@ -46,9 +46,9 @@ class RobotDescription:
     urdf: Path | None = None  # the URDF the arm is built from (None: the MJCF is the source); the
     # kinematics then read the URDF directly
     min_velocity_margin: float = 0.0  # fraction of each velocity limit the safety filter leaves
-    # unused at least, whatever safety.velocity_margin says: this arm's velocity servo lags its
-    # command by up to (gravity torque / gain), which the filter's margin must cover
-    # (configs/robots/<name>.yaml; 0 for dm_control's jaco)
+    # unused at least, whatever safety.velocity_margin says: a joint moving with gravity runs ahead
+    # of its velocity command by up to (gravity torque - friction) / servo gain, which the margin
+    # must cover (configs/robots/<name>.yaml; 0 for dm_control's jaco)
 
     @property
     def num_joints(self) -> int:
