@@ -946,6 +946,8 @@ class UrdfArmConfig:
     end_effector_link: str  # a link below the flange: the pusher points from the flange toward it
     hand_meshes: tuple[str, ...]  # mesh file names of the hand on the flange link (not built)
     velocity_gain: float  # kv of the velocity actuators, N m s/rad
+    min_velocity_margin: float  # lower bound on safety.velocity_margin for this arm (fraction of
+    # each velocity limit): the filter keeps max(safety.velocity_margin, this) as servo headroom
     joint_damping: float  # N m s/rad, every actuated joint
     armature: tuple[float, ...]  # kg m^2, per actuated joint (rotor inertia)
     frictionloss: tuple[float, ...]  # N m, per actuated joint
@@ -953,6 +955,8 @@ class UrdfArmConfig:
 
 def _check_urdf_arm(obj: UrdfArmConfig, key: str) -> None:
     _positive(obj, key, "velocity_gain")
+    if not 0 <= obj.min_velocity_margin < 1:
+        raise ConfigError(f"{key}.min_velocity_margin must be in [0, 1), got {obj.min_velocity_margin!r}")
     for name in ("joint_damping", "armature", "frictionloss"):
         value = getattr(obj, name)
         for i, v in enumerate(value if isinstance(value, tuple) else (value,)):

@@ -45,6 +45,10 @@ class RobotDescription:
     attachment_site: str  # arm-model name of the site the pusher is attached to
     urdf: Path | None = None  # the URDF the arm is built from (None: the MJCF is the source); the
     # kinematics then read the URDF directly
+    min_velocity_margin: float = 0.0  # fraction of each velocity limit the safety filter leaves
+    # unused at least, whatever safety.velocity_margin says: a joint moving with gravity runs ahead
+    # of its velocity command by up to (gravity torque - friction) / servo gain, which the margin
+    # must cover (configs/robots/<name>.yaml; 0 for dm_control's jaco)
 
     @property
     def num_joints(self) -> int:
@@ -114,4 +118,5 @@ def describe(name: str, arm: composer.Entity) -> RobotDescription:
         base_body=arm.joints[0].parent.parent.name,
         attachment_site=arm.wrist_site.name,
         urdf=arm.urdf.path if isinstance(arm, UrdfArm) else None,
+        min_velocity_margin=load_robot_config(name).min_velocity_margin if isinstance(arm, UrdfArm) else 0.0,
     )

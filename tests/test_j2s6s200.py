@@ -4,15 +4,19 @@ or from dm_control's own JACO — never from the code under test."""
 
 import importlib.metadata
 import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import mujoco
 
 import numpy as np
 import pytest
+import yaml
 from dm_control import mjcf
 from dm_control.entities.manipulators.kinova import jaco_arm
 from scipy.spatial.transform import Rotation
 
 from ahrm_stack.arms.assets import RobotAssetError, robot_file
-from ahrm_stack.config import ConfigError, load_config, load_raw, config_from_dict
+from ahrm_stack.config import ConfigError, load_config, load_raw, config_from_dict, load_robot_config
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.task import PushOffTask
 from ahrm_stack.kinematics.model import UrdfArmKinematics
@@ -22,6 +26,7 @@ from hardware.sim import SimArm
 
 URDF = "robots/kinova_description/robots/kinova.urdf"
 LINKS = [f"j2s6s200_link_{i}" for i in range(1, 7)]
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 
 @pytest.fixture(scope="module")
@@ -42,6 +47,11 @@ def _urdf_joints() -> dict[str, ET.Element]:
     entry = next(f for f in dist.files if str(f).endswith("share/example-robot-data/" + URDF))
     root = ET.parse(dist.locate_file(entry)).getroot()
     return {j.get("name"): j for j in root.findall("joint")}
+
+
+def _robot_yaml() -> dict:
+    """configs/robots/j2s6s200.yaml, read with PyYAML alone."""
+    return yaml.safe_load((CONFIGS / "robots" / "j2s6s200.yaml").read_text())
 
 
 def _urdf_transform(joint: ET.Element, angle: float = 0.0) -> np.ndarray:
@@ -178,8 +188,8 @@ def test_safety_filter_and_actuators_take_their_limits_from_the_urdf(runner, con
     margin = config.safety.position_margin
     np.testing.assert_array_equal(safety.position.lower, np.where(np.isfinite(lower), lower + margin, -np.inf))
     np.testing.assert_array_equal(safety.position.upper, np.where(np.isfinite(upper), upper - margin, np.inf))
-    np.testing.assert_allclose(safety.velocity.limit, velocity * (1 - config.safety.velocity_margin),
-                               rtol=1e-15)
+    margin = max(config.safety.velocity_margin, _robot_yaml()["min_velocity_margin"])
+    np.testing.assert_allclose(safety.velocity.limit, velocity * (1 - margin), rtol=1e-15)
     actuators = runner.physics.bind(runner.task.arm.actuators)
     np.testing.assert_array_equal(np.asarray(actuators.ctrlrange)[:, 1], velocity)
     np.testing.assert_array_equal(np.asarray(actuators.forcerange)[:, 1], effort)
@@ -257,3 +267,83 @@ def test_a_home_pose_per_robot_is_checked():
         config_from_dict(raw)
     with pytest.raises(ConfigError, match=r"task\.arm\.home_deg 5: both give one value per joint"):
         PushOffTask(load_config(["task.robot=j2s6s200", "task.arm.home_deg=[0, 90, 90, 0, 90]"]).task)
+
+
+# ----------------------------------------------------------------------------------------------
+# The velocity margin: the j2s6s200's servo lags more under gravity than safety.velocity_margin
+# ----------------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def jaco():
+    config = load_config()
+    runner = TaskRunner(PushOffTask(config.task), seed=0, safety=config.safety)
+    runner.reset()
+    return runner
+
+
+def test_the_velocity_bound_takes_the_arms_larger_margin_and_the_jacos_is_unchanged(runner, config, jaco):
+    """j2s6s200: |u| <= (1 - max(safety margin, the robot yaml's)) v_max with v_max from the URDF,
+    and the braking horizon from the same speed; jaco: (1 - safety.yaml's margin) times dm_control's
+    own actuator range, as before."""
+    shared = yaml.safe_load((CONFIGS / "safety.yaml").read_text())["velocity_margin"]
+    own = _robot_yaml()["min_velocity_margin"]
+    assert own > shared  # else the key would change nothing
+    joints = _urdf_joints()
+    urdf_v = np.array([float(joints[f"j2s6s200_joint_{i}"].find("limit").get("velocity")) for i in range(1, 7)])
+    accel = np.asarray(yaml.safe_load((CONFIGS / "safety.yaml").read_text())["acceleration_limit"], dtype=float)
+    dt = config.task.episode.control_period
+    safety = runner.filter
+    np.testing.assert_allclose(safety.velocity.limit, urdf_v * (1 - own), rtol=1e-15)
+    assert safety.horizon == pytest.approx(max(dt, float(np.max(urdf_v * (1 - own) / accel))), rel=1e-12)
+    result = safety(runner.task.config.arm.home, np.zeros(6), 2 * urdf_v, u_prev=urdf_v * (1 - own))
+    assert np.all(np.abs(result.command) <= urdf_v * (1 - own) * (1 + 1e-9))
+
+    arm = jaco_arm.JacoArm()
+    physics = mjcf.Physics.from_mjcf_model(arm.mjcf_model)
+    ctrl = np.asarray(physics.bind(arm.actuators).ctrlrange)[:, 1]
+    assert jaco.task.robot.min_velocity_margin == 0.0
+    np.testing.assert_allclose(jaco.filter.velocity.limit, ctrl * (1 - shared), rtol=1e-15)
+    assert jaco.filter.horizon == pytest.approx(max(dt, float(np.max(ctrl * (1 - shared) / accel))), rel=1e-12)
+
+
+def _gravity_lag(runner, samples: int = 3000) -> np.ndarray:
+    """Per joint, the largest steady servo lead under gravity over random joint vectors within the
+    limits, as a fraction of the velocity limit: (|gravity torque| - frictionloss)^+ / kv / v_max,
+    with the torques from MuJoCo at rest (qfrc_bias, qvel = 0) and kv, frictionloss from the model."""
+    physics, task = runner.physics, runner.task
+    model, data = physics.model.ptr, mujoco.MjData(physics.model.ptr)
+    joints = physics.bind(task.arm.joints)
+    qadr, dofadr = np.asarray(joints.qposadr), np.asarray(joints.dofadr)
+    kv = np.asarray(physics.bind(task.arm.actuators).gainprm)[:, 0]
+    limit = np.asarray(physics.bind(task.arm.actuators).ctrlrange)[:, 1]
+    data.qpos[:] = physics.data.qpos
+    lower = np.where(task.robot.limited, task.robot.position_lower, -np.pi)
+    upper = np.where(task.robot.limited, task.robot.position_upper, np.pi)
+    worst = np.zeros(len(qadr))
+    for q in np.random.default_rng(0).uniform(lower, upper, (samples, len(qadr))):
+        data.qpos[qadr] = q
+        mujoco.mj_forward(model, data)
+        worst = np.maximum(worst, np.abs(data.qfrc_bias[dofadr]))
+    return np.maximum(worst - model.dof_frictionloss[dofadr], 0.0) / kv / limit
+
+
+def test_each_arms_margin_covers_its_servo_lag_under_gravity(runner, config, jaco):
+    """The filter's margin exceeds the lag (gravity torque / gain) of every joint on both arms; on
+    the j2s6s200 joint 2 alone would exceed safety.velocity_margin (why the robot carries its own)."""
+    lag = _gravity_lag(runner)
+    margin = 1 - runner.filter.velocity.limit / runner.task.robot.velocity_limit
+    assert lag[1] > config.safety.velocity_margin
+    assert np.all(lag < margin - 0.01), (lag, margin)
+    jaco_lag = _gravity_lag(jaco)
+    assert np.all(jaco_lag < 1 - jaco.filter.velocity.limit / jaco.task.robot.velocity_limit - 0.01)
+
+
+@pytest.mark.parametrize("value", [-0.1, 1.0])
+def test_a_bad_robot_velocity_margin_is_named(tmp_path, value):
+    robots = tmp_path / "robots"
+    robots.mkdir()
+    data = _robot_yaml()
+    data["min_velocity_margin"] = value
+    (robots / "j2s6s200.yaml").write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match=rf"robots/j2s6s200\.min_velocity_margin must be in \[0, 1\), got {value}"):
+        load_robot_config("j2s6s200", robots)

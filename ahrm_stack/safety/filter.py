@@ -64,10 +64,17 @@ class SafetyFilterError(ValueError):
     names the bad value."""
 
 
+def velocity_margin(robot: RobotDescription, config: SafetyConfig) -> float:
+    """The fraction of each velocity limit the filter leaves unused:
+    ``max(safety.velocity_margin, robot.min_velocity_margin)`` (an arm whose servo lags more under
+    gravity carries a larger lower bound in its description)."""
+    return max(float(config.velocity_margin), float(robot.min_velocity_margin))
+
+
 def braking_time(robot: RobotDescription, config: SafetyConfig) -> float:
-    """max_i v_i / a_max_i, s, with v_i the commandable speed ``(1 - velocity_margin) v_max_i``: the
-    longest time any joint needs to stop from full speed."""
-    speed = robot.velocity_limit * (1.0 - config.velocity_margin)
+    """max_i v_i / a_max_i, s, with v_i the commandable speed ``(1 - margin) v_max_i`` (margin:
+    :func:`velocity_margin`): the longest time any joint needs to stop from full speed."""
+    speed = robot.velocity_limit * (1.0 - velocity_margin(robot, config))
     return float(np.max(speed / np.asarray(config.acceleration_limit, dtype=float)))
 
 
@@ -116,7 +123,7 @@ class SafetyFilter:
         self.config = config
         self.dt = float(dt)
         self.num_joints = nv
-        self.velocity = VelocityLimit(robot, config.velocity_margin)
+        self.velocity = VelocityLimit(robot, velocity_margin(robot, config))
         self.acceleration = AccelerationLimit(config.acceleration_limit, self.dt, nv)
         self.horizon = max(self.dt, braking_time(robot, config)) if config.braking_horizon else self.dt
         self.position = PositionLimit(robot, config.position_margin, self.horizon)
