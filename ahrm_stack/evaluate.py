@@ -276,10 +276,12 @@ def suite_markdown(suite: dict) -> str:
     """The suite's table: per family the policy's and the scripted controller's success, touching
     episodes and time to success (mean ± std over successes, s), and their time ratio."""
     scripted_only = suite["policy"] == "scripted controller"
+    with_scripted = scripted_only or bool(suite.get("scripted"))
     head = ["family"]
     if not scripted_only:
         head += ["policy successes", "touching", "time (s)"]
-    head += ["scripted successes", "touching", "time (s)"]
+    if with_scripted:
+        head += ["scripted successes", "touching", "time (s)"]
     if not scripted_only and suite.get("scripted"):
         head += ["time / scripted"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -289,7 +291,8 @@ def suite_markdown(suite: dict) -> str:
         row = [family]
         if not scripted_only:
             row += _cell(mine)
-        row += _cell(theirs if not scripted_only else mine)
+        if with_scripted:
+            row += _cell(theirs if not scripted_only else mine)
         if not scripted_only and suite.get("scripted"):
             ok = mine and theirs and mine["successes"] and theirs["successes"]
             row.append(f"{mine['time_mean'] / theirs['time_mean']:.2f}" if ok else "–")
