@@ -212,6 +212,18 @@ def test_touching_perception_frames_end_in_a_recorded_stop(tmp_path):
         assert len(touching) == len(outcome["frames"])  # the distance layer saw each touch
 
 
+def test_an_abort_fails_the_check():
+    """The harness sees what it is for: a child killed by SIGABRT (python-fcl's uncaught C++
+    exception) fails, and so does one that left no stop or summary."""
+    healthy = {"returncode": 1, "frames": [{}], "stop_event": True, "summary": True,
+               "held_at_release": [0.0] * 6, "out_of_limits": 0, "violations": 0}
+    assert check(healthy) == []
+    aborted = {"returncode": -signal.SIGABRT, "stop_event": False, "summary": False,
+               "out_of_limits": 0}
+    assert "killed by signal SIGABRT" in check(aborted)
+    assert len(check(aborted)) == 6  # and no frames, stop, summary, held command, violation count
+
+
 def _measure(runs: int, duration: float, jobs: int) -> int:
     import tempfile
 
