@@ -93,6 +93,16 @@ def test_the_loop_refuses_to_run_without_the_safety_filter():
 
 
 def test_sigint_stops_the_arm_before_exit():
+    # Python's own Ctrl-C handler (KeyboardInterrupt), as in the CLI: an earlier test in this
+    # process (Ray, a collector) may have replaced it
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        _sigint_run()
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _sigint_run():
     arm, world, config, settings, telemetry = _loop()
     scripted = ScriptedController(world, config)
 
