@@ -41,6 +41,18 @@ class TableConfig:
 
 
 @dataclasses.dataclass(frozen=True)
+class StartIKConfig:
+    """The random start's damped-least-squares IK (``ahrm_stack/env/start_pose.py``)."""
+
+    tries: int  # targets drawn before the home posture is kept
+    iterations: int  # IK iterations per target
+    damping: float  # of the least-squares step, (m or rad)^2
+    max_step: float  # rad, the largest joint change of one iteration
+    position_tolerance: float  # m, tip from its target
+    tilt_tolerance: float  # rad, pusher axis from straight down
+
+
+@dataclasses.dataclass(frozen=True)
 class ArmConfig:
     base_position: tuple[float, float, float]  # world position of the arm base, m
     base_yaw: float  # rotation of the base about world z, rad
@@ -52,6 +64,7 @@ class ArmConfig:
     # placed by IK at a uniform point of ``start_region`` with the pusher pointing down
     start_region: tuple[tuple[float, float], tuple[float, float], tuple[float, float]]  # random
     # start: (lo, hi) of the tip's world x, y and z, m
+    start_ik: StartIKConfig
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,6 +95,7 @@ class LayoutConfig:
     mode: Literal["fixed", "random"]
     cube_region: tuple[tuple[float, float], tuple[float, float]]  # random mode: the cube centre
     # uniform in x in [lo, hi] and y in [lo, hi], m (fixed mode: cube.position +- cube.jitter)
+    obstacle_draws_per_cube: int  # random mode: obstacle draws before the cube is drawn again
     radial_range: tuple[float, float]  # obstacle distance from the cube centre in random mode, m
     min_gap: float  # smallest allowed gap between two obstacles / obstacle and cube, m
     lane_width: float  # width of the free lane the initializer must keep, m
@@ -123,6 +137,7 @@ class ActionConfig:
 class ObservationConfig:
     relative: bool  # append the tip and each obstacle relative to the cube (m, world frame)
     lanes: bool  # append each reachable lane's clearance (m; see env.layout.lane_clearance)
+    lane_clip: tuple[float, float]  # m, the lane clearance saturates at these
 
 
 @dataclasses.dataclass(frozen=True)
@@ -442,7 +457,7 @@ def _check_ranges(obj: Any, key: str) -> None:
         lo, hi = obj.radial_range
         if not 0 < lo <= hi:
             raise ConfigError(f"{key}.radial_range must satisfy 0 < min <= max, got {obj.radial_range}")
-        _positive(obj, key, "lane_width", "approach_room", "max_tries")
+        _positive(obj, key, "lane_width", "approach_room", "max_tries", "obstacle_draws_per_cube")
         bad = [d for d in obj.lane_directions if d not in ("+x", "-x")]
         if bad or not obj.lane_directions:
             raise ConfigError(f"{key}.lane_directions: {list(obj.lane_directions)} must be a non-empty "
@@ -453,6 +468,12 @@ def _check_ranges(obj: Any, key: str) -> None:
         _positive(obj, key, "obstacle_speed_threshold", "progress_eps")
     elif isinstance(obj, ActionConfig):
         _positive(obj, key, "cartesian_max_speed")
+    elif isinstance(obj, StartIKConfig):
+        _positive(obj, key, "tries", "iterations", "damping", "max_step", "position_tolerance",
+                  "tilt_tolerance")
+    elif isinstance(obj, ObservationConfig):
+        if not obj.lane_clip[0] < obj.lane_clip[1]:
+            raise ConfigError(f"{key}.lane_clip must satisfy min < max, got {list(obj.lane_clip)}")
     elif isinstance(obj, ArmConfig):
         if obj.joint_jitter < 0:
             raise ConfigError(f"{key}.joint_jitter must be >= 0, got {obj.joint_jitter}")
@@ -770,15 +791,22 @@ def _legacy_fill(data: dict) -> dict:
 
     arm, layout, cube = section("task", "arm"), section("task", "layout"), section("task", "cube")
     train, ppo = section("train"), section("ppo")
+    observation = section("task", "observation")
     if not any(s is not None and any(k not in s for k in keys) for s, keys in (
-            (arm, ("start",)), (layout, ("cube_region",)), (train, ("dagger_rounds",)),
-            (ppo, ("bc_coeff_final",)), (section("task"), ("observation",)))):
+            (arm, ("start", "start_ik")), (layout, ("cube_region", "obstacle_draws_per_cube")),
+            (train, ("dagger_rounds",)), (ppo, ("bc_coeff_final",)), (section("task"), ("observation",)),
+            (observation, ("lane_clip",)))):
         return data
     data = copy.deepcopy(data)
     defaults = {name: _read_yaml(CONFIG_DIR / file) for name, file in SECTIONS.items()}
     if arm is not None and "start" not in arm:
         data["task"]["arm"].setdefault("start", "home")
         data["task"]["arm"].setdefault("start_region", defaults["task"]["arm"]["start_region"])
+    if arm is not None:
+        data["task"]["arm"].setdefault("start_ik", defaults["task"]["arm"]["start_ik"])
+    if layout is not None:
+        data["task"]["layout"].setdefault("obstacle_draws_per_cube",
+                                          defaults["task"]["layout"]["obstacle_draws_per_cube"])
     if layout is not None and "cube_region" not in layout and cube is not None:
         try:
             (x, y), jitter = cube["position"], float(cube["jitter"])
@@ -790,6 +818,8 @@ def _legacy_fill(data: dict) -> dict:
             data["train"].setdefault(key, 0 if key == "dagger_rounds" else defaults["train"][key])
     if isinstance(data.get("task"), dict) and "observation" not in data["task"]:
         data["task"]["observation"] = {"relative": False, "lanes": False}
+    if isinstance(data.get("task"), dict) and isinstance(data["task"].get("observation"), dict):
+        data["task"]["observation"].setdefault("lane_clip", defaults["task"]["observation"]["lane_clip"])
     if ppo is not None and "bc_coeff_final" not in ppo and "bc_coeff" in ppo:
         data["ppo"].setdefault("bc_coeff_final", ppo["bc_coeff"])
         data["ppo"].setdefault("bc_decay_frames", 0)

@@ -102,11 +102,12 @@ def test_observation_features_relative_to_the_cube_and_lane_clearance():
     # lane clearance by hand for one simple layout: an obstacle right in the +x lane, none in -x
     t = config.task
     clearance = lane_clearance(np.zeros(2), np.array([[0.2, 0.0], [-0.1, 0.3]]), 0.025,
-                               np.array([0.03, 0.03]), t.table, t.layout)
+                               np.array([0.03, 0.03]), t.table, t.layout, (-0.1, 0.3))
     assert clearance[0] == pytest.approx(-0.055)  # overlap: strip half-width 0.025 + 0.03 in y
     # -x: the strip spans x in [-0.45, 0.105] (approach room 0.08 behind the cube's back face),
     # y in [-0.025, 0.025]; the obstacle at (-0.1, 0.3) is 0.3 - 0.03 - 0.025 = 0.245 away in y,
     # the one at (0.2, 0) 0.2 - 0.03 - 0.105 = 0.065 in x: the nearer one counts
     assert clearance[1] == pytest.approx(0.065)
     np.testing.assert_allclose(obs[71:73], lane_clearance(cube[:2], obstacles, 0.025,
-                                                          np.array([0.03, 0.03]), t.table, t.layout))
+                                                          np.array([0.03, 0.03]), t.table, t.layout,
+                                                          config.task.observation.lane_clip))

@@ -58,14 +58,13 @@ def free_lanes(layout: Layout, cube_half: float, obstacle_half: np.ndarray, tabl
     return free
 
 
-LANE_CLEARANCE_CLIP = (-0.1, 0.3)  # m: the lane feature saturates here
-
-
 def lane_clearance(cube_xy: np.ndarray, obstacle_xy: np.ndarray, cube_half: float,
-                   obstacle_half: np.ndarray, table: TableConfig, rules: LayoutConfig) -> np.ndarray:
+                   obstacle_half: np.ndarray, table: TableConfig, rules: LayoutConfig,
+                   clip: tuple[float, float]) -> np.ndarray:
     """Clearance (m) of each lane of ``rules.lane_directions``: the smallest signed gap between an
     obstacle footprint and the strip the cube sweeps — its width, from ``approach_room`` behind
-    its back face to the table edge — clipped to :data:`LANE_CLEARANCE_CLIP` (negative: blocked).
+    its back face to the table edge — clipped to ``clip`` (m; ``task.observation.lane_clip``;
+    negative: blocked).
 
     Positions (x, y) in m, world frame. An observation feature: the same geometry as
     :func:`free_lanes`, measured instead of thresholded."""
@@ -79,8 +78,8 @@ def lane_clearance(cube_xy: np.ndarray, obstacle_xy: np.ndarray, cube_half: floa
         sep = np.abs(obstacle_xy - center) - (half + obstacle_half)
         gaps = np.where(np.all(sep < 0, axis=1), sep.max(axis=1),
                         np.linalg.norm(np.maximum(sep, 0.0), axis=1))
-        out[i] = gaps.min() if len(gaps) else LANE_CLEARANCE_CLIP[1]
-    return np.clip(out, *LANE_CLEARANCE_CLIP)
+        out[i] = gaps.min() if len(gaps) else clip[1]
+    return np.clip(out, *clip)
 
 
 def validate_layout(layout: Layout, table: TableConfig, cube: CubeConfig, obstacles: ObstacleConfig,
@@ -146,7 +145,7 @@ class LayoutSampler:
         lo, hi = self.rules.radial_range
         (x_lo, x_hi), (y_lo, y_hi) = self.rules.cube_region
         for attempt in range(self.rules.max_tries):
-            if attempt % 100 == 0:  # the cube is kept for 100 obstacle draws: a near-uniform cube
+            if attempt % self.rules.obstacle_draws_per_cube == 0:  # a near-uniform cube
                 cube_xy = np.array([rng.uniform(x_lo, x_hi), rng.uniform(y_lo, y_hi)])
             radius = rng.uniform(lo, hi, self.num_obstacles)
             angle = rng.uniform(0, 2 * np.pi, self.num_obstacles)

@@ -33,7 +33,6 @@ from ahrm_stack.kinematics.phases import Cylinder, PhaseScene, RegionParams, pha
 from ahrm_stack.robot import describe, make_arm
 
 CUBE_RGBA = (0.8, 0.1, 0.1, 1.0)
-START_TRIES = 20  # random start targets drawn before the home posture is kept
 OBSTACLE_RGBA = (0.2, 0.35, 0.8, 1.0)
 
 
@@ -200,7 +199,8 @@ class PushOffTask(composer.Task):
         xpos = physics.data.xpos
         cfg = self.config
         return lane_clearance(xpos[self._cube_body, :2], xpos[self._obstacle_bodies, :2],
-                              cfg.cube.size / 2, self._obstacle_half_sizes[0, :2], cfg.table, cfg.layout)
+                              cfg.cube.size / 2, self._obstacle_half_sizes[0, :2], cfg.table, cfg.layout,
+                              cfg.observation.lane_clip)
 
     def flat_observation(self, physics: mjcf.Physics) -> np.ndarray:
         """The observation vector in :attr:`observation_order`, read straight from the physics.
@@ -282,14 +282,14 @@ class PushOffTask(composer.Task):
                       q_home: np.ndarray) -> np.ndarray:
         """A posture with the pusher tip at a uniform point of ``task.arm.start_region``, pointing
         down, free of contact (:func:`solve_start_pose` from the jittered home ``q_home``); up to
-        ``START_TRIES`` targets are drawn, then the home posture is kept (and counted)."""
+        ``task.arm.start_ik.tries`` targets are drawn, then the home posture is kept (and counted)."""
         region = np.asarray(self.config.arm.start_region, dtype=float)
         model, data = physics.model.ptr, physics.data.ptr
-        for _ in range(START_TRIES):
+        for _ in range(self.config.arm.start_ik.tries):
             target = random_state.uniform(region[:, 0], region[:, 1])
             result = solve_start_pose(model, data, self._arm_qpos, self._arm_dof, self._tip_site_id,
                                       target, q_home, self.robot.position_lower,
-                                      self.robot.position_upper, self._is_arm)
+                                      self.robot.position_upper, self._is_arm, self.config.arm.start_ik)
             if result.ok:
                 self.start_target = target
                 return result.q
