@@ -37,7 +37,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ahrm_stack.config import Config, ConfigError, apply_overrides, config_from_dict, load_raw
+from ahrm_stack.config import (Config, ConfigError, _read_yaml, apply_overrides, config_from_dict,
+                               load_raw)
 
 # torchrl announces its own deprecations at import, and dm_control turns every DeprecationWarning
 # on (warnings.simplefilter('always')): on stderr they would bury a one-line error. The warnings
@@ -85,12 +86,7 @@ def resolve_config(args: argparse.Namespace) -> tuple[Config, dict, Path]:
         if not path.is_file():
             raise ConfigError(f"--resume {run_dir}: no config.yaml there; is it a run folder? (a run "
                               "killed before writing it has nothing to resume: start it again)")
-        try:
-            raw = yaml.safe_load(path.read_text())
-        except yaml.YAMLError as error:
-            raise ConfigError(f"{path}: not valid YAML ({str(error).splitlines()[0]})") from None
-        if not isinstance(raw, dict):
-            raise ConfigError(f"{path}: expected a mapping at the top level")
+        raw = _read_yaml(path)  # one-line errors for a missing, broken or non-mapping file
     else:
         raw = load_raw()
     apply_overrides(raw, args.overrides)
