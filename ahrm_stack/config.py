@@ -53,6 +53,15 @@ class StartIKConfig:
 
 
 @dataclasses.dataclass(frozen=True)
+class NearCubeStartConfig:
+    """Starts near the cube (the easy end of the start curriculum, ``train.start_curriculum``): the
+    pusher tip, pointing down, at a uniform bearing around the cube centre."""
+
+    distance: tuple[float, float]  # (lo, hi) of the tip's horizontal distance from the cube centre, m
+    height: tuple[float, float]  # (lo, hi) of the tip's height above the table top, m
+
+
+@dataclasses.dataclass(frozen=True)
 class ArmConfig:
     base_position: tuple[float, float, float]  # world position of the arm base, m
     base_yaw: float  # rotation of the base about world z, rad
@@ -65,6 +74,7 @@ class ArmConfig:
     start_region: tuple[tuple[float, float], tuple[float, float], tuple[float, float]]  # random
     # start: (lo, hi) of the tip's world x, y and z, m
     start_ik: StartIKConfig
+    near_cube: NearCubeStartConfig
 
 
 @dataclasses.dataclass(frozen=True)
@@ -308,6 +318,13 @@ class TrainConfig:
     # scripted controller, refit on all data so far); 0: none
     dagger_episodes: int  # episodes per round
     dagger_duration: float  # s, a round's episode is cut after this much simulated time
+    frames: int  # training stops once this many frames are collected (0: ``episodes`` decides)
+    time_limit: float  # s, training episodes are truncated here (0: task.episode.duration);
+    # evaluation keeps task.episode.duration
+    start_curriculum: bool  # start near the cube (task.arm.near_cube); widen to task.arm.start
+    curriculum_window: int  # training episodes whose success rate decides a widening
+    curriculum_threshold: float  # success rate over the window that widens the start
+    curriculum_step: float  # share of task.arm.start starts added per widening (from 0 to 1)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -474,6 +491,11 @@ def _check_ranges(obj: Any, key: str) -> None:
     elif isinstance(obj, ObservationConfig):
         if not obj.lane_clip[0] < obj.lane_clip[1]:
             raise ConfigError(f"{key}.lane_clip must satisfy min < max, got {list(obj.lane_clip)}")
+    elif isinstance(obj, NearCubeStartConfig):
+        for name in ("distance", "height"):
+            lo, hi = getattr(obj, name)
+            if not 0 <= lo <= hi:
+                raise ConfigError(f"{key}.{name} must satisfy 0 <= min <= max, got {[lo, hi]}")
     elif isinstance(obj, ArmConfig):
         if obj.joint_jitter < 0:
             raise ConfigError(f"{key}.joint_jitter must be >= 0, got {obj.joint_jitter}")
@@ -543,7 +565,14 @@ def _check_ranges(obj: Any, key: str) -> None:
             raise ConfigError(f"{key}.demo_noise must be >= 0, got {obj.demo_noise}")
         if obj.dagger_rounds < 0:
             raise ConfigError(f"{key}.dagger_rounds must be >= 0, got {obj.dagger_rounds}")
-        _positive(obj, key, "dagger_episodes", "dagger_duration")
+        _positive(obj, key, "dagger_episodes", "dagger_duration", "curriculum_window",
+                  "curriculum_step")
+        if obj.frames < 0 or obj.time_limit < 0:
+            raise ConfigError(f"{key}.frames and {key}.time_limit must be >= 0 (0: off), got "
+                              f"{obj.frames} and {obj.time_limit}")
+        if not 0 <= obj.curriculum_threshold <= 1 or obj.curriculum_step > 1:
+            raise ConfigError(f"{key}.curriculum_threshold must be in [0, 1] and curriculum_step in "
+                              f"(0, 1], got {obj.curriculum_threshold} and {obj.curriculum_step}")
     elif isinstance(obj, ScriptedConfig):
         _positive(obj, key, "travel_speed", "push_speed", "position_gain", "tilt_gain", "tilt_speed",
                   "tilt_tolerance", "orientation_cost", "damping", "clearance", "push_height",
@@ -779,6 +808,10 @@ def load_config(overrides: Sequence[str] = (), config_dir: Path | str = CONFIG_D
 BACKFILLED = {"safety": ("self_collision_rows", "self_collision_pairs")}
 
 
+NEUTRAL_TRAIN_KEYS = ("frames", "time_limit", "start_curriculum", "curriculum_window",
+                      "curriculum_threshold", "curriculum_step")
+
+
 def _legacy_fill(data: dict) -> dict:
     """A run folder's config.yaml written before the task distribution (2026-12-01) lacks its
     keys: fill them so that the run keeps its old behaviour — the home start, the cube at
@@ -794,7 +827,8 @@ def _legacy_fill(data: dict) -> dict:
     observation = section("task", "observation")
     if not any(s is not None and any(k not in s for k in keys) for s, keys in (
             (arm, ("start", "start_ik")), (layout, ("cube_region", "obstacle_draws_per_cube")),
-            (train, ("dagger_rounds",)), (ppo, ("bc_coeff_final",)), (section("task"), ("observation",)),
+            (train, ("dagger_rounds", *NEUTRAL_TRAIN_KEYS)), (arm, ("near_cube",)),
+            (ppo, ("bc_coeff_final",)), (section("task"), ("observation",)),
             (observation, ("lane_clip",)))):
         return data
     data = copy.deepcopy(data)
@@ -813,6 +847,11 @@ def _legacy_fill(data: dict) -> dict:
             data["task"]["layout"]["cube_region"] = [[x - jitter, x + jitter], [y - jitter, y + jitter]]
         except (KeyError, TypeError, ValueError):
             pass  # the schema check names what is wrong
+    if arm is not None:
+        data["task"]["arm"].setdefault("near_cube", defaults["task"]["arm"]["near_cube"])
+    if train is not None:  # keys whose default leaves training as it was before they existed
+        for key in NEUTRAL_TRAIN_KEYS:
+            data["train"].setdefault(key, defaults["train"][key])
     if train is not None:
         for key in ("dagger_rounds", "dagger_episodes", "dagger_duration"):
             data["train"].setdefault(key, 0 if key == "dagger_rounds" else defaults["train"][key])

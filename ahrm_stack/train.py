@@ -61,7 +61,8 @@ EPISODE_FIELDS = ["episode", "frames", "steps", "duration", "success", "time_to_
                   "constraint_terminated", "interventions", "joint_limit_violations", "failure_mode",
                   "orders", "levels"]
 BATCH_FIELDS = ["batch", "frames", "episodes", "loss_objective", "loss_critic", "loss_entropy",
-                "entropy", "kl_approx", "bc_loss", "std", "updates", "grad_norm", "seconds"]
+                "entropy", "kl_approx", "bc_loss", "std", "updates", "grad_norm", "seconds",
+                "start_share"]
 
 CLONE_POLICY = "policies/clone.pt"  # the warm-started policy before any PPO update (warm_start: bc)
 EVALUATION_FIELDS = ["episode", "frames", "episodes", "successes", "success_rate", "touched_episodes",
@@ -231,8 +232,11 @@ class RunLog:
     @staticmethod
     def _csv(path: Path, fields: list[str]):
         new = not path.exists() or path.stat().st_size == 0
+        if not new:  # a resumed run keeps the columns it was started with
+            with open(path, newline="") as existing:
+                fields = next(csv.reader(existing), None) or fields
         handle = open(path, "a", newline="")
-        writer = csv.DictWriter(handle, fieldnames=fields)
+        writer = csv.DictWriter(handle, fieldnames=fields, extrasaction="ignore", restval="")
         if new:
             writer.writeheader()
             handle.flush()
@@ -375,8 +379,11 @@ def train(config: Config, raw: dict, run_dir: Path, resume: bool, progress: bool
         trainer.close()
         raise
     log = RunLog(run_dir)
-    bar = tqdm(total=config.train.episodes, initial=min(trainer.episodes, config.train.episodes),
-               unit="ep", disable=not progress, dynamic_ncols=True)
+    by_frames = bool(config.train.frames)  # the budget: train.frames when set, else train.episodes
+    total = config.train.frames if by_frames else config.train.episodes
+    done = trainer.frames if by_frames else trainer.episodes
+    bar = tqdm(total=total, initial=min(done, total), unit="frame" if by_frames else "ep",
+               disable=not progress, dynamic_ncols=True)
     recent: list[bool] = []
     interim = bool(config.train.eval_every and config.train.eval_episodes)
     # built once: every interim evaluation replays the same evaluation seeds on this environment
@@ -399,7 +406,7 @@ def train(config: Config, raw: dict, run_dir: Path, resume: bool, progress: bool
                 evaluate_now()  # the curve's first point
         elif interim and trainer.batches == 0:
             evaluate_now()
-        while trainer.episodes < config.train.episodes:
+        while not trainer.finished():
             try:
                 result = trainer.iteration()
             except TrainingDiverged as error:
@@ -411,7 +418,8 @@ def train(config: Config, raw: dict, run_dir: Path, resume: bool, progress: bool
             for event in result.events:
                 log.event(event)
             log.batch(result.batch)
-            bar.update(min(len(result.episodes), config.train.episodes - bar.n))
+            bar.update(min(result.batch["frames"] - bar.n if by_frames else len(result.episodes),
+                           total - bar.n))
             phase = result.episodes[-1]["phases_visited"][-1] if result.episodes else "-"
             bar.set_postfix(frames=trainer.frames, success=f"{np.mean(recent) if recent else 0:.2f}",
                             phase=phase, orders=trainer.mechanism_orders())

@@ -60,7 +60,7 @@ class TaskRunner:
             log.warning("safety filter OFF (safety.enabled: false): an explicit ablation")
         self.random_state = np.random.RandomState(seed)
         self._substeps = task.config.substeps
-        self._max_steps = task.config.max_steps
+        self.max_steps = task.config.max_steps  # control steps before truncation
         self._steps = 0
         self._observe: dict[str, Callable[[], np.ndarray]] = {
             name: obs.observation_callable(self.physics, self.random_state)
@@ -130,7 +130,7 @@ class TaskRunner:
         self._steps += 1
         info = self.task.step_info
         terminated = self.task.should_terminate_episode(self.physics)
-        truncated = not terminated and self._steps >= self._max_steps
+        truncated = not terminated and self._steps >= self.max_steps
         if terminated or truncated:
             self.end_episode()
         return info, terminated, truncated

@@ -104,6 +104,9 @@ class PushOffTask(composer.Task):
         self.layout: Layout | None = None
         self.start_target: np.ndarray | None = None  # the random start's tip target, m (world)
         self.start_fallbacks = 0  # random starts that fell back to the home posture
+        # share of episodes that start near the cube (task.arm.near_cube) instead of by
+        # task.arm.start: the trainer's start curriculum sets it; 0 leaves the random stream as is
+        self.near_cube_share = 0.0
         self.step_info = StepInfo.empty()  # observables are evaluated once before the first reset
         self.previous_action = np.zeros(len(self.robot.commanded_joints))
         self._command = np.zeros(self.robot.num_joints)
@@ -266,7 +269,9 @@ class PushOffTask(composer.Task):
             obstacle.set_pose(physics, [*xy, z_table + cfg.obstacles.size[2] / 2], [1, 0, 0, 0])
         q0 = np.asarray(cfg.arm.home) + random_state.uniform(-1, 1, self.robot.num_joints) * cfg.arm.joint_jitter
         q0 = np.clip(q0, self.robot.position_lower, self.robot.position_upper)
-        if cfg.arm.start == "random":
+        if self.near_cube_share > 0 and random_state.uniform() < self.near_cube_share:
+            q0 = self._ik_start(physics, random_state, q0, self._near_cube_target)
+        elif cfg.arm.start == "random":
             q0 = self._random_start(physics, random_state, q0)
         physics.data.qpos[self._arm_qpos] = q0
         physics.data.ctrl[:] = 0.0
@@ -284,9 +289,28 @@ class PushOffTask(composer.Task):
         down, free of contact (:func:`solve_start_pose` from the jittered home ``q_home``); up to
         ``task.arm.start_ik.tries`` targets are drawn, then the home posture is kept (and counted)."""
         region = np.asarray(self.config.arm.start_region, dtype=float)
+        return self._ik_start(physics, random_state, q_home,
+                              lambda rs: rs.uniform(region[:, 0], region[:, 1]))
+
+    def _near_cube_target(self, random_state: np.random.RandomState) -> np.ndarray:
+        """A tip target (m, world) at a uniform bearing around the cube centre, at a uniform
+        horizontal distance in ``task.arm.near_cube.distance`` and height above the table top in
+        ``task.arm.near_cube.height``."""
+        near = self.config.arm.near_cube
+        bearing = random_state.uniform(0.0, 2 * np.pi)
+        distance = random_state.uniform(*near.distance)
+        height = random_state.uniform(*near.height)
+        x, y = self.layout.cube_xy
+        return np.array([x + distance * np.cos(bearing), y + distance * np.sin(bearing),
+                         self.config.table.height + height])
+
+    def _ik_start(self, physics: mjcf.Physics, random_state: np.random.RandomState,
+                  q_home: np.ndarray, draw_target) -> np.ndarray:
+        """The first contact-free IK posture for targets from ``draw_target(random_state)``; after
+        ``task.arm.start_ik.tries`` failures the home posture is kept (and counted)."""
         model, data = physics.model.ptr, physics.data.ptr
         for _ in range(self.config.arm.start_ik.tries):
-            target = random_state.uniform(region[:, 0], region[:, 1])
+            target = draw_target(random_state)
             result = solve_start_pose(model, data, self._arm_qpos, self._arm_dof, self._tip_site_id,
                                       target, q_home, self.robot.position_lower,
                                       self.robot.position_upper, self._is_arm, self.config.arm.start_ik)

@@ -64,13 +64,17 @@ class PushOffEnv(EnvBase):
     """
 
     def __init__(self, config: TaskConfig, safety: SafetyConfig | None, seed: int | None = None,
-                 device: str = "cpu", mechanism=None) -> None:
+                 device: str = "cpu", mechanism=None, time_limit: float = 0.0) -> None:
+        """``time_limit`` (s, > 0): episodes are truncated here instead of at
+        ``task.episode.duration`` (training's ``train.time_limit``)."""
         super().__init__(device=device, batch_size=torch.Size([]))
         self.mechanism = mechanism
         self.completed: list[EpisodeSummary] = []
         self._monitor = None
         self.task = PushOffTask(config)
         self.runner = TaskRunner(self.task, seed, safety)
+        if time_limit > 0:
+            self.runner.max_steps = max(1, int(round(time_limit / config.episode.control_period)))
         self.robot = self.task.robot
         self._commanded = self.robot.commanded_joints
         self._cartesian = config.action.mode == "cartesian"

@@ -68,8 +68,13 @@ class Trainer:
         np.random.seed(config.train.seed)
         self.mechanism = RewardMechanism(config.mechanism)
         count = config.train.num_envs  # ppo.frames_per_batch is a multiple of it (config.py)
-        self.envs = [PushOffEnv(config.task, config.safety, mechanism=self.mechanism, seed=seed)
+        self.envs = [PushOffEnv(config.task, config.safety, mechanism=self.mechanism, seed=seed,
+                                time_limit=config.train.time_limit)
                      for seed in training_seeds(config.train.seed, count)]  # configs/seeds.yaml
+        # the start curriculum: the share of starts drawn by task.arm.start (the rest near the cube)
+        self.start_share = 0.0 if config.train.start_curriculum else 1.0
+        self._curriculum_window: list[bool] = []
+        self._apply_start_share()
         self.env = self.envs[0] if count == 1 else SerialEnv(
             count, [lambda env=env: env for env in self.envs])
         observation_dim = self.envs[0].observation_spec["observation"].shape[-1]
@@ -181,12 +186,37 @@ class Trainer:
         if ppo.update_normalizer or self.modules.normalizer.count == 0:
             self.modules.normalizer.update(data["observation"])
         episodes, events = self._drain_episodes()
+        self._update_curriculum(episodes)
         batch = {k: float(np.mean(v)) for k, v in totals.items()}
         batch.update(batch=self.batches, frames=self.frames, episodes=self.episodes,
                      std=float(self._std().detach()), updates=updates,
                      grad_norm=float(np.mean(grad_norms)) if grad_norms else float("nan"),
+                     start_share=self.start_share,
                      seconds=time.perf_counter() - started)
         return IterationResult(episodes, events, batch)
+
+    def finished(self) -> bool:
+        """Whether the budget is spent: ``train.frames`` frames when set, else ``train.episodes``."""
+        train = self.config.train
+        return self.frames >= train.frames if train.frames else self.episodes >= train.episodes
+
+    def _apply_start_share(self) -> None:
+        for env in self.envs:
+            env.task.near_cube_share = 1.0 - self.start_share
+
+    def _update_curriculum(self, rows: list[dict]) -> None:
+        """Widen the start (``train.curriculum_step`` more starts by task.arm.start) each time the
+        training success rate over ``train.curriculum_window`` episodes reaches the threshold."""
+        train = self.config.train
+        if not train.start_curriculum or self.start_share >= 1.0:
+            return
+        for row in rows:
+            self._curriculum_window.append(bool(row["success"]))
+            if len(self._curriculum_window) >= train.curriculum_window:
+                if np.mean(self._curriculum_window) >= train.curriculum_threshold:
+                    self.start_share = min(1.0, self.start_share + train.curriculum_step)
+                    self._apply_start_share()
+                self._curriculum_window = []
 
     def _std(self) -> torch.Tensor:
         return self.modules.head.log_std.exp().mean()
@@ -220,6 +250,7 @@ class Trainer:
             "mechanism": self.mechanism.state_dict(),
             "time_objective": [env.task.time_objective.state_dict() for env in self.envs],
             "counters": {"episodes": self.episodes, "frames": self.frames, "batches": self.batches},
+            "curriculum": {"start_share": self.start_share, "window": list(self._curriculum_window)},
             "torch_rng": torch.get_rng_state(),
             "env_rng": [_random_state_to_list(env.runner.random_state.get_state())
                         for env in self.envs],
@@ -245,6 +276,11 @@ class Trainer:
         self.episodes, self.frames, self.batches = (counters["episodes"], counters["frames"],
                                                     counters["batches"])
         torch.set_rng_state(state["torch_rng"])
+        curriculum = state.get("curriculum")  # absent in checkpoints before the start curriculum
+        if curriculum is not None:
+            self.start_share = float(curriculum["start_share"])
+            self._curriculum_window = [bool(s) for s in curriculum["window"]]
+            self._apply_start_share()
         if state.get("demos") is not None:
             saved = state["demos"]
             self.demos = TensorDict(saved, batch_size=[saved["observation"].shape[0]])
