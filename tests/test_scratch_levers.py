@@ -1,0 +1,152 @@
+"""The levers of learning without demonstrations (issue 18), each a config value that takes effect:
+the frame budget, the training time limit, near-cube starts and the start curriculum."""
+
+import csv
+
+import numpy as np
+import pytest
+import yaml
+
+from ahrm_stack.config import (CONFIG_DIR, SECTIONS, ConfigError, config_from_dict, load_config,
+                               profile_overrides)
+from ahrm_stack.env.runner import TaskRunner
+from ahrm_stack.env.task import PushOffTask
+from ahrm_stack.env.torchrl_env import PushOffEnv
+from ahrm_stack.learning.trainer import Trainer
+
+TINY = ["ppo.hidden_sizes=[16,16]", "ppo.frames_per_batch=64", "ppo.mini_batch_size=32",
+        "train.warm_start=none", "ppo.bc_coeff=0", "ppo.bc_coeff_final=0"]
+
+
+def test_time_limit_truncates_training_episodes_only():
+    config = load_config(["task.episode.duration=2.0"])
+    env = PushOffEnv(config.task, config.safety, seed=0, time_limit=0.5)  # 10 control steps
+    full = PushOffEnv(config.task, config.safety, seed=0)
+    for limited, steps in ((env, 10), (full, 40)):
+        td = limited.reset()
+        for step in range(1, 100):
+            td = limited.step(td.set("action", limited.action_spec.zero()))["next"]
+            if bool(td["done"]):
+                break
+        assert step == steps and bool(td["truncated"]) and not bool(td["terminated"])
+
+
+def test_trainer_passes_the_time_limit_and_the_evaluation_keeps_the_task_duration():
+    trainer = Trainer(load_config([*TINY, "train.time_limit=0.25", "task.episode.duration=3.0"]))
+    assert trainer.envs[0].runner.max_steps == 5
+    result = trainer.iteration()  # 64 frames: at most 5 steps per episode, so >= 12 episodes end
+    assert len(result.episodes) >= 12 and all(row["steps"] <= 5 for row in result.episodes)
+    assert PushOffEnv(trainer.config.task, trainer.config.safety, seed=1).runner.max_steps == 60
+    trainer.close()
+
+
+def test_frame_budget_ends_training_by_frames_not_episodes():
+    trainer = Trainer(load_config([*TINY, "train.frames=128", "train.episodes=1",
+                                   "task.episode.duration=1.0"]))
+    trainer.iteration()
+    assert trainer.episodes >= 1 and not trainer.finished()  # 64 < 128 frames: the episodes don't count
+    trainer.iteration()
+    assert trainer.finished()
+    trainer.close()
+    by_episodes = Trainer(load_config([*TINY, "train.episodes=1000", "task.episode.duration=1.0"]))
+    by_episodes.iteration()
+    assert not by_episodes.finished()
+    by_episodes.close()
+
+
+def test_near_cube_starts_put_the_tip_around_the_cube_pointing_down():
+    """The tip measured with Pinocchio's forward kinematics (the IK ran on MuJoCo's model)."""
+    config = load_config([])
+    task = PushOffTask(config.task)
+    task.near_cube_share = 1.0
+    runner = TaskRunner(task, seed=3, safety=config.safety)
+    near = config.task.arm.near_cube
+    bearings = []
+    for seed in range(10):
+        runner.seed(seed)
+        runner.reset()
+        assert task.start_target is not None, "fell back to the home posture"
+        q, _ = task.arm_state(runner.physics)
+        task.kinematics.update(q)
+        tip, _ = task.kinematics.frame_pose(task._tip_frame)
+        cube = runner.physics.bind(task._cube.geom).xpos
+        offset = tip[:2] - cube[:2]
+        assert near.distance[0] - 3e-3 <= np.hypot(*offset) <= near.distance[1] + 3e-3
+        height = tip[2] - config.task.table.height
+        assert near.height[0] - 3e-3 <= height <= near.height[1] + 3e-3
+        bearings.append(np.arctan2(offset[1], offset[0]))
+    assert np.ptp(bearings) > np.pi  # every side of the cube, not one
+    assert task.start_fallbacks == 0
+
+
+def test_zero_near_cube_share_leaves_the_random_stream_unchanged():
+    config = load_config([])
+    tasks = [PushOffTask(config.task), PushOffTask(config.task)]
+    tasks[1].near_cube_share = 0.0  # explicit: the default
+    observations = []
+    for task in tasks:
+        runner = TaskRunner(task, seed=7, safety=config.safety)
+        observations.append(runner.reset().observation)
+    for key in observations[0]:
+        np.testing.assert_array_equal(observations[0][key], observations[1][key])
+
+
+def test_start_curriculum_widens_when_the_success_rate_reaches_the_threshold():
+    trainer = Trainer(load_config([*TINY, "train.start_curriculum=true", "train.curriculum_window=4",
+                                   "train.curriculum_threshold=0.5", "train.curriculum_step=0.25"]))
+    assert trainer.start_share == 0.0 and trainer.envs[0].task.near_cube_share == 1.0
+    trainer._update_curriculum([{"success": s} for s in (True, False, False, False)])  # 25 %
+    assert trainer.start_share == 0.0
+    trainer._update_curriculum([{"success": s} for s in (True, True, False, False, True)])  # 50 %
+    assert trainer.start_share == 0.25 and trainer.envs[0].task.near_cube_share == 0.75
+    state = trainer.state_dict()
+    assert state["curriculum"] == {"start_share": 0.25, "window": [True]}
+    resumed = Trainer(load_config([*TINY, "train.start_curriculum=true", "train.curriculum_window=4"]))
+    resumed.load_state_dict(state)
+    assert resumed.start_share == 0.25 and resumed.envs[0].task.near_cube_share == 0.75
+    for _ in range(3):
+        resumed._update_curriculum([{"success": True}] * 4)
+    assert resumed.start_share == 1.0 and resumed.envs[0].task.near_cube_share == 0.0
+    off = Trainer(load_config(TINY))
+    assert off.start_share == 1.0 and off.envs[0].task.near_cube_share == 0.0
+    for trainer in (trainer, resumed, off):
+        trainer.close()
+
+
+@pytest.mark.parametrize("override, key", [
+    ("train.time_limit=-1", "train.frames and train.time_limit"),
+    ("train.frames=-5", "train.frames and train.time_limit"),
+    ("train.curriculum_threshold=1.5", "train.curriculum_threshold"),
+    ("train.curriculum_step=0", "train.curriculum_step"),
+    ("task.arm.near_cube.distance=[0.2,0.1]", "task.arm.near_cube.distance"),
+])
+def test_bad_scratch_values_name_the_key(override, key):
+    with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
+        load_config([override])
+
+
+def test_the_scratch_profile_has_no_demonstrations():
+    config = load_config(profile_overrides("scratch"))
+    assert config.train.warm_start == "none" and config.ppo.bc_coeff == 0 == config.ppo.bc_coeff_final
+    assert config.train.time_limit < config.task.episode.duration and config.train.start_curriculum
+
+
+def test_old_run_configs_get_the_neutral_values():
+    raw = {name: yaml.safe_load(open(CONFIG_DIR / file)) for name, file in SECTIONS.items()}
+    for key in ("frames", "time_limit", "start_curriculum", "curriculum_window",
+                "curriculum_threshold", "curriculum_step"):
+        raw["train"].pop(key)
+    raw["task"]["arm"].pop("near_cube")
+    config = config_from_dict(raw)
+    assert config.train.frames == 0 and config.train.time_limit == 0 and not config.train.start_curriculum
+
+
+def test_a_resumed_log_keeps_its_columns(tmp_path):
+    from ahrm_stack.train import RunLog
+    path = tmp_path / "batches.csv"
+    path.write_text("batch,frames\n1,64\n")
+    log = RunLog(tmp_path)
+    log.batch({"batch": 2, "frames": 128, "episodes": 3, "start_share": 0.5})
+    log.close()
+    rows = list(csv.reader(open(path)))
+    assert rows == [["batch", "frames"], ["1", "64"], ["2", "128"]]
