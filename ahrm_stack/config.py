@@ -321,10 +321,13 @@ class TrainConfig:
     frames: int  # training stops once this many frames are collected (0: ``episodes`` decides)
     time_limit: float  # s, training episodes are truncated here (0: task.episode.duration);
     # evaluation keeps task.episode.duration
-    start_curriculum: bool  # start near the cube (task.arm.near_cube); widen to task.arm.start
+    start_curriculum: Literal["none", "near_cube", "scripted_states"]  # near_cube: start near the
+    # cube (task.arm.near_cube), more starts by task.arm.start as the level rises; scripted_states:
+    # start from the scripted controller's recorded states, further back as the level rises
+    curriculum_states: int  # scripted_states: scripted episodes recorded (the won ones are used)
     curriculum_window: int  # training episodes whose success rate decides a widening
     curriculum_threshold: float  # success rate over the window that widens the start
-    curriculum_step: float  # share of task.arm.start starts added per widening (from 0 to 1)
+    curriculum_step: float  # the level's rise per widening (from 0 to 1; at 1 the task draws starts)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -566,7 +569,7 @@ def _check_ranges(obj: Any, key: str) -> None:
         if obj.dagger_rounds < 0:
             raise ConfigError(f"{key}.dagger_rounds must be >= 0, got {obj.dagger_rounds}")
         _positive(obj, key, "dagger_episodes", "dagger_duration", "curriculum_window",
-                  "curriculum_step")
+                  "curriculum_step", "curriculum_states")
         if obj.frames < 0 or obj.time_limit < 0:
             raise ConfigError(f"{key}.frames and {key}.time_limit must be >= 0 (0: off), got "
                               f"{obj.frames} and {obj.time_limit}")
@@ -808,8 +811,8 @@ def load_config(overrides: Sequence[str] = (), config_dir: Path | str = CONFIG_D
 BACKFILLED = {"safety": ("self_collision_rows", "self_collision_pairs")}
 
 
-NEUTRAL_TRAIN_KEYS = ("frames", "time_limit", "start_curriculum", "curriculum_window",
-                      "curriculum_threshold", "curriculum_step")
+NEUTRAL_TRAIN_KEYS = ("frames", "time_limit", "start_curriculum", "curriculum_states",
+                      "curriculum_window", "curriculum_threshold", "curriculum_step")
 
 
 def _legacy_fill(data: dict) -> dict:

@@ -62,7 +62,7 @@ EPISODE_FIELDS = ["episode", "frames", "steps", "duration", "success", "time_to_
                   "orders", "levels"]
 BATCH_FIELDS = ["batch", "frames", "episodes", "loss_objective", "loss_critic", "loss_entropy",
                 "entropy", "kl_approx", "bc_loss", "std", "updates", "grad_norm", "seconds",
-                "start_share"]
+                "curriculum_level"]
 
 CLONE_POLICY = "policies/clone.pt"  # the warm-started policy before any PPO update (warm_start: bc)
 EVALUATION_FIELDS = ["episode", "frames", "episodes", "successes", "success_rate", "touched_episodes",

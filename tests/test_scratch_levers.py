@@ -92,23 +92,25 @@ def test_zero_near_cube_share_leaves_the_random_stream_unchanged():
 
 
 def test_start_curriculum_widens_when_the_success_rate_reaches_the_threshold():
-    trainer = Trainer(load_config([*TINY, "train.start_curriculum=true", "train.curriculum_window=4",
-                                   "train.curriculum_threshold=0.5", "train.curriculum_step=0.25"]))
-    assert trainer.start_share == 0.0 and trainer.envs[0].task.near_cube_share == 1.0
+    trainer = Trainer(load_config([*TINY, "train.start_curriculum=near_cube",
+                                   "train.curriculum_window=4", "train.curriculum_threshold=0.5",
+                                   "train.curriculum_step=0.25"]))
+    assert trainer.curriculum_level == 0.0 and trainer.envs[0].task.near_cube_share == 1.0
     trainer._update_curriculum([{"success": s} for s in (True, False, False, False)])  # 25 %
-    assert trainer.start_share == 0.0
+    assert trainer.curriculum_level == 0.0
     trainer._update_curriculum([{"success": s} for s in (True, True, False, False, True)])  # 50 %
-    assert trainer.start_share == 0.25 and trainer.envs[0].task.near_cube_share == 0.75
+    assert trainer.curriculum_level == 0.25 and trainer.envs[0].task.near_cube_share == 0.75
     state = trainer.state_dict()
-    assert state["curriculum"] == {"start_share": 0.25, "window": [True]}
-    resumed = Trainer(load_config([*TINY, "train.start_curriculum=true", "train.curriculum_window=4"]))
+    assert state["curriculum"] == {"level": 0.25, "window": [True]}
+    resumed = Trainer(load_config([*TINY, "train.start_curriculum=near_cube",
+                                   "train.curriculum_window=4"]))
     resumed.load_state_dict(state)
-    assert resumed.start_share == 0.25 and resumed.envs[0].task.near_cube_share == 0.75
+    assert resumed.curriculum_level == 0.25 and resumed.envs[0].task.near_cube_share == 0.75
     for _ in range(3):
         resumed._update_curriculum([{"success": True}] * 4)
-    assert resumed.start_share == 1.0 and resumed.envs[0].task.near_cube_share == 0.0
+    assert resumed.curriculum_level == 1.0 and resumed.envs[0].task.near_cube_share == 0.0
     off = Trainer(load_config(TINY))
-    assert off.start_share == 1.0 and off.envs[0].task.near_cube_share == 0.0
+    assert off.curriculum_level == 1.0 and off.envs[0].task.near_cube_share == 0.0
     for trainer in (trainer, resumed, off):
         trainer.close()
 
@@ -118,6 +120,7 @@ def test_start_curriculum_widens_when_the_success_rate_reaches_the_threshold():
     ("train.frames=-5", "train.frames and train.time_limit"),
     ("train.curriculum_threshold=1.5", "train.curriculum_threshold"),
     ("train.curriculum_step=0", "train.curriculum_step"),
+    ("train.start_curriculum=maybe", "train.start_curriculum"),
     ("task.arm.near_cube.distance=[0.2,0.1]", "task.arm.near_cube.distance"),
 ])
 def test_bad_scratch_values_name_the_key(override, key):
@@ -128,17 +131,19 @@ def test_bad_scratch_values_name_the_key(override, key):
 def test_the_scratch_profile_has_no_demonstrations():
     config = load_config(profile_overrides("scratch"))
     assert config.train.warm_start == "none" and config.ppo.bc_coeff == 0 == config.ppo.bc_coeff_final
-    assert config.train.time_limit < config.task.episode.duration and config.train.start_curriculum
+    assert config.train.time_limit < config.task.episode.duration
+    assert config.train.start_curriculum == "near_cube"
 
 
 def test_old_run_configs_get_the_neutral_values():
     raw = {name: yaml.safe_load(open(CONFIG_DIR / file)) for name, file in SECTIONS.items()}
-    for key in ("frames", "time_limit", "start_curriculum", "curriculum_window",
+    for key in ("frames", "time_limit", "start_curriculum", "curriculum_states", "curriculum_window",
                 "curriculum_threshold", "curriculum_step"):
         raw["train"].pop(key)
     raw["task"]["arm"].pop("near_cube")
     config = config_from_dict(raw)
-    assert config.train.frames == 0 and config.train.time_limit == 0 and not config.train.start_curriculum
+    assert config.train.frames == 0 and config.train.time_limit == 0
+    assert config.train.start_curriculum == "none"
 
 
 def test_a_resumed_log_keeps_its_columns(tmp_path):
@@ -146,7 +151,51 @@ def test_a_resumed_log_keeps_its_columns(tmp_path):
     path = tmp_path / "batches.csv"
     path.write_text("batch,frames\n1,64\n")
     log = RunLog(tmp_path)
-    log.batch({"batch": 2, "frames": 128, "episodes": 3, "start_share": 0.5})
+    log.batch({"batch": 2, "frames": 128, "episodes": 3, "curriculum_level": 0.5})
     log.close()
     rows = list(csv.reader(open(path)))
     assert rows == [["batch", "frames"], ["1", "64"], ["2", "128"]]
+
+
+def test_scripted_states_start_from_recorded_states_further_back_as_the_level_rises():
+    """The recorded states are the scripted controller's own (replayed here independently from the
+    same seeds); a level-0 start is the last state before the cube fell, level 1 the task's start."""
+    from ahrm_stack.env.scripted import ScriptedPusher
+    from ahrm_stack.learning.start_states import ScriptedStartStates, record_trajectories
+    from ahrm_stack.seeds import seed_table
+    config = load_config(["task.episode.duration=10"])
+    trajectories = record_trajectories(config, 2)
+    assert len(trajectories) == 2  # the controller wins these layouts
+    task = PushOffTask(config.task)
+    runner = TaskRunner(task, seed=0, safety=config.safety)
+    runner.seed(seed_table()["start_states"].start)
+    runner.reset()
+    controller = ScriptedPusher(task, config.scripted)
+    controller.reset(runner.physics)
+    np.testing.assert_array_equal(runner.physics.data.qpos, trajectories[0].qpos[0])
+    for _ in range(3):
+        runner.step_only(controller(runner.physics))
+    np.testing.assert_array_equal(runner.physics.data.qpos, trajectories[0].qpos[3])
+
+    states = ScriptedStartStates(trajectories)
+    task.start_states = states
+    runner.seed(11)
+    last = runner.reset()  # level 0: one step from the cube leaving the table
+    assert last.info.phase == 3
+    chosen = next(t for t in trajectories if np.array_equal(t.layout.cube_xy, task.layout.cube_xy))
+    cube = runner.physics.bind(task._cube.geom).xpos
+    np.testing.assert_allclose(cube, chosen.qpos[-1][runner.physics.model.jnt_qposadr[
+        runner.physics.model.body_jntadr[task._cube_body]]:][:3], atol=1e-9)
+    np.testing.assert_array_equal(task.arm_state(runner.physics)[1], 0.0)  # the arm at rest
+    states.level = 1.0
+    assert states(np.random.RandomState(0)) is None  # the task draws the start itself
+
+
+def test_trainer_builds_the_scripted_states_curriculum():
+    trainer = Trainer(load_config([*TINY, "train.start_curriculum=scripted_states",
+                                   "train.curriculum_states=2", "task.episode.duration=10"]))
+    assert trainer.start_states is not None and trainer.start_states.level == 0.0
+    assert all(env.task.start_states is trainer.start_states for env in trainer.envs)
+    trainer._update_curriculum([{"success": True}] * trainer.config.train.curriculum_window)
+    assert trainer.start_states.level == trainer.config.train.curriculum_step
+    trainer.close()

@@ -107,6 +107,9 @@ class PushOffTask(composer.Task):
         # share of episodes that start near the cube (task.arm.near_cube) instead of by
         # task.arm.start: the trainer's start curriculum sets it; 0 leaves the random stream as is
         self.near_cube_share = 0.0
+        # the reverse curriculum's start states: a callable(random_state) -> StartState | None
+        # (ahrm_stack.learning.start_states); None: the task draws every start itself
+        self.start_states = None
         self.step_info = StepInfo.empty()  # observables are evaluated once before the first reset
         self.previous_action = np.zeros(len(self.robot.commanded_joints))
         self._command = np.zeros(self.robot.num_joints)
@@ -261,6 +264,11 @@ class PushOffTask(composer.Task):
     # ------------------------------------------------------------------ episode logic
     def initialize_episode(self, physics: mjcf.Physics, random_state: np.random.RandomState) -> None:
         self._bind(physics)
+        if self.start_states is not None:
+            start = self.start_states(random_state)
+            if start is not None:
+                self._restore(physics, start)
+                return
         cfg = self.config
         self.layout = self.layout_sampler.sample(random_state)
         z_table = cfg.table.height
@@ -279,6 +287,25 @@ class PushOffTask(composer.Task):
         self.previous_action = np.zeros(len(self.robot.commanded_joints))
         self._command = np.zeros(self.robot.num_joints)
         self._episode_start = physics.data.time
+        self.time_objective.reset()
+        self.step_info = self._measure(physics, phase_time=0.0)
+        self.progress_objective.reset(self.step_info.progress)
+
+    def _restore(self, physics: mjcf.Physics, start) -> None:
+        """Start the episode from a recorded state (its layout, qpos and qvel); the arm at rest,
+        so that the previous command in the observation (zero) is true."""
+        self.layout = start.layout
+        data = physics.data
+        data.qpos[:] = start.qpos
+        data.qvel[:] = start.qvel
+        data.qvel[self._arm_dof] = 0.0
+        data.ctrl[:] = 0.0
+        data.qacc_warmstart[:] = 0.0
+        physics.forward()
+        self.start_target = None
+        self.previous_action = np.zeros(len(self.robot.commanded_joints))
+        self._command = np.zeros(self.robot.num_joints)
+        self._episode_start = data.time
         self.time_objective.reset()
         self.step_info = self._measure(physics, phase_time=0.0)
         self.progress_objective.reset(self.step_info.progress)

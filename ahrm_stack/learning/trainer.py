@@ -31,6 +31,7 @@ from ahrm_stack.learning.demonstrations import (bc_loss, collect_corrections, co
                                                 warm_start)
 from ahrm_stack.learning.mechanisms import OBJECTIVES, RewardMechanism
 from ahrm_stack.learning.ppo import anchor_coeff, make_buffer, make_loss, make_modules, scheduled_std
+from ahrm_stack.learning.start_states import ScriptedStartStates, record_trajectories
 from ahrm_stack.seeds import training_seeds
 
 
@@ -71,10 +72,16 @@ class Trainer:
         self.envs = [PushOffEnv(config.task, config.safety, mechanism=self.mechanism, seed=seed,
                                 time_limit=config.train.time_limit)
                      for seed in training_seeds(config.train.seed, count)]  # configs/seeds.yaml
-        # the start curriculum: the share of starts drawn by task.arm.start (the rest near the cube)
-        self.start_share = 0.0 if config.train.start_curriculum else 1.0
+        # the start curriculum (train.start_curriculum): its level rises from 0 to 1 with success
+        self.curriculum_level = 0.0 if config.train.start_curriculum != "none" else 1.0
         self._curriculum_window: list[bool] = []
-        self._apply_start_share()
+        self.start_states = None
+        if config.train.start_curriculum == "scripted_states":
+            self.start_states = ScriptedStartStates(
+                record_trajectories(config, config.train.curriculum_states))
+            for env in self.envs:
+                env.task.start_states = self.start_states
+        self._apply_curriculum()
         self.env = self.envs[0] if count == 1 else SerialEnv(
             count, [lambda env=env: env for env in self.envs])
         observation_dim = self.envs[0].observation_spec["observation"].shape[-1]
@@ -191,7 +198,7 @@ class Trainer:
         batch.update(batch=self.batches, frames=self.frames, episodes=self.episodes,
                      std=float(self._std().detach()), updates=updates,
                      grad_norm=float(np.mean(grad_norms)) if grad_norms else float("nan"),
-                     start_share=self.start_share,
+                     curriculum_level=self.curriculum_level,
                      seconds=time.perf_counter() - started)
         return IterationResult(episodes, events, batch)
 
@@ -200,22 +207,27 @@ class Trainer:
         train = self.config.train
         return self.frames >= train.frames if train.frames else self.episodes >= train.episodes
 
-    def _apply_start_share(self) -> None:
-        for env in self.envs:
-            env.task.near_cube_share = 1.0 - self.start_share
+    def _apply_curriculum(self) -> None:
+        """The level reaches the environments: near_cube starts a share 1 - level of episodes near
+        the cube; scripted_states starts at the fraction 1 - level of a recorded trajectory."""
+        if self.config.train.start_curriculum == "near_cube":
+            for env in self.envs:
+                env.task.near_cube_share = 1.0 - self.curriculum_level
+        elif self.start_states is not None:
+            self.start_states.level = self.curriculum_level
 
     def _update_curriculum(self, rows: list[dict]) -> None:
-        """Widen the start (``train.curriculum_step`` more starts by task.arm.start) each time the
-        training success rate over ``train.curriculum_window`` episodes reaches the threshold."""
+        """Raise the level by ``train.curriculum_step`` each time the training success rate over
+        ``train.curriculum_window`` episodes reaches ``train.curriculum_threshold``."""
         train = self.config.train
-        if not train.start_curriculum or self.start_share >= 1.0:
+        if train.start_curriculum == "none" or self.curriculum_level >= 1.0:
             return
         for row in rows:
             self._curriculum_window.append(bool(row["success"]))
             if len(self._curriculum_window) >= train.curriculum_window:
                 if np.mean(self._curriculum_window) >= train.curriculum_threshold:
-                    self.start_share = min(1.0, self.start_share + train.curriculum_step)
-                    self._apply_start_share()
+                    self.curriculum_level = min(1.0, self.curriculum_level + train.curriculum_step)
+                    self._apply_curriculum()
                 self._curriculum_window = []
 
     def _std(self) -> torch.Tensor:
@@ -250,7 +262,7 @@ class Trainer:
             "mechanism": self.mechanism.state_dict(),
             "time_objective": [env.task.time_objective.state_dict() for env in self.envs],
             "counters": {"episodes": self.episodes, "frames": self.frames, "batches": self.batches},
-            "curriculum": {"start_share": self.start_share, "window": list(self._curriculum_window)},
+            "curriculum": {"level": self.curriculum_level, "window": list(self._curriculum_window)},
             "torch_rng": torch.get_rng_state(),
             "env_rng": [_random_state_to_list(env.runner.random_state.get_state())
                         for env in self.envs],
@@ -278,9 +290,9 @@ class Trainer:
         torch.set_rng_state(state["torch_rng"])
         curriculum = state.get("curriculum")  # absent in checkpoints before the start curriculum
         if curriculum is not None:
-            self.start_share = float(curriculum["start_share"])
+            self.curriculum_level = float(curriculum["level"])
             self._curriculum_window = [bool(s) for s in curriculum["window"]]
-            self._apply_start_share()
+            self._apply_curriculum()
         if state.get("demos") is not None:
             saved = state["demos"]
             self.demos = TensorDict(saved, batch_size=[saved["observation"].shape[0]])

@@ -1,0 +1,176 @@
+"""Learning without demonstrations (issue 18): the study's rows, runs and report.
+
+    python studies/scratch_study.py list
+    python studies/scratch_study.py run ROW --seed 0 [--frames 1000000] [--runs-dir runs/scratch]
+    python studies/scratch_study.py run ROW --seed 0 --resume      # continue an interrupted run
+    python studies/scratch_study.py report runs/scratch --out docs/scratch-study
+
+A row is a list of config overrides on top of ``configs/`` (every row starts from
+``profile=scratch``: no demonstrations, no BC anchor, no scripted actions). ``run`` trains one row
+and seed into ``RUNS_DIR/ROW-seedN`` with interim deterministic evaluations on the run's own
+evaluation seeds (the default family's distribution, 60 s episodes, the task's random starts).
+``report`` reads the run folders' CSV files (nothing typed in by hand) and writes ``table.md``
+and ``curves.png``: the training success rate and the evaluations against frames.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROWS: dict[str, list[str]] = {
+    # the candidate profile: 10 s training episodes, near-cube starts widening with success
+    "scratch-ahrm": ["profile=scratch", "mechanism.method=ahrm"],
+    "scratch-ls": ["profile=scratch", "mechanism.method=ls"],
+    "scratch-mhrm": ["profile=scratch", "mechanism.method=mhrm"],
+    "scratch-fhrm": ["profile=scratch", "mechanism.method=fhrm"],
+    # levers, one at a time (AHRM)
+    "no-curriculum-ahrm": ["profile=scratch", "mechanism.method=ahrm", "train.start_curriculum=none"],
+    # the reverse curriculum from the scripted controller's states (no action labels)
+    "reverse-ahrm": ["profile=scratch", "mechanism.method=ahrm",
+                     "train.start_curriculum=scripted_states"],
+    "reverse-ls": ["profile=scratch", "mechanism.method=ls", "train.start_curriculum=scripted_states"],
+    "full-episodes-ahrm": ["profile=scratch", "mechanism.method=ahrm", "train.time_limit=0"],
+    "joint-ahrm": ["profile=scratch", "mechanism.method=ahrm", "task.action.mode=joint"],
+}
+
+
+def run(row: str, seed: int, frames: int, runs_dir: Path, eval_every: int, resume: bool) -> int:
+    run_dir = runs_dir / f"{row}-seed{seed}"
+    command = [sys.executable, "-m", "ahrm_stack.train", *ROWS[row], f"train.seed={seed}",
+               f"train.frames={frames}", f"train.eval_every={eval_every}", "--run-dir", str(run_dir),
+               "--no-progress"]
+    if resume:
+        command = [sys.executable, "-m", "ahrm_stack.train", "--resume", str(run_dir), "--no-progress"]
+    return subprocess.call(command)
+
+
+def _rows(path: Path) -> list[dict]:
+    if not path.exists():
+        return []
+    with open(path, newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+def _first(rows: list[dict], test) -> tuple[int, int] | None:
+    """(frames, episodes) of the first row passing ``test``."""
+    for row in rows:
+        if test(row):
+            return int(float(row["frames"])), int(float(row["episodes"] if "episodes" in row else row["episode"]))
+    return None
+
+
+def summarize(run_dir: Path) -> dict:
+    episodes = _rows(run_dir / "episodes.csv")
+    batches = _rows(run_dir / "batches.csv")
+    evaluations = _rows(run_dir / "evaluations.csv")
+    success = np.array([row["success"] == "True" for row in episodes], dtype=bool)
+    frames = np.array([int(row["frames"]) for row in episodes])
+    first_train = next((i for i, s in enumerate(success) if s), None)
+    count = lambda r: int(float(r["successes"]))  # noqa: E731
+    n_eval = lambda r: round(count(r) / float(r["success_rate"])) if float(r["success_rate"]) else None  # noqa: E731
+    episodes_per_eval = next((n_eval(r) for r in evaluations if n_eval(r)), 40)
+    last = evaluations[-1] if evaluations else None
+    return {
+        "run": run_dir.name,
+        "frames": int(batches[-1]["frames"]) if batches else 0,
+        "episodes": len(episodes),
+        "train_successes": int(success.sum()),
+        "train_success_last_500": float(success[-500:].mean()) if len(success) else 0.0,
+        "first_train_success": None if first_train is None else (int(frames[first_train]), first_train + 1),
+        "first_eval_success": _first(evaluations, lambda r: count(r) >= 1),
+        "eval_50": _first(evaluations, lambda r: count(r) >= 0.5 * episodes_per_eval),
+        "eval_90": _first(evaluations, lambda r: count(r) >= 0.9 * episodes_per_eval),
+        "best_eval": max((count(r) for r in evaluations), default=None),
+        "last_eval": None if last is None else (count(last), episodes_per_eval,
+                                                int(float(last["touched_episodes"])),
+                                                float(last["time_mean"]) if last["time_mean"] else float("nan"),
+                                                int(float(last["frames"]))),
+        "curriculum_level": float(batches[-1]["curriculum_level"]) if batches and batches[-1].get("curriculum_level") else None,
+        "wall_minutes": sum(float(r["seconds"]) for r in batches) / 60,
+        "_curve": (frames, success, evaluations, batches),
+    }
+
+
+def _at(value) -> str:
+    return "–" if value is None else f"{value[0]:,} ({value[1]})"
+
+
+def report(runs_dir: Path, out: Path) -> None:
+    runs = sorted(p for p in runs_dir.iterdir() if (p / "episodes.csv").exists())
+    if not runs:
+        raise SystemExit(f"error: no run folders with episodes.csv under {runs_dir}")
+    summaries = [summarize(p) for p in runs]
+    out.mkdir(parents=True, exist_ok=True)
+    lines = ["| run | frames | episodes | training successes (last 500 episodes) | first training success: "
+             "frames (episode) | first evaluation success | evaluation >= 50 % | evaluation >= 90 % | "
+             "best evaluation | last evaluation (touching, s to success, at frames) | curriculum "
+             "level | wall minutes |", "|" + "---|" * 12]
+    for s in summaries:
+        last = s["last_eval"]
+        last_text = "–" if last is None else (f"{last[0]}/{last[1]} ({last[2]} touching, "
+                                              f"{last[3]:.2f} s, {last[4]:,})")
+        share = "–" if s["curriculum_level"] is None else f"{s['curriculum_level']:.2f}"
+        lines.append(f"| {s['run']} | {s['frames']:,} | {s['episodes']} | {s['train_successes']} "
+                     f"({100 * s['train_success_last_500']:.0f} %) | {_at(s['first_train_success'])} | "
+                     f"{_at(s['first_eval_success'])} | {_at(s['eval_50'])} | {_at(s['eval_90'])} | "
+                     f"{s['best_eval'] if s['best_eval'] is not None else '–'} | {last_text} | {share} | "
+                     f"{s['wall_minutes']:.0f} |")
+    (out / "table.md").write_text("\n".join(lines) + "\n")
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4.5))
+    for s in summaries:
+        frames, success, evaluations, batches = s["_curve"]
+        if len(success):
+            window = min(200, len(success))
+            rate = np.convolve(success.astype(float), np.ones(window) / window, mode="valid")
+            axes[0].plot(frames[window - 1:], rate, label=s["run"])
+        if evaluations:
+            axes[1].plot([int(r["frames"]) for r in evaluations],
+                         [float(r["success_rate"]) for r in evaluations], "o-", label=s["run"])
+        if batches and batches[0].get("curriculum_level") not in (None, ""):
+            axes[2].plot([int(r["frames"]) for r in batches],
+                         [float(r["curriculum_level"]) for r in batches], label=s["run"])
+    axes[0].set(title="training success rate (200 episodes)", xlabel="frames", ylim=(0, 1))
+    axes[1].set(title="deterministic evaluation (60 s, task starts)", xlabel="frames", ylim=(0, 1))
+    axes[2].set(title="start curriculum level", xlabel="frames", ylim=(0, 1.05))
+    axes[1].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "curves.png", dpi=110)
+    print((out / "table.md").read_text())
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    sub.add_parser("list")
+    p_run = sub.add_parser("run")
+    p_run.add_argument("row", choices=sorted(ROWS))
+    p_run.add_argument("--seed", type=int, default=0)
+    p_run.add_argument("--frames", type=int, default=2_000_000)
+    p_run.add_argument("--eval-every", type=int, default=500, help="training episodes")
+    p_run.add_argument("--runs-dir", type=Path, default=Path("runs/scratch"))
+    p_run.add_argument("--resume", action="store_true")
+    p_report = sub.add_parser("report")
+    p_report.add_argument("runs_dir", type=Path)
+    p_report.add_argument("--out", type=Path, default=Path("docs/scratch-study"))
+    args = parser.parse_args(argv)
+    if args.command == "list":
+        for name, overrides in ROWS.items():
+            print(f"{name}: {' '.join(overrides)}")
+        return 0
+    if args.command == "run":
+        return run(args.row, args.seed, args.frames, args.runs_dir, args.eval_every, args.resume)
+    report(args.runs_dir, args.out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
