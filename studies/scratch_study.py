@@ -32,9 +32,11 @@ ROWS: dict[str, list[str]] = {
     # levers, one at a time (AHRM)
     "no-curriculum-ahrm": ["profile=scratch", "mechanism.method=ahrm", "train.start_curriculum=none"],
     # the reverse curriculum from the scripted controller's states (no action labels)
+    # (a trajectory is ~80 steps: a level step of 0.1 moves the start ~8 steps back)
     "reverse-ahrm": ["profile=scratch", "mechanism.method=ahrm",
-                     "train.start_curriculum=scripted_states"],
-    "reverse-ls": ["profile=scratch", "mechanism.method=ls", "train.start_curriculum=scripted_states"],
+                     "train.start_curriculum=scripted_states", "train.curriculum_step=0.1"],
+    "reverse-ls": ["profile=scratch", "mechanism.method=ls", "train.start_curriculum=scripted_states",
+                   "train.curriculum_step=0.1"],
     "full-episodes-ahrm": ["profile=scratch", "mechanism.method=ahrm", "train.time_limit=0"],
     "joint-ahrm": ["profile=scratch", "mechanism.method=ahrm", "task.action.mode=joint"],
 }

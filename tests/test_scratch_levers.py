@@ -100,13 +100,17 @@ def test_start_curriculum_widens_when_the_success_rate_reaches_the_threshold():
     assert trainer.curriculum_level == 0.0
     trainer._update_curriculum([{"success": s} for s in (True, True, False, False, True)])  # 50 %
     assert trainer.curriculum_level == 0.25 and trainer.envs[0].task.near_cube_share == 0.75
+    # after a rise the rest of the batch (started at the old level) is not counted
+    trainer._update_curriculum([{"success": s} for s in (True, True, True, True, True, True)])
+    assert trainer.curriculum_level == 0.5
+    trainer._update_curriculum([{"success": s} for s in (True, False)])
     state = trainer.state_dict()
-    assert state["curriculum"] == {"level": 0.25, "window": [True]}
+    assert state["curriculum"] == {"level": 0.5, "window": [True, False]}
     resumed = Trainer(load_config([*TINY, "train.start_curriculum=near_cube",
                                    "train.curriculum_window=4"]))
     resumed.load_state_dict(state)
-    assert resumed.curriculum_level == 0.25 and resumed.envs[0].task.near_cube_share == 0.75
-    for _ in range(3):
+    assert resumed.curriculum_level == 0.5 and resumed.envs[0].task.near_cube_share == 0.5
+    for _ in range(2):
         resumed._update_curriculum([{"success": True}] * 4)
     assert resumed.curriculum_level == 1.0 and resumed.envs[0].task.near_cube_share == 0.0
     off = Trainer(load_config(TINY))

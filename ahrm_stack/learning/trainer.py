@@ -225,10 +225,12 @@ class Trainer:
         for row in rows:
             self._curriculum_window.append(bool(row["success"]))
             if len(self._curriculum_window) >= train.curriculum_window:
-                if np.mean(self._curriculum_window) >= train.curriculum_threshold:
+                raised = np.mean(self._curriculum_window) >= train.curriculum_threshold
+                self._curriculum_window = []
+                if raised:  # the batch's later episodes started at the old level: not counted
                     self.curriculum_level = min(1.0, self.curriculum_level + train.curriculum_step)
                     self._apply_curriculum()
-                self._curriculum_window = []
+                    return
 
     def _std(self) -> torch.Tensor:
         return self.modules.head.log_std.exp().mean()
