@@ -307,6 +307,7 @@ class TrainConfig:
     keep_checkpoints: int  # most recent checkpoints kept on disk
     eval_episodes: int  # deterministic evaluation episodes at the end of training (0: none)
     eval_every: int  # also evaluate (eval_episodes) every this many training episodes (0: never)
+    eval_every_frames: int  # ... or every this many frames (0: never); either may trigger
     threads: int  # torch intra-op threads
     warm_start: Literal["none", "bc"]  # bc: behaviour cloning from scripted demonstrations first
     demo_episodes: int  # scripted-controller episodes recorded for warm start and the BC anchor
@@ -560,9 +561,10 @@ def _check_ranges(obj: Any, key: str) -> None:
                               f"{key}.mini_batch_size ({obj.mini_batch_size})")
     elif isinstance(obj, TrainConfig):
         _positive(obj, key, "episodes", "checkpoint_every", "keep_checkpoints", "threads")
-        if obj.eval_episodes < 0 or obj.eval_every < 0:
-            raise ConfigError(f"{key}.eval_episodes and {key}.eval_every must be >= 0, got "
-                              f"{obj.eval_episodes} and {obj.eval_every}")
+        if obj.eval_episodes < 0 or obj.eval_every < 0 or obj.eval_every_frames < 0:
+            raise ConfigError(f"{key}.eval_episodes, {key}.eval_every and {key}.eval_every_frames "
+                              f"must be >= 0, got {obj.eval_episodes}, {obj.eval_every} and "
+                              f"{obj.eval_every_frames}")
         _positive(obj, key, "demo_episodes", "bc_epochs", "bc_learning_rate", "num_envs")
         if obj.demo_noise < 0:
             raise ConfigError(f"{key}.demo_noise must be >= 0, got {obj.demo_noise}")
@@ -811,7 +813,7 @@ def load_config(overrides: Sequence[str] = (), config_dir: Path | str = CONFIG_D
 BACKFILLED = {"safety": ("self_collision_rows", "self_collision_pairs")}
 
 
-NEUTRAL_TRAIN_KEYS = ("frames", "time_limit", "start_curriculum", "curriculum_states",
+NEUTRAL_TRAIN_KEYS = ("frames", "eval_every_frames", "time_limit", "start_curriculum", "curriculum_states",
                       "curriculum_window", "curriculum_threshold", "curriculum_step")
 
 

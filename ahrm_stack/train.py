@@ -261,7 +261,7 @@ class RunLog:
                 self.tb.add_scalar(f"train/{key}", row[key], row["frames"])
 
     def evaluation(self, trainer, table) -> None:
-        """One interim deterministic evaluation (``train.eval_every``)."""
+        """One interim deterministic evaluation (``train.eval_every`` / ``eval_every_frames``)."""
         row = {"episode": trainer.episodes, "frames": trainer.frames, **dataclasses.asdict(table),
                "success_rate": table.success_rate}
         self.evaluations[1].writerow({k: row[k] for k in EVALUATION_FIELDS})
@@ -385,7 +385,8 @@ def train(config: Config, raw: dict, run_dir: Path, resume: bool, progress: bool
     bar = tqdm(total=total, initial=min(done, total), unit="frame" if by_frames else "ep",
                disable=not progress, dynamic_ncols=True)
     recent: list[bool] = []
-    interim = bool(config.train.eval_every and config.train.eval_episodes)
+    every, every_frames = config.train.eval_every, config.train.eval_every_frames
+    interim = bool((every or every_frames) and config.train.eval_episodes)
     # built once: every interim evaluation replays the same evaluation seeds on this environment
     eval_env = PushOffEnv(config.task, config.safety, seed=EVAL_SEED_OFFSET) if interim else None
 
@@ -395,7 +396,12 @@ def train(config: Config, raw: dict, run_dir: Path, resume: bool, progress: bool
         log.evaluation(trainer, EvaluationTable.from_summaries(summaries))
         trainer.save_policy(run_dir / "policies" / f"episode-{trainer.episodes:05d}.pt")
 
-    evaluated = trainer.episodes
+    evaluated, evaluated_frames = trainer.episodes, trainer.frames
+
+    def evaluation_due() -> bool:
+        return bool((every and trainer.episodes // every > evaluated // every)
+                    or (every_frames and trainer.frames // every_frames > evaluated_frames // every_frames))
+
     try:
         if trainer.batches == 0 and config.train.warm_start == "bc":
             trainer.warm_start()  # the clone, kept: the policy before any PPO update
@@ -423,9 +429,8 @@ def train(config: Config, raw: dict, run_dir: Path, resume: bool, progress: bool
             phase = result.episodes[-1]["phases_visited"][-1] if result.episodes else "-"
             bar.set_postfix(frames=trainer.frames, success=f"{np.mean(recent) if recent else 0:.2f}",
                             phase=phase, orders=trainer.mechanism_orders())
-            if interim and (trainer.episodes // config.train.eval_every
-                            > evaluated // config.train.eval_every):
-                evaluated = trainer.episodes
+            if interim and evaluation_due():
+                evaluated, evaluated_frames = trainer.episodes, trainer.frames
                 evaluate_now()
             if trainer.batches % config.train.checkpoint_every == 0:
                 log.flush()  # the rows first: a checkpoint never counts a row that is not on disk

@@ -45,7 +45,7 @@ ROWS: dict[str, list[str]] = {
 def run(row: str, seed: int, frames: int, runs_dir: Path, eval_every: int, resume: bool) -> int:
     run_dir = runs_dir / f"{row}-seed{seed}"
     command = [sys.executable, "-m", "ahrm_stack.train", *ROWS[row], f"train.seed={seed}",
-               f"train.frames={frames}", f"train.eval_every={eval_every}", "--run-dir", str(run_dir),
+               f"train.frames={frames}", f"train.eval_every_frames={eval_every}", "--run-dir", str(run_dir),
                "--no-progress"]
     if resume:
         command = [sys.executable, "-m", "ahrm_stack.train", "--resume", str(run_dir), "--no-progress"]
@@ -157,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
     p_run.add_argument("row", choices=sorted(ROWS))
     p_run.add_argument("--seed", type=int, default=0)
     p_run.add_argument("--frames", type=int, default=2_000_000)
-    p_run.add_argument("--eval-every", type=int, default=500, help="training episodes")
+    p_run.add_argument("--eval-every", type=int, default=100_000, help="frames between evaluations")
     p_run.add_argument("--runs-dir", type=Path, default=Path("runs/scratch"))
     p_run.add_argument("--resume", action="store_true")
     p_report = sub.add_parser("report")

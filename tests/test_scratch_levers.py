@@ -203,3 +203,13 @@ def test_trainer_builds_the_scripted_states_curriculum():
     trainer._update_curriculum([{"success": True}] * trainer.config.train.curriculum_window)
     assert trainer.start_states.level == trainer.config.train.curriculum_step
     trainer.close()
+
+
+def test_interim_evaluations_every_so_many_frames(tmp_path):
+    from ahrm_stack.train import main
+    run = tmp_path / "run"
+    assert main([*TINY, "task.episode.duration=1.0", "train.frames=256", "train.eval_every_frames=128",
+                 "train.eval_episodes=1", "--run-dir", str(run), "--no-progress"]) == 0
+    rows = list(csv.DictReader(open(run / "evaluations.csv")))
+    # before training (frames 0), at 128 and at 256 frames (64 frames per batch)
+    assert [int(row["frames"]) for row in rows] == [0, 128, 256]
