@@ -296,6 +296,7 @@ class PPOConfig:
     bc_coeff: float  # weight of a behaviour-cloning term toward the demonstrations (0: off)
     bc_coeff_final: float  # the anchor's weight goes linearly from bc_coeff to this ...
     bc_decay_frames: int  # ... over this many frames (0: constant bc_coeff)
+    reward_scale: float  # rewards are multiplied by this before GAE (the critic learns scaled returns)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -546,7 +547,7 @@ def _check_ranges(obj: Any, key: str) -> None:
     elif isinstance(obj, PPOConfig):
         _positive(obj, key, "frames_per_batch", "mini_batch_size", "epochs", "learning_rate",
                   "clip_epsilon", "max_grad_norm", "hidden_sizes", "init_std", "normalizer_clip",
-                  "final_std", "std_schedule_frames")
+                  "final_std", "std_schedule_frames", "reward_scale")
         if obj.target_kl < 0:
             raise ConfigError(f"{key}.target_kl must be >= 0 (0: off), got {obj.target_kl}")
         for name in ("gamma", "gae_lambda"):
@@ -813,6 +814,7 @@ def load_config(overrides: Sequence[str] = (), config_dir: Path | str = CONFIG_D
 BACKFILLED = {"safety": ("self_collision_rows", "self_collision_pairs")}
 
 
+NEUTRAL_PPO_KEYS = ("reward_scale",)
 NEUTRAL_TRAIN_KEYS = ("frames", "eval_every_frames", "time_limit", "start_curriculum", "curriculum_states",
                       "curriculum_window", "curriculum_threshold", "curriculum_step")
 
@@ -833,7 +835,7 @@ def _legacy_fill(data: dict) -> dict:
     if not any(s is not None and any(k not in s for k in keys) for s, keys in (
             (arm, ("start", "start_ik")), (layout, ("cube_region", "obstacle_draws_per_cube")),
             (train, ("dagger_rounds", *NEUTRAL_TRAIN_KEYS)), (arm, ("near_cube",)),
-            (ppo, ("bc_coeff_final",)), (section("task"), ("observation",)),
+            (ppo, ("bc_coeff_final", *NEUTRAL_PPO_KEYS)), (section("task"), ("observation",)),
             (observation, ("lane_clip",)))):
         return data
     data = copy.deepcopy(data)
@@ -864,6 +866,9 @@ def _legacy_fill(data: dict) -> dict:
         data["task"]["observation"] = {"relative": False, "lanes": False}
     if isinstance(data.get("task"), dict) and isinstance(data["task"].get("observation"), dict):
         data["task"]["observation"].setdefault("lane_clip", defaults["task"]["observation"]["lane_clip"])
+    if ppo is not None:
+        for key in NEUTRAL_PPO_KEYS:
+            data["ppo"].setdefault(key, defaults["ppo"][key])
     if ppo is not None and "bc_coeff_final" not in ppo and "bc_coeff" in ppo:
         data["ppo"].setdefault("bc_coeff_final", ppo["bc_coeff"])
         data["ppo"].setdefault("bc_decay_frames", 0)

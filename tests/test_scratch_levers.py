@@ -5,6 +5,7 @@ import csv
 
 import numpy as np
 import pytest
+import torch
 import yaml
 
 from ahrm_stack.config import (CONFIG_DIR, SECTIONS, ConfigError, config_from_dict, load_config,
@@ -213,3 +214,18 @@ def test_interim_evaluations_every_so_many_frames(tmp_path):
     rows = list(csv.DictReader(open(run / "evaluations.csv")))
     # before training (frames 0), at 128 and at 256 frames (64 frames per batch)
     assert [int(row["frames"]) for row in rows] == [0, 128, 256]
+
+
+def test_reward_scale_scales_the_rewards_the_advantage_sees():
+    """Same seeds, same networks: the GAE inputs differ exactly by the scale."""
+    seen = []
+    for scale in (1.0, 0.05):
+        trainer = Trainer(load_config([*TINY, f"ppo.reward_scale={scale}", "train.seed=3",
+                                       "mechanism.method=ls"]))  # LS: every objective from the start
+        original = trainer.advantage
+        trainer.advantage = lambda data, original=original: (
+            seen.append(data.get(("next", "reward")).clone()), original(data))[1]
+        trainer.iteration()
+        trainer.close()
+    torch.testing.assert_close(seen[1], seen[0] * 0.05)
+    assert seen[0].abs().sum() > 0

@@ -121,6 +121,8 @@ class Trainer:
         if self.batches or self.config.train.warm_start != "bc" or self.warm_start_report is not None:
             return
         train = self.config.train
+        if self.config.ppo.reward_scale != 1.0:  # the critic refit learns the returns PPO will see
+            self.demos.set("return", self.demos.get("return") * self.config.ppo.reward_scale)
         report = warm_start(self.modules, self.demos, train.bc_epochs, train.bc_learning_rate,
                             self.config.ppo.mini_batch_size, self._demo_generator)
         first = train.demo_episodes  # DAgger rounds use the demonstration seeds after the demos'
@@ -152,6 +154,8 @@ class Trainer:
         data = self._collect()
         self.frames += data.numel()
         self.batches += 1
+        if ppo.reward_scale != 1.0:
+            data.set(("next", "reward"), data.get(("next", "reward")) * ppo.reward_scale)
         with torch.no_grad():
             self.advantage(data)
         self.buffer.empty()
