@@ -41,11 +41,14 @@ class FakeArm:
 
     def __init__(self, positions_deg, continuous, *, tick_s: float = 1e-3,
                  frame_modulus: int = 65536, clear_delay_s: float = 0.05,
-                 frame_start: int = 0) -> None:
+                 frame_start: int = 0, velocity_limit_deg_s=None) -> None:
         self._lock = threading.RLock()
         self.positions = np.asarray(positions_deg, dtype=float).copy()  # deg, unwrapped
         self.continuous = np.asarray(continuous, dtype=bool)
         self.speeds = np.zeros_like(self.positions)  # deg/s, held until the next command
+        self.velocity_limit = (None if velocity_limit_deg_s is None
+                               else np.asarray(velocity_limit_deg_s, dtype=float))
+        self.violations = 0  # commands that reached the joints beyond the velocity limit
         self.tick_s, self.frame_modulus, self.clear_delay_s = tick_s, frame_modulus, clear_delay_s
         self._t0 = time.perf_counter() - frame_start * tick_s
         self._last = time.perf_counter()
@@ -240,6 +243,9 @@ class FakeArm:
     # ------------------------------------------------------------------ physics
     def _set_speeds(self, speeds: np.ndarray) -> None:
         speeds = np.asarray(speeds, dtype=float)
+        if self.velocity_limit is not None and not (
+                np.isfinite(speeds).all() and (np.abs(speeds) <= self.velocity_limit + 1e-9).all()):
+            self.violations += 1
         if not np.array_equal(speeds, self.speeds):
             self.speed_log.append((time.perf_counter(), speeds.copy()))
         self.speeds = speeds.copy()
