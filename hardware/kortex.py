@@ -566,10 +566,13 @@ class KortexArm(ArmAdapter):
         credentials: the login (:func:`load_credentials`).
         options: every number of the link (:class:`KortexOptions`, :func:`kortex_options`).
         api: the vendor modules (default :func:`import_kortex_api`; tests pass fakes).
+        clock: the adapter's clock (default :class:`WallClock`: real time); the watchdog and the
+            feedback timestamps use it. Tests pass a ``FastClock`` shared with a fake arm.
     """
 
     def __init__(self, robot: RobotDescription, address: str, credentials: Credentials,
-                 options: KortexOptions, *, api: dict | None = None) -> None:
+                 options: KortexOptions, *, api: dict | None = None,
+                 clock: WallClock | None = None) -> None:
         if not isinstance(address, str) or not address.strip():
             raise HardwareError("the Kortex backend needs the arm's address explicitly "
                                 f"(got {address!r}); there is no default")
@@ -578,7 +581,7 @@ class KortexArm(ArmAdapter):
         self._port = int(options.port)
         self._credentials = credentials
         self._api = api
-        self._clock = WallClock()
+        self._clock = clock if clock is not None else WallClock()
         self._connected = False
         self._mode = ServoingMode.SINGLE_LEVEL_SERVOING
         self._previous: np.ndarray | None = None
@@ -586,7 +589,7 @@ class KortexArm(ArmAdapter):
         self._estopped = False  # we e-stopped the arm; latched until clear_faults()
         self._arm_in_fault = False  # the last feedback reported a fault
         self._watchdog = CommandWatchdog(options.watchdog_timeout, options.watchdog_poll,
-                                         self._watchdog_expired)
+                                         self._watchdog_expired, clock=self._clock.now)
         limited = robot.limited
         self._range_centre = np.where(
             limited, 0.5 * (np.where(limited, robot.position_lower, 0.0)
@@ -599,6 +602,10 @@ class KortexArm(ArmAdapter):
     @property
     def velocity_limit(self) -> np.ndarray:
         return self._robot.velocity_limit.copy()
+
+    @property
+    def clock(self) -> WallClock:
+        return self._clock
 
     @property
     def is_connected(self) -> bool:

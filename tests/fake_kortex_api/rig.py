@@ -64,9 +64,11 @@ def start_degrees(robot) -> np.ndarray:
     return np.degrees(np.where(limited, centre, 0.0))
 
 
-def make(robot, *, positions_deg=None, opts=None, password: str = PASSWORD, **arm_kwargs):
+def make(robot, *, positions_deg=None, opts=None, password: str = PASSWORD, clock=None,
+         **arm_kwargs):
     """(adapter, simulated arm): a :class:`KortexArm` for ``robot`` and a fake arm registered at a
-    fresh documentation address (192.0.2.x), not yet connected."""
+    fresh documentation address (192.0.2.x), not yet connected. ``clock``: shared by both (a
+    ``FastClock`` for a deterministic run); default the wall clock."""
     from hardware.kortex import Credentials, KortexArm
 
     api = fake_api()
@@ -74,8 +76,9 @@ def make(robot, *, positions_deg=None, opts=None, password: str = PASSWORD, **ar
     address = f"192.0.2.{next(_addresses) % 250 + 1}"
     opts = opts or options()
     positions = start_degrees(robot) if positions_deg is None else positions_deg
-    arm = FakeArm.register(address, opts.port, FakeArm(positions, ~robot.limited, **arm_kwargs))
-    adapter = KortexArm(robot, address, Credentials("admin", password), opts, api=api)
+    arm = FakeArm.register(address, opts.port,
+                           FakeArm(positions, ~robot.limited, clock=clock, **arm_kwargs))
+    adapter = KortexArm(robot, address, Credentials("admin", password), opts, api=api, clock=clock)
     return adapter, arm
 
 
@@ -85,29 +88,30 @@ def make_for(robot, **kwargs):
 
 
 class DeployRig:
-    """A deploy loop (scripted controller, realtime at the config's rate) on a :class:`KortexArm`
-    over the fake arm, which starts at the task's initial posture. Perception is the layout's
-    initial poses, held static (test-only: the fake arm moves no cube). ``inject`` maps the sim
-    backend's :class:`~hardware.sim.InjectedFault` onto the fake arm."""
+    """A deploy loop (scripted controller, at the config's rate) on a :class:`KortexArm` over the
+    fake arm, which starts at the task's initial posture; both on ``clock`` (default a
+    ``FastClock``: deterministic, whatever the machine's load). Perception is the layout's initial
+    poses, held static (test-only: the fake arm moves no cube). ``inject`` maps the sim backend's
+    :class:`~hardware.sim.InjectedFault` onto the fake arm."""
 
-    def __init__(self, config, seed: int = 0, opts=None) -> None:
+    def __init__(self, config, seed: int = 0, opts=None, clock=None) -> None:
         import io
 
         from ahrm_stack.deploy import (DeployLoop, ScriptedController, WorldModel,
                                        load_deploy_settings)
-        from hardware.protocol import ObjectPoses
+        from hardware.protocol import FastClock, ObjectPoses
 
-        settings = load_deploy_settings(realtime=True, telemetry="")
+        settings = load_deploy_settings(telemetry="")
+        clock = clock if clock is not None else FastClock()
         world = WorldModel(config.task, seed=seed)
         data = world.physics.data
         start = np.degrees(data.qpos[world._arm_qpos])
-        self.adapter, self.fake = make_for(world.robot, positions_deg=start, opts=opts)
+        self.adapter, self.fake = make_for(world.robot, positions_deg=start, opts=opts, clock=clock)
         qpos, qvel = data.qpos.copy(), data.qvel.copy()
 
         def perception() -> ObjectPoses:
-            import time
             return ObjectPoses(
-                timestamp=time.perf_counter(), cube_position=qpos[world._cube_qpos[:3]],
+                timestamp=clock.now(), cube_position=qpos[world._cube_qpos[:3]],
                 cube_quaternion=qpos[world._cube_qpos[3:]], cube_velocity=np.zeros(3),
                 obstacle_positions=qpos[world._obstacle_qpos[:, :3]],
                 obstacle_quaternions=qpos[world._obstacle_qpos[:, 3:]],

@@ -33,16 +33,33 @@ from kortex_api.Exceptions.KServerException import KServerException
 class Call:
     name: str
     timeout_ms: float | None  # None: the call carried no RouterClientSendOptions
-    time: float  # time.perf_counter() when it started
+    time: float  # the arm clock's now() when it started
+
+
+class _Wall:
+    """The wall clock: ``now`` is ``time.perf_counter``, ``sleep`` really sleeps."""
+
+    @staticmethod
+    def now() -> float:
+        return time.perf_counter()
+
+    @staticmethod
+    def sleep(seconds: float) -> None:
+        time.sleep(max(0.0, seconds))
 
 
 class FakeArm:
+    """The simulated arm. ``clock``: an object with ``now()`` (s) and ``sleep(s)``; the wall clock
+    by default, or the adapter's virtual clock (hardware.protocol.FastClock) for a deterministic
+    run whose time moves only when slept on."""
+
     _registry: dict[tuple[str, int], "FakeArm"] = {}
 
     def __init__(self, positions_deg, continuous, *, tick_s: float = 1e-3,
                  frame_modulus: int = 65536, clear_delay_s: float = 0.05,
-                 frame_start: int = 0, velocity_limit_deg_s=None) -> None:
+                 frame_start: int = 0, velocity_limit_deg_s=None, clock=None) -> None:
         self._lock = threading.RLock()
+        self.clock = clock if clock is not None else _Wall()
         self.positions = np.asarray(positions_deg, dtype=float).copy()  # deg, unwrapped
         self.continuous = np.asarray(continuous, dtype=bool)
         self.speeds = np.zeros_like(self.positions)  # deg/s, held until the next command
@@ -50,8 +67,8 @@ class FakeArm:
                                else np.asarray(velocity_limit_deg_s, dtype=float))
         self.violations = 0  # commands that reached the joints beyond the velocity limit
         self.tick_s, self.frame_modulus, self.clear_delay_s = tick_s, frame_modulus, clear_delay_s
-        self._t0 = time.perf_counter() - frame_start * tick_s
-        self._last = time.perf_counter()
+        self._t0 = self.clock.now() - frame_start * tick_s
+        self._last = self.clock.now()
         self.mode = Base_pb2.SINGLE_LEVEL_SERVOING
         self.estopped = False
         self.actuator_banks = np.zeros(self.positions.size, dtype=int)
@@ -139,14 +156,14 @@ class FakeArm:
 
     # ------------------------------------------------------------------ the wire
     def rpc(self, name: str, options, *args):
-        start = time.perf_counter()
+        start = self.clock.now()
         timeout_s = None if options is None else options.getTimeoutInSecond()
         with self._lock:
             self.calls.append(Call(name, None if options is None else options.timeout_ms, start))
             delay = self._delays.pop(name, 0.0)
         if delay:
             limit = 10.0 if timeout_s is None else timeout_s
-            time.sleep(min(delay, limit))
+            self.clock.sleep(min(delay, limit))
             if delay > limit:
                 raise concurrent.futures.TimeoutError()
         with self._lock:
@@ -190,7 +207,7 @@ class FakeArm:
         return frame
 
     def _RefreshFeedback(self):
-        now = time.perf_counter()
+        now = self.clock.now()
         if self._freeze and self._previous is not None:
             self._freeze = False
             return copy.deepcopy(self._previous)
@@ -229,7 +246,7 @@ class FakeArm:
         self._clear_at = None
 
     def _ClearFaults(self):
-        self._clear_at = time.perf_counter() + self.clear_delay_s
+        self._clear_at = self.clock.now() + self.clear_delay_s
 
     def _SetServoingMode(self, info):
         self.mode = info.servoing_mode
@@ -247,11 +264,11 @@ class FakeArm:
                 np.isfinite(speeds).all() and (np.abs(speeds) <= self.velocity_limit + 1e-9).all()):
             self.violations += 1
         if not np.array_equal(speeds, self.speeds):
-            self.speed_log.append((time.perf_counter(), speeds.copy()))
+            self.speed_log.append((self.clock.now(), speeds.copy()))
         self.speeds = speeds.copy()
 
     def _advance(self) -> None:
-        now = time.perf_counter()
+        now = self.clock.now()
         if self._clear_at is not None and now >= self._clear_at:
             self._clear_at = None
             self.estopped = False
