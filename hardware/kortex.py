@@ -51,7 +51,9 @@ import os
 import re
 import threading
 import time
+import types
 import urllib.parse
+import weakref
 from pathlib import Path
 from typing import Mapping, Sequence
 
@@ -472,6 +474,8 @@ class CommandWatchdog:
         timeout: s without a fresh command before the arm is stopped.
         poll: s between two checks.
         on_expire: called from the watchdog thread with the command's age (s); sends the stop.
+            A bound method is held weakly: the thread ends when its object is gone (an adapter
+            dropped without :meth:`close` leaves no thread behind).
         clock: seconds, monotonic (``time.perf_counter``; tests pass their own).
     """
 
@@ -479,7 +483,9 @@ class CommandWatchdog:
         if not (timeout > 0 and 0 < poll <= timeout):
             raise ValueError(f"CommandWatchdog needs 0 < poll <= timeout, got {poll!r}, {timeout!r}")
         self.timeout, self.poll = float(timeout), float(poll)
-        self._on_expire, self._clock = on_expire, clock
+        self._on_expire = (weakref.WeakMethod(on_expire) if isinstance(on_expire, types.MethodType)
+                           else (lambda: on_expire))
+        self._clock = clock
         self._lock = threading.Lock()
         self._last: float | None = None
         self._armed = False
@@ -537,11 +543,15 @@ class CommandWatchdog:
             self._armed = False
             self.tripped = True
             self.trips += 1
-        self._on_expire(age)
+        on_expire = self._on_expire()
+        if on_expire is not None:
+            on_expire(age)
         return True
 
     def _run(self) -> None:
         while not self._stop.wait(self.poll):
+            if self._on_expire() is None:  # the adapter is gone
+                return
             try:
                 self.check()
             except Exception:  # noqa: BLE001 - the thread must survive a failing stop

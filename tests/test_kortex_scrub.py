@@ -210,4 +210,5 @@ def test_no_password_reaches_an_exception_or_the_log(task_config, caplog):
                 found = _leaks(pw, texts)
                 leaks += bool(found)
                 assert not found, (name, path, pw, found)
+                arm.disconnect()  # the "call" path stays connected: close it (and its watchdog)
     assert cases == len(PASSWORDS) * len(ECHOES) * 3 and leaks == 0

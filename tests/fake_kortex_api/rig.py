@@ -48,12 +48,17 @@ def fake_api() -> dict:
     return modules
 
 
-def options(**changes):
-    """The backend's numbers from configs/deploy.yaml (20 Hz), with ``changes`` applied."""
+@functools.lru_cache(maxsize=1)
+def _configured():
     from ahrm_stack.deploy import load_deploy_settings
     from hardware.kortex import kortex_options
 
-    return dataclasses.replace(kortex_options(load_deploy_settings()), **changes)
+    return kortex_options(load_deploy_settings())
+
+
+def options(**changes):
+    """The backend's numbers from configs/deploy.yaml (20 Hz; read once), with ``changes``."""
+    return dataclasses.replace(_configured(), **changes)
 
 
 def start_degrees(robot) -> np.ndarray:
