@@ -594,6 +594,7 @@ class KortexArm(ArmAdapter):
         self._clock = clock if clock is not None else WallClock()
         self._connected = False
         self._mode = ServoingMode.SINGLE_LEVEL_SERVOING
+        self._wanted_mode = ServoingMode.SINGLE_LEVEL_SERVOING  # what clear_faults restores
         self._previous: np.ndarray | None = None
         self._arm_clock = ArmClock(options.feedback_tick, options.frame_id_modulus)
         self._estopped = False  # we e-stopped the arm; latched until clear_faults()
@@ -850,10 +851,9 @@ class KortexArm(ArmAdapter):
         ``reset_poll`` s until the arm has left fault (:class:`ArmFaultError` after ``reset_wait``
         s), restore the servoing mode, stop. Clears the e-stop and watchdog latches."""
         self._require()
-        mode = self._mode
         options = self._options
         self._watchdog.disarm()
-        self.set_servoing_mode(ServoingMode.SINGLE_LEVEL_SERVOING)
+        self._set_mode(ServoingMode.SINGLE_LEVEL_SERVOING)
         for _ in range(options.reset_estop_repeats):
             self._rpc("ApplyEmergencyStop", self._base.ApplyEmergencyStop)
         self._rpc("ClearFaults", self._base.ClearFaults)
@@ -871,8 +871,8 @@ class KortexArm(ArmAdapter):
         self._estopped = False
         self._arm_in_fault = False
         self._watchdog.reset()
-        if mode != ServoingMode.SINGLE_LEVEL_SERVOING:
-            self.set_servoing_mode(mode)
+        if self._wanted_mode != ServoingMode.SINGLE_LEVEL_SERVOING:
+            self._set_mode(self._wanted_mode)
         self.stop()
 
     @property
@@ -882,6 +882,10 @@ class KortexArm(ArmAdapter):
 
     def set_servoing_mode(self, mode: ServoingMode) -> None:
         self._require()
+        self._set_mode(mode)
+        self._wanted_mode = ServoingMode(mode)
+
+    def _set_mode(self, mode: ServoingMode) -> None:
         base_pb2 = self._api["Base_pb2"]
         info = base_pb2.ServoingModeInformation()
         info.servoing_mode = getattr(base_pb2, servoing_mode_name(mode))
