@@ -794,8 +794,8 @@ class KortexArm(ArmAdapter):
             self.apply_emergency_stop()
             raise
         if self._estopped or self._arm_in_fault:
-            raise ArmFaultError(f"the arm is in fault ({'e-stopped' if self._estopped else 'reported by its feedback'}): "
-                                "clear_faults() first")
+            why = "e-stopped" if self._estopped else "reported by its feedback"
+            raise ArmFaultError(f"the arm is in fault ({why}): clear_faults() first")
         if self._mode != ServoingMode.SINGLE_LEVEL_SERVOING:
             raise ArmFaultError(f"joint speed commands need single-level servoing, not {self._mode}")
         message = self._api["Base_pb2"].JointSpeeds()
@@ -846,8 +846,8 @@ class KortexArm(ArmAdapter):
         self._rpc("ApplyEmergencyStop", self._base.ApplyEmergencyStop)
 
     def clear_faults(self) -> None:
-        """ros2_kortex's reset: single-level servoing, ``ApplyEmergencyStop`` (``reset_estop_repeats``
-        times: once proved unreliable there), ``ClearFaults``; then poll feedback every
+        """ros2_kortex's reset: single-level servoing, ``ApplyEmergencyStop``
+        (``reset_estop_repeats`` times: once proved unreliable there), ``ClearFaults``; then poll feedback every
         ``reset_poll`` s until the arm has left fault (:class:`ArmFaultError` after ``reset_wait``
         s), restore the servoing mode, stop. Clears the e-stop and watchdog latches."""
         self._require()

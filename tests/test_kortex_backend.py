@@ -11,16 +11,22 @@ from __future__ import annotations
 
 import functools
 import logging
+import os
+import sys
 import time
 
-import numpy as np
-import pytest
+if __name__ == "__main__":  # run as a script: this checkout's packages, not an installed copy
+    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from fake_kortex_api.rig import PASSWORD, fake_api, make_for, options
-from hardware.kortex import (ArmClock, CommandWatchdog, Credentials, KortexArm,
-                             kortex_deploy_blocker, kortex_options, make_kortex_backend)
-from hardware.protocol import (ArmFaultError, ArmState, ConnectionLostError, FastClock, Fault,
-                               FeedbackTimeoutError, HardwareError, ServoingMode)
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from fake_kortex_api.rig import PASSWORD, fake_api, make_for, options  # noqa: E402
+from hardware.kortex import (ArmClock, CommandWatchdog, Credentials,  # noqa: E402
+                             KortexArm, kortex_deploy_blocker, kortex_options,
+                             make_kortex_backend)
+from hardware.protocol import (ArmFaultError, ArmState, ConnectionLostError,  # noqa: E402
+                               Fault, FeedbackTimeoutError, HardwareError, ServoingMode)
 
 PERIOD = 0.05  # s: configs/deploy.yaml's rate_hz 20 (checked below)
 
@@ -77,7 +83,8 @@ def test_the_numbers_come_from_deploy_yaml():
 @pytest.mark.parametrize("key, value, expected", [
     ("rpc_timeout_ms", 0, "deploy.kortex.rpc_timeout_ms must be > 0"),
     ("rpc_timeout_ms", 2.5, "deploy.kortex.rpc_timeout_ms must be a finite integer"),
-    ("session_rpc_timeout_ms", None, "deploy.kortex.session_rpc_timeout_ms must be a finite integer"),
+    ("session_rpc_timeout_ms", None,
+     "deploy.kortex.session_rpc_timeout_ms must be a finite integer"),
     ("watchdog_periods", 1.0, "deploy.kortex.watchdog_periods must be > 1"),
     ("watchdog_periods", "2", "deploy.kortex.watchdog_periods must be a finite number"),
     ("watchdog_poll_periods", 1.0, "deploy.kortex.watchdog_poll_periods must be <= half"),
@@ -401,7 +408,8 @@ def test_make_kortex_backend(monkeypatch):
         make_kortex_backend(_settings(address="192.0.2.77"), _robot(), env={"KORTEX_USERNAME": "a"})
     settings = _settings(address="192.0.2.77")
     adapter = make_kortex_backend(settings, _robot(), api=fake_api(),
-                                  env={"KORTEX_USERNAME": "admin", "KORTEX_PASSWORD": PASSWORD})
+                                  env={"KORTEX_USERNAME": "admin",
+                                       "KORTEX_PASSWORD": PASSWORD})
     assert isinstance(adapter, KortexArm) and not adapter.is_connected
     assert adapter.watchdog.timeout == pytest.approx(1.5 * PERIOD)
     FakeArm = fake_api()["_fake_arm"].FakeArm
@@ -429,7 +437,8 @@ def test_deploy_backend_kortex_refuses_with_one_line(tmp_path, capsys, monkeypat
         path.write_text(yaml.safe_dump(data))
         code = main(["--backend", "kortex", "--config", str(path)])
         err = capsys.readouterr().err.strip()
-        assert code == 2 and "\n" not in err and err.startswith("python -m ahrm_stack.deploy: error:")
+        assert code == 2 and "\n" not in err
+        assert err.startswith("python -m ahrm_stack.deploy: error:")
         return err
 
     monkeypatch.delenv("KORTEX_USERNAME", raising=False)

@@ -1,4 +1,3 @@
-from kortex_api.RouterClient import RouterClientSendOptions
 
 
 class SessionManager:

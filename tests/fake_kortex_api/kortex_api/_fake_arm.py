@@ -8,7 +8,8 @@ cyclic frames in ``Feedback.frame_id`` at ``tick_s`` (1 ms: the base's 1 kHz loo
 limited joints in (-180, 180] deg.
 
 A test drives the faults: :meth:`delay_next` (an RPC that takes longer; past its timeout it raises
-``concurrent.futures.TimeoutError`` like the vendor's ``future.result(timeout)``), :meth:`freeze_next`
+``concurrent.futures.TimeoutError`` like the vendor's ``future.result(timeout)``),
+:meth:`freeze_next`
 (the next feedback repeats the previous frame), :meth:`lag_next` (the next feedback is a frame
 measured ``lag`` s ago), :meth:`nan_next`, :meth:`fault`, :meth:`lose_connection`. Every RPC is
 recorded in :attr:`calls` with the timeout its options carried (None: no options passed).
@@ -23,7 +24,6 @@ import threading
 import time
 
 import numpy as np
-
 from kortex_api.autogen.messages import Base_pb2, BaseCyclic_pb2, Common_pb2, Errors_pb2
 from kortex_api.Exceptions.KClientException import KClientException
 from kortex_api.Exceptions.KServerException import KServerException
@@ -226,7 +226,8 @@ class FakeArm:
 
     def _SendJointSpeedsCommand(self, message):
         if self.in_fault:
-            sub = (Errors_pb2.ROBOT_IN_EMERGENCY_STOP if self.estopped else Errors_pb2.ROBOT_IN_FAULT)
+            sub = (Errors_pb2.ROBOT_IN_EMERGENCY_STOP if self.estopped
+                   else Errors_pb2.ROBOT_IN_FAULT)
             raise KServerException(Errors_pb2.ERROR_DEVICE, sub,
                                    Errors_pb2.SubErrorCodes.Name(sub))
         if self.mode != Base_pb2.SINGLE_LEVEL_SERVOING:
