@@ -16,7 +16,9 @@ Safety of the link, each number from ``configs/deploy.yaml``'s ``kortex`` sectio
   leaves the arm moving. :class:`CommandWatchdog`, a thread of the adapter, sends ``Base.Stop`` when
   no fresh command came for ``watchdog_periods`` control periods while the arm was commanded to
   move, and latches (commands raise :class:`~hardware.protocol.ArmFaultError`, feedback carries
-  ``Fault.COMMUNICATION``) until :meth:`KortexArm.clear_faults`.
+  ``Fault.COMMUNICATION``) until :meth:`KortexArm.clear_faults`. The arm's own
+  ``connection_inactivity_timeout`` does not cover a stalled control loop: the vendor's
+  ``SessionManager`` sends KeepAlive every 150 ms from its own thread while the process lives.
 * **Staleness from the arm's own clock.** BaseCyclic's ``Feedback`` carries no timestamp; its
   ``frame_id`` counts the arm's cyclic frames. :class:`ArmClock` unwraps that counter (modulo
   ``frame_id_modulus``, one tick = ``feedback_tick_ms``) into the arm's time and maps it onto the
@@ -737,8 +739,7 @@ class KortexArm(ArmAdapter):
         except HardwareError:
             self.disconnect()
             raise
-        self._watchdog.disarm()
-        self._watchdog.start()
+        self._watchdog.disarm()  # its thread starts with the first moving command
         log.info("kortex: connected to %s:%d as %s", self._address, self._port,
                  self._credentials.username)
 
@@ -804,7 +805,10 @@ class KortexArm(ArmAdapter):
             item.joint_identifier = entry["joint_identifier"]
             item.value = entry["value"]
             item.duration = entry["duration"]
-        if not self._watchdog.commanded(bool(np.any(command != 0.0))):
+        moving = bool(np.any(command != 0.0))
+        if moving:
+            self._watchdog.start()  # a no-op once running
+        if not self._watchdog.commanded(moving):
             raise ArmFaultError("the command watchdog stopped the arm (no command came in "
                                 f"{self._options.watchdog_timeout * 1e3:.0f} ms): clear_faults() first")
         self._rpc("SendJointSpeedsCommand", self._base.SendJointSpeedsCommand, message)
@@ -836,14 +840,14 @@ class KortexArm(ArmAdapter):
 
     def stop(self) -> None:
         self._require()
-        self._watchdog.disarm()
         self._rpc("Stop", self._base.Stop)
+        self._watchdog.disarm()  # only once the stop got through
 
     def apply_emergency_stop(self) -> None:
         self._require()
-        self._watchdog.disarm()
         self._estopped = True
         self._rpc("ApplyEmergencyStop", self._base.ApplyEmergencyStop)
+        self._watchdog.disarm()
 
     def clear_faults(self) -> None:
         """ros2_kortex's reset: single-level servoing, ``ApplyEmergencyStop``
@@ -852,7 +856,6 @@ class KortexArm(ArmAdapter):
         s), restore the servoing mode, stop. Clears the e-stop and watchdog latches."""
         self._require()
         options = self._options
-        self._watchdog.disarm()
         self._set_mode(ServoingMode.SINGLE_LEVEL_SERVOING)
         for _ in range(options.reset_estop_repeats):
             self._rpc("ApplyEmergencyStop", self._base.ApplyEmergencyStop)
@@ -889,8 +892,8 @@ class KortexArm(ArmAdapter):
         base_pb2 = self._api["Base_pb2"]
         info = base_pb2.ServoingModeInformation()
         info.servoing_mode = getattr(base_pb2, servoing_mode_name(mode))
-        self._watchdog.disarm()  # the arm stops when the mode changes
         self._rpc("SetServoingMode", self._base.SetServoingMode, info)
+        self._watchdog.disarm()  # the arm stops when the mode changes
         self._mode = ServoingMode(mode)
 
 
