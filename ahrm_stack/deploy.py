@@ -104,6 +104,15 @@ class KortexSection:
     session_inactivity_timeout_ms: int
     connection_inactivity_timeout_ms: int
     credentials_file: str | None
+    rpc_timeout_ms: int  # every feedback / motion / mode RPC
+    session_rpc_timeout_ms: int  # CreateSession / CloseSession
+    watchdog_periods: float  # control periods without a fresh command before Stop
+    watchdog_poll_periods: float  # control periods between two watchdog checks
+    reset_wait_ms: int  # clear_faults waits this long for the arm to leave fault
+    reset_poll_ms: int  # feedback polls during that wait
+    reset_estop_repeats: int  # ApplyEmergencyStop calls before ClearFaults
+    feedback_tick_ms: float  # the arm's cyclic period: one step of Feedback.frame_id
+    frame_id_modulus: int  # Feedback.frame_id wraps at this value
 
 
 @dataclasses.dataclass(frozen=True)
@@ -159,6 +168,31 @@ def _optional_str(value: Any, key: str) -> str | None:
     return value
 
 
+def _kortex_link(kx: dict) -> dict:
+    """The Kortex link's timeouts, watchdog and reset numbers of ``deploy.kortex``, validated."""
+    def number(key: str, **kinds):
+        return _number(kx[key], f"kortex.{key}", **kinds)
+
+    link = {key: number(key, integer=True, positive=True)
+            for key in ("rpc_timeout_ms", "session_rpc_timeout_ms", "reset_wait_ms",
+                        "reset_poll_ms", "reset_estop_repeats", "frame_id_modulus")}
+    link.update({key: number(key, positive=True)
+                 for key in ("watchdog_periods", "watchdog_poll_periods", "feedback_tick_ms")})
+    if link["watchdog_periods"] <= 1.0:
+        raise DeployConfigError(f"deploy.kortex.watchdog_periods must be > 1 (a healthy loop sends "
+                                f"one command per period), got {link['watchdog_periods']!r}")
+    if link["watchdog_poll_periods"] > 0.5 * link["watchdog_periods"]:
+        raise DeployConfigError("deploy.kortex.watchdog_poll_periods must be <= half of "
+                                f"deploy.kortex.watchdog_periods, got {link['watchdog_poll_periods']!r}")
+    if link["reset_poll_ms"] > link["reset_wait_ms"]:
+        raise DeployConfigError("deploy.kortex.reset_poll_ms must be <= deploy.kortex.reset_wait_ms, "
+                                f"got {link['reset_poll_ms']!r}")
+    if link["frame_id_modulus"] < 2:
+        raise DeployConfigError(f"deploy.kortex.frame_id_modulus must be >= 2, got "
+                                f"{link['frame_id_modulus']!r}")
+    return link
+
+
 def deploy_settings_from_dict(data: Any) -> DeploySettings:
     """Validate a parsed ``deploy.yaml``; :class:`DeployConfigError` names the first bad key."""
     top = _section(data, "", [f.name for f in dataclasses.fields(DeploySettings)])
@@ -189,7 +223,8 @@ def deploy_settings_from_dict(data: Any) -> DeploySettings:
         connection_inactivity_timeout_ms=_number(kx["connection_inactivity_timeout_ms"],
                                                  "kortex.connection_inactivity_timeout_ms",
                                                  integer=True, positive=True),
-        credentials_file=_optional_str(kx["credentials_file"], "kortex.credentials_file"))
+        credentials_file=_optional_str(kx["credentials_file"], "kortex.credentials_file"),
+        **_kortex_link(kx))
     rate_hz = _number(top["rate_hz"], "rate_hz", positive=True)
     duration = _number(top["duration"], "duration", positive=True)
     if control_periods(duration, 1.0 / rate_hz) < 1:
@@ -1045,8 +1080,9 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     parser = _Parser(prog="python -m ahrm_stack.deploy",
                      description="Run the deployment loop (policy or scripted controller → safety "
                                  "filter → arm adapter).")
-    parser.add_argument("--backend", choices=["sim"], required=True,
-                        help="arm adapter (the kortex backend has no perception module yet)")
+    parser.add_argument("--backend", choices=["sim", "kortex"], required=True,
+                        help="arm adapter (kortex: a Gen3 arm over kortex_api; it refuses to run "
+                             "until a scene source exists, naming what is missing)")
     parser.add_argument("--checkpoint", type=Path, help="run folder with config.yaml and policy.pt "
                         "(default: the scripted controller)")
     parser.add_argument("--duration", type=float, help="s (default: deploy.yaml)")
@@ -1075,6 +1111,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                                         telemetry=args.telemetry)
     except DeployConfigError as error:
         print(f"python -m ahrm_stack.deploy: error: {error}", file=sys.stderr)
+        return 2
+
+    if args.backend == "kortex":  # refused before anything is written or contacted
+        from hardware.kortex import kortex_deploy_blocker
+
+        print(f"python -m ahrm_stack.deploy: error: {kortex_deploy_blocker(settings)}",
+              file=sys.stderr)
         return 2
 
     def terminate(signum, frame):  # SIGTERM stops the arm like Ctrl-C

@@ -1,7 +1,10 @@
 """The adapter contract (hardware/protocol.py) that every backend passes; run against the sim
-backend in fast (unpaced) mode. A new backend adds a factory to BACKENDS."""
+backend in fast (unpaced) mode and against the Kortex backend on the fake ``kortex_api``
+(tests/fake_kortex_api, on the wall clock). A new backend adds a factory to BACKENDS."""
 
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 import pytest
@@ -16,7 +19,24 @@ def _sim(task_config) -> ArmAdapter:
     return SimArm(task_config, seed=0, clock=FastClock())
 
 
-BACKENDS = {"sim": _sim}
+def _kortex(task_config) -> ArmAdapter:
+    """KortexArm over the fake arm. Its command watchdog is relaxed to 5 s here: these tests hold
+    one command for up to 0.5 s, which the configured watchdog (1.5 periods) rightly stops
+    (tests/test_kortex_backend.py tests the watchdog)."""
+    from fake_kortex_api.rig import make_for, options
+
+    adapter, _ = make_for(_robot(task_config.robot), opts=options(watchdog_timeout=5.0))
+    return adapter
+
+
+@functools.lru_cache(maxsize=2)
+def _robot(name: str):
+    from ahrm_stack.robot import describe, make_arm
+
+    return describe(name, make_arm(name))
+
+
+BACKENDS = {"sim": _sim, "kortex": _kortex}
 
 
 @pytest.fixture(params=sorted(BACKENDS))

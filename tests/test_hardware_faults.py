@@ -42,9 +42,41 @@ EXPECTED = {
 }
 
 
-@pytest.fixture(scope="module")
-def rig():
-    return _rig()
+class _KortexRig:
+    """The Kortex backend on the fake arm, shaped like the sim rig: attribute access goes to the
+    adapter; ``inject``, ``command`` (rad/s the arm holds) and ``violations`` to the fake arm."""
+
+    def __init__(self) -> None:
+        from fake_kortex_api.rig import DeployRig
+
+        self.rig = DeployRig(load_config())
+
+    def __getattr__(self, name):
+        return getattr(self.rig.adapter, name)
+
+    def inject(self, fault: InjectedFault) -> None:
+        self.rig.inject(fault)
+
+    @property
+    def command(self) -> np.ndarray:
+        return self.rig.command
+
+    @property
+    def violations(self) -> int:
+        return self.rig.violations
+
+
+@pytest.fixture(scope="module", params=["sim", "kortex"])
+def rig(request):
+    """sim: the simulated arm on a fast clock; kortex: KortexArm over the fake kortex_api, realtime
+    at 20 Hz on the wall clock, each injected fault mapped onto the fake arm (a repeated frame, an
+    RPC past its timeout, a late command, NaN, an actuator fault, a dropped link)."""
+    if request.param == "sim":
+        yield _rig()
+        return
+    kortex = _KortexRig()
+    yield kortex, kortex.rig.loop, kortex.rig.telemetry
+    kortex.disconnect()
 
 
 @pytest.mark.parametrize("fault", list(InjectedFault), ids=lambda f: f.value)

@@ -15,6 +15,7 @@ from hardware.kortex import (INSTALL_HINT, Credentials, CredentialsError, Kortex
                              faults_from_banks, feedback_from_values, import_kortex_api,
                              joint_speeds_message, load_credentials, radians_to_degrees, scrub,
                              servoing_mode_name, unwrap_positions)
+from fake_kortex_api.rig import options
 from hardware.protocol import ArmState, Fault, HardwareError, NotConnectedError, ServoingMode
 
 PASSWORD = "s3cr3t-Pa55word!"
@@ -69,7 +70,7 @@ def test_kortex_arm_reads_limited_joints_past_180_degrees():
     at -150° (Kortex's reading of 210°) comes back as 210°."""
     from ahrm_stack.robot import describe, make_arm
     description = describe("jaco", make_arm("jaco"))
-    arm = KortexArm(description, "192.0.2.1", Credentials("admin", PASSWORD), api={})
+    arm = KortexArm(description, "192.0.2.1", Credentials("admin", PASSWORD), options(), api={})
     assert math.degrees(arm._range_centre[1]) == pytest.approx(180.0)
     assert math.degrees(arm._range_centre[2]) == pytest.approx(180.0)
     frame = feedback_from_values(timestamp=0.0, frame_id=1,
@@ -131,8 +132,16 @@ def test_missing_kortex_api_says_how_to_install(monkeypatch):
     with pytest.raises(KortexNotInstalledError) as error:
         import_kortex_api()
     assert str(error.value) == INSTALL_HINT
-    assert "pip install kortex_api-<version>-py3-none-any.whl" in INSTALL_HINT
-    assert "github.com/Kinovarobotics/kortex/releases" in INSTALL_HINT
+    # Kinova's instructions (Kinova-kortex2_Gen3_G3L api_python/examples/readme.md) and, for
+    # Python >= 3.10, the maintainer's workaround (issue 191).
+    assert "not on PyPI" in INSTALL_HINT
+    assert ("artifactory.kinovaapps.com:443/artifactory/generic-public/kortex/API/2.6.0/"
+            "kortex_api-2.6.0.post3-py3-none-any.whl") in INSTALL_HINT
+    assert "python3 -m pip install kortex_api-2.6.0.post3-py3-none-any.whl" in INSTALL_HINT
+    assert "protobuf==3.5.1" in INSTALL_HINT and "Python >= 3.10" in INSTALL_HINT
+    assert "pip install protobuf==3.20 deprecated==1.2.7" in INSTALL_HINT
+    assert "pip install kortex_api-2.6.0.post3-py3-none-any.whl --no-deps" in INSTALL_HINT
+    assert "\n" not in INSTALL_HINT  # one line
 
 
 def test_credentials_from_environment_and_file(tmp_path):
@@ -163,6 +172,13 @@ def test_password_never_in_repr_or_scrubbed_text():
     assert scrub(f"login {PASSWORD} refused", [PASSWORD]) == "login *** refused"
 
 
+
+class SendOptions:
+    """kortex_api.RouterClient.RouterClientSendOptions: the vendor default timeout is 10 s."""
+
+    def __init__(self):
+        self.andForget, self.delay_ms, self.timeout_ms = False, 0, 10000
+
 def _fake_api(fail_with: Exception | None = None, actuators: int = 6) -> dict:
     """Stand-ins for the vendor modules; the session refuses the login with ``fail_with``."""
 
@@ -177,11 +193,11 @@ def _fake_api(fail_with: Exception | None = None, actuators: int = 6) -> dict:
         def __init__(self, router):
             pass
 
-        def CreateSession(self, info):
+        def CreateSession(self, info, **options):
             if fail_with is not None:
                 raise fail_with
 
-        def CloseSession(self):
+        def CloseSession(self, **options):
             pass
 
     class Info:
@@ -192,17 +208,18 @@ def _fake_api(fail_with: Exception | None = None, actuators: int = 6) -> dict:
             self.calls = []
 
         def __getattr__(self, name):
-            return lambda *args: None
+            return lambda *args, **options: None
 
     class Cyclic:
         def __init__(self, router):
             pass
 
-        def RefreshFeedback(self):
-            return types.SimpleNamespace(actuators=[object()] * actuators)
+        def RefreshFeedback(self, **options):
+            return types.SimpleNamespace(frame_id=0, actuators=[object()] * actuators)
 
     return {"TCPTransport": types.SimpleNamespace(TCPTransport=Transport),
-            "RouterClient": types.SimpleNamespace(RouterClient=lambda t, cb: object()),
+            "RouterClient": types.SimpleNamespace(RouterClient=lambda t, cb: object(),
+                                                RouterClientSendOptions=SendOptions),
             "SessionManager": types.SimpleNamespace(SessionManager=Session),
             "BaseClientRpc": types.SimpleNamespace(BaseClient=Base),
             "BaseCyclicClientRpc": types.SimpleNamespace(BaseCyclicClient=Cyclic),
@@ -218,7 +235,7 @@ def test_password_never_appears_in_errors_or_logs(task_config, caplog):
     robot = PushOffTask(task_config).robot
     # The vendor's exception echoes the request, password included.
     api = _fake_api(RuntimeError(f"login refused for admin/{PASSWORD}"))
-    arm = KortexArm(robot, "192.0.2.10", Credentials("admin", PASSWORD), api=api)
+    arm = KortexArm(robot, "192.0.2.10", Credentials("admin", PASSWORD), options(), api=api)
     assert PASSWORD not in repr(arm.__dict__.get("_credentials"))
     with caplog.at_level(logging.DEBUG), pytest.raises(HardwareError) as error:
         arm.connect()
@@ -235,8 +252,10 @@ def test_kortex_arm_needs_an_explicit_address_and_matching_arm(task_config):
     robot = PushOffTask(task_config).robot
     for address in (None, "", "  "):
         with pytest.raises(HardwareError, match="address"):
-            KortexArm(robot, address, Credentials("admin", PASSWORD), api=_fake_api())
-    arm = KortexArm(robot, "192.0.2.10", Credentials("admin", PASSWORD), api=_fake_api(actuators=7))
+            KortexArm(robot, address, Credentials("admin", PASSWORD), options(),
+                      api=_fake_api())
+    arm = KortexArm(robot, "192.0.2.10", Credentials("admin", PASSWORD), options(),
+                    api=_fake_api(actuators=7))
     with pytest.raises(HardwareError, match="7 actuators") as error:
         arm.connect()
     assert PASSWORD not in str(error.value) and not arm.is_connected

@@ -16,6 +16,7 @@ import urllib.parse
 import pytest
 from google.protobuf import text_format, wrappers_pb2
 
+from fake_kortex_api.rig import options
 from hardware.kortex import Credentials, KortexArm, scrub, secret_variants
 from hardware.protocol import HardwareError
 
@@ -122,6 +123,13 @@ def test_scrub_leaves_text_without_the_secret_alone():
     assert "p%40ss" in secret_variants("p@ss") and "p\\\\@" not in secret_variants("p@ss")
 
 
+
+class SendOptions:
+    """kortex_api.RouterClient.RouterClientSendOptions: the vendor default timeout is 10 s."""
+
+    def __init__(self):
+        self.andForget, self.delay_ms, self.timeout_ms = False, 0, 10000
+
 def _api(fail_session=None, fail_feedback=None, healthy_frames: int = 1) -> dict:
     class Transport:
         def connect(self, address, port):
@@ -134,11 +142,11 @@ def _api(fail_session=None, fail_feedback=None, healthy_frames: int = 1) -> dict
         def __init__(self, router):
             pass
 
-        def CreateSession(self, info):
+        def CreateSession(self, info, **options):
             if fail_session is not None:
                 raise fail_session
 
-        def CloseSession(self):
+        def CloseSession(self, **options):
             pass
 
     class Info:
@@ -149,7 +157,7 @@ def _api(fail_session=None, fail_feedback=None, healthy_frames: int = 1) -> dict
             pass
 
         def __getattr__(self, name):
-            return lambda *args: None
+            return lambda *args, **options: None
 
     class Cyclic:
         calls = 0
@@ -157,14 +165,15 @@ def _api(fail_session=None, fail_feedback=None, healthy_frames: int = 1) -> dict
         def __init__(self, router):
             pass
 
-        def RefreshFeedback(self):
+        def RefreshFeedback(self, **options):
             Cyclic.calls += 1
             if fail_feedback is not None and Cyclic.calls > healthy_frames:
                 raise fail_feedback
-            return types.SimpleNamespace(actuators=[object()] * 6)
+            return types.SimpleNamespace(frame_id=0, actuators=[object()] * 6)
 
     return {"TCPTransport": types.SimpleNamespace(TCPTransport=Transport),
-            "RouterClient": types.SimpleNamespace(RouterClient=lambda t, cb: object()),
+            "RouterClient": types.SimpleNamespace(RouterClient=lambda t, cb: object(),
+                                                RouterClientSendOptions=SendOptions),
             "SessionManager": types.SimpleNamespace(SessionManager=Session),
             "BaseClientRpc": types.SimpleNamespace(BaseClient=Base),
             "BaseCyclicClientRpc": types.SimpleNamespace(BaseCyclicClient=Cyclic),
@@ -189,7 +198,7 @@ def test_no_password_reaches_an_exception_or_the_log(task_config, caplog):
                 credentials = Credentials("admin", pw)
                 api = (_api(fail_session=echo(pw)) if path == "login" else
                        _api(fail_feedback=echo(pw), healthy_frames=int(path == "call")))
-                arm = KortexArm(robot, "192.0.2.10", credentials, api=api)
+                arm = KortexArm(robot, "192.0.2.10", credentials, options(), api=api)
                 with caplog.at_level(logging.DEBUG), pytest.raises(HardwareError) as error:
                     arm.connect()
                     arm.refresh_feedback()
@@ -201,4 +210,5 @@ def test_no_password_reaches_an_exception_or_the_log(task_config, caplog):
                 found = _leaks(pw, texts)
                 leaks += bool(found)
                 assert not found, (name, path, pw, found)
+                arm.disconnect()  # the "call" path stays connected: close it (and its watchdog)
     assert cases == len(PASSWORDS) * len(ECHOES) * 3 and leaks == 0

@@ -1,0 +1,2 @@
+class KException(Exception):
+    """Base of the vendor's exceptions."""

@@ -1,0 +1,158 @@
+"""Build a :class:`~hardware.kortex.KortexArm` on the fake ``kortex_api`` and its simulated arm.
+
+The fake is imported from this folder only for the tests: :func:`fake_api` puts the folder on
+``sys.path`` just long enough to import it, then removes it (and the ``kortex_api`` entries of
+``sys.modules``), so ``import kortex_api`` elsewhere still fails as without the vendor library.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import importlib
+import itertools
+import sys
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+PASSWORD = "s3cr3t-Pa55word!"
+_addresses = itertools.count(1)
+
+
+@functools.lru_cache(maxsize=1)
+def fake_api() -> dict:
+    """The fake vendor modules, keyed like :func:`hardware.kortex.import_kortex_api`."""
+    names = {
+        "TCPTransport": "kortex_api.TCPTransport",
+        "RouterClient": "kortex_api.RouterClient",
+        "SessionManager": "kortex_api.SessionManager",
+        "BaseClientRpc": "kortex_api.autogen.client_stubs.BaseClientRpc",
+        "BaseCyclicClientRpc": "kortex_api.autogen.client_stubs.BaseCyclicClientRpc",
+        "Base_pb2": "kortex_api.autogen.messages.Base_pb2",
+        "Common_pb2": "kortex_api.autogen.messages.Common_pb2",
+        "Session_pb2": "kortex_api.autogen.messages.Session_pb2",
+        "Errors_pb2": "kortex_api.autogen.messages.Errors_pb2",
+        "KServerException": "kortex_api.Exceptions.KServerException",
+        "KClientException": "kortex_api.Exceptions.KClientException",
+        "_fake_arm": "kortex_api._fake_arm",
+    }
+    sys.path.insert(0, str(HERE))
+    try:
+        modules = {key: importlib.import_module(name) for key, name in names.items()}
+    finally:
+        sys.path.remove(str(HERE))
+        for name in [m for m in sys.modules if m == "kortex_api" or m.startswith("kortex_api.")]:
+            del sys.modules[name]
+    return modules
+
+
+@functools.lru_cache(maxsize=1)
+def _configured():
+    from ahrm_stack.deploy import load_deploy_settings
+    from hardware.kortex import kortex_options
+
+    return kortex_options(load_deploy_settings())
+
+
+def options(**changes):
+    """The backend's numbers from configs/deploy.yaml (20 Hz; read once), with ``changes``."""
+    return dataclasses.replace(_configured(), **changes)
+
+
+def start_degrees(robot) -> np.ndarray:
+    """A posture inside every limit: the centre of each limited joint's range, 0 elsewhere, deg."""
+    limited = robot.limited
+    centre = 0.5 * (np.where(limited, robot.position_lower, 0.0)
+                    + np.where(limited, robot.position_upper, 0.0))
+    return np.degrees(np.where(limited, centre, 0.0))
+
+
+def make(robot, *, positions_deg=None, opts=None, password: str = PASSWORD, clock=None,
+         **arm_kwargs):
+    """(adapter, simulated arm): a :class:`KortexArm` for ``robot`` and a fake arm registered at a
+    fresh documentation address (192.0.2.x), not yet connected. ``clock``: shared by both (a
+    ``FastClock`` for a deterministic run); default the wall clock."""
+    from hardware.kortex import Credentials, KortexArm
+
+    api = fake_api()
+    FakeArm = api["_fake_arm"].FakeArm
+    address = f"192.0.2.{next(_addresses) % 250 + 1}"
+    opts = opts or options()
+    positions = start_degrees(robot) if positions_deg is None else positions_deg
+    arm = FakeArm.register(address, opts.port,
+                           FakeArm(positions, ~robot.limited, clock=clock, **arm_kwargs))
+    adapter = KortexArm(robot, address, Credentials("admin", password), opts, api=api, clock=clock)
+    return adapter, arm
+
+
+def make_for(robot, **kwargs):
+    """:func:`make` with the fake arm's velocity limits set from ``robot`` (violations counted)."""
+    return make(robot, velocity_limit_deg_s=np.degrees(robot.velocity_limit), **kwargs)
+
+
+class DeployRig:
+    """A deploy loop (scripted controller, at the config's rate) on a :class:`KortexArm` over the
+    fake arm, which starts at the task's initial posture; both on ``clock`` (default a
+    ``FastClock``: deterministic, whatever the machine's load). Perception is the layout's initial
+    poses, held static (test-only: the fake arm moves no cube). ``inject`` maps the sim backend's
+    :class:`~hardware.sim.InjectedFault` onto the fake arm."""
+
+    def __init__(self, config, seed: int = 0, opts=None, clock=None) -> None:
+        import io
+
+        from ahrm_stack.deploy import (DeployLoop, ScriptedController, WorldModel,
+                                       load_deploy_settings)
+        from hardware.protocol import FastClock, ObjectPoses
+
+        settings = load_deploy_settings(telemetry="")
+        clock = clock if clock is not None else FastClock()
+        world = WorldModel(config.task, seed=seed)
+        data = world.physics.data
+        start = np.degrees(data.qpos[world._arm_qpos])
+        self.adapter, self.fake = make_for(world.robot, positions_deg=start, opts=opts, clock=clock)
+        qpos, qvel = data.qpos.copy(), data.qvel.copy()
+
+        def perception() -> ObjectPoses:
+            return ObjectPoses(
+                timestamp=clock.now(), cube_position=qpos[world._cube_qpos[:3]],
+                cube_quaternion=qpos[world._cube_qpos[3:]], cube_velocity=np.zeros(3),
+                obstacle_positions=qpos[world._obstacle_qpos[:, :3]],
+                obstacle_quaternions=qpos[world._obstacle_qpos[:, 3:]],
+                obstacle_velocities=np.zeros((len(world._obstacle_qpos), 3)))
+
+        del qvel
+        self.adapter.perception = perception  # the static scene (instance attribute)
+        self.adapter.connect()
+        self.telemetry = io.StringIO()
+        controller = ScriptedController(world, config)
+        self.loop = DeployLoop(self.adapter, world, controller, config.safety, settings,
+                               self.telemetry)
+        self.loop.start()
+
+    def inject(self, fault) -> None:
+        name = fault.value
+        if name == "stale_feedback":
+            self.fake.freeze_next()
+        elif name == "dropped_feedback":
+            self.fake.delay_next("RefreshFeedback", 1.0)  # far past rpc_timeout_ms
+        elif name == "delayed_command":
+            self.fake.delay_next("SendJointSpeedsCommand", 0.03)
+        elif name == "nan_reading":
+            self.fake.nan_next()
+        elif name == "fault_flag":
+            self.fake.fault()
+        elif name == "lost_connection":
+            self.fake.lose_connection()
+        else:
+            raise ValueError(name)
+
+    @property
+    def command(self) -> np.ndarray:
+        """The joint speeds the fake arm holds, rad/s."""
+        return np.radians(self.fake.command)
+
+    @property
+    def violations(self) -> int:
+        return self.fake.violations
