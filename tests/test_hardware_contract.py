@@ -1,7 +1,10 @@
 """The adapter contract (hardware/protocol.py) that every backend passes; run against the sim
-backend in fast (unpaced) mode. A new backend adds a factory to BACKENDS."""
+backend in fast (unpaced) mode and the Kinova Gen2 backend on the fake SDK (tests/fake_kinova_sdk,
+compiled here; real time). A new backend adds a factory to BACKENDS."""
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 import pytest
@@ -16,7 +19,27 @@ def _sim(task_config) -> ArmAdapter:
     return SimArm(task_config, seed=0, clock=FastClock())
 
 
-BACKENDS = {"sim": _sim}
+def _kinova_gen2(task_config) -> ArmAdapter:
+    """The Gen2 backend on the fake SDK. The contract holds one command for up to 0.5 s, so its
+    command watchdog is set to 1 s here (deploy uses configs/deploy.yaml's two periods)."""
+    from fake_kinova_sdk.fake import CompilerMissing, FakeSdk, SERIAL, session_library
+
+    from ahrm_stack.deploy import load_deploy_settings
+    from ahrm_stack.robot import describe, make_arm
+    from hardware.kinova_gen2 import KinovaGen2Arm
+
+    try:
+        library = session_library()
+    except CompilerMissing as error:
+        pytest.skip(str(error))
+    robot = describe(task_config.robot, make_arm(task_config.robot))
+    FakeSdk(library).reset(position_deg=np.degrees(task_config.arm.home))  # gen2: joints as Kinova's
+    settings = dataclasses.replace(load_deploy_settings().kinova_gen2, library=str(library),
+                                   serial=SERIAL)
+    return KinovaGen2Arm(robot, settings, command_timeout_s=1.0)
+
+
+BACKENDS = {"sim": _sim, "kinova-gen2": _kinova_gen2}
 
 
 @pytest.fixture(params=sorted(BACKENDS))
