@@ -5,6 +5,7 @@ compiled here; real time). A new backend adds a factory to BACKENDS."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 import pytest
@@ -19,20 +20,26 @@ def _sim(task_config) -> ArmAdapter:
     return SimArm(task_config, seed=0, clock=FastClock())
 
 
+@functools.lru_cache(maxsize=None)
+def _robot(name: str):
+    from ahrm_stack.robot import describe, make_arm
+
+    return describe(name, make_arm(name))
+
+
 def _kinova_gen2(task_config) -> ArmAdapter:
     """The Gen2 backend on the fake SDK. The contract holds one command for up to 0.5 s, so its
     command watchdog is set to 1 s here (deploy uses configs/deploy.yaml's two periods)."""
     from fake_kinova_sdk.fake import CompilerMissing, FakeSdk, SERIAL, session_library
 
     from ahrm_stack.deploy import load_deploy_settings
-    from ahrm_stack.robot import describe, make_arm
     from hardware.kinova_gen2 import KinovaGen2Arm
 
     try:
         library = session_library()
     except CompilerMissing as error:
         pytest.skip(str(error))
-    robot = describe(task_config.robot, make_arm(task_config.robot))
+    robot = _robot(task_config.robot)
     FakeSdk(library).reset(position_deg=np.degrees(task_config.arm.home))  # gen2: joints as Kinova's
     settings = dataclasses.replace(load_deploy_settings().kinova_gen2, library=str(library),
                                    serial=SERIAL)
