@@ -360,3 +360,9 @@ def test_unplugged_is_a_lost_connection(fake, make_arm):
     fake.set_unplugged(False)
     arm.connect()
     assert arm.refresh_feedback().healthy
+
+
+def test_a_missing_compiler_is_a_clear_skip_reason(monkeypatch, tmp_path):
+    monkeypatch.setattr(fake_module.shutil, "which", lambda name: None)
+    with pytest.raises(fake_module.CompilerMissing, match="no C compiler.*make setup"):
+        fake_module.build(tmp_path)

@@ -118,3 +118,62 @@ def test_deploy_command_runs_the_fake_arm(library, tmp_path, task_config, capsys
     names = [c.function for c in fake.calls()]
     assert names[-2:] == ["StopControlAPI", "CloseAPI"] and not fake.control_on
     assert len(fake.calls(function="SendAdvanceTrajectory")) > 20
+
+
+def test_faults_stop_the_deploy_loop_within_one_period(library, task_config, caplog):
+    """The faults of tests/test_hardware_faults.py that the Gen2 SDK can show: a logged system
+    error and the e-stop (the arm's fault flags: e-stop, as there), the link lost (a stop). Each
+    ends the tick that sees it with the arm held at zero and a log line naming it."""
+    import dataclasses
+
+    from ahrm_stack.config import load_config
+    from ahrm_stack.deploy import DeployLoop, ScriptedController, WorldModel, load_deploy_settings
+    from hardware import backends
+    from hardware.kinova_gen2 import SYSTEM_ERROR_TYPES
+
+    fake = fake_module.FakeSdk(library)
+    config = load_config()
+    fake.reset(position_deg=np.degrees(config.task.arm.home))
+    settings = load_deploy_settings(realtime=True, telemetry="")
+    settings = dataclasses.replace(
+        settings, watchdog=dataclasses.replace(settings.watchdog, max_deadline_misses=10**9,
+                                               max_feedback_age=10.0),
+        kinova_gen2=dataclasses.replace(settings.kinova_gen2, library=str(library),
+                                        serial=fake_module.SERIAL, scene=str(SCENE)))
+    arm = backends.get("kinova-gen2").make(config, settings)
+    world = WorldModel(config.task)
+    arm.connect()
+    try:
+        loop = DeployLoop(arm, world, ScriptedController(world, config), config.safety, settings)
+        loop.start()
+        faults = [
+            ("arm fault", True, lambda: fake.inject_error(
+                SYSTEM_ERROR_TYPES.index("errorlog_Actuator_Temperature")), lambda: None),
+            ("arm fault", True, lambda: fake.set_estop(True), lambda: fake.set_estop(False)),
+            ("connection lost", False, lambda: fake.set_unplugged(True),
+             lambda: fake.set_unplugged(False)),
+        ]
+        for reason, emergency, inject, release in faults:
+            for _ in range(4):
+                assert loop.tick(), loop.stop_reason
+            assert arm.standing_command is not None  # moving
+            fault_time = loop.next_tick_time
+            caplog.clear()
+            with caplog.at_level(logging.WARNING, logger="ahrm_stack.deploy"):
+                inject()
+                assert not loop.tick()
+            assert reason in loop.stop_reason and loop.stopped_at - fault_time <= loop.period
+            if arm.is_connected:
+                assert arm.standing_command is None
+            mark = fake.call_count()
+            np.testing.assert_array_equal(fake.state()[1], 0.0)  # the fake arm holds still
+            assert not any(c.values.any() for c in fake.calls(mark, "SendAdvanceTrajectory"))
+            word = "EMERGENCY STOP" if emergency else "STOP"
+            assert any(reason in r.getMessage() and word in r.getMessage() for r in caplog.records)
+            release()
+            if not arm.is_connected:
+                arm.connect()
+            arm.clear_faults()
+            loop.resume()
+    finally:
+        arm.disconnect()
