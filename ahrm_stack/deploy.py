@@ -2,8 +2,8 @@
 
 Usage::
 
-    python -m ahrm_stack.deploy --backend sim [--checkpoint RUN_DIR] [--duration S] [--rate HZ]
-                                [--realtime | --fast] [--seed N] [--telemetry PATH]
+    python -m ahrm_stack.deploy --backend sim|kinova-gen2 [--checkpoint RUN_DIR] [--duration S]
+                                [--rate HZ] [--realtime | --fast] [--seed N] [--telemetry PATH]
 
 Without ``--checkpoint`` the scripted mink controller drives the arm; with one, the run's
 deterministic policy does (its ``config.yaml`` gives the task, so the arm model is the trained one).
@@ -67,8 +67,8 @@ import numpy as np
 import yaml
 
 from ahrm_stack.config import CONFIG_DIR, Config, ConfigError, TaskConfig, load_config
-from hardware.protocol import (ArmFaultError, CommandRefusedError, ConnectionLostError, FastClock,
-                               FeedbackTimeoutError, HardwareError, ServoingMode, WallClock)
+from hardware.protocol import (ArmFaultError, CommandRefusedError, ConnectionLostError,
+                               FeedbackTimeoutError, HardwareError, ServoingMode)
 
 log = logging.getLogger("ahrm_stack.deploy")
 

@@ -84,10 +84,17 @@ def deploy_on_fake(duration: float, freezes: int, resume_ticks: int = 10) -> dic
                     if not loop.tick():
                         raise RuntimeError(f"the deploy loop stopped: {loop.stop_reason}")
             before, freeze_mark = len(arm.watchdog_stops), fake.call_count()
-            time.sleep(arm.command_timeout + 0.05)  # the loop is frozen
-            if len(arm.watchdog_stops) != before + 1:
-                raise RuntimeError("the watchdog did not stop the arm")
-            stop = arm.watchdog_stops[-1]
+            give_up = time.perf_counter() + arm.command_timeout + 2.0
+            while len(arm.watchdog_stops) == before:  # the loop is frozen
+                if time.perf_counter() > give_up:
+                    inner = arm.arm
+                    raise RuntimeError(
+                        f"the watchdog did not stop the arm (freeze {i}: standing "
+                        f"{inner.standing_command}, sender alive "
+                        f"{inner._thread is not None and inner._thread.is_alive()}, error "
+                        f"{inner._sender_error!r}, fresh {time.perf_counter() - inner._fresh_at:.3f} s ago)")
+                time.sleep(0.01)
+            stop = arm.watchdog_stops[before]
             zero = next(c for c in fake.calls(freeze_mark, "SendAdvanceTrajectory")
                         if not c.values.any())
             latencies.append(zero.t - stop.deadline)

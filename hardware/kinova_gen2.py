@@ -496,7 +496,6 @@ class KinovaGen2Arm(ArmAdapter):
         self._clock = WallClock()
         self._sdk: Sdk | None = None
         self._connected = False
-        self._lost = False
         self._mode = ServoingMode.SINGLE_LEVEL_SERVOING
         self._faults = Fault.NONE
         self._fault_reason = ""
@@ -569,7 +568,7 @@ class KinovaGen2Arm(ArmAdapter):
         except BaseException:
             self._close_sdk()  # every exit path leaves the arm stopped and the API closed
             raise
-        self._connected, self._lost = True, False
+        self._connected = True
         self._mode = ServoingMode.SINGLE_LEVEL_SERVOING
         self._last_position = None
         with self._state:
@@ -629,9 +628,8 @@ class KinovaGen2Arm(ArmAdapter):
                                    "the arm stops itself when velocity commands stop")
 
     def _require(self) -> Sdk:
-        if self._lost and not self._connected:
-            self._lost = False
-            raise ConnectionLostError(f"the link to the Kinova arm {self._serial} was lost")
+        """The SDK, or NotConnectedError; a failure of the sender thread surfaces here (a lost link
+        as ConnectionLostError, the adapter then disconnected; anything else as a fault)."""
         if not self._connected or self._sdk is None:
             raise NotConnectedError(f"KinovaGen2Arm({self._serial}) is not connected; call connect()")
         with self._state:

@@ -19,7 +19,7 @@ from ahrm_stack.deploy import DEPLOY_CONFIG, DeployConfigError, load_deploy_sett
 from hardware.kinova_gen2 import (SYSTEM_ERROR_TYPES, AngularPosition, Gen2ConfigError,
                                   JointConvention, KinovaDevice, KinovaGen2Arm, SensorsInfo,
                                   Sdk, SystemError, TrajectoryPoint, UserPosition, check_library,
-                                  gen2_settings_from_dict, kinova_positions, kinova_velocities,
+                                  kinova_positions, kinova_velocities,
                                   model_positions, model_velocities, unwrap_positions,
                                   velocity_point)
 from hardware.protocol import (ArmFaultError, ArmState, ConnectionLostError, Fault, HardwareError,
