@@ -2,10 +2,11 @@
 spherical wrist) through Kinova's C SDK, loaded with :mod:`ctypes`.
 
 The SDK is the vendor's shared library that kinova-ros ships in ``kinova_driver/lib/<arch>/``:
-``USBCommandLayerUbuntu.so`` (USB) or ``EthCommandLayerUbuntu.so`` (Ethernet), with its
-communication layer ``USBCommLayerUbuntu.so`` / ``EthCommLayerUbuntu.so`` (installed by Kinova's
-installer as ``Kinova.API.USBCommandLayerUbuntu.so`` and ``Kinova.API.CommLayerUbuntu.so``). Its
-path is ``kinova_gen2.library`` in ``configs/deploy.yaml``; nothing is downloaded or guessed. The
+``USBCommandLayerUbuntu.so`` with its communication layer ``USBCommLayerUbuntu.so`` (installed by
+Kinova's installer as ``Kinova.API.USBCommandLayerUbuntu.so`` and ``Kinova.API.CommLayerUbuntu.so``).
+Only USB is implemented: the Ethernet variant (``EthCommandLayerUbuntu.so``) needs
+``InitEthernetAPI``, which is not called here. The path is ``kinova_gen2.library`` in
+``configs/deploy.yaml``; nothing is downloaded or guessed. The
 function signatures and struct layouts below are those of kinova-ros's headers
 (``kinova_driver/include/kinova/KinovaTypes.h``, ``Kinova.API.USBCommandLayerUbuntu.h``,
 ``Kinova.API.USBCommLayerUbuntu.h``); C++ references (``int &``) are pointers in the C ABI.
@@ -301,7 +302,7 @@ def check_library(settings: Gen2Settings) -> Path:
     the key or the path and pointing to the install notes (nothing is downloaded or guessed)."""
     if settings.library is None:
         raise Gen2ConfigError(f"{_key('library')} is not set: give the path of Kinova's "
-                              f"USBCommandLayerUbuntu.so (or EthCommandLayerUbuntu.so); see {DOCS}")
+                              f"USBCommandLayerUbuntu.so (kinova-ros kinova_driver/lib/); see {DOCS}")
     for name, value in (("library", settings.library), ("comm_library", settings.comm_library)):
         if value is not None and not Path(value).expanduser().is_file():
             raise Gen2ConfigError(f"{_key(name)}: no file at {value}; install Kinova's Gen2 SDK "
