@@ -74,16 +74,18 @@ def deploy_on_fake(duration: float, freezes: int, resume_ticks: int = 10) -> dic
             if not loop.tick():
                 raise RuntimeError(f"the deploy loop stopped: {loop.stop_reason}")
             ticks += 1
+        # the first freeze starts now: reading the call log takes time, so it comes last
+        end_mark, before = fake.call_count(), len(arm.watchdog_stops)
         moved_deg = float(np.abs(fake.state()[0] - start_deg).max())
-        sends = fake.calls(mark, "SendAdvanceTrajectory")
         latencies = []
         for i in range(freezes):
+            freeze_mark = end_mark
             if i:  # moving again before the next freeze
                 loop.resume()
                 for _ in range(resume_ticks):
                     if not loop.tick():
                         raise RuntimeError(f"the deploy loop stopped: {loop.stop_reason}")
-            before, freeze_mark = len(arm.watchdog_stops), fake.call_count()
+                before, freeze_mark = len(arm.watchdog_stops), fake.call_count()
             give_up = time.perf_counter() + arm.command_timeout + 2.0
             while len(arm.watchdog_stops) == before:  # the loop is frozen
                 if time.perf_counter() > give_up:
@@ -95,9 +97,11 @@ def deploy_on_fake(duration: float, freezes: int, resume_ticks: int = 10) -> dic
                         f"{inner._sender_error!r}, fresh {time.perf_counter() - inner._fresh_at:.3f} s ago)")
                 time.sleep(0.01)
             stop = arm.watchdog_stops[before]
-            zero = next(c for c in fake.calls(freeze_mark, "SendAdvanceTrajectory")
-                        if not c.values.any())
+            # the watchdog's zero: the last zero command recorded before it noted the time
+            zero = max((c for c in fake.calls(freeze_mark, "SendAdvanceTrajectory")
+                        if not c.values.any() and c.t <= stop.sent_at), key=lambda c: c.t)
             latencies.append(zero.t - stop.deadline)
+        sends = fake.calls(mark, "SendAdvanceTrajectory", until=end_mark)
         all_sends = fake.calls(mark, "SendAdvanceTrajectory")
         over = sum(int((np.abs(c.values) > bound_deg * (1 + 1e-6)).any()) for c in all_sends)
         gaps = np.diff([c.t for c in sends])

@@ -144,10 +144,12 @@ class FakeSdk:
     def call_count(self) -> int:
         return int(self.lib.FakeKinova_CallCount())
 
-    def calls(self, since: int = 0, function: str | None = None) -> list[Call]:
-        """The recorded calls from index ``since`` on (only ``function``'s, if given)."""
+    def calls(self, since: int = 0, function: str | None = None,
+              until: int | None = None) -> list[Call]:
+        """The recorded calls from index ``since`` to ``until`` (excluded; default: all so far),
+        only ``function``'s if given."""
         out, record = [], _Call()
-        for index in range(since, self.call_count()):
+        for index in range(since, self.call_count() if until is None else until):
             if not self.lib.FakeKinova_GetCall(index, ctypes.byref(record)):
                 continue
             name = FUNCTIONS[record.function - 1]
