@@ -484,6 +484,9 @@ class KinovaGen2Arm(ArmAdapter):
                  command_timeout_s: float) -> None:
         if not command_timeout_s > 0:
             raise Gen2ConfigError(f"the command timeout must be > 0 s, got {command_timeout_s!r}")
+        if robot.num_joints > len(AngularInfo._fields_):
+            raise Gen2ConfigError(f"{robot.name} has {robot.num_joints} joints; a Gen2 arm has at "
+                                  f"most {len(AngularInfo._fields_)} actuators")
         self._robot = robot
         self.settings = settings
         self._convention = joint_convention(settings, robot)

@@ -14,6 +14,10 @@ import time
 import numpy as np
 import pytest
 import yaml
+from hypothesis import given
+from hypothesis import settings as hypothesis_settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 
 from ahrm_stack.deploy import DEPLOY_CONFIG, DeployConfigError, load_deploy_settings
 from hardware.kinova_gen2 import (SYSTEM_ERROR_TYPES, AngularPosition, Gen2ConfigError,
@@ -143,6 +147,22 @@ def test_unit_and_joint_conventions_by_hand():
     # GetAngularVelocity: half the real value; negatives as 360 - |v|
     np.testing.assert_allclose(model_velocities([5.0, 175.0, 0, 0, 0, 0], identity, 2.0),
                                np.radians([10.0, -10.0, 0, 0, 0, 0]))
+
+
+@hypothesis_settings(max_examples=200, deadline=None)
+@given(kinova=arrays(float, 6, elements=st.floats(-720, 720)),
+       signs=st.lists(st.sampled_from([1, -1]), min_size=6, max_size=6),
+       offsets=st.lists(st.floats(-360, 360), min_size=6, max_size=6),
+       speeds=arrays(float, 6, elements=st.floats(-1.0, 1.0)))
+def test_conventions_round_trip(kinova, signs, offsets, speeds):
+    """Kinova -> model -> Kinova is the identity; a command's sign and scale survive the reported
+    velocity's encoding (half, negatives as 360 - |v|) and its decoding."""
+    convention = JointConvention(tuple(signs), tuple(offsets))
+    np.testing.assert_allclose(kinova_positions(model_positions(kinova, convention), convention),
+                               kinova, atol=1e-9)
+    degrees = kinova_velocities(speeds, convention)  # deg/s on the arm
+    reported = np.where(degrees < 0, degrees + 360.0, degrees) / 2.0  # the firmware's encoding
+    np.testing.assert_allclose(model_velocities(reported, convention, 2.0), speeds, atol=1e-12)
 
 
 def test_unwrapping_by_hand(task_config):
