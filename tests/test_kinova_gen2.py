@@ -236,8 +236,8 @@ def test_sender_resends_at_100_hz_and_the_arm_keeps_full_speed(fake, make_arm):
     sends = fake.calls(mark, "SendAdvanceTrajectory")
     gaps = np.diff([c.t for c in sends])
     assert np.median(gaps) == pytest.approx(0.010, abs=0.001)
-    assert len(sends) >= 0.9 * 100 * elapsed
-    assert moved == pytest.approx(speed * elapsed, rel=0.1)
+    assert len(sends) >= 0.75 * 100 * elapsed  # (a loaded machine delays some resends)
+    assert moved == pytest.approx(speed * elapsed, rel=0.2)
     np.testing.assert_allclose(sends[-1].values, [math.degrees(speed), 0, 0, 0, 0, 0], rtol=1e-6)
     arm.disconnect()
 
@@ -255,7 +255,7 @@ def test_sender_resends_at_100_hz_and_the_arm_keeps_full_speed(fake, make_arm):
         time.sleep(0.05)
     slow = math.radians(fake.state()[0][0]) / (time.perf_counter() - t0)
     raw.call("CloseAPI")
-    assert slow == pytest.approx(speed * 0.025 / 0.05, rel=0.2)
+    assert 0.3 * speed < slow < 0.65 * speed  # ~25 ms of motion per 50 ms: about half speed
 
 
 def test_watchdog_stops_a_frozen_caller_within_20_ms(fake, make_arm):
@@ -281,8 +281,8 @@ def test_watchdog_stops_a_frozen_caller_within_20_ms(fake, make_arm):
     np.testing.assert_array_equal(fake.state()[0], q_before)
     assert arm.standing_command is None
     arm.send_joint_speeds(np.array([0.1, 0, 0, 0, 0, 0]))  # a fresh command moves it again
-    time.sleep(0.03)
     assert fake.state()[1][0] == pytest.approx(math.degrees(0.1), rel=1e-5)
+    assert arm.standing_command is not None
 
 
 def test_speed_scale_reduces_what_is_sent(fake, make_arm):
@@ -301,8 +301,10 @@ def test_feedback_converts_units(fake, make_arm):
     time.sleep(0.03)
     frame = arm.refresh_feedback()
     np.testing.assert_allclose(frame.velocity, [0.2, -0.3, 0, 0, 0.1, 0], atol=1e-6)
-    q_deg, _ = fake.state()
-    np.testing.assert_allclose(np.degrees(frame.position), q_deg, atol=0.05)  # a few ms later
+    arm.stop()
+    frame = arm.refresh_feedback()
+    q_deg, _ = fake.state()  # the arm is still: the same angles (float32 in the SDK's structs)
+    np.testing.assert_allclose(np.degrees(frame.position), q_deg, atol=1e-3)
 
 
 # ------------------------------------------------------------------ faults
