@@ -149,7 +149,7 @@ def test_unit_and_joint_conventions_by_hand():
                                np.radians([10.0, -10.0, 0, 0, 0, 0]))
 
 
-@hypothesis_settings(max_examples=200, deadline=None)
+@hypothesis_settings(max_examples=100, deadline=None)
 @given(kinova=arrays(float, 6, elements=st.floats(-720, 720)),
        signs=st.lists(st.sampled_from([1, -1]), min_size=6, max_size=6),
        offsets=st.lists(st.floats(-360, 360), min_size=6, max_size=6),
