@@ -2,8 +2,8 @@
 
 Usage::
 
-    python -m ahrm_stack.deploy --backend sim [--checkpoint RUN_DIR] [--duration S] [--rate HZ]
-                                [--realtime | --fast] [--seed N] [--telemetry PATH]
+    python -m ahrm_stack.deploy --backend sim|kinova-gen2 [--checkpoint RUN_DIR] [--duration S]
+                                [--rate HZ] [--realtime | --fast] [--seed N] [--telemetry PATH]
 
 Without ``--checkpoint`` the scripted mink controller drives the arm; with one, the run's
 deterministic policy does (its ``config.yaml`` gives the task, so the arm model is the trained one).
@@ -67,8 +67,8 @@ import numpy as np
 import yaml
 
 from ahrm_stack.config import CONFIG_DIR, Config, ConfigError, TaskConfig, load_config
-from hardware.protocol import (ArmFaultError, CommandRefusedError, ConnectionLostError, FastClock,
-                               FeedbackTimeoutError, HardwareError, ServoingMode, WallClock)
+from hardware.protocol import (ArmFaultError, CommandRefusedError, ConnectionLostError,
+                               FeedbackTimeoutError, HardwareError, ServoingMode)
 
 log = logging.getLogger("ahrm_stack.deploy")
 
@@ -125,6 +125,7 @@ class DeploySettings:
     watchdog: WatchdogSettings
     sim: SimSettings
     kortex: KortexSection
+    kinova_gen2: Any  # hardware.kinova_gen2.Gen2Settings (validated there)
 
     @property
     def period(self) -> float:
@@ -225,6 +226,12 @@ def deploy_settings_from_dict(data: Any) -> DeploySettings:
                                                  integer=True, positive=True),
         credentials_file=_optional_str(kx["credentials_file"], "kortex.credentials_file"),
         **_kortex_link(kx))
+    from hardware.kinova_gen2 import gen2_settings_from_dict
+
+    try:
+        kinova_gen2 = gen2_settings_from_dict(top["kinova_gen2"])
+    except ValueError as error:
+        raise DeployConfigError(str(error)) from None
     rate_hz = _number(top["rate_hz"], "rate_hz", positive=True)
     duration = _number(top["duration"], "duration", positive=True)
     if control_periods(duration, 1.0 / rate_hz) < 1:
@@ -244,7 +251,8 @@ def deploy_settings_from_dict(data: Any) -> DeploySettings:
         watchdog=watchdog,
         sim=SimSettings(command_delay=_number(sim["command_delay"], "sim.command_delay",
                                               nonnegative=True)),
-        kortex=kortex)
+        kortex=kortex,
+        kinova_gen2=kinova_gen2)
 
 
 def load_deploy_settings(path: Path | str = DEPLOY_CONFIG, **overrides: Any) -> DeploySettings:
@@ -1029,7 +1037,14 @@ def _start_up_fault(arm, telemetry, error: BaseException) -> DeployFault:
 
 def deploy_sim(settings: DeploySettings, checkpoint: Path | None = None,
                overrides: Sequence[str] = ()) -> DeployLoop:
-    """One run of the deploy loop against the sim backend; returns the finished loop (its
+    """:func:`deploy` against the sim backend."""
+    return deploy(settings, checkpoint, overrides, backend="sim")
+
+
+def deploy(settings: DeploySettings, checkpoint: Path | None = None,
+           overrides: Sequence[str] = (), backend: str = "sim") -> DeployLoop:
+    """One run of the deploy loop against ``backend`` (a name of
+    :data:`hardware.backends.BACKENDS`); returns the finished loop (its
     :meth:`DeployLoop.summary`, :attr:`DeployLoop.interrupted`). ``overrides``: config
     ``key=value`` pairs for the scripted controller's run (no checkpoint).
 
@@ -1037,10 +1052,15 @@ def deploy_sim(settings: DeploySettings, checkpoint: Path | None = None,
     one-line error before anything is written or the arm is touched. From then on every end is
     recorded: a fault in set-up, start-up or the loop stops the arm, writes the stop event and the
     summary to the telemetry and raises :class:`DeployFault`."""
-    from hardware.sim import SimArm
+    from hardware import backends
 
     notes: list[SafetyNote] = []
     config, actor = load_controller_config(checkpoint, overrides, notes)
+    chosen = backends.get(backend)
+    try:
+        chosen.check(config, settings)
+    except ValueError as error:
+        raise DeployConfigError(str(error)) from None
     control_period = config.task.episode.control_period
     if not math.isclose(settings.period, control_period, rel_tol=1e-9):
         log.warning("deploy: the loop runs at %g Hz; the controller was built for %g Hz "
@@ -1053,9 +1073,7 @@ def deploy_sim(settings: DeploySettings, checkpoint: Path | None = None,
             telemetry.write(json.dumps({"t": 0.0, "event": "safety setting", "key": note.key,
                                         "kind": note.kind, "reason": note.text}) + "\n")
         try:
-            clock = WallClock() if settings.realtime else FastClock()
-            arm = SimArm(config.task, seed=settings.seed, clock=clock,
-                         command_delay=settings.sim.command_delay)
+            arm = chosen.make(config, settings)
             world = WorldModel(config.task, seed=settings.seed)
             controller = make_controller(world, config, actor)
             arm.connect()
@@ -1080,9 +1098,11 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     parser = _Parser(prog="python -m ahrm_stack.deploy",
                      description="Run the deployment loop (policy or scripted controller → safety "
                                  "filter → arm adapter).")
-    parser.add_argument("--backend", choices=["sim", "kortex"], required=True,
-                        help="arm adapter (kortex: a Gen3 arm over kortex_api; it refuses to run "
-                             "until a scene source exists, naming what is missing)")
+    from hardware.backends import BACKENDS
+
+    parser.add_argument("--backend", choices=list(BACKENDS), required=True,
+                        help="arm adapter: " + "; ".join(f"{b.name}: {b.help}"
+                                                         for b in BACKENDS.values()))
     parser.add_argument("--checkpoint", type=Path, help="run folder with config.yaml and policy.pt "
                         "(default: the scripted controller)")
     parser.add_argument("--duration", type=float, help="s (default: deploy.yaml)")
@@ -1113,13 +1133,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"python -m ahrm_stack.deploy: error: {error}", file=sys.stderr)
         return 2
 
-    if args.backend == "kortex":  # refused before anything is written or contacted
-        from hardware.kortex import kortex_deploy_blocker
-
-        print(f"python -m ahrm_stack.deploy: error: {kortex_deploy_blocker(settings)}",
-              file=sys.stderr)
-        return 2
-
     def terminate(signum, frame):  # SIGTERM stops the arm like Ctrl-C
         raise KeyboardInterrupt
 
@@ -1127,7 +1140,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     previous = signal.signal(signal.SIGTERM, terminate)
     try:
-        loop = deploy_sim(settings, args.checkpoint, args.overrides)
+        loop = deploy(settings, args.checkpoint, args.overrides, backend=args.backend)
     except (ConfigError, DeployConfigError, CheckpointError) as error:  # before anything moved
         print(f"python -m ahrm_stack.deploy: error: {error}", file=sys.stderr)
         return 2

@@ -19,6 +19,7 @@ BENCHMARKS = sorted((ROOT / "benchmarks").glob("bench_*.py"))
 RATIO_LINE = {  # a line each benchmark prints when it got to its figures
     "bench_deploy.py": "share of the summed tick time",
     "bench_env_step.py": "ratio full/bare",
+    "bench_kinova_gen2.py": "ratio sends per policy tick",
     "bench_phases.py": "ratio reference/fast",
     "bench_policy.py": "ratio to the TorchRL deterministic actor",
     "bench_safety.py": "ratios osqp / daqp",

@@ -1,9 +1,11 @@
 """The adapter contract (hardware/protocol.py) that every backend passes; run against the sim
-backend in fast (unpaced) mode and against the Kortex backend on the fake ``kortex_api``
-(tests/fake_kortex_api, on the wall clock). A new backend adds a factory to BACKENDS."""
+backend in fast (unpaced) mode, the Kortex backend on the fake ``kortex_api`` (tests/fake_kortex_api,
+on the wall clock) and the Kinova Gen2 backend on the fake SDK (tests/fake_kinova_sdk, compiled
+here; real time). A new backend adds a factory to BACKENDS."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import numpy as np
@@ -29,14 +31,33 @@ def _kortex(task_config) -> ArmAdapter:
     return adapter
 
 
-@functools.lru_cache(maxsize=2)
+@functools.lru_cache(maxsize=None)
 def _robot(name: str):
     from ahrm_stack.robot import describe, make_arm
 
     return describe(name, make_arm(name))
 
 
-BACKENDS = {"sim": _sim, "kortex": _kortex}
+def _kinova_gen2(task_config) -> ArmAdapter:
+    """The Gen2 backend on the fake SDK. The contract holds one command for up to 0.5 s, so its
+    command watchdog is set to 1 s here (deploy uses configs/deploy.yaml's two periods)."""
+    from fake_kinova_sdk.fake import CompilerMissing, FakeSdk, SERIAL, session_library
+
+    from ahrm_stack.deploy import load_deploy_settings
+    from hardware.kinova_gen2 import KinovaGen2Arm
+
+    try:
+        library = session_library()
+    except CompilerMissing as error:
+        pytest.skip(str(error))
+    robot = _robot(task_config.robot)
+    FakeSdk(library).reset(position_deg=np.degrees(task_config.arm.home))  # gen2: joints as Kinova's
+    settings = dataclasses.replace(load_deploy_settings().kinova_gen2, library=str(library),
+                                   serial=SERIAL)
+    return KinovaGen2Arm(robot, settings, command_timeout_s=1.0)
+
+
+BACKENDS = {"sim": _sim, "kortex": _kortex, "kinova-gen2": _kinova_gen2}
 
 
 @pytest.fixture(params=sorted(BACKENDS))

@@ -1,0 +1,110 @@
+"""The arm backends ``python -m ahrm_stack.deploy --backend NAME`` can build.
+
+:data:`BACKENDS` maps a name to a :class:`Backend`: ``check(config, settings)`` validates the
+backend's settings before anything is written or contacted (a one-line ``ValueError`` naming the
+key or the file), ``make(config, settings)`` builds the adapter, not yet connected, with the
+``perception()`` method the deploy loop calls. ``config`` is the run's
+:class:`~ahrm_stack.config.Config` (its ``task.robot`` is the arm model), ``settings`` the
+:class:`~ahrm_stack.deploy.DeploySettings`. Backends are imported only when built.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable
+
+from hardware.protocol import ArmAdapter
+
+
+@dataclasses.dataclass(frozen=True)
+class Backend:
+    name: str
+    help: str
+    check: Callable[[Any, Any], None]
+    make: Callable[[Any, Any], ArmAdapter]
+
+
+def _check_sim(config, settings) -> None:
+    pass
+
+
+def _make_sim(config, settings) -> ArmAdapter:
+    from hardware.protocol import FastClock, WallClock
+    from hardware.sim import SimArm
+
+    clock = WallClock() if settings.realtime else FastClock()
+    return SimArm(config.task, seed=settings.seed, clock=clock,
+                  command_delay=settings.sim.command_delay)
+
+
+def _gen2_parts(config, settings):
+    """Validated Gen2 settings, the robot description and the scene (one-line errors)."""
+    from ahrm_stack.robot import describe, make_arm
+    from hardware.kinova_gen2 import Gen2ConfigError, check_library, joint_convention
+    from hardware.scene import StaticScene
+
+    gen2 = settings.kinova_gen2
+    if not settings.realtime:
+        raise Gen2ConfigError("deploy.realtime: a real arm runs on the wall clock; --fast is for "
+                              "the sim backend only")
+    check_library(gen2)
+    if gen2.serial is None:
+        raise Gen2ConfigError("deploy.kinova_gen2.serial is not set: the arm is chosen by its "
+                              "serial number, never the first one found")
+    if gen2.scene is None:
+        raise Gen2ConfigError("deploy.kinova_gen2.scene is not set: give a layout file of the cube "
+                              "and obstacle poses (e.g. configs/scenes/default.yaml)")
+    robot = describe(config.task.robot, make_arm(config.task.robot))
+    joint_convention(gen2, robot)
+    scene = StaticScene(gen2.scene, num_obstacles=len(config.task.obstacles.fixed_layout))
+    return gen2, robot, scene
+
+
+def _check_gen2(config, settings) -> None:
+    _gen2_parts(config, settings)
+
+
+def _make_gen2(config, settings) -> ArmAdapter:
+    from hardware.kinova_gen2 import KinovaGen2Arm
+    from hardware.scene import PerceivedArm
+
+    gen2, robot, scene = _gen2_parts(config, settings)
+    arm = KinovaGen2Arm(robot, gen2, command_timeout_s=gen2.command_timeout * settings.period)
+    return PerceivedArm(arm, scene)
+
+
+def _check_kortex(config, settings) -> None:
+    """Refused in one line, before anything is written or contacted: what is missing (address,
+    credentials, real-time pacing, a scene source)."""
+    from hardware.kortex import kortex_deploy_blocker
+
+    raise ValueError(kortex_deploy_blocker(settings))
+
+
+def _make_kortex(config, settings) -> ArmAdapter:
+    from ahrm_stack.robot import describe, make_arm
+    from hardware.kortex import make_kortex_backend
+
+    return make_kortex_backend(settings, describe(config.task.robot, make_arm(config.task.robot)))
+
+
+BACKENDS: dict[str, Backend] = {
+    "sim": Backend("sim", "the training physics (dm_control), paced or --fast", _check_sim, _make_sim),
+    "kinova-gen2": Backend("kinova-gen2", "a Kinova Gen2 / JACO2 over Kinova's C SDK "
+                           "(configs/deploy.yaml kinova_gen2; docs/hardware.md)",
+                           _check_gen2, _make_gen2),
+    "kortex": Backend("kortex", "a Kinova Gen3 over kortex_api (configs/deploy.yaml kortex; it refuses "
+                      "to run until a scene source exists, naming what is missing)",
+                      _check_kortex, _make_kortex),
+}
+
+
+def names() -> list[str]:
+    """The backend names, for ``--backend``'s choices."""
+    return list(BACKENDS)
+
+
+def get(name: str) -> Backend:
+    if name not in BACKENDS:
+        raise ValueError(f"unknown backend {name!r}; choose one of {names()}")
+    return BACKENDS[name]

@@ -1,0 +1,856 @@
+"""The Kinova Gen2 backend: a JACO2 (j2n6s300 curved wrist = dm_control's ``jaco``, or j2s6s200
+spherical wrist) through Kinova's C SDK, loaded with :mod:`ctypes`.
+
+The SDK is the vendor's shared library that kinova-ros ships in ``kinova_driver/lib/<arch>/``:
+``USBCommandLayerUbuntu.so`` with its communication layer ``USBCommLayerUbuntu.so`` (installed by
+Kinova's installer as ``Kinova.API.USBCommandLayerUbuntu.so`` and ``Kinova.API.CommLayerUbuntu.so``).
+Only USB is implemented: the Ethernet variant (``EthCommandLayerUbuntu.so``) needs
+``InitEthernetAPI``, which is not called here. The path is ``kinova_gen2.library`` in
+``configs/deploy.yaml``; nothing is downloaded or guessed. The
+function signatures and struct layouts below are those of kinova-ros's headers
+(``kinova_driver/include/kinova/KinovaTypes.h``, ``Kinova.API.USBCommandLayerUbuntu.h``,
+``Kinova.API.USBCommLayerUbuntu.h``); C++ references (``int &``) are pointers in the C ABI.
+
+**Joint velocities must be resent at 100 Hz**: an ANGULAR_VELOCITY trajectory point moves the arm
+only briefly, so a slower sender moves it proportionally slower. The deploy loop runs at 20 Hz;
+:class:`KinovaGen2Arm` therefore runs a sender thread (``kinova_gen2.send_rate_hz``) that resends
+the latest command (already checked by :func:`~hardware.protocol.check_joint_speeds`). Its
+**command watchdog**: when no fresh command has come for ``kinova_gen2.command_timeout`` control
+periods, the sender sends zero velocity, then ``EraseAllTrajectories``, and records why
+(:attr:`KinovaGen2Arm.watchdog_stops`); the next fresh command moves the arm again. The thread
+wakes at the deadline itself, not at the next 100 Hz slot.
+
+Units: the protocol speaks rad and rad/s; Gen2 degrees and deg/s. The model's joint angle is
+``sign * kinova_angle + offset`` per joint (``kinova_gen2.joints.<arm>``; both arms: sign +1,
+offset 0, as kinova-ros's current driver publishes the raw angles for kinova_description's URDFs,
+which dm_control's JACO MJCF copies). ``GetAngularVelocity`` reports half the real velocity with
+negative values as 360 - |v| (kinova-ros's ``kinova_comm.cpp`` multiplies by 2 and
+``kinova_arm.cpp`` subtracts 360 above 180); :func:`model_velocities` undoes both.
+
+Faults: any SDK call that fails with a communication error (USB unplugged, power lost) is
+:class:`~hardware.protocol.ConnectionLostError` and the adapter disconnects; another failing call
+is a :class:`~hardware.protocol.HardwareError` naming the function and the code. A new entry in
+the arm's system error log (``GetSystemErrorCount`` / ``GetSystemError``) puts the adapter in
+fault (``Fault.HARDWARE``); a supply voltage below ``kinova_gen2.min_supply_voltage``
+(``GetSensorsInfo``) or a logged voltage error is the e-stop cutting the actuators' power
+(``Fault.EMERGENCY_STOP``). Gen2 has no software e-stop: :meth:`KinovaGen2Arm.apply_emergency_stop`
+sends zero, erases the trajectory FIFO and calls ``StopControlAPI`` (the arm ignores commands
+until :meth:`~KinovaGen2Arm.clear_faults` calls ``StartControlAPI`` again). In fault, motion
+commands raise :class:`~hardware.protocol.ArmFaultError`.
+
+:meth:`KinovaGen2Arm.connect` selects the arm by its serial number (``kinova_gen2.serial``) from
+``GetDevices``; it never takes the first one found. Every exit path of connect (a failure
+included) and :meth:`~KinovaGen2Arm.disconnect` leave the arm stopped: zero velocity,
+``EraseAllTrajectories``, ``StopControlAPI``, ``CloseAPI``; an ``atexit`` hook disconnects an
+adapter left connected. Only the serial number is ever logged.
+
+Tested only against the fake SDK in ``tests/fake_kinova_sdk/`` (same exports and layouts), never
+against a real arm: see docs/hardware.md.
+"""
+
+from __future__ import annotations
+
+import atexit
+import ctypes
+import dataclasses
+import logging
+import math
+import sys
+import threading
+import time
+import weakref
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from ahrm_stack.robot import RobotDescription
+from hardware.protocol import (ArmAdapter, ArmFaultError, ArmState, CommandRefusedError,
+                               ConnectionLostError, Fault, Feedback, HardwareError,
+                               NotConnectedError, ServoingMode, WallClock, check_joint_speeds)
+
+log = logging.getLogger(__name__)
+
+DOCS = "docs/hardware.md (section 'Kinova Gen2')"
+
+# ---------------------------------------------------------------------------------------------
+# The SDK's constants and structs (kinova-ros kinova_driver/include/kinova/)
+# ---------------------------------------------------------------------------------------------
+
+NO_ERROR_KINOVA = 1
+ANGULAR_VELOCITY = 8  # POSITION_TYPE
+SERIAL_LENGTH = 20
+MAX_KINOVA_DEVICE = 20
+ERROR_LAYER_COUNT = 7
+ERROR_DATA_COUNT_MAX = 50
+
+#: Return codes of the communication and command layers (Kinova.API.USB*LayerUbuntu.h).
+ERROR_CODES = {
+    666: "UNKNOWN_ERROR", 1001: "ERROR_LOAD_USB_LIBRARY", 1002: "ERROR_OPEN_METHOD",
+    1003: "ERROR_WRITE_METHOD", 1004: "ERROR_READ_METHOD", 1005: "ERROR_READ_INT_METHOD",
+    1006: "ERROR_FREE_LIBRARY", 1007: "ERROR_JACO_CONNECTION", 1008: "ERROR_CLAIM_INTERFACE",
+    1009: "ERROR_UNKNOWN_DEVICE", 1010: "ERROR_NOT_INITIALIZED", 1011: "ERROR_LIBUSB_NO_DEVICE",
+    1012: "ERROR_LIBUSB_BUSY", 1013: "ERROR_LIBUSB_NOT_SUPPORTED", 1014: "ERROR_SENDPACKET_UNKNOWN",
+    1015: "ERROR_NO_DEVICE_FOUND", 1016: "ERROR_OPERATION_INCOMPLETED",
+    1017: "ERROR_RS485_INVALID_HANDLE", 1018: "ERROR_RS485_IO_PENDING",
+    1019: "ERROR_RS485_NOT_ENOUGH_MEMORY", 1020: "ERROR_RS485_TIMEOUT",
+    1021: "ERROR_FUNCTION_NOT_ACCESSIBLE", 1022: "ERROR_COMM_TIMEOUT", 9999: "ERROR_NACK_RECEIVED",
+    2001: "ERROR_INIT_API", 2002: "ERROR_LOAD_COMM_DLL", 2003: "JACO_NACK_FIRST",
+    2004: "JACO_COMM_FAILED", 2005: "JACO_NACK_NORMAL", 2006: "ERROR_INIT_COMM_METHOD",
+    2007: "ERROR_CLOSE_METHOD", 2008: "ERROR_GET_DEVICE_COUNT_METHOD",
+    2009: "ERROR_SEND_PACKET_METHOD", 2010: "ERROR_SET_ACTIVE_DEVICE_METHOD",
+    2011: "ERROR_GET_DEVICES_LIST_METHOD", 2012: "ERROR_SEMAPHORE_FAILED",
+    2013: "ERROR_SCAN_FOR_NEW_DEVICE", 2014: "ERROR_GET_ACTIVE_DEVICE_METHOD",
+    2015: "ERROR_OPEN_RS485_ACTIVATE", 2100: "ERROR_INVALID_PARAM",
+    2101: "ERROR_API_NOT_INITIALIZED", 2102: "ERROR_INIT_DATA_STRUCTURES_METHOD",
+}
+#: Codes that mean the link to the arm is gone (USB/Ethernet transport, the device vanished).
+COMMUNICATION_ERRORS = frozenset({1002, 1003, 1004, 1005, 1007, 1011, 1014, 1015, 1016, 1020,
+                                  1022, 2004, 2009, 2012})
+
+#: errorLoggerType (KinovaTypes.h), in enum order: the system error log's entry types.
+SYSTEM_ERROR_TYPES = (
+    "ERROR_NOTINITIALIZED", "keos_err1", "keos_err2", "keos_err3", "User_err_start_marker",
+    "errorlog_Actuator_Temperature", "errorlog_Actuator_TemperatureOK",
+    "errorlog_Finger_Temperature", "errorlog_Finger_TemperatureOK", "errorlog_voltage",
+    "errorlog_voltageOK", "errorlog_current_FingersClosing", "errorlog_current_FingersOpening",
+    "errorlog_current_FingersOK", "errorlog_current_Actuators", "errorlog_current_ActuatorsOK",
+    "errorLog_RobotStatus_Build_Incomplete", "errorLogger_END")
+VOLTAGE_ERROR = SYSTEM_ERROR_TYPES.index("errorlog_voltage")
+
+
+class KinovaDevice(ctypes.Structure):
+    _fields_ = [("SerialNumber", ctypes.c_char * SERIAL_LENGTH),
+                ("Model", ctypes.c_char * SERIAL_LENGTH), ("VersionMajor", ctypes.c_int),
+                ("VersionMinor", ctypes.c_int), ("VersionRelease", ctypes.c_int),
+                ("DeviceType", ctypes.c_int), ("DeviceID", ctypes.c_int)]
+
+
+class AngularInfo(ctypes.Structure):
+    _fields_ = [(f"Actuator{i}", ctypes.c_float) for i in range(1, 8)]
+
+
+class CartesianInfo(ctypes.Structure):
+    _fields_ = [(name, ctypes.c_float) for name in ("X", "Y", "Z", "ThetaX", "ThetaY", "ThetaZ")]
+
+
+class FingersPosition(ctypes.Structure):
+    _fields_ = [(f"Finger{i}", ctypes.c_float) for i in range(1, 4)]
+
+
+class AngularPosition(ctypes.Structure):
+    _fields_ = [("Actuators", AngularInfo), ("Fingers", FingersPosition)]
+
+
+class Limitation(ctypes.Structure):
+    _fields_ = [(name, ctypes.c_float) for name in (
+        "speedParameter1", "speedParameter2", "speedParameter3", "forceParameter1",
+        "forceParameter2", "forceParameter3", "accelerationParameter1", "accelerationParameter2",
+        "accelerationParameter3")]
+
+
+class UserPosition(ctypes.Structure):
+    _fields_ = [("Type", ctypes.c_int), ("Delay", ctypes.c_float),  # Type: POSITION_TYPE
+                ("CartesianPosition", CartesianInfo), ("Actuators", AngularInfo),
+                ("HandMode", ctypes.c_int), ("Fingers", FingersPosition)]  # HandMode: HAND_MODE
+
+
+class TrajectoryPoint(ctypes.Structure):
+    _fields_ = [("Position", UserPosition), ("LimitationsActive", ctypes.c_int),
+                ("SynchroType", ctypes.c_int), ("Limitations", Limitation)]
+
+
+class SensorsInfo(ctypes.Structure):
+    _fields_ = [(name, ctypes.c_float) for name in (
+        "Voltage", "Current", "AccelerationX", "AccelerationY", "AccelerationZ",
+        *(f"ActuatorTemp{i}" for i in range(1, 8)), "FingerTemp1", "FingerTemp2", "FingerTemp3")]
+
+
+class SystemError(ctypes.Structure):
+    _fields_ = [("ErrorHeader", ctypes.c_uint), ("ErrorType", ctypes.c_int),
+                ("FirmwareVersion", ctypes.c_int), ("KeosVersion", ctypes.c_int),
+                ("SystemTime", ctypes.c_uint), ("LayerErrorStatus", ctypes.c_bool * ERROR_LAYER_COUNT),
+                ("LifeTime", ctypes.c_int), ("DataCount", ctypes.c_int),
+                ("Data", ctypes.c_uint * ERROR_DATA_COUNT_MAX)]
+
+
+_P = ctypes.POINTER
+#: name -> (argument types); every function returns int.
+SIGNATURES: dict[str, tuple] = {
+    "InitAPI": (), "CloseAPI": (), "RefresDevicesList": (),
+    "GetDevices": (_P(KinovaDevice), _P(ctypes.c_int)),
+    "SetActiveDevice": (KinovaDevice,),
+    "StartControlAPI": (), "StopControlAPI": (), "SetAngularControl": (),
+    "SendAdvanceTrajectory": (TrajectoryPoint,),
+    "EraseAllTrajectories": (),
+    "GetAngularPosition": (_P(AngularPosition),), "GetAngularVelocity": (_P(AngularPosition),),
+    "GetAngularForce": (_P(AngularPosition),), "GetSensorsInfo": (_P(SensorsInfo),),
+    "GetSystemErrorCount": (_P(ctypes.c_uint),),
+    "GetSystemError": (ctypes.c_uint, _P(SystemError)),
+}
+
+
+# ---------------------------------------------------------------------------------------------
+# Settings (configs/deploy.yaml, section kinova_gen2)
+# ---------------------------------------------------------------------------------------------
+
+
+class Gen2ConfigError(ValueError):
+    """A ``kinova_gen2`` setting is missing or invalid, or the SDK file is missing; one line that
+    names the key (or the path)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class JointConvention:
+    """model angle (deg) = ``sign`` * Kinova angle (deg) + ``offset_deg``, per joint."""
+
+    sign: tuple[int, ...]
+    offset_deg: tuple[float, ...]
+
+
+@dataclasses.dataclass(frozen=True)
+class Gen2Settings:
+    library: str | None  # the command layer .so
+    comm_library: str | None  # its communication layer, preloaded (RTLD_GLOBAL); None: not
+    serial: str | None  # the arm's serial number; required to connect
+    send_rate_hz: float  # Hz, the sender thread's rate
+    command_timeout: float  # control periods without a fresh command before the sender stops
+    speed_scale: float  # every command is multiplied by this, 0 < s <= 1
+    velocity_feedback_scale: float  # GetAngularVelocity reports 1/this of the real velocity
+    min_supply_voltage: float  # V; below it the actuators are unpowered (the e-stop)
+    scene: str | None  # the static scene layout (hardware/scene.py) deploy uses for perception
+    switch_interval: float  # s, Python's GIL switch interval while connected (sys.setswitchinterval)
+    joints: dict[str, JointConvention]  # per arm (task.robot)
+
+
+_FIELDS = [f.name for f in dataclasses.fields(Gen2Settings)]
+
+
+def _key(name: str) -> str:
+    return f"deploy.kinova_gen2.{name}"
+
+
+def _positive(value: Any, name: str, upper: float | None = None) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+            or value <= 0 or (upper is not None and value > upper):
+        bound = f" and <= {upper}" if upper is not None else ""
+        raise Gen2ConfigError(f"{_key(name)} must be a number > 0{bound}, got {value!r}")
+    return float(value)
+
+
+def _path(value: Any, name: str) -> str | None:
+    if value is not None and (not isinstance(value, str) or not value.strip()):
+        raise Gen2ConfigError(f"{_key(name)} must be a path string or null, got {value!r}")
+    return value
+
+
+def gen2_settings_from_dict(data: Any) -> Gen2Settings:
+    """Validate the parsed ``kinova_gen2`` section; :class:`Gen2ConfigError` names the first bad
+    key. Files are not looked at here (:func:`check_library` does, when the backend is used)."""
+    if not isinstance(data, Mapping):
+        raise Gen2ConfigError(f"deploy.kinova_gen2 must be a mapping, got {data!r}")
+    unknown = sorted(set(data) - set(_FIELDS))
+    if unknown:
+        raise Gen2ConfigError(f"unknown key {_key(unknown[0])}; allowed: {sorted(_FIELDS)}")
+    missing = [f for f in _FIELDS if f not in data]
+    if missing:
+        raise Gen2ConfigError(f"missing key {_key(missing[0])}")
+    serial = data["serial"]
+    if serial is not None and (not isinstance(serial, str) or not serial.strip()
+                               or len(serial.encode()) >= SERIAL_LENGTH):
+        raise Gen2ConfigError(f"{_key('serial')} must be the arm's serial number (a string of at "
+                              f"most {SERIAL_LENGTH - 1} bytes) or null, got {serial!r}")
+    send_rate = _positive(data["send_rate_hz"], "send_rate_hz", upper=1000.0)
+    joints_data = data["joints"]
+    if not isinstance(joints_data, Mapping) or not joints_data:
+        raise Gen2ConfigError(f"{_key('joints')} must map each arm name to its sign and "
+                              f"offset_deg, got {joints_data!r}")
+    joints = {}
+    for arm, entry in joints_data.items():
+        where = f"joints.{arm}"
+        if not isinstance(entry, Mapping) or set(entry) != {"sign", "offset_deg"}:
+            raise Gen2ConfigError(f"{_key(where)} must have exactly the keys sign and "
+                                  f"offset_deg, got {entry!r}")
+        sign, offset = entry["sign"], entry["offset_deg"]
+        if not isinstance(sign, list) or not sign or any(
+                isinstance(s, bool) or s not in (1, -1) for s in sign):
+            raise Gen2ConfigError(f"{_key(where + '.sign')} must be a list of 1 or -1, got {sign!r}")
+        if not isinstance(offset, list) or len(offset) != len(sign) or any(
+                isinstance(o, bool) or not isinstance(o, (int, float)) or not math.isfinite(o)
+                for o in offset):
+            raise Gen2ConfigError(f"{_key(where + '.offset_deg')} must be {len(sign)} finite "
+                                  f"numbers (deg), got {offset!r}")
+        joints[str(arm)] = JointConvention(tuple(int(s) for s in sign),
+                                           tuple(float(o) for o in offset))
+    return Gen2Settings(
+        library=_path(data["library"], "library"),
+        comm_library=_path(data["comm_library"], "comm_library"),
+        serial=serial.strip() if isinstance(serial, str) else None,
+        send_rate_hz=send_rate,
+        command_timeout=_positive(data["command_timeout"], "command_timeout", upper=100.0),
+        speed_scale=_positive(data["speed_scale"], "speed_scale", upper=1.0),
+        velocity_feedback_scale=_positive(data["velocity_feedback_scale"],
+                                          "velocity_feedback_scale"),
+        min_supply_voltage=_positive(data["min_supply_voltage"], "min_supply_voltage"),
+        scene=_path(data["scene"], "scene"),
+        switch_interval=_positive(data["switch_interval"], "switch_interval", upper=0.005),
+        joints=joints)
+
+
+def check_library(settings: Gen2Settings) -> Path:
+    """The command layer's path if it is a file; else a one-line :class:`Gen2ConfigError` naming
+    the key or the path and pointing to the install notes (nothing is downloaded or guessed)."""
+    if settings.library is None:
+        raise Gen2ConfigError(f"{_key('library')} is not set: give the path of Kinova's "
+                              f"USBCommandLayerUbuntu.so (kinova-ros kinova_driver/lib/); see {DOCS}")
+    for name, value in (("library", settings.library), ("comm_library", settings.comm_library)):
+        if value is not None and not Path(value).expanduser().is_file():
+            raise Gen2ConfigError(f"{_key(name)}: no file at {value}; install Kinova's Gen2 SDK "
+                                  f"as described in {DOCS}")
+    return Path(settings.library).expanduser()
+
+
+def joint_convention(settings: Gen2Settings, robot: RobotDescription) -> JointConvention:
+    """The arm's joint convention; a one-line error when ``joints.<arm>`` is missing or of the
+    wrong size."""
+    convention = settings.joints.get(robot.name)
+    if convention is None:
+        raise Gen2ConfigError(f"{_key('joints.' + robot.name)} is missing (the deployed arm is "
+                              f"{robot.name!r}; configured: {sorted(settings.joints)})")
+    if len(convention.sign) != robot.num_joints:
+        raise Gen2ConfigError(f"{_key('joints.' + robot.name)} has {len(convention.sign)} joints; "
+                              f"{robot.name} has {robot.num_joints}")
+    return convention
+
+
+# ---------------------------------------------------------------------------------------------
+# Unit and convention conversions (pure)
+# ---------------------------------------------------------------------------------------------
+
+
+def model_positions(kinova_deg, convention: JointConvention) -> np.ndarray:
+    """Kinova joint angles (deg) -> the model's (rad), before unwrapping."""
+    sign = np.asarray(convention.sign, dtype=float)
+    return np.radians(sign * np.asarray(kinova_deg, dtype=float) + np.asarray(convention.offset_deg))
+
+
+def kinova_positions(model_rad, convention: JointConvention) -> np.ndarray:
+    """The model's joint angles (rad) -> Kinova's (deg); the inverse of :func:`model_positions`."""
+    sign = np.asarray(convention.sign, dtype=float)
+    return sign * (np.degrees(np.asarray(model_rad, dtype=float)) - np.asarray(convention.offset_deg))
+
+
+def kinova_velocities(model_rad_s, convention: JointConvention) -> np.ndarray:
+    """Model joint velocities (rad/s) -> the ANGULAR_VELOCITY command (deg/s)."""
+    return np.asarray(convention.sign, dtype=float) * np.degrees(np.asarray(model_rad_s, dtype=float))
+
+
+def model_velocities(reported, convention: JointConvention, feedback_scale: float) -> np.ndarray:
+    """``GetAngularVelocity``'s values -> model joint velocities (rad/s): times ``feedback_scale``
+    (the firmware reports half), values above 180 deg/s minus 360 (negative velocities come as
+    360 - |v|), then the joint sign."""
+    v = np.asarray(reported, dtype=float) * feedback_scale
+    v = np.where(v > 180.0, v - 360.0, v)
+    return np.asarray(convention.sign, dtype=float) * np.radians(v)
+
+
+def unwrap_positions(q: np.ndarray, reference: np.ndarray | None, robot: RobotDescription) -> np.ndarray:
+    """Joint positions (rad) with each continuous joint moved by whole turns to lie within π of
+    ``reference`` (the previous reading; none: as read) and each limited joint by whole turns to
+    lie within π of the centre of its range (a reading of -150° on a 47°-313° joint is 210°)."""
+    q = np.asarray(q, dtype=float)
+    limited = robot.limited
+    centre = np.where(limited, 0.5 * (np.where(limited, robot.position_lower, 0.0)
+                                      + np.where(limited, robot.position_upper, 0.0)), 0.0)
+    out = np.where(limited, q + 2 * np.pi * np.round((centre - q) / (2 * np.pi)), q)
+    if reference is not None:
+        turns = np.round((np.asarray(reference, dtype=float) - q) / (2 * np.pi))
+        out = np.where(limited, out, q + 2 * np.pi * turns)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# The SDK
+# ---------------------------------------------------------------------------------------------
+
+
+class SdkCallError(HardwareError):
+    """An SDK function returned an error code (``code``; ``function`` its name)."""
+
+    def __init__(self, function: str, code: int) -> None:
+        self.function, self.code = function, int(code)
+        super().__init__(f"{function} failed: {ERROR_CODES.get(self.code, 'error')} ({self.code})")
+
+    @property
+    def communication(self) -> bool:
+        return self.code in COMMUNICATION_ERRORS
+
+
+class Sdk:
+    """The loaded SDK: :meth:`call` runs one function under one lock (the SDK is not re-entrant)
+    and raises :class:`SdkCallError` for a code other than NO_ERROR_KINOVA."""
+
+    def __init__(self, library: Path, comm_library: str | None = None) -> None:
+        try:
+            if comm_library is not None:
+                self._comm = ctypes.CDLL(str(Path(comm_library).expanduser()),
+                                         mode=ctypes.RTLD_GLOBAL)
+            self.lib = ctypes.CDLL(str(library), mode=ctypes.RTLD_GLOBAL)
+        except OSError as error:
+            raise HardwareError(f"cannot load the Kinova SDK {library}: {error}; see {DOCS}") from None
+        missing = [name for name in SIGNATURES if not hasattr(self.lib, name)]
+        if missing:
+            raise HardwareError(f"{library} does not export {missing[0]}: not Kinova's Gen2 "
+                                f"command layer? see {DOCS}")
+        for name, argtypes in SIGNATURES.items():
+            function = getattr(self.lib, name)
+            function.argtypes = list(argtypes)
+            function.restype = ctypes.c_int
+        self.lock = threading.RLock()
+
+    def call(self, name: str, *args) -> int:
+        with self.lock:
+            code = getattr(self.lib, name)(*args)
+        if code != NO_ERROR_KINOVA:
+            raise SdkCallError(name, code)
+        return code
+
+    def call_quietly(self, name: str, *args) -> None:
+        """Best effort (stop paths): failures are logged, never raised."""
+        try:
+            self.call(name, *args)
+        except Exception as error:  # noqa: BLE001 - a stop path continues whatever happens
+            log.error("kinova_gen2: %s failed on a stop path (%s)", name, error)
+
+    def devices(self) -> list[KinovaDevice]:
+        """``GetDevices``: the arms on the bus."""
+        found = (KinovaDevice * MAX_KINOVA_DEVICE)()
+        result = ctypes.c_int(0)
+        with self.lock:
+            count = self.lib.GetDevices(found, ctypes.byref(result))
+        if result.value != NO_ERROR_KINOVA:
+            raise SdkCallError("GetDevices", result.value)
+        return [found[i] for i in range(max(0, min(count, MAX_KINOVA_DEVICE)))]
+
+
+def velocity_point(kinova_deg_s: np.ndarray) -> TrajectoryPoint:
+    """A zeroed TrajectoryPoint of type ANGULAR_VELOCITY carrying joint velocities (deg/s) in
+    ``Position.Actuators`` (where the SDK reads them, as in kinova-ros's setJointVelocities)."""
+    point = TrajectoryPoint()  # ctypes zero-initialises: no limitations, synchro type 0
+    point.Position.Type = ANGULAR_VELOCITY
+    for i, value in enumerate(np.asarray(kinova_deg_s, dtype=float)):
+        setattr(point.Position.Actuators, f"Actuator{i + 1}", float(value))
+    return point
+
+
+def _actuators(info: AngularInfo, n: int) -> np.ndarray:
+    return np.array([getattr(info, f"Actuator{i + 1}") for i in range(n)], dtype=float)
+
+
+@dataclasses.dataclass(frozen=True)
+class WatchdogStop:
+    """One stop by the command watchdog: ``deadline`` (perf_counter s) the fresh command was due
+    by, ``sent_at`` when the zero command went out, ``reason``."""
+
+    deadline: float
+    sent_at: float
+    reason: str
+
+
+_LIVE: "weakref.WeakSet[KinovaGen2Arm]" = weakref.WeakSet()
+
+
+@atexit.register
+def _disconnect_all() -> None:  # pragma: no cover - runs at interpreter exit
+    for arm in list(_LIVE):
+        try:
+            arm.disconnect()
+        except Exception:  # noqa: BLE001 - exiting
+            pass
+
+
+class KinovaGen2Arm(ArmAdapter):
+    """A Kinova Gen2 arm (JACO2) over the C SDK, with a 100 Hz sender thread and a command
+    watchdog (see the module docstring).
+
+    Args:
+        robot: the arm model the controller was trained on (its joint count must be the arm's).
+        settings: the ``kinova_gen2`` section (library, serial, rates, joint conventions).
+        command_timeout_s: s without a fresh command before the sender stops the arm
+            (``settings.command_timeout`` control periods; the caller knows the period).
+    """
+
+    def __init__(self, robot: RobotDescription, settings: Gen2Settings,
+                 command_timeout_s: float) -> None:
+        if not command_timeout_s > 0:
+            raise Gen2ConfigError(f"the command timeout must be > 0 s, got {command_timeout_s!r}")
+        if robot.num_joints > len(AngularInfo._fields_):
+            raise Gen2ConfigError(f"{robot.name} has {robot.num_joints} joints; a Gen2 arm has at "
+                                  f"most {len(AngularInfo._fields_)} actuators")
+        self._robot = robot
+        self.settings = settings
+        self._convention = joint_convention(settings, robot)
+        self._library = check_library(settings)
+        if settings.serial is None:
+            raise Gen2ConfigError(f"{_key('serial')} is not set: the arm is chosen by its serial "
+                                  "number, never the first one found")
+        self._serial = settings.serial
+        self._timeout = float(command_timeout_s)
+        self._send_period = 1.0 / settings.send_rate_hz
+        self._clock = WallClock()
+        self._sdk: Sdk | None = None
+        self._connected = False
+        self._mode = ServoingMode.SINGLE_LEVEL_SERVOING
+        self._faults = Fault.NONE
+        self._fault_reason = ""
+        self._frame = 0
+        self._last_position: np.ndarray | None = None
+        self._errors_seen = 0
+        # shared with the sender thread (under self._state)
+        self._state = threading.Lock()
+        self._wake = threading.Event()
+        self._quit = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._command_deg = np.zeros(robot.num_joints)  # Kinova deg/s
+        self._active = False  # a motion command stands and is being resent
+        self._fresh_at = 0.0  # perf_counter s of the last fresh command
+        self._next_send = 0.0
+        self._sender_error: BaseException | None = None
+        self._switch_interval = sys.getswitchinterval()
+        self.watchdog_stops: list[WatchdogStop] = []
+        self.sends = 0  # SendAdvanceTrajectory calls (fresh and resent)
+
+    # ------------------------------------------------------------------ description
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self._robot.joint_names
+
+    @property
+    def velocity_limit(self) -> np.ndarray:
+        return self._robot.velocity_limit.copy()
+
+    @property
+    def clock(self) -> WallClock:
+        return self._clock
+
+    @property
+    def serial(self) -> str:
+        return self._serial
+
+    @property
+    def command_timeout(self) -> float:
+        """s without a fresh command before the sender stops the arm."""
+        return self._timeout
+
+    @property
+    def is_connected(self) -> bool:
+        return self._connected
+
+    # ------------------------------------------------------------------ session
+    def connect(self) -> None:
+        if self._connected:
+            raise HardwareError(f"KinovaGen2Arm({self._serial}) is already connected")
+        if self._sdk is None:
+            self._sdk = Sdk(self._library, self.settings.comm_library)
+        sdk = self._sdk
+        try:
+            sdk.call("InitAPI")
+            devices = sdk.devices()
+            serials = [d.SerialNumber.decode(errors="replace") for d in devices]
+            chosen = [d for d, s in zip(devices, serials) if s == self._serial]
+            if not chosen:
+                raise HardwareError(f"no Kinova arm with serial {self._serial!r} (found: "
+                                    f"{serials or 'none'}); set deploy.kinova_gen2.serial")
+            sdk.call("SetActiveDevice", chosen[0])
+            sdk.call("StartControlAPI")
+            sdk.call("SetAngularControl")
+            sdk.call("EraseAllTrajectories")
+            sdk.call("SendAdvanceTrajectory", velocity_point(np.zeros(self.num_joints)))
+            count = ctypes.c_uint(0)
+            sdk.call("GetSystemErrorCount", ctypes.byref(count))
+            self._errors_seen = int(count.value)
+        except BaseException:
+            self._close_sdk()  # every exit path leaves the arm stopped and the API closed
+            raise
+        self._connected = True
+        self._mode = ServoingMode.SINGLE_LEVEL_SERVOING
+        self._last_position = None
+        with self._state:
+            self._active = False
+            self._command_deg = np.zeros(self.num_joints)
+            self._sender_error = None
+        self._quit.clear()
+        self._thread = threading.Thread(target=self._sender, name=f"kinova-gen2-sender-{self._serial}",
+                                        daemon=True)
+        self._switch_interval = sys.getswitchinterval()
+        sys.setswitchinterval(min(self._switch_interval, self.settings.switch_interval))
+        self._thread.start()
+        _LIVE.add(self)
+        log.info("kinova_gen2: connected to the arm with serial %s (%s Hz sender, watchdog %.0f ms)",
+                 self._serial, f"{self.settings.send_rate_hz:g}", self._timeout * 1e3)
+
+    def _close_sdk(self) -> None:
+        """Zero velocity, erase the FIFO, StopControlAPI, CloseAPI: each best effort."""
+        sdk = self._sdk
+        if sdk is None:
+            return
+        sdk.call_quietly("SendAdvanceTrajectory", velocity_point(np.zeros(self.num_joints)))
+        sdk.call_quietly("EraseAllTrajectories")
+        sdk.call_quietly("StopControlAPI")
+        sdk.call_quietly("CloseAPI")
+
+    def _stop_thread(self) -> None:
+        self._quit.set()
+        self._wake.set()
+        thread, self._thread = self._thread, None
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(timeout=1.0)
+        if thread is not None:
+            sys.setswitchinterval(self._switch_interval)
+
+    def disconnect(self) -> None:
+        if not self._connected:
+            return
+        try:
+            self._stop_thread()
+            with self._state:
+                self._active = False
+        finally:
+            self._connected = False
+            self._close_sdk()
+            _LIVE.discard(self)
+            log.info("kinova_gen2: disconnected from %s (arm stopped, API closed)", self._serial)
+
+    def _lose(self, error: SdkCallError) -> ConnectionLostError:
+        """The link is gone: stop the sender, close what can be closed, be disconnected."""
+        log.error("kinova_gen2: connection to %s lost (%s)", self._serial, error)
+        self._stop_thread()
+        self._connected = False
+        self._close_sdk()
+        _LIVE.discard(self)
+        return ConnectionLostError(f"the link to the Kinova arm {self._serial} was lost ({error}); "
+                                   "the arm stops itself when velocity commands stop")
+
+    def _require(self) -> Sdk:
+        """The SDK, or NotConnectedError; a failure of the sender thread surfaces here (a lost link
+        as ConnectionLostError, the adapter then disconnected; anything else as a fault)."""
+        if not self._connected or self._sdk is None:
+            raise NotConnectedError(f"KinovaGen2Arm({self._serial}) is not connected; call connect()")
+        with self._state:
+            error, self._sender_error = self._sender_error, None
+        if error is not None:
+            if isinstance(error, SdkCallError) and error.communication:
+                raise self._lose(error)
+            self._latch(Fault.COMMUNICATION, f"the sender thread failed: {error}")
+        return self._sdk
+
+    def _call(self, name: str, *args) -> None:
+        try:
+            self._sdk.call(name, *args)
+        except SdkCallError as error:
+            if error.communication:
+                raise self._lose(error) from None
+            raise
+
+    # ------------------------------------------------------------------ the sender thread
+    def _sender(self) -> None:
+        """Resend the standing command every send period; stop the arm when it goes stale. The
+        state lock is held across each send, so a fresh command cannot slip between the watchdog's
+        check and its zero command."""
+        sdk = self._sdk
+        while not self._quit.is_set():
+            reason = None
+            try:
+                with self._state:
+                    now = time.perf_counter()
+                    active = self._active
+                    deadline = self._fresh_at + self._timeout
+                    if active and now >= deadline:
+                        sdk.call("SendAdvanceTrajectory", velocity_point(np.zeros(self.num_joints)))
+                        sent_at = time.perf_counter()
+                        sdk.call("EraseAllTrajectories")
+                        reason = (f"command watchdog: no fresh command for "
+                                  f"{(now - self._fresh_at) * 1e3:.1f} ms (timeout "
+                                  f"{self._timeout * 1e3:.0f} ms): zero velocity sent, "
+                                  "trajectories erased")
+                        self._active = active = False
+                        self._command_deg = np.zeros(self.num_joints)
+                        self.watchdog_stops.append(WatchdogStop(deadline, sent_at, reason))
+                    elif active and now >= self._next_send:
+                        sdk.call("SendAdvanceTrajectory", velocity_point(self._command_deg))
+                        self.sends += 1
+                        self._next_send = max(self._next_send + self._send_period, now)
+                    wake = min(self._next_send, deadline) if active else now + self._send_period
+            except BaseException as error:  # noqa: BLE001 - recorded; the caller's next call sees it
+                with self._state:
+                    self._sender_error = error
+                    self._active = False
+                log.error("kinova_gen2: the sender stopped: %s", error)
+                if sdk is not None:
+                    sdk.call_quietly("EraseAllTrajectories")
+                return
+            if reason is not None:
+                log.warning("kinova_gen2: %s", reason)
+            self._wake.wait(max(0.0, wake - time.perf_counter()))
+            self._wake.clear()
+
+    def _drop_command(self) -> None:
+        """No standing command: the sender stops resending."""
+        with self._state:
+            self._active = False
+            self._command_deg = np.zeros(self.num_joints)
+        self._wake.set()
+
+    def _halt_motion(self) -> None:
+        """No standing command; zero velocity and an empty FIFO on the arm."""
+        self._drop_command()
+        self._call("SendAdvanceTrajectory", velocity_point(np.zeros(self.num_joints)))
+        self._call("EraseAllTrajectories")
+
+    def _latch(self, fault: Fault, reason: str) -> None:
+        if Fault(fault) & ~self._faults:
+            log.error("kinova_gen2: arm %s in fault: %s", self._serial, reason)
+        self._faults |= fault
+        self._fault_reason = reason
+        self._drop_command()
+        if self._sdk is not None:
+            self._sdk.call_quietly("EraseAllTrajectories")
+
+    # ------------------------------------------------------------------ protocol
+    def refresh_feedback(self) -> Feedback:
+        self._require()
+        n = self.num_joints
+        position, velocity, force = AngularPosition(), AngularPosition(), AngularPosition()
+        sensors, count = SensorsInfo(), ctypes.c_uint(0)
+        self._call("GetAngularPosition", ctypes.byref(position))
+        self._call("GetAngularVelocity", ctypes.byref(velocity))
+        self._call("GetAngularForce", ctypes.byref(force))
+        self._call("GetSensorsInfo", ctypes.byref(sensors))
+        self._call("GetSystemErrorCount", ctypes.byref(count))
+        stamp = self._clock.now()
+        self._check_errors(int(count.value))
+        if sensors.Voltage < self.settings.min_supply_voltage:
+            self._latch(Fault.EMERGENCY_STOP | Fault.HARDWARE,
+                        f"supply voltage {sensors.Voltage:.1f} V below "
+                        f"{self.settings.min_supply_voltage:g} V (e-stop pressed or power lost)")
+        convention = self._convention
+        q = unwrap_positions(model_positions(_actuators(position.Actuators, n), convention),
+                             self._last_position, self._robot)
+        self._last_position = q
+        dq = model_velocities(_actuators(velocity.Actuators, n), convention,
+                              self.settings.velocity_feedback_scale)
+        torque = np.asarray(convention.sign, dtype=float) * _actuators(force.Actuators, n)
+        self._frame += 1
+        in_fault = self._faults != Fault.NONE
+        return Feedback(timestamp=stamp, frame_id=self._frame, position=q, velocity=dq,
+                        torque=torque,
+                        arm_state=ArmState.IN_FAULT if in_fault else ArmState.SERVOING_READY,
+                        faults=self._faults)
+
+    def _check_errors(self, count: int) -> None:
+        """New entries of the arm's system error log put the adapter in fault (the ``...OK``
+        entries, a condition ending, do not)."""
+        if count <= self._errors_seen:
+            self._errors_seen = min(self._errors_seen, count)
+            return
+        for index in range(self._errors_seen, count):
+            entry = SystemError()
+            self._call("GetSystemError", ctypes.c_uint(index), ctypes.byref(entry))
+            kind = entry.ErrorType
+            name = SYSTEM_ERROR_TYPES[kind] if 0 <= kind < len(SYSTEM_ERROR_TYPES) else f"type {kind}"
+            if name.endswith("OK"):
+                log.info("kinova_gen2: arm %s reports %s", self._serial, name)
+                continue
+            fault = Fault.HARDWARE | (Fault.EMERGENCY_STOP if kind == VOLTAGE_ERROR else Fault.NONE)
+            self._latch(fault, f"the arm logged system error {name}")
+        self._errors_seen = count
+
+    def send_joint_speeds(self, speeds: np.ndarray) -> np.ndarray:
+        self._require()
+        if self._faults != Fault.NONE:
+            raise ArmFaultError(f"Kinova arm {self._serial} in fault ({self._faults!r}: "
+                                f"{self._fault_reason}); clear_faults() first")
+        if self._mode != ServoingMode.SINGLE_LEVEL_SERVOING:
+            raise ArmFaultError(f"joint speed commands need single-level servoing, not {self._mode}")
+        try:
+            command = check_joint_speeds(speeds, self._robot.velocity_limit)
+        except CommandRefusedError as error:
+            self.apply_emergency_stop()
+            self._faults |= Fault.LIMIT
+            self._fault_reason = f"refused command: {error}"
+            raise
+        sent = command * self.settings.speed_scale
+        degrees = kinova_velocities(sent, self._convention)
+        failure = None
+        with self._state:  # the sender waits: the fresh command goes out first
+            try:
+                self._sdk.call("SendAdvanceTrajectory", velocity_point(degrees))
+            except SdkCallError as error:
+                failure = error
+            else:
+                self.sends += 1
+                now = time.perf_counter()
+                self._active, self._command_deg = True, degrees
+                self._fresh_at, self._next_send = now, now + self._send_period
+        if failure is not None:
+            if failure.communication:
+                raise self._lose(failure) from None
+            raise failure
+        self._wake.set()
+        return sent
+
+    def stop(self) -> None:
+        self._require()
+        self._halt_motion()
+
+    def apply_emergency_stop(self) -> None:
+        self._require()
+        self._faults |= Fault.EMERGENCY_STOP
+        self._fault_reason = "emergency stop applied"
+        try:
+            self._halt_motion()
+        finally:
+            self._call("StopControlAPI")  # the arm ignores commands until StartControlAPI
+        log.error("kinova_gen2: EMERGENCY STOP on %s: zero velocity, trajectories erased, "
+                  "control API stopped", self._serial)
+
+    def clear_faults(self) -> None:
+        self._require()
+        sensors, count = SensorsInfo(), ctypes.c_uint(0)
+        self._call("GetSensorsInfo", ctypes.byref(sensors))
+        if sensors.Voltage < self.settings.min_supply_voltage:
+            raise ArmFaultError(f"supply voltage {sensors.Voltage:.1f} V is below "
+                                f"{self.settings.min_supply_voltage:g} V: release the e-stop "
+                                "(restore the actuators' power) first")
+        self._call("StartControlAPI")
+        self._call("SetAngularControl")
+        self._halt_motion()
+        self._call("GetSystemErrorCount", ctypes.byref(count))
+        self._errors_seen = int(count.value)  # the logged errors are acknowledged
+        self._faults, self._fault_reason = Fault.NONE, ""
+        log.info("kinova_gen2: faults cleared on %s", self._serial)
+
+    @property
+    def servoing_mode(self) -> ServoingMode:
+        self._require()
+        return self._mode
+
+    def set_servoing_mode(self, mode: ServoingMode) -> None:
+        """Gen2 has no Kortex servoing modes: single-level is angular control with joint velocity
+        commands; any other mode holds the arm stopped and refuses joint speed commands."""
+        self._require()
+        mode = ServoingMode(mode)
+        self._halt_motion()
+        if mode == ServoingMode.SINGLE_LEVEL_SERVOING:
+            self._call("SetAngularControl")
+        self._mode = mode
+
+    # ------------------------------------------------------------------ inspection
+    @property
+    def standing_command(self) -> np.ndarray | None:
+        """The command the sender resends (model rad/s), or None when stopped."""
+        with self._state:
+            if not self._active:
+                return None
+            degrees = self._command_deg.copy()
+        return np.asarray(self._convention.sign, dtype=float) * np.radians(degrees)
