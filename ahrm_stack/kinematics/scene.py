@@ -26,7 +26,7 @@ import mujoco
 import numpy as np
 
 from ahrm_stack.kinematics.model import ArmKinematics
-from ahrm_stack.kinematics.phases import Box
+from ahrm_stack.kinematics.shapes import Box
 
 _REQUEST = coal.DistanceRequest()
 _REQUEST.enable_signed_distance = True  # nearest points are always computed
