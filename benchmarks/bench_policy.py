@@ -25,6 +25,10 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+from ahrm_stack import cli
+
+cli.quiet_argv()  # before the heavy imports: the libraries' warnings and INFO logs unless --verbose
+
 import numpy as np
 import torch
 from tensordict import TensorDict

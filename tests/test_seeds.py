@@ -7,7 +7,7 @@ import yaml
 from ahrm_stack.config import ConfigError
 from ahrm_stack.env.layout_catalog import load_layouts
 from ahrm_stack.learning.demonstrations import DEMO_SEED_OFFSET
-from ahrm_stack.learning.evaluation import EVAL_SEED_OFFSET
+from ahrm_stack.learning.rollouts import EVAL_SEED_OFFSET
 from ahrm_stack.seeds import load_seed_table, seed_table, training_seeds
 
 
