@@ -30,7 +30,7 @@ import numpy as np  # noqa: E402
 import ahrm_stack.env.task as task_module  # noqa: E402
 import ahrm_stack.kinematics.cylinder_box as cylinder_box  # noqa: E402
 from _scripted import layout_configs, quick_parser, quiet, record  # noqa: E402
-from ahrm_stack.kinematics.phases import Cylinder, PhaseScene, phase_geometry  # noqa: E402
+from ahrm_stack.kinematics.phases import Cylinder, phase_geometry  # noqa: E402
 
 GOAL_MEDIAN_US, GOAL_MAX_US = 20.0, 100.0
 

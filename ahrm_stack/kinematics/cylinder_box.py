@@ -127,7 +127,8 @@ def _project_cylinder(p: tuple[float, float, float], cyl: tuple) -> tuple[float,
     return (cx + a * u + b * v + c * w, cy + d * u + e * v + f * w, cz + g * u + hh * v + i * w)
 
 
-def _extreme_point(n: tuple[float, float, float], p: tuple[float, float, float], cyl: tuple) -> tuple[float, float, float]:
+def _extreme_point(n: tuple[float, float, float], p: tuple[float, float, float],
+                   cyl: tuple) -> tuple[float, float, float]:
     """Point of the cylinder maximising n.x (unit n); where that set is a segment or a disc, its point nearest p."""
     (cx, cy, cz), (ax, ay, az), r, h = cyl[0], cyl[1], cyl[2], cyl[3]
     na = n[0] * ax + n[1] * ay + n[2] * az
@@ -240,7 +241,7 @@ _CIRCLE_K = np.array([[2], [0], [1]])
 _ARC_T = np.linspace(0.0, 2.0 * math.pi, _ARC_SAMPLES, endpoint=False)
 _ARC_COS = np.broadcast_to(np.cos(_ARC_T), (3, _ARC_SAMPLES))
 _ARC_SIN = np.broadcast_to(np.sin(_ARC_T), (3, _ARC_SAMPLES))
-_ARC_DIRS = np.zeros((3, _ARC_SAMPLES, 3))  # the same samples as unit vectors, circle by circle
+_ARC_DIRS: np.ndarray = np.zeros((3, _ARC_SAMPLES, 3))  # the same samples as unit vectors, circle by circle
 for _i in range(3):
     _ARC_DIRS[_i, :, (_i + 1) % 3] = np.cos(_ARC_T)
     _ARC_DIRS[_i, :, (_i + 2) % 3] = np.sin(_ARC_T)
@@ -290,7 +291,8 @@ def _candidate_gap(cd: tuple, b: Bounds) -> float:
     # bounds the gap within half a spacing s of it by g + lip * s / 2. Windows that cannot beat
     # the best value are dropped; the others are zoomed into around their best sample.
     lo, hi = np.asarray(b[:3]), np.asarray(b[3:])
-    par = np.stack([lo[_CIRCLE_J], hi[_CIRCLE_J], lo[_CIRCLE_K], hi[_CIRCLE_K], a[_CIRCLE_J], a[_CIRCLE_K], c[_CIRCLE_J], c[_CIRCLE_K]])
+    par = np.stack([lo[_CIRCLE_J], hi[_CIRCLE_J], lo[_CIRCLE_K], hi[_CIRCLE_K],
+                    a[_CIRCLE_J], a[_CIRCLE_K], c[_CIRCLE_J], c[_CIRCLE_K]])
     lip = float(np.sqrt(((w * w).sum(axis=1)).max())) + math.hypot(r, h)
 
     def gaps(co: np.ndarray, si: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -494,9 +496,9 @@ def _polished_gap(n0: tuple[float, float, float], cd: tuple, b: Bounds) -> tuple
     side = abs(na) < FAST_SNAP
     for i in near:
         if side:  # crossing of n_i = 0 and n.a = 0: +-(e_i x a)
-            e = [(0.0, -az, ay), (az, 0.0, -ax), (-ay, ax, 0.0)][i]
-            sign = 1.0 if e[0] * nx + e[1] * ny + e[2] * nz > 0.0 else -1.0
-            candidates.append(_unit(sign * e[0], sign * e[1], sign * e[2]))
+            ex, ey, ez = [(0.0, -az, ay), (az, 0.0, -ax), (-ay, ax, 0.0)][i]
+            sign = 1.0 if ex * nx + ey * ny + ez * nz > 0.0 else -1.0
+            candidates.append(_unit(sign * ex, sign * ey, sign * ez))
         candidates.append(_arc_newton(i, n0, cd, b))  # box edge vs cap rim
     # Box vertex (by the signs of n0) against the cylinder.
     vx = (b[0] if nx > 0.0 else b[3]) - cx
