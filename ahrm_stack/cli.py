@@ -1,11 +1,13 @@
 """Quiet command lines: the libraries' warnings and INFO logs are hidden unless ``--verbose``.
 
-Every entry point (``python -m ahrm_stack.<name>`` and the benchmarks' mains) calls
-:func:`quiet` first, so that its first line is its own. Hidden by default:
+Every entry point (``python -m ahrm_stack.<name>``, the benchmarks and studies) calls :func:`quiet`
+first (the scripts before their heavy imports, through :func:`quiet_argv`), so that its first line
+is its own. Hidden by default:
 
-* Python warnings raised from library code (any file outside ``ahrm_stack/``, ``hardware/`` and
-  ``benchmarks/``): torchrl's DeprecationWarnings, glfw's ``GLFWError`` "DISPLAY environment
-  variable is missing" (dm_control imports glfw when ``MUJOCO_GL`` is unset), and the like. The
+* Python warnings raised from library code (any file outside this checkout's ``ahrm_stack/``,
+  ``hardware/``, ``benchmarks/``, ``studies/`` and ``tests/``): torchrl's DeprecationWarnings,
+  glfw's ``GLFWError`` "DISPLAY environment variable is missing" (dm_control initialises glfw when
+  ``MUJOCO_GL`` is unset), and the like. The
   hook is :data:`warnings.showwarning`, not a filter: dm_control's composer inserts
   ``simplefilter('always', DeprecationWarning)`` at import, which would override a filter.
   Warnings raised by this project's own code are still shown.
