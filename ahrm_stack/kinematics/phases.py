@@ -20,7 +20,7 @@ Distances: the pusher's signed distance to a region is computed exactly by
 a reference routine when tilted); the value types are in :mod:`ahrm_stack.kinematics.shapes`.
 
 The entry point is :func:`phase_geometry` (phase k, x and the clipped region distances in one
-pass), what the task step and deploy call. :func:`phase_and_x`, :func:`region_distances` and
+pass): what the task step (and deploy, through it) calls. :func:`phase_and_x`, :func:`region_distances` and
 :func:`phase_from_distances` are the definition above written out directly; the tests check
 ``phase_geometry`` against them.
 """
