@@ -13,7 +13,7 @@ GL_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libopengl0 libgl1
 # cc is on PATH; without one those tests skip, saying so.
 CC_PACKAGES := gcc libc6-dev
 
-.PHONY: run demo test bench setup clean system-deps
+.PHONY: run demo test lint bench setup clean system-deps
 
 $(STAMP): pyproject.toml
 	@$(MAKE) --no-print-directory system-deps
@@ -44,8 +44,13 @@ run: $(STAMP)
 demo: $(STAMP)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m ahrm_stack.demo $(ARGS)
 
-test: $(STAMP)
+# Lint (ruff) and type check (mypy) first: settings in pyproject.toml.
+test: lint
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m pytest -q
+
+lint: $(STAMP)
+	$(PY) -m ruff check .
+	$(PY) -m mypy
 
 # Every benchmark compares two things in one run and prints the ratio; BENCH_ARGS=--quick: brief runs.
 bench: $(STAMP)
@@ -53,4 +58,4 @@ bench: $(STAMP)
 	  MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) $$b $(BENCH_ARGS) || { echo "$$b failed"; exit 1; }; done
 
 clean:
-	rm -rf $(VENV) .pytest_cache .hypothesis
+	rm -rf $(VENV) .pytest_cache .hypothesis .mypy_cache .ruff_cache

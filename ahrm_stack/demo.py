@@ -22,6 +22,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ahrm_stack.cli import add_verbose_flag, quiet
 from ahrm_stack.config import Config, ConfigError, load_config
 
 LAYOUTS = ("fixed", "random")
@@ -42,6 +43,7 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
     parser.add_argument("overrides", nargs="*", metavar="key=value",
                         help="config overrides, e.g. scripted.push_speed=0.3")
+    add_verbose_flag(parser)
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
@@ -102,6 +104,7 @@ def run_layout(config: Config, episodes: int, seed: int) -> dict:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parse(argv)
+    quiet(args.verbose)
     start = time.perf_counter()
     try:  # every config is checked before any simulator is built
         configs = [load_config([*args.overrides, f"task.layout.mode={mode}"])

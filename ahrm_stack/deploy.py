@@ -975,7 +975,7 @@ def load_controller_config(checkpoint: Path | None, overrides: Sequence[str] = (
     import torch
 
     from ahrm_stack.learning.checkpoint import CheckpointError
-    from ahrm_stack.learning.evaluation import load_policy
+    from ahrm_stack.learning.rollouts import load_policy
 
     torch.set_num_threads(1)
     try:
@@ -1121,7 +1121,7 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = _parse(argv)
+    args = _parse(__import__("ahrm_stack.cli").cli.quiet_argv(argv))  # --verbose: library warnings too
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger("ahrm_stack.env.runner").setLevel(logging.ERROR)  # the sim filters nothing:
     # by design, the deploy loop does

@@ -31,6 +31,7 @@ from typing import Callable, Sequence
 
 import yaml
 
+from ahrm_stack.cli import add_verbose_flag, quiet
 from ahrm_stack.config import (Config, ConfigError, VideoConfig, apply_overrides, config_from_dict,
                                load_extra, load_raw)
 
@@ -74,6 +75,7 @@ def _parse(argv: list[str]) -> argparse.Namespace:
                         help="another policy of the run, e.g. RUN_DIR/policies/episode-00000.pt")
     parser.add_argument("--video-config", nargs="*", default=[], metavar="key=value",
                         help="overrides of configs/video.yaml, e.g. width=320 height=240")
+    add_verbose_flag(parser)
     args = parser.parse_args(argv)
     if (args.run_dir is None) == (args.policy is None):
         parser.error("give either RUN_DIR or --policy scripted")
@@ -153,7 +155,7 @@ def policy_summaries(config: Config, run_dir: Path, episodes: int, seed_offset: 
     """Episodes ``seed_offset + i`` of the run's deterministic policy (``policy_file``, default
     ``policy.pt``); the ``filmed`` ones rendered."""
     from ahrm_stack.env.torchrl_env import PushOffEnv
-    from ahrm_stack.learning.evaluation import load_policy, run_episodes
+    from ahrm_stack.learning.rollouts import load_policy, run_episodes
 
     _, policy = load_policy(run_dir, policy_file)
     env = PushOffEnv(config.task, config.safety, seed=seed_offset)
@@ -223,7 +225,7 @@ def evaluate(run_dir: Path | None, episodes: int, layout: str | None = None, out
         seed_offset = apply_layout(raw, layout).seed_offset
     config = config_from_dict(raw)
 
-    from ahrm_stack.learning.evaluation import EVAL_SEED_OFFSET, EvaluationTable
+    from ahrm_stack.learning.rollouts import EVAL_SEED_OFFSET, EvaluationTable
 
     seed_offset = EVAL_SEED_OFFSET if seed_offset is None else seed_offset
     camera_for = (lambda physics: Camera(physics, video)) if video is not None else None
@@ -341,6 +343,7 @@ def evaluate_suite(run_dir: Path | None, episodes: int, out: Path | None = None,
 
 def main(argv: list[str] | None = None) -> int:
     args = _parse(sys.argv[1:] if argv is None else argv)
+    quiet(args.verbose)
     from ahrm_stack.env.video import RenderError
     from ahrm_stack.learning.checkpoint import CheckpointError
     try:

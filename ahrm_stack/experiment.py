@@ -28,6 +28,7 @@ import traceback
 from pathlib import Path
 from typing import Sequence
 
+from ahrm_stack.cli import add_verbose_flag, library_log_level, quiet
 from ahrm_stack.config import (ConfigError, ExperimentConfig, VideoConfig, apply_overrides,
                                config_from_dict, load_extra, load_raw)
 
@@ -51,6 +52,7 @@ def _parse(argv: Sequence[str]) -> argparse.Namespace:
                         help="overrides: training config keys, experiment.*, video.*")
     parser.add_argument("--no-video", action="store_true", help="no evaluation videos")
     parser.add_argument("--report-only", action="store_true", help="rewrite the report, run nothing")
+    add_verbose_flag(parser)
     return parser.parse_args(argv)
 
 
@@ -208,10 +210,12 @@ def _start_ray(address: str | None, experiment: ExperimentConfig):
     env_vars = {k: os.environ[k] for k in ("MUJOCO_GL", "PYTHONPATH") if k in os.environ}
     if address:  # the nodes have their own installation: only the rendering backend travels
         ray.init(address=address, include_dashboard=False, log_to_driver=False,
+                 logging_level=library_log_level(),
                  runtime_env={"env_vars": {k: v for k, v in env_vars.items() if k == "MUJOCO_GL"}})
     else:
         Path(experiment.ray_temp_dir).mkdir(parents=True, exist_ok=True)
         ray.init(include_dashboard=False, log_to_driver=False, num_cpus=os.cpu_count(),
+                 logging_level=library_log_level(),
                  _temp_dir=experiment.ray_temp_dir,
                  object_store_memory=experiment.ray_object_store_mb * 1024 * 1024,
                  runtime_env={"env_vars": env_vars})
@@ -276,6 +280,7 @@ def run_grid(grid: dict, experiment: ExperimentConfig, address: str | None) -> l
 
 def main(argv: list[str] | None = None) -> int:
     args = _parse(sys.argv[1:] if argv is None else argv)
+    quiet(args.verbose)
     from ahrm_stack.env.video import RenderError
     try:
         grid = build_grid(args)

@@ -21,6 +21,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ahrm_stack.cli import quiet_argv
 from ahrm_stack.config import ConfigError, ExperimentConfig, PaperRow, load_extra
 
 OBJECTIVE_LETTERS = {"A": "avoid", "M": "manipulate", "T": "time"}
@@ -406,9 +407,9 @@ def write_report(out: Path | str, experiment: ExperimentConfig | None = None) ->
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = sys.argv[1:] if argv is None else argv
-    if len(args) != 1:
-        print("usage: python -m ahrm_stack.report OUT_DIR", file=sys.stderr)
+    args = quiet_argv(argv)  # --verbose: the libraries' warnings too
+    if len(args) != 1 or args[0].startswith("-"):
+        print("usage: python -m ahrm_stack.report [--verbose] OUT_DIR", file=sys.stderr)
         return 2
     try:
         print(write_report(Path(args[0])))

@@ -104,7 +104,7 @@ def suite_section(columns: dict[str, list[Episodes]], families: Sequence[str], m
                                ("Time to success (s)", "time", 2)):
         lines += [f"### {title} per family (mean over seeds)", "",
                   "| family | " + " | ".join(shown) + " |", "|---|" + "---|" * len(names)]
-        total = {n: [] for n in names}
+        total: dict[str, list] = {n: [] for n in names}
         for family in families:
             row = [family]
             for name in names:

@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from ahrm_stack.cli import add_verbose_flag, quiet
 from ahrm_stack.config import (Config, ConfigError, _read_yaml, apply_overrides, config_from_dict,
                                load_raw)
 
@@ -50,7 +51,7 @@ with warnings.catch_warnings(record=True):
     from ahrm_stack.env.torchrl_env import PushOffEnv
     from ahrm_stack.learning.checkpoint import CheckpointError, CheckpointManager, Restored
     from ahrm_stack.learning.diagnostics import plot_run
-    from ahrm_stack.learning.evaluation import EVAL_SEED_OFFSET, EvaluationTable, run_episodes
+    from ahrm_stack.learning.rollouts import EVAL_SEED_OFFSET, EvaluationTable, run_episodes
     from ahrm_stack.learning.trainer import DemonstrationsFailed, Trainer, TrainingDiverged
     from ahrm_stack.safety.constraints.base import ConstraintDefinitionError
     from ahrm_stack.safety.filter import SafetyFilterError
@@ -75,6 +76,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--run-dir", help="run folder (default: <train.runs_dir>/<method>-seed<seed>-<time>)")
     parser.add_argument("--resume", metavar="RUN_DIR", help="continue the run in RUN_DIR")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_verbose_flag(parser)
     return parser.parse_args(argv)
 
 
@@ -451,6 +453,7 @@ def train(config: Config, raw: dict, run_dir: Path, resume: bool, progress: bool
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(sys.argv[1:] if argv is None else argv)
+    quiet(args.verbose)
     started = time.perf_counter()
     try:
         config, raw, run_dir = resolve_config(args)
@@ -468,7 +471,7 @@ def main(argv: list[str] | None = None) -> int:
     minutes = (time.perf_counter() - started) / 60
     print(f"run folder: {run_dir}  ({minutes:.1f} min)")
     if config.train.eval_episodes:
-        from ahrm_stack.learning.evaluation import evaluate_run
+        from ahrm_stack.learning.rollouts import evaluate_run
         table = evaluate_run(run_dir, config.train.eval_episodes)
         print(table)
     return 0

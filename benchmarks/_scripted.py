@@ -21,6 +21,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
 
+from ahrm_stack import cli  # noqa: E402
 from ahrm_stack.config import Config  # noqa: E402
 
 
@@ -90,6 +91,7 @@ def quick_parser(description: str) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--quick", action="store_true", default=os.environ.get("AHRM_BENCH_QUICK") == "1",
                         help="a brief run (seconds): checks that the benchmark works, not its figures")
+    cli.add_verbose_flag(parser)
     return parser
 
 

@@ -30,6 +30,10 @@ import time
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+from ahrm_stack import cli  # noqa: E402
+
+cli.quiet_argv()  # before the heavy imports: the libraries' warnings and INFO logs unless --verbose
+
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
@@ -194,6 +198,7 @@ def run(robot_name: str, mode: str, steps: int, episode: int, self_rows: bool, s
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    cli.add_verbose_flag(parser)
     parser.add_argument("--steps", type=int, default=10000, help="control steps per arm and mode")
     parser.add_argument("--episode", type=int, default=400, help="control steps per episode")
     parser.add_argument("--robot", choices=["jaco", "j2s6s200"], action="append")

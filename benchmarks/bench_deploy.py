@@ -24,6 +24,10 @@ import time
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+from ahrm_stack import cli  # noqa: E402
+
+cli.quiet_argv()  # before the heavy imports: the libraries' warnings and INFO logs unless --verbose
+
 import numpy as np  # noqa: E402
 
 from ahrm_stack.deploy import (DeployLoop, WorldModel, load_controller_config,  # noqa: E402
@@ -102,6 +106,7 @@ def bench_rate(rate: float, duration: float, realtime: bool, checkpoint) -> dict
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    cli.add_verbose_flag(parser)
     parser.add_argument("--duration", type=float, default=10.0, help="s per rate (default 10)")
     parser.add_argument("--rates", type=float, nargs="+", default=[20.0, 100.0])
     parser.add_argument("--fast", action="store_true", help="unpaced (deadlines then count only "

@@ -1,7 +1,7 @@
 """Phase geometry of a tilted pusher: the fast routine against the reference routine, in one run.
 
 ``phase_geometry`` (phase, boundary distance x, clipped region distances) on the same inputs, run
-twice: as shipped (the certified fast path, :func:`ahrm_stack.kinematics.phases._fast_distance`,
+twice: as shipped (the certified fast path, :func:`ahrm_stack.kinematics.cylinder_box._fast_distance`,
 with the reference routine behind it) and with the fast path switched off (the reference routine
 alone: alternating projections + the candidate-direction search, the routine before the fast path).
 Inputs: every control step of the scripted controller's episodes (phases 1-3; recorded through the
@@ -21,12 +21,16 @@ import time
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+from ahrm_stack import cli  # noqa: E402
+
+cli.quiet_argv()  # before the heavy imports: the libraries' warnings and INFO logs unless --verbose
+
 import numpy as np  # noqa: E402
 
 import ahrm_stack.env.task as task_module  # noqa: E402
-import ahrm_stack.kinematics.phases as phases  # noqa: E402
+import ahrm_stack.kinematics.cylinder_box as cylinder_box  # noqa: E402
 from _scripted import layout_configs, quick_parser, quiet, record  # noqa: E402
-from ahrm_stack.kinematics.phases import Cylinder, PhaseScene, phase_geometry  # noqa: E402
+from ahrm_stack.kinematics.phases import Cylinder, phase_geometry  # noqa: E402
 
 GOAL_MEDIAN_US, GOAL_MAX_US = 20.0, 100.0
 
@@ -91,18 +95,18 @@ def reference_only():
     """Context: the fast path off (every distance by the reference routine)."""
     class _Off:
         def __enter__(self):
-            self.saved = phases._fast_distance
-            phases._fast_distance = lambda cd, b: None
+            self.saved = cylinder_box._fast_distance
+            cylinder_box._fast_distance = lambda cd, b: None
 
         def __exit__(self, *exc):
-            phases._fast_distance = self.saved
+            cylinder_box._fast_distance = self.saved
     return _Off()
 
 
 def count_fallbacks(inputs: list[tuple]) -> tuple[int, int]:
     """(exact distance queries, those the fast path handed to the reference routine)."""
     counts = [0, 0]
-    fast = phases._fast_distance
+    fast = cylinder_box._fast_distance
 
     def counting(cd, b):
         counts[0] += 1
@@ -110,12 +114,12 @@ def count_fallbacks(inputs: list[tuple]) -> tuple[int, int]:
         counts[1] += d is None
         return d
 
-    phases._fast_distance = counting
+    cylinder_box._fast_distance = counting
     try:
         for scene, pusher, clip in inputs:
             phase_geometry(scene, pusher, clip)
     finally:
-        phases._fast_distance = fast
+        cylinder_box._fast_distance = fast
     return counts[0], counts[1]
 
 
@@ -127,7 +131,7 @@ def report(name: str, inputs: list[tuple], repeats: int) -> bool:
     same_phase = all(a[0] == b[0] for a, b in zip(fast_out, ref_out))
     diff = max(max(abs(a[1] - b[1]), float(np.abs(a[2] - b[2]).max())) for a, b in zip(fast_out, ref_out))
     f_us, r_us = fast_t * 1e6, ref_t * 1e6
-    tilted = sum(phases._tilt_sine(p) > phases.UPRIGHT_TOL for _, p, _ in inputs)
+    tilted = sum(cylinder_box._tilt_sine(p) > cylinder_box.UPRIGHT_TOL for _, p, _ in inputs)
     print(f"{name}: {len(inputs)} calls ({tilted} tilted), phases 1/2/3: "
           + "/".join(str(sum(o[0] == k for o in fast_out)) for k in (1, 2, 3)))
     print(f"  reference : median {np.median(r_us):7.1f} us  p90 {np.percentile(r_us, 90):7.1f}  "

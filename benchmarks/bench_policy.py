@@ -25,10 +25,14 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import numpy as np
-import torch
-from tensordict import TensorDict
-from torchrl.envs.utils import ExplorationType, set_exploration_type
+from ahrm_stack import cli
+
+cli.quiet_argv()  # before the heavy imports: the libraries' warnings and INFO logs unless --verbose
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from tensordict import TensorDict  # noqa: E402
+from torchrl.envs.utils import ExplorationType, set_exploration_type  # noqa: E402
 
 from _scripted import quick_parser  # noqa: E402
 from ahrm_stack.config import load_config  # noqa: E402

@@ -26,6 +26,10 @@ import time
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+from ahrm_stack import cli  # noqa: E402
+
+cli.quiet_argv()  # before the heavy imports: the libraries' warnings and INFO logs unless --verbose
+
 import numpy as np  # noqa: E402
 
 from ahrm_stack.config import load_config  # noqa: E402
@@ -137,6 +141,7 @@ def in_loop(runner, safety, steps, seed=1):
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    cli.add_verbose_flag(parser)
     parser.add_argument("--repeats", type=int, default=5, help="replays of the recorded inputs")
     parser.add_argument("--steps", type=int, default=600, help="control steps recorded / in loop")
     parser.add_argument("--quick", action="store_true", default=os.environ.get("AHRM_BENCH_QUICK") == "1",

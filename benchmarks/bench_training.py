@@ -17,6 +17,10 @@ import time
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+from ahrm_stack import cli  # noqa: E402
+
+cli.quiet_argv()  # before the heavy imports: the libraries' warnings and INFO logs unless --verbose
+
 import torch  # noqa: E402
 from torchrl.collectors import Collector  # noqa: E402
 
@@ -31,6 +35,7 @@ QUICK_OVERRIDES = ("ppo.frames_per_batch=64", "ppo.mini_batch_size=32", "ppo.epo
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    cli.add_verbose_flag(parser)
     parser.add_argument("--batches", type=int, default=4)
     parser.add_argument("overrides", nargs="*")
     parser.add_argument("--quick", action="store_true", default=os.environ.get("AHRM_BENCH_QUICK") == "1",

@@ -23,6 +23,10 @@ import time
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+from ahrm_stack import cli  # noqa: E402
+
+cli.quiet_argv()  # before the heavy imports: the libraries' warnings and INFO logs unless --verbose
+
 import numpy as np  # noqa: E402
 
 from ahrm_stack.config import load_config  # noqa: E402
@@ -133,6 +137,7 @@ def run(robot_name: str, placements: int, seed: int = 0) -> Outcome:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    cli.add_verbose_flag(parser)
     parser.add_argument("--placements", type=int, default=50000, help="per arm")
     parser.add_argument("--robot", choices=["jaco", "j2s6s200"], action="append")
     args = parser.parse_args()

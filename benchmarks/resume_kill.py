@@ -38,6 +38,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+from ahrm_stack import cli
+
 ROOT = Path(__file__).resolve().parent.parent
 TINY = ["train.episodes=6", "task.episode.duration=2", "train.warm_start=none", "ppo.bc_coeff=0",
         "train.eval_episodes=1", "train.eval_every=2", "ppo.frames_per_batch=64",
@@ -290,11 +292,13 @@ def lifetime_delay(timing: Timing, episodes: int, rng: random.Random) -> Callabl
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    cli.add_verbose_flag(parser)
     parser.add_argument("--kills", type=int, default=10)
     parser.add_argument("--seed", type=int, default=0, help="of the kill times")
     parser.add_argument("--workdir", help="where the runs go (default: a temporary folder)")
     parser.add_argument("overrides", nargs="*", help="key=value on top of the tiny run")
     args = parser.parse_args()
+    cli.quiet(args.verbose)
     workdir = Path(args.workdir or tempfile.mkdtemp(prefix="resume-kill-"))
     workdir.mkdir(parents=True, exist_ok=True)
     overrides = [*TINY, *args.overrides]

@@ -20,6 +20,10 @@ import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+from ahrm_stack import cli  # noqa: E402
+
+cli.quiet_argv()  # before the heavy imports: the libraries' warnings and INFO logs unless --verbose
+
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
@@ -74,6 +78,7 @@ def measure(robot_name: str, samples: int, seed: int = 0):
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    cli.add_verbose_flag(parser)
     parser.add_argument("--samples", type=int, default=20000)
     parser.add_argument("--robot", choices=["jaco", "j2s6s200"], action="append")
     args = parser.parse_args()

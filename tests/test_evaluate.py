@@ -7,7 +7,7 @@ import pytest
 
 from ahrm_stack.env.episode import EpisodeSummary
 from ahrm_stack.evaluate import main as evaluate
-from ahrm_stack.learning.evaluation import EvaluationTable
+from ahrm_stack.learning.rollouts import EvaluationTable
 from ahrm_stack.train import main as train
 
 

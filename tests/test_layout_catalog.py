@@ -8,7 +8,7 @@ import yaml
 from ahrm_stack.config import ConfigError, load_raw
 from ahrm_stack.env.layout_catalog import apply_layout, load_layouts
 from ahrm_stack.evaluate import evaluate
-from ahrm_stack.learning.evaluation import EVAL_SEED_OFFSET
+from ahrm_stack.learning.rollouts import EVAL_SEED_OFFSET
 
 
 def test_default_is_the_tasks_fixed_layout():

@@ -41,7 +41,7 @@ from ahrm_stack.kinematics.phases import (
     target_region,
     upright_cylinder_box_distance,
 )
-from ahrm_stack.kinematics.phases import _fcl_signed_distance
+from fcl_reference import fcl_signed_distance as _fcl_signed_distance
 from ahrm_stack.kinematics.phases import _general_cylinder_box_distance as general_distance
 
 FCL_TOL = 5e-4  # accuracy required of the non-upright (FCL-replacement) path (m)
@@ -826,7 +826,7 @@ def test_phase_geometry_matches_phase_and_x_and_clipped_distances(xy_z, z, tilt,
 # --------------------------------------------------------------------------- fast path (certified shortcuts)
 # The fast path (coal's directions, exact bounds) must agree with the reference routine whenever
 # it answers, and answer the task's usual poses; coal's own values are never trusted.
-import ahrm_stack.kinematics.phases as _phases  # noqa: E402
+import ahrm_stack.kinematics.cylinder_box as _phases  # noqa: E402
 
 
 def _pusher_like(draw, box: Box) -> Cylinder:

@@ -7,7 +7,7 @@ import yaml
 from ahrm_stack.config import ConfigError
 from ahrm_stack.env.layout_catalog import load_layouts
 from ahrm_stack.learning.demonstrations import DEMO_SEED_OFFSET
-from ahrm_stack.learning.evaluation import EVAL_SEED_OFFSET
+from ahrm_stack.learning.rollouts import EVAL_SEED_OFFSET
 from ahrm_stack.seeds import load_seed_table, seed_table, training_seeds
 
 
@@ -75,3 +75,21 @@ def test_heldout_does_not_replay_demonstration_layouts():
     demo = [sampler.sample(np.random.RandomState(DEMO_SEED_OFFSET + i)).cube_xy for i in range(5)]
     held = [sampler.sample(np.random.RandomState(heldout.seed_offset + i)).cube_xy for i in range(5)]
     assert all(not np.allclose(a, b) for a in demo for b in held)
+
+
+def test_no_range_start_is_written_in_the_code():
+    """The ranges are named once: no module of ahrm_stack/, hardware/ or benchmarks/ writes a range's
+    start above 1,000,000 as a literal (1,000,000 itself is also a common upper bound); it reads
+    seeds.yaml through ahrm_stack.seeds."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    starts = {r.start for r in seed_table().ranges.values() if r.start > 1_000_000}
+    found = []
+    for folder in ("ahrm_stack", "hardware", "benchmarks"):
+        for path in sorted((root / folder).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text(), str(path))):
+                if isinstance(node, ast.Constant) and type(node.value) is int and node.value in starts:
+                    found.append(f"{path.relative_to(root)}:{node.lineno}: {node.value}")
+    assert not found, found

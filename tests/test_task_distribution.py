@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from ahrm_stack.config import ConfigError, load_config
-from ahrm_stack.env.layout import LayoutError, LayoutSampler, validate_layout
+from ahrm_stack.env.layout import LayoutSampler, validate_layout
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.task import PushOffTask
 

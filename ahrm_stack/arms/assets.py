@@ -35,7 +35,7 @@ def _installed_files() -> dict[PurePosixPath, Path]:
         parts = PurePosixPath(str(entry)).parts
         for i in range(len(parts) - 1):
             if PurePosixPath(*parts[i:i + 2]) == _SHARE:
-                found[PurePosixPath(*parts[i + 2:])] = Path(dist.locate_file(entry))
+                found[PurePosixPath(*parts[i + 2:])] = Path(str(dist.locate_file(entry)))
                 break
     if not found:
         raise RobotAssetError(f"the installed {DISTRIBUTION!r} lists no files under {_SHARE}/")

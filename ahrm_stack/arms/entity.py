@@ -61,7 +61,8 @@ class UrdfArm(base.RobotArm):
         self._meshes: dict[str, mjcf.Element] = {}
         body = self._mjcf_root.worldbody.add("body", name=settings.root_link)
         self._add_link(body, urdf.links[settings.root_link], settings)
-        self._joints, self._actuators = [], []
+        self._joints: list = []
+        self._actuators: list = []
         for joint in chain:
             parent = body
             body = parent.add("body", name=joint.child, pos=joint.origin.xyz,

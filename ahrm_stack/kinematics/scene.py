@@ -26,7 +26,7 @@ import mujoco
 import numpy as np
 
 from ahrm_stack.kinematics.model import ArmKinematics
-from ahrm_stack.kinematics.phases import Box
+from ahrm_stack.kinematics.shapes import Box
 
 _REQUEST = coal.DistanceRequest()
 _REQUEST.enable_signed_distance = True  # nearest points are always computed
@@ -363,7 +363,7 @@ class CollisionScene:
         self.table_top = table_height
         self.environment: dict[str, coal.CollisionObject] = {
             "table": coal.CollisionObject(coal.Box(2 * hx, 2 * hy, table_thickness),
-                                          _transform(np.eye(3), [0, 0, table_height - table_thickness / 2])),
+                                          _transform(np.eye(3), np.array([0, 0, table_height - table_thickness / 2]))),
             "cube": coal.CollisionObject(coal.Box(cube_size, cube_size, cube_size)),
         }
         for i, half in enumerate(np.asarray(obstacle_half_sizes, dtype=float)):

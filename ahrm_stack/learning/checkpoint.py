@@ -30,10 +30,6 @@ STATE_KEYS = ("actor", "critic", "optimizer", "mechanism", "time_objective", "co
 COUNTERS = ("episodes", "frames", "batches")
 
 
-class CheckpointError(RuntimeError):
-    """No checkpoint of a run can be used; the message names the folder and the files."""
-
-
 @dataclasses.dataclass
 class Restored:
     """What :meth:`CheckpointManager.restore` found."""
@@ -68,7 +64,8 @@ def check_state(state: object, path: Path) -> dict:
 
 
 class CheckpointError(ValueError):
-    """A checkpoint or policy file cannot be loaded safely; a one-line message names the file."""
+    """A checkpoint or policy file cannot be loaded safely, or no checkpoint of a run can be used; a
+    one-line message names the file (the folder and the files)."""
 
 
 class MissingCheckpointError(CheckpointError, FileNotFoundError):

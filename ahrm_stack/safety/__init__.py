@@ -18,7 +18,7 @@ With obstacle rows on, keep the scene's objects current first:
 
 from ahrm_stack.safety.constraints import ConstraintDefinitionError
 from ahrm_stack.safety.filter import SafetyFilter, SafetyFilterError, braking_time, make_filter
-from ahrm_stack.safety.report import FilterResult, InterventionStats
+from ahrm_stack.safety.result import FilterResult, InterventionStats
 
 __all__ = ["ConstraintDefinitionError", "FilterResult", "InterventionStats", "SafetyFilter",
            "SafetyFilterError", "braking_time", "make_filter"]

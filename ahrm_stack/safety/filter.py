@@ -44,7 +44,7 @@ from ahrm_stack.robot import RobotDescription
 from ahrm_stack.safety.constraints import (AccelerationLimit, ArmSnapshot, ControlPoints,
                                            CoordinateRows, DistanceLimit, PositionLimit, Rows, TableLimit,
                                            VelocityLimit, WorkspaceLimit)
-from ahrm_stack.safety.report import (DISABLED, INFEASIBLE, NONFINITE_INPUT, OPTIMAL, SOLVER_FAILED,
+from ahrm_stack.safety.result import (DISABLED, INFEASIBLE, NONFINITE_INPUT, OPTIMAL, SOLVER_FAILED,
                                       FilterResult)
 from ahrm_stack.safety.solvers import DaqpSolver, Outcome, OsqpSolver, QPSolver
 

@@ -1,8 +1,8 @@
 """The learnability study (issue 5): named configurations, their runs, and the report.
 
-    python benchmarks/learning_study.py list
-    python benchmarks/learning_study.py run ROW --seed 0 [--episodes 300] [--runs-dir runs/study]
-    python benchmarks/learning_study.py report runs/study --out docs/learning-study
+    python studies/learning_study.py list
+    python studies/learning_study.py run ROW --seed 0 [--episodes 300] [--runs-dir runs/study]
+    python studies/learning_study.py report runs/study --out docs/learning-study
 
 A row is a list of config overrides applied on top of ``configs/`` (``profile=paper`` is the
 paper-faithful configuration). ``run`` trains one row and seed into ``RUNS_DIR/ROW-seedN`` with an
@@ -20,6 +20,8 @@ from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
+
+from ahrm_stack import cli
 
 VERTICAL = "task.arm.home_deg=[240,204.2,55.4,350.7,36.2,75]"  # the default start pose
 ROWS: dict[str, list[str]] = {
@@ -197,6 +199,7 @@ def _plot_curves(plt, groups: dict[str, list[dict]], path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    cli.add_verbose_flag(parser)
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("list")
     run_parser = sub.add_parser("run")
@@ -209,6 +212,7 @@ def main(argv: list[str] | None = None) -> int:
     report_parser.add_argument("runs_dir", type=Path)
     report_parser.add_argument("--out", type=Path, default=Path("docs/learning-study"))
     args = parser.parse_args(argv)
+    cli.quiet(args.verbose)
     if args.command == "list":
         for name, overrides in ROWS.items():
             print(f"{name}: {' '.join(overrides)}")
