@@ -93,7 +93,8 @@ def summarize(run_dir: Path) -> dict:
                                                 int(float(last["touched_episodes"])),
                                                 float(last["time_mean"]) if last["time_mean"] else float("nan"),
                                                 int(float(last["frames"]))),
-        "curriculum_level": float(batches[-1]["curriculum_level"]) if batches and batches[-1].get("curriculum_level") else None,
+        "curriculum_level": (float(batches[-1]["curriculum_level"])
+                             if batches and batches[-1].get("curriculum_level") else None),
         "wall_minutes": sum(float(r["seconds"]) for r in batches) / 60,
         "_curve": (frames, success, evaluations, batches),
     }

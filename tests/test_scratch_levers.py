@@ -25,11 +25,13 @@ def test_time_limit_truncates_training_episodes_only():
     full = PushOffEnv(config.task, config.safety, seed=0)
     for limited, steps in ((env, 10), (full, 40)):
         td = limited.reset()
-        for step in range(1, 100):
+        count = 0
+        while count < 100:
             td = limited.step(td.set("action", limited.action_spec.zero()))["next"]
+            count += 1
             if bool(td["done"]):
                 break
-        assert step == steps and bool(td["truncated"]) and not bool(td["terminated"])
+        assert count == steps and bool(td["truncated"]) and not bool(td["terminated"])
 
 
 def test_trainer_passes_the_time_limit_and_the_evaluation_keeps_the_task_duration():
@@ -116,8 +118,8 @@ def test_start_curriculum_widens_when_the_success_rate_reaches_the_threshold():
     assert resumed.curriculum_level == 1.0 and resumed.envs[0].task.near_cube_share == 0.0
     off = Trainer(load_config(TINY))
     assert off.curriculum_level == 1.0 and off.envs[0].task.near_cube_share == 0.0
-    for trainer in (trainer, resumed, off):
-        trainer.close()
+    for built in (trainer, resumed, off):
+        built.close()
 
 
 @pytest.mark.parametrize("override, key", [

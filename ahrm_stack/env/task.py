@@ -327,6 +327,7 @@ class PushOffTask(composer.Task):
         bearing = random_state.uniform(0.0, 2 * np.pi)
         distance = random_state.uniform(*near.distance)
         height = random_state.uniform(*near.height)
+        assert self.layout is not None, "drawn after the episode's layout"
         x, y = self.layout.cube_xy
         return np.array([x + distance * np.cos(bearing), y + distance * np.sin(bearing),
                          self.config.table.height + height])

@@ -59,6 +59,7 @@ def record_trajectories(config: Config, episodes: int) -> list[Trajectory]:
             qvel.append(runner.physics.data.qvel.copy())
             _, terminated, truncated = runner.step_only(controller(runner.physics))
         if terminated:
+            assert task.layout is not None  # set by the reset
             layout = Layout(task.layout.cube_xy.copy(), task.layout.obstacle_xy.copy())
             trajectories.append(Trajectory(layout, np.array(qpos), np.array(qvel)))
     return trajectories

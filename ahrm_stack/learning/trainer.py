@@ -121,7 +121,7 @@ class Trainer:
         if self.batches or self.config.train.warm_start != "bc" or self.warm_start_report is not None:
             return
         train = self.config.train
-        if self.config.ppo.reward_scale != 1.0:  # the critic refit learns the returns PPO will see
+        if self.config.ppo.reward_scale != 1.0 and self.demos is not None:  # the critic refit learns the returns PPO will see
             self.demos.set("return", self.demos.get("return") * self.config.ppo.reward_scale)
         report = warm_start(self.modules, self.demos, train.bc_epochs, train.bc_learning_rate,
                             self.config.ppo.mini_batch_size, self._demo_generator)
