@@ -63,7 +63,6 @@ class Episode:
 
 
 def load_config(checkpoint: Path, family: str):
-    from ahrm_stack.config import config_from_dict
     from ahrm_stack.env.layout_catalog import apply_layout
 
     raw = yaml.safe_load((checkpoint / "config.yaml").read_text())

@@ -4,7 +4,6 @@ pose, and the tracked velocity of a cube the trained policy pushes against its t
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np

@@ -1,12 +1,13 @@
 """The cube's pose from an AprilTag on its top face (``pupil-apriltags``), and a cube pose source.
 
-One frame: ``Detector.detect(gray, estimate_tag_pose=True, camera_params=(fx, fy, cx, cy),
-tag_size=...)`` gives the tag's pose in the optical camera frame (x right, y down, z forward): the
+One frame: ``pupil_apriltags.Detector.detect(gray)`` finds the tag's corners; its pose in the
+optical camera frame (x right, y down, z forward) comes from the same C library's orthogonal
+iteration with the camera's (fx, fy, cx, cy) and the tag's size (:func:`tag_pose_solutions`). The
 tag frame has its origin at the tag's centre, x right and y down in the tag image, z *into* the
 tag. The tag lies on the cube's top face, so the cube's centre is half the cube's size further
 along the tag's z (the outward normal is -z), and the cube's axes are the tag's through the fixed
-:data:`TAG_TO_CUBE` (the tag image's rows run along the cube's -y... see its comment). The camera's
-extrinsics (:class:`~ahrm_stack.perception.geometry.CameraPose`) take both to the world.
+:data:`TAG_TO_CUBE`. The camera's extrinsics (:class:`~ahrm_stack.perception.geometry.CameraPose`)
+take both to the world. Of the planar pose ambiguity's two solutions, see :meth:`TagDetector.measure`.
 
 Only detections of the configured family and id, with at most ``detector.max_hamming`` corrected
 bits and at least ``detector.min_decision_margin``, count; of several, the one with the largest
@@ -29,7 +30,7 @@ from ahrm_stack.perception.tracker import CubeState, CubeTracker
 #: Cube axes in the tag frame (columns: the cube's x, y, z in tag coordinates) for a tag laid on
 #: the top face as :func:`~ahrm_stack.perception.tags.tag_face_image` draws it and the sim camera
 #: maps it (image right = cube +x, image down = cube -y; the tag's z points into the face, -z_cube).
-#: Checked against the simulator's cube orientation in ``tests/test_perception.py``.
+#: Checked against the simulator's cube orientation in ``tests/test_perception_sim.py``.
 TAG_TO_CUBE = np.array([[1.0, 0.0, 0.0],
                         [0.0, -1.0, 0.0],
                         [0.0, 0.0, -1.0]])

@@ -165,7 +165,8 @@ def perception_settings_from_dict(data: Any) -> PerceptionSettings:
                                     f"(norm {np.linalg.norm(quaternion):.6g}), got {list(quaternion)}")
     if look_at is not None:
         axis = np.subtract(look_at, position)
-        if np.linalg.norm(axis) < 1e-6 or np.linalg.norm(np.cross(axis, [0, 0, 1])) < 1e-6 * np.linalg.norm(axis):
+        length = np.linalg.norm(axis)
+        if length < 1e-6 or np.linalg.norm(np.cross(axis, [0, 0, 1])) < 1e-6 * length:
             raise PerceptionConfigError(f"perception.camera.look_at {list(look_at)} must differ from "
                                         f"camera.position {list(position)} and not lie straight above "
                                         "or below it (the image's up would be undefined)")
