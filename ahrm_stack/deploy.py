@@ -608,14 +608,18 @@ class DeployLoop:
         safety: the ``safety`` config; the loop turns the obstacle rows on.
         settings: the deploy settings (rate, watchdog).
         telemetry: an open text file for the JSONL log, or None.
+        scene: where perception comes from: a scene source (``poses()`` -> ObjectPoses, e.g.
+            :mod:`ahrm_stack.perception`'s camera scene), or None for the adapter's
+            ``perception()``. An exception from it is a perception fault (the arm stops).
     """
 
     def __init__(self, arm, world: WorldModel, controller, safety, settings: DeploySettings,
-                 telemetry=None) -> None:
+                 telemetry=None, scene=None) -> None:
         from ahrm_stack.safety import InterventionStats, make_filter
 
         require_filter(safety)
         self.arm, self.world, self.controller = arm, world, controller
+        self._perceive = scene.poses if scene is not None else arm.perception
         self.settings = settings
         self.period = settings.period
         self.clock = arm.clock
@@ -778,7 +782,7 @@ class DeployLoop:
         feedback = self.arm.refresh_feedback()
         self._last_frame = feedback.frame_id - 1
         self._t0 = self.clock.now()
-        self.world.update(feedback, self.arm.perception(), 0.0)
+        self.world.update(feedback, self._perceive(), 0.0)
         self.controller.reset()
         self.world.place_objects(self.scene)
         request = np.asarray(self.controller(), dtype=float).reshape(-1)
@@ -825,7 +829,7 @@ class DeployLoop:
             received = time.perf_counter()
             self._check_feedback(feedback)
             self._stage = "perception"
-            poses = self.arm.perception()
+            poses = self._perceive()
             if not poses.finite:
                 self._halt("non-finite perception (object poses)", emergency=False)
             elapsed = tick_time - self._t0
@@ -1036,17 +1040,25 @@ def _start_up_fault(arm, telemetry, error: BaseException) -> DeployFault:
 
 
 def deploy_sim(settings: DeploySettings, checkpoint: Path | None = None,
-               overrides: Sequence[str] = ()) -> DeployLoop:
+               overrides: Sequence[str] = (), scene: str = "sim",
+               layout_file: Path | str | None = None) -> DeployLoop:
     """:func:`deploy` against the sim backend."""
-    return deploy(settings, checkpoint, overrides, backend="sim")
+    return deploy(settings, checkpoint, overrides, backend="sim", scene=scene, layout_file=layout_file)
 
 
 def deploy(settings: DeploySettings, checkpoint: Path | None = None,
-           overrides: Sequence[str] = (), backend: str = "sim") -> DeployLoop:
+           overrides: Sequence[str] = (), backend: str = "sim", scene: str = "sim",
+           layout_file: Path | str | None = None) -> DeployLoop:
     """One run of the deploy loop against ``backend`` (a name of
     :data:`hardware.backends.BACKENDS`); returns the finished loop (its
     :meth:`DeployLoop.summary`, :attr:`DeployLoop.interrupted`). ``overrides``: config
     ``key=value`` pairs for the scripted controller's run (no checkpoint).
+
+    ``scene``: ``sim`` (the simulator's exact object poses) or ``camera``
+    (:mod:`ahrm_stack.perception`: the cube from the AprilTag on MuJoCo frames of the perception
+    camera, ``configs/perception.yaml``; the obstacles from ``layout_file``, or
+    ``perception.layout_file``, or else surveyed from the simulator at the start into
+    ``layout.yaml`` beside the telemetry).
 
     Bad input (the settings, the checkpoint, its safety settings, the telemetry path) raises a
     one-line error before anything is written or the arm is touched. From then on every end is
@@ -1061,13 +1073,27 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
         chosen.check(config, settings)
     except ValueError as error:
         raise DeployConfigError(str(error)) from None
+    if scene == "camera" and backend != "sim":
+        raise DeployConfigError(f"--scene camera renders the simulator's table: it runs with --backend "
+                                f"sim only (no frame source for a real camera exists), got {backend}")
+    perception = None
+    if scene == "camera":  # bad settings or a bad layout file: one line, nothing written
+        from ahrm_stack.perception.scene_source import LayoutFileObstacles
+        from ahrm_stack.perception.settings import load_perception_settings
+
+        perception = load_perception_settings()
+        layout_file = layout_file or perception.layout_file or None
+        if layout_file:
+            LayoutFileObstacles(layout_file, count=len(config.task.obstacles.fixed_layout))
+    elif scene != "sim":
+        raise DeployConfigError(f"--scene {scene!r}: choose sim or camera")
     control_period = config.task.episode.control_period
     if not math.isclose(settings.period, control_period, rel_tol=1e-9):
         log.warning("deploy: the loop runs at %g Hz; the controller was built for %g Hz "
                     "(task.episode.control_period %g s)", settings.rate_hz, 1.0 / control_period,
                     control_period)
     telemetry = open_telemetry(settings.telemetry)
-    arm = None
+    arm = source = None
     try:
         for note in notes if telemetry is not None else ():
             telemetry.write(json.dumps({"t": 0.0, "event": "safety setting", "key": note.key,
@@ -1077,13 +1103,25 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
             world = WorldModel(config.task, seed=settings.seed)
             controller = make_controller(world, config, actor)
             arm.connect()
-            loop = DeployLoop(arm, world, controller, config.safety, settings, telemetry)
+            if perception is not None:
+                from ahrm_stack.perception.sim_camera import sim_camera_scene, survey_obstacles
+
+                if not layout_file:  # a survey of the simulated table stands in for a measurement
+                    import tempfile
+
+                    folder = (Path(settings.telemetry).parent if settings.telemetry
+                              else Path(tempfile.mkdtemp(prefix="deploy-layout-")))
+                    layout_file = survey_obstacles(arm, folder / "layout.yaml")
+                source = sim_camera_scene(arm, config.task, perception, layout_file)
+            loop = DeployLoop(arm, world, controller, config.safety, settings, telemetry, source)
         except Exception as error:  # noqa: BLE001 - recorded, then raised as a fault
             raise _start_up_fault(arm, telemetry, error) from error
         loop.run(settings.duration)
     finally:
         if arm is not None and arm.is_connected:
             arm.disconnect()  # stops the arm as well
+        if source is not None:
+            source.close()
         if telemetry is not None:
             telemetry.close()
     return loop
@@ -1115,6 +1153,12 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--seed", type=int, help="sim layout seed (default: deploy.yaml)")
     parser.add_argument("--telemetry", help="JSONL log path ('' for none; default: deploy.yaml)")
     parser.add_argument("--config", type=Path, default=DEPLOY_CONFIG, help="deploy settings YAML")
+    parser.add_argument("--scene", choices=["sim", "camera"], default="sim",
+                        help="object poses: the simulator's (sim) or the AprilTag camera's for the "
+                             "cube and a measured layout file for the obstacles (camera; "
+                             "configs/perception.yaml)")
+    parser.add_argument("--layout-file", type=Path, help="with --scene camera: the measured obstacle "
+                        "layout (default: perception.layout_file, else surveyed from the sim)")
     parser.add_argument("overrides", nargs="*", metavar="key=value",
                         help="config overrides without --checkpoint, e.g. task.robot=j2s6s200")
     return parser.parse_args(argv)
@@ -1138,9 +1182,19 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     from ahrm_stack.learning.checkpoint import CheckpointError
 
+    if args.scene == "camera":  # offscreen rendering: MUJOCO_GL must be chosen before mujoco loads
+        from ahrm_stack.config import VideoConfig, load_extra
+        from ahrm_stack.env.video import RenderError, select_gl_backend
+
+        try:
+            select_gl_backend(load_extra(VideoConfig, "video").gl_backends)
+        except (RenderError, ConfigError) as error:
+            print(f"python -m ahrm_stack.deploy: error: {error}", file=sys.stderr)
+            return 2
     previous = signal.signal(signal.SIGTERM, terminate)
     try:
-        loop = deploy(settings, args.checkpoint, args.overrides, backend=args.backend)
+        loop = deploy(settings, args.checkpoint, args.overrides, backend=args.backend,
+                      scene=args.scene, layout_file=args.layout_file)
     except (ConfigError, DeployConfigError, CheckpointError) as error:  # before anything moved
         print(f"python -m ahrm_stack.deploy: error: {error}", file=sys.stderr)
         return 2

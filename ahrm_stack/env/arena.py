@@ -41,6 +41,14 @@ class TableArena(composer.Arena):
     def table_top(self) -> mjcf.Element:
         return self._top
 
+    def add_fixed_camera(self, name: str, position, quaternion, fovy_deg: float) -> mjcf.Element:
+        """A fixed camera at ``position`` (m) with MuJoCo's orientation ``quaternion`` (w, x, y, z;
+        the camera looks along its -z, y up) and vertical field of view ``fovy_deg``. Cameras do
+        not change the physics; the perception runs add one to a render-only copy of the task."""
+        return self.mjcf_model.worldbody.add("camera", name=name, pos=list(map(float, position)),
+                                             quat=list(map(float, quaternion)),
+                                             fovy=float(fovy_deg))
+
     def add_pedestal(self, position, height: float) -> None:
         """A visual column under the arm base from the floor up to ``height``."""
         self.mjcf_model.worldbody.add(

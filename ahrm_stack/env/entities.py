@@ -53,6 +53,17 @@ class BoxProp(composer.Entity):
                                                    size=list(half_size), mass=mass, rgba=list(rgba))
         self.half_size = np.asarray(half_size, dtype=float)
 
+    def set_face_images(self, faces: dict) -> None:
+        """Texture the box with a cube map: ``faces`` maps MuJoCo's face names (``right`` +x,
+        ``left`` -x, ``up`` +y, ``down`` -y, ``front`` +z, ``back`` -z of the box) to PNG bytes.
+        Visual only (the perception runs texture a render-only copy of the task)."""
+        files = {f"file{name}": mjcf.Asset(data, ".png") for name, data in faces.items()}
+        texture = self._mjcf_root.asset.add("texture", name="faces", type="cube", **files)
+        material = self._mjcf_root.asset.add("material", name="faces", texture=texture,
+                                             rgba=[1, 1, 1, 1])
+        self._geom.material = material
+        self._geom.rgba = None
+
     def _build_observables(self) -> "BoxPropObservables":
         return BoxPropObservables(self)
 
