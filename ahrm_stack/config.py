@@ -36,7 +36,6 @@ from ahrm_stack.schema import (Bool, ConfigError, Float, Int, Section, Source, S
                                derived, fail, ge, gt, le, load_file, override_keys, read_yaml, show_path,
                                validate, within)
 
-__all__ = ["ConfigError", "Config", "load_config", "config_from_dict", "apply_overrides", "load_raw"]
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 OBJECTIVE_NAMES = ("avoid", "manipulate", "time")

@@ -33,6 +33,7 @@ import dataclasses
 import functools
 import math
 import re
+import types
 import typing
 from pathlib import Path
 from typing import Annotated, Any, Callable, Literal, Mapping, Sequence, TypeVar
@@ -243,9 +244,17 @@ def _join(key: str, loc: Sequence[Any]) -> str:
 
 
 def _strip(tp: Any) -> Any:
-    while typing.get_origin(tp) is Annotated:
-        tp = typing.get_args(tp)[0]
-    return tp
+    """``tp`` without Annotated metadata and without the None of an Optional."""
+    while True:
+        if typing.get_origin(tp) is Annotated:
+            tp = typing.get_args(tp)[0]
+        elif typing.get_origin(tp) in (typing.Union, types.UnionType) and type(None) in typing.get_args(tp):
+            rest = [a for a in typing.get_args(tp) if a is not type(None)]
+            if len(rest) != 1:
+                return tp
+            tp = rest[0]
+        else:
+            return tp
 
 
 def _type_at(tp: Any, loc: Sequence[Any]) -> Any:
@@ -333,7 +342,9 @@ def validate(tp: type[T] | Any, data: Any, key: str = "", source: Source | None 
     try:
         obj = _adapter(tp).validate_python(data)
     except ValidationError as problem:
-        where, text = _message(tp, key, problem.errors()[0])
+        errors = problem.errors()
+        unknown = [e for e in errors if e["type"] in ("unexpected_keyword_argument", "extra_forbidden")]
+        where, text = _message(tp, key, (unknown or errors)[0])  # a misspelt key before its "missing"
         raise error(f"{text}{_note(source, where)}") from None
     _finish(obj, key, error, source)
     return obj
