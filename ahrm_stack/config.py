@@ -593,8 +593,13 @@ def apply_overrides(data: dict, overrides: Sequence[str], config_dir: Path | str
     its place in the list (so later overrides win over it)."""
     for override in overrides:
         if override.strip().startswith("profile="):
-            for item in profile_overrides(override.split("=", 1)[1].strip(), config_dir):
-                apply_override(data, item)
+            name = override.split("=", 1)[1].strip()
+            for item in profile_overrides(name, config_dir):
+                try:
+                    apply_override(data, item)
+                except ConfigError as error:
+                    path = show_path(Path(config_dir) / PROFILE_DIR / f"{name}.yaml")
+                    raise ConfigError(f"{error} ({path})") from None
         else:
             apply_override(data, override)
 

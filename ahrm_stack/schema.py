@@ -40,7 +40,7 @@ from typing import Annotated, Any, Callable, Literal, Mapping, Sequence, TypeVar
 
 import yaml
 from pydantic import AfterValidator, ConfigDict, PlainValidator, TypeAdapter, ValidationError
-from pydantic_core import PydanticCustomError
+from pydantic_core import PydanticCustomError, core_schema
 
 
 class ConfigError(ValueError):
@@ -160,6 +160,22 @@ class Section:
     """
 
     __pydantic_config__ = ConfigDict(extra="forbid")
+
+    @classmethod
+    def __get_pydantic_core_schema__(cls, source: Any, handler: Any) -> Any:
+        """The dataclass's own schema, refusing :func:`derived` fields as keys."""
+        schema = handler(source)
+        names = [f.name for f in dataclasses.fields(cls) if f.metadata.get("derived")]
+        if not names:
+            return schema
+
+        def refuse(data: Any) -> Any:
+            if isinstance(data, Mapping):
+                for name in names:
+                    if name in data:
+                        raise PydanticCustomError("derived_key", "{name} is computed, not read", {"name": name})
+            return data
+        return core_schema.no_info_before_validator_function(refuse, schema)
 
     def derive(self) -> None:
         """Fill the :func:`derived` fields (``object.__setattr__``); runs before :meth:`check`."""
@@ -285,6 +301,9 @@ def _message(root: Any, key: str, err: Mapping[str, Any]) -> tuple[str, str]:
     kind, value = err["type"], err.get("input")
     if kind == "config":
         return where, f"{where}{err['ctx']['text']}"
+    if kind == "derived_key":  # a computed field named in the file
+        kind, loc = "extra_forbidden", [*loc, err["ctx"]["name"]]
+        where = _join(key, loc)
     if kind in ("unexpected_keyword_argument", "extra_forbidden"):
         parent = _type_at(root, loc[:-1])
         allowed = keys_of(parent) if dataclasses.is_dataclass(parent) else []
@@ -343,7 +362,8 @@ def validate(tp: type[T] | Any, data: Any, key: str = "", source: Source | None 
         obj = _adapter(tp).validate_python(data)
     except ValidationError as problem:
         errors = problem.errors()
-        unknown = [e for e in errors if e["type"] in ("unexpected_keyword_argument", "extra_forbidden")]
+        unknown = [e for e in errors if e["type"] in ("unexpected_keyword_argument", "extra_forbidden",
+                                                      "derived_key")]
         where, text = _message(tp, key, (unknown or errors)[0])  # a misspelt key before its "missing"
         raise error(f"{text}{_note(source, where)}") from None
     _finish(obj, key, error, source)
