@@ -32,7 +32,7 @@ from pydantic import AfterValidator, PlainValidator
 from pydantic_core import PydanticCustomError
 
 from ahrm_stack.schema import _float  # the Float rule, for values inside a custom validator
-from ahrm_stack.schema import (Bool, ConfigError, Float, Int, Section, Source, Str, apply_override, count,
+from ahrm_stack.schema import (Bool, ConfigError, Float, FrozenDict, Int, Section, Source, Str, apply_override, count,
                                derived, fail, ge, gt, le, load_file, override_keys, read_yaml, show_path,
                                validate, within)
 
@@ -100,7 +100,7 @@ def _home_deg(value: Any) -> tuple[float, ...] | dict[str, tuple[float, ...]]:
         unknown = sorted((k for k in value if k not in ROBOTS), key=str)
         if unknown:
             fail(f".{unknown[0]}: no such robot; choose among {list(ROBOTS)}")
-        return {name: _degrees(angles, f".{name}") for name, angles in value.items()}
+        return FrozenDict({name: _degrees(angles, f".{name}") for name, angles in value.items()})
     return _degrees(value)
 
 

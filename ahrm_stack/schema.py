@@ -138,6 +138,21 @@ def count(least: int, most: int | None = None) -> AfterValidator:
     return AfterValidator(check)
 
 
+class FrozenDict(dict):
+    """A read-only, hashable mapping for mapping-valued fields (a section stays hashable)."""
+
+    def __hash__(self) -> int:  # type: ignore[override]
+        return hash(tuple(sorted(self.items())))
+
+    def __reduce__(self) -> tuple:  # copy and pickle (Ray) rebuild it whole
+        return (type(self), (dict(self),))
+
+    def _refuse(self, *args: Any, **kwargs: Any) -> typing.NoReturn:
+        raise TypeError("a configuration mapping is read-only")
+
+    __setitem__ = __delitem__ = clear = pop = popitem = setdefault = update = _refuse  # type: ignore
+
+
 def derived(**kwargs: Any) -> Any:
     """A field computed by :meth:`Section.derive` from other fields; not read from or written to
     YAML (a file that names it is refused as an unknown key)."""

@@ -2,7 +2,9 @@
 one line naming the key path and the file; the typed configuration writes itself back
 (``to_dict``) and reads back equal; copies made with dataclasses.replace are not validated."""
 
+import copy
 import dataclasses
+import pickle
 import re
 import shutil
 from typing import Annotated
@@ -131,6 +133,9 @@ def test_replace_does_not_validate_and_sections_stay_frozen():
     with pytest.raises(dataclasses.FrozenInstanceError):
         config.ppo.learning_rate = 1.0
     assert isinstance(config, Config) and dataclasses.is_dataclass(config)
+    # hashable, copied and pickled (Ray ships configs to its workers) whole
+    assert hash(config) == hash(load_config())
+    assert copy.deepcopy(config) == config == pickle.loads(pickle.dumps(config))
 
 
 def test_old_run_folders_missing_keys_are_filled():
