@@ -1,11 +1,20 @@
 """Typed, validated configuration read from the YAML files in ``configs/``.
 
-Every tunable number of the project lives in ``configs/*.yaml``; this module turns those files into
-frozen dataclasses once, at start-up, and rejects anything it does not recognise with an error that
-names the file, the dotted key and the allowed keys or values.
+Every tunable number of the project lives in ``configs/*.yaml``; this module describes those files
+as frozen dataclasses (:class:`ahrm_stack.schema.Section`) whose fields carry their rules, and turns
+the files into them once, at start-up, with pydantic (``ahrm_stack/schema.py``). Anything it does not
+recognise is refused with one line that names the dotted key, the rule or the allowed keys/values,
+and the file (or "override"), e.g. ``ppo.learning_rate must be > 0, got -1.0 (override)``.
 
 Overrides use dotted keys, e.g. ``task.layout.mode=random`` or ``task.episode.duration=30``; values
-are parsed as YAML scalars/lists.
+are parsed as YAML scalars/lists. ``config.to_dict()`` is the YAML-shaped mapping a run folder's
+``config.yaml`` stores; :func:`config_from_dict` reads it back into an equal object.
+
+To add a key: one line in its section below (type, rules, comment with units), e.g.
+``collect_workers: Annotated[Int, ge(1), le(LIMITS["num_envs"])]  # processes``, the value in the
+section's YAML file, and, for run folders written before it existed, a default in
+:func:`_legacy_fill` (or :data:`BACKFILLED`). Rules over several keys go in the section's
+``check``.
 """
 
 from __future__ import annotations
@@ -16,590 +25,25 @@ import math
 import re
 import typing
 from pathlib import Path
-from typing import Any, Literal, Sequence
+from typing import Annotated, Any, Literal, Sequence
 
 import yaml
+from pydantic import AfterValidator, PlainValidator
+from pydantic_core import PydanticCustomError
+
+from ahrm_stack.schema import _float  # the Float rule, for values inside a custom validator
+from ahrm_stack.schema import (Bool, ConfigError, Float, FrozenDict, Int, Section, Source, Str, apply_override, count,
+                               derived, fail, ge, gt, le, load_file, override_keys, read_yaml, show_path,
+                               validate, within)
+
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 OBJECTIVE_NAMES = ("avoid", "manipulate", "time")
-
-
-class ConfigError(ValueError):
-    """A configuration file, key or value is invalid; the message names which."""
-
-
-# ----------------------------------------------------------------------------------------------
-# Schema.  Field docs state units.  Defaults are NOT given here: every value comes from YAML.
-# ----------------------------------------------------------------------------------------------
-
-
-@dataclasses.dataclass(frozen=True)
-class TableConfig:
-    half_extent: tuple[float, float]  # (x, y) half-size of the table top, m
-    height: float  # z of the table top surface, m
-    thickness: float  # m
-
-
-@dataclasses.dataclass(frozen=True)
-class StartIKConfig:
-    """The random start's damped-least-squares IK (``ahrm_stack/env/start_pose.py``)."""
-
-    tries: int  # targets drawn before the home posture is kept
-    iterations: int  # IK iterations per target
-    damping: float  # of the least-squares step, (m or rad)^2
-    max_step: float  # rad, the largest joint change of one iteration
-    position_tolerance: float  # m, tip from its target
-    tilt_tolerance: float  # rad, pusher axis from straight down
-
-
-@dataclasses.dataclass(frozen=True)
-class NearCubeStartConfig:
-    """Starts near the cube (the easy end of the start curriculum, ``train.start_curriculum``): the
-    pusher tip, pointing down, at a uniform bearing around the cube centre."""
-
-    distance: tuple[float, float]  # (lo, hi) of the tip's horizontal distance from the cube centre, m
-    height: tuple[float, float]  # (lo, hi) of the tip's height above the table top, m
-
-
-@dataclasses.dataclass(frozen=True)
-class ArmConfig:
-    base_position: tuple[float, float, float]  # world position of the arm base, m
-    base_yaw: float  # rotation of the base about world z, rad
-    home: tuple[float, ...]  # initial joint angles of the chosen robot, rad: ``home_deg`` is a
-    # mapping robot name -> degrees (or one list for the chosen robot); the entry of ``task.robot``
-    # is converted
-    joint_jitter: float  # uniform per-joint jitter of the initial posture, rad
-    start: Literal["home", "random"]  # home: the jittered home posture; random: the pusher tip
-    # placed by IK at a uniform point of ``start_region`` with the pusher pointing down
-    start_region: tuple[tuple[float, float], tuple[float, float], tuple[float, float]]  # random
-    # start: (lo, hi) of the tip's world x, y and z, m
-    start_ik: StartIKConfig
-    near_cube: NearCubeStartConfig
-
-
-@dataclasses.dataclass(frozen=True)
-class PusherConfig:
-    radius: float  # m
-    length: float  # full length of the cylinder, m
-    mass: float  # kg
-
-
-@dataclasses.dataclass(frozen=True)
-class CubeConfig:
-    size: float  # edge length, m
-    mass: float  # kg
-    position: tuple[float, float]  # nominal (x, y) of the cube centre on the table, m
-    jitter: float  # uniform (x, y) jitter of the cube position, m
-
-
-@dataclasses.dataclass(frozen=True)
-class ObstacleConfig:
-    size: tuple[float, float, float]  # full edge lengths (x, y, z), m
-    mass: float  # kg
-    fixed_layout: tuple[tuple[float, float], ...]  # (x, y) centres of the default layout, m;
-    # its length is the number of obstacles in every mode
-
-
-@dataclasses.dataclass(frozen=True)
-class LayoutConfig:
-    mode: Literal["fixed", "random"]
-    cube_region: tuple[tuple[float, float], tuple[float, float]]  # random mode: the cube centre
-    # uniform in x in [lo, hi] and y in [lo, hi], m (fixed mode: cube.position +- cube.jitter)
-    obstacle_draws_per_cube: int  # random mode: obstacle draws before the cube is drawn again
-    radial_range: tuple[float, float]  # obstacle distance from the cube centre in random mode, m
-    min_gap: float  # smallest allowed gap between two obstacles / obstacle and cube, m
-    lane_width: float  # width of the free lane the initializer must keep, m
-    approach_room: float  # free length behind the cube (opposite the lane) for the pusher, m
-    lane_directions: tuple[str, ...]  # lane directions considered reachable: "+x" and/or "-x"
-    max_tries: int  # rejection-sampling attempts before giving up
-    settle_steps: int  # physics steps run at reset so the free bodies come to rest
-
-
-@dataclasses.dataclass(frozen=True)
-class RegionConfig:
-    target_half_width: float  # m
-    target_height: float  # m above the table top
-    obstacle_margin: float  # m
-    obstacle_height: float  # m above the table top
-    distance_clip: float  # m; the reported region distances are exact within +-this, saturated beyond
-
-
-@dataclasses.dataclass(frozen=True)
-class EpisodeConfig:
-    duration: float  # s of simulated time
-    control_period: float  # s
-    physics_timestep: float  # s
-
-
-@dataclasses.dataclass(frozen=True)
-class RewardConfig:
-    obstacle_speed_threshold: float  # m/s; a faster obstacle counts as touched
-    progress_eps: float  # m; f2 needs progress above the best so far by more than this
-
-
-@dataclasses.dataclass(frozen=True)
-class ActionConfig:
-    mode: Literal["joint", "cartesian"]
-    cartesian_max_speed: float  # m/s, scale of a normalised Cartesian action
-
-
-@dataclasses.dataclass(frozen=True)
-class ObservationConfig:
-    relative: bool  # append the tip and each obstacle relative to the cube (m, world frame)
-    lanes: bool  # append each reachable lane's clearance (m; see env.layout.lane_clearance)
-    lane_clip: tuple[float, float]  # m, the lane clearance saturates at these
-
-
-@dataclasses.dataclass(frozen=True)
-class TaskConfig:
-    robot: Literal["jaco", "j2s6s200"]  # an arm of ahrm_stack.robot.ARMS
-    table: TableConfig
-    arm: ArmConfig
-    pusher: PusherConfig
-    cube: CubeConfig
-    obstacles: ObstacleConfig
-    layout: LayoutConfig
-    regions: RegionConfig
-    episode: EpisodeConfig
-    rewards: RewardConfig
-    action: ActionConfig
-    observation: ObservationConfig
-
-    @property
-    def substeps(self) -> int:
-        return int(round(self.episode.control_period / self.episode.physics_timestep))
-
-    @property
-    def max_steps(self) -> int:
-        return int(round(self.episode.duration / self.episode.control_period))
-
-
-@dataclasses.dataclass(frozen=True)
-class ScriptedConfig:
-    """The mink differential-IK waypoint controller (classical baseline). Positions: pusher tip."""
-
-    travel_speed: float  # m/s, top tip speed toward a waypoint (lift, travel, descend)
-    push_speed: float  # m/s, tip speed along the push direction
-    position_gain: float  # 1/s, proportional gain toward a waypoint / onto the push line
-    tilt_gain: float  # 1/s, rate of turning the pusher axis toward straight down
-    tilt_speed: float  # rad/s, top rate of that turn
-    tilt_tolerance: float  # rad, largest pusher tilt from vertical at which the push may start
-    orientation_cost: float  # weight of the pusher-pointing-down task (position task weight 1)
-    roll_cost: float  # weight of holding the pusher's spin about its own axis at zero
-    damping: float  # Levenberg-Marquardt damping of the IK
-    clearance: float  # m, tip height of the travel plane above the obstacles' tops
-    standoff: float  # m, gap between the pusher and the cube face where the descent ends
-    push_height: float  # m, tip height above the table while pushing
-    push_overshoot: float  # m, the push stops this far past the table edge
-    steer_gain: float  # 1/m, tan of the push direction's lean toward the lane line per metre of
-    # the cube's offset from that line
-    max_heading: float  # rad, largest lean of the push direction from the lane
-    realign_distance: float  # m, the push stops advancing while the tip is this far off its line
-    waypoint_tolerance: float  # m
-    collision_margin: float  # m, distance the IK keeps between the arm/pusher and the obstacles
-    collision_detection: float  # m, distance at which that constraint becomes active
-    collision_gain: float  # fraction of the gap beyond the margin one control step may close
-    solver: str  # QP solver name for mink (qpsolvers), e.g. daqp
-
-
-@dataclasses.dataclass(frozen=True)
-class SelfCollisionPairs:
-    """Per arm (``task.robot``), the pairs of arm parts that get a self-collision distance row.
-    Parts are named ``base``, ``link1`` ... ``link6`` (the body each joint turns) and ``pusher``."""
-
-    jaco: tuple[tuple[str, str], ...]
-    j2s6s200: tuple[tuple[str, str], ...]
-
-
-SELF_COLLISION_PART = re.compile(r"^(base|pusher|link[1-9])$")
-
-
-@dataclasses.dataclass(frozen=True)
-class SafetyConfig:
-    """The QP action filter (spec §5). Joint limits and velocity limits come from the robot
-    description; only margins and the extra limits the description lacks live here."""
-
-    enabled: bool  # false only for an explicit ablation (logged as such)
-    solver: Literal["osqp", "daqp"]
-    position_margin: float  # rad, kept from each finite joint limit
-    velocity_margin: float  # fraction of each joint's velocity limit left unused: headroom for the
-    # velocity controller, whose joints run faster than commanded under gravity (servo error)
-    acceleration_limit: tuple[float, ...]  # rad/s^2 per joint, |u - u_prev| <= a_max dt
-    braking_horizon: bool  # true: position and Cartesian rows look ahead max(dt, max_i v_i/a_i) s
-    # (the time to brake from full speed), which keeps them satisfiable under the acceleration
-    # limits; false: one control period dt, the literal one-step rows
-    table_rows: bool  # the tip and wrist stay table_margin above the table top
-    table_margin: float  # m, the pusher tip stays this far above the table top
-    wrist_table_margin: float  # m, the wrist point (the pusher's attachment, inside the wrist
-    # ring) stays this far above the table top: the ring's radius plus a clearance
-    workspace_rows: bool  # the tip and wrist stay inside the workspace box
-    workspace_lower: tuple[float, float, float]  # m, world-frame box the tip and wrist stay in
-    workspace_upper: tuple[float, float, float]
-    table_distance_rows: bool  # distance rows robot part-table (pusher body, link capsules)
-    obstacle_rows: bool  # distance rows robot part-obstacle (off in training, on in deployment)
-    obstacle_safe_distance: float  # m, d_safe
-    obstacle_activation_distance: float  # m, pairs farther than this add no row
-    max_obstacle_rows: int  # the nearest pairs within the activation distance get a row
-    self_collision_rows: bool  # distance rows between the arm's own parts (the pairs below), with
-    # the obstacle rows' safe distance, activation distance and horizon
-    self_collision_pairs: SelfCollisionPairs
-    osqp_eps: float  # OSQP absolute and relative tolerance
-    osqp_max_iter: int
-    cartesian_regularization: float  # lambda of ||u||^2 in cartesian mode, (m/rad)^2
-    cartesian_orientation_weight: float  # weight of holding the pusher's axis direction, m^2
-
-
-@dataclasses.dataclass(frozen=True)
-class MechanismConfig:
-    """Reward mechanisms of spec §4. Orders list objective names: avoid, manipulate, time."""
-
-    method: Literal["ahrm", "mhrm", "fhrm", "ls"]
-    fixed_order: tuple[str, str, str]  # FHRM: one order for every phase
-    manual_orders: tuple[tuple[str, str, str], tuple[str, str, str], tuple[str, str, str]]  # MHRM
-    initial_orders: tuple[tuple[str, str, str], tuple[str, str, str], tuple[str, str, str]]  # AHRM
-    convergence_window: int  # W episodes
-    convergence_tolerance: float  # relative to max(1, |mean|)
-    constraint_window: int  # episodes averaged for tau
-    constraint_min_steps: int  # steps in a phase before the constraint is checked
-    constraint_margin: float  # a per-step average below tau - margin ends the episode
-    priority_period: int  # P: visiting episodes between priority determinations
-    blend_band: float  # delta, m
-    blend_slope: float  # alpha, 1/m
-
-
-@dataclasses.dataclass(frozen=True)
-class PPOConfig:
-    """PPO hyper-parameters (spec §6). ``configs/ppo.yaml`` holds the learnability study's choices;
-    the paper's Table I values are ``configs/profiles/paper.yaml``."""
-
-    gamma: float
-    gae_lambda: float
-    frames_per_batch: int
-    mini_batch_size: int
-    epochs: int
-    learning_rate: float
-    clip_epsilon: float
-    entropy_coeff: float
-    critic_coeff: float
-    max_grad_norm: float
-    hidden_sizes: tuple[int, ...]  # actor and critic
-    activation: Literal["tanh", "relu", "elu"]
-    init_std: float  # initial standard deviation of the (pre-tanh) Gaussian policy
-    std_mode: Literal["learned", "fixed", "scheduled"]  # scheduled: init_std -> final_std
-    final_std: float  # std_mode scheduled: the standard deviation reached after std_schedule_frames
-    std_schedule_frames: int  # frames over which the std goes (log-linearly) to final_std
-    target_kl: float  # stop a batch's epochs once the approximate KL exceeds 1.5x this (0: off)
-    normalize_advantage: bool  # scale each mini-batch's advantages to zero mean, unit std
-    normalize_observations: bool
-    normalizer_clip: float  # normalised observations are clipped to +-this
-    update_normalizer: bool  # keep updating its statistics from every batch (false: frozen once set)
-    bc_coeff: float  # weight of a behaviour-cloning term toward the demonstrations (0: off)
-    bc_coeff_final: float  # the anchor's weight goes linearly from bc_coeff to this ...
-    bc_decay_frames: int  # ... over this many frames (0: constant bc_coeff)
-    reward_scale: float  # rewards are multiplied by this before GAE (the critic learns scaled returns)
-
-
-@dataclasses.dataclass(frozen=True)
-class TrainConfig:
-    episodes: int  # training stops after this many completed episodes
-    seed: int
-    runs_dir: str  # run folders are created here (relative to the working directory)
-    checkpoint_every: int  # batches between checkpoints
-    keep_checkpoints: int  # most recent checkpoints kept on disk
-    eval_episodes: int  # deterministic evaluation episodes at the end of training (0: none)
-    eval_every: int  # also evaluate (eval_episodes) every this many training episodes (0: never)
-    eval_every_frames: int  # ... or every this many frames (0: never); either may trigger
-    threads: int  # torch intra-op threads
-    warm_start: Literal["none", "bc"]  # bc: behaviour cloning from scripted demonstrations first
-    demo_episodes: int  # scripted-controller episodes recorded for warm start and the BC anchor
-    bc_epochs: int  # passes over the demonstrations for behaviour cloning and the critic refit
-    bc_learning_rate: float
-    demo_noise: float  # std of noise on the executed demonstration actions (normalised; labels clean)
-    num_envs: int  # environments stepped together (in one process, sharing the reward mechanism)
-    dagger_rounds: int  # after cloning: rounds of (run the clone, label its states with the
-    # scripted controller, refit on all data so far); 0: none
-    dagger_episodes: int  # episodes per round
-    dagger_duration: float  # s, a round's episode is cut after this much simulated time
-    frames: int  # training stops once this many frames are collected (0: ``episodes`` decides)
-    time_limit: float  # s, training episodes are truncated here (0: task.episode.duration);
-    # evaluation keeps task.episode.duration
-    start_curriculum: Literal["none", "near_cube", "scripted_states"]  # near_cube: start near the
-    # cube (task.arm.near_cube), more starts by task.arm.start as the level rises; scripted_states:
-    # start from the scripted controller's recorded states, further back as the level rises
-    curriculum_states: int  # scripted_states: scripted episodes recorded (the won ones are used)
-    curriculum_window: int  # training episodes whose success rate decides a widening
-    curriculum_threshold: float  # success rate over the window that widens the start
-    curriculum_step: float  # the level's rise per widening (from 0 to 1; at 1 the task draws starts)
-
-
-@dataclasses.dataclass(frozen=True)
-class Config:
-    task: TaskConfig
-    scripted: ScriptedConfig
-    safety: SafetyConfig
-    mechanism: MechanismConfig
-    ppo: PPOConfig
-    train: TrainConfig
-
-
-# ----------------------------------------------------------------------------------------------
-# Parsing.
-# ----------------------------------------------------------------------------------------------
-
-_DEG_KEYS = {"home_deg": "home", "base_yaw_deg": "base_yaw"}
-
-
-def _convert(tp: Any, value: Any, key: str) -> Any:
-    origin = typing.get_origin(tp)
-    if dataclasses.is_dataclass(tp):
-        return _build(tp, value, key)
-    if origin is Literal:
-        allowed = typing.get_args(tp)
-        if value not in allowed:
-            raise ConfigError(f"{key}: {value!r} is not allowed; choose one of {list(allowed)}")
-        return value
-    if origin is tuple:
-        args = typing.get_args(tp)
-        if not isinstance(value, (list, tuple)):
-            raise ConfigError(f"{key}: expected a list, got {value!r}")
-        if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(_convert(args[0], v, f"{key}[{i}]") for i, v in enumerate(value))
-        if len(value) != len(args):
-            raise ConfigError(f"{key}: expected {len(args)} values, got {len(value)}: {value!r}")
-        return tuple(_convert(a, v, f"{key}[{i}]") for i, (a, v) in enumerate(zip(args, value)))
-    if tp is float:
-        if isinstance(value, str):  # YAML 1.1 reads "1e-4" as a string
-            try:
-                value = float(value)
-            except ValueError:
-                raise ConfigError(f"{key}: expected a number, got {value!r}") from None
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{key}: expected a number, got {value!r}")
-        if not math.isfinite(value):
-            raise ConfigError(f"{key}: must be finite, got {value!r}")
-        return float(value)
-    if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{key}: expected an integer, got {value!r}")
-        return value
-    if tp is str:
-        if not isinstance(value, str):
-            raise ConfigError(f"{key}: expected a string, got {value!r}")
-        return value
-    if tp is bool:
-        if not isinstance(value, bool):
-            raise ConfigError(f"{key}: expected true/false, got {value!r}")
-        return value
-    raise TypeError(f"unsupported config type {tp!r} at {key}")  # a bug in the schema, not input
-
-
-def _select_home(data: dict, key: str) -> dict:
-    """``data`` (a task section) with ``arm.home_deg`` reduced to the list of ``data['robot']``
-    when it is given per robot (a mapping robot name -> degrees)."""
-    arm = data.get("arm")
-    if not isinstance(arm, dict) or not isinstance(arm.get("home_deg"), dict):
-        return data
-    robot = data.get("robot")
-    choices = typing.get_args(typing.get_type_hints(TaskConfig)["robot"])
-    if robot not in choices:
-        raise ConfigError(f"{key}.robot: {robot!r} is not allowed; choose one of {list(choices)}")
-    where = f"{key}.arm.home_deg"
-    unknown = sorted(set(arm["home_deg"]) - set(choices), key=str)
-    if unknown:
-        raise ConfigError(f"{where}.{unknown[0]}: no such robot; choose among {list(choices)}")
-    if robot in choices and robot not in arm["home_deg"]:
-        raise ConfigError(f"{where} has no entry for robot {robot!r} (task.robot); "
-                          f"entries: {sorted(arm['home_deg'])}")
-    return {**data, "arm": {**arm, "home_deg": arm["home_deg"].get(robot)}}
-
-
-def _build(cls: type, data: Any, key: str) -> Any:
-    if not isinstance(data, dict):
-        raise ConfigError(f"{key or 'config'}: expected a mapping, got {data!r}")
-    data = dict(data)
-    if cls is TaskConfig:
-        data = _select_home(data, key)
-    for deg_key, rad_key in _DEG_KEYS.items():
-        if deg_key in data:
-            raw = data.pop(deg_key)
-            if isinstance(raw, (list, tuple)):
-                data[rad_key] = [math.radians(_convert(float, v, f"{key}.{deg_key}[{i}]"))
-                                 for i, v in enumerate(raw)]
-            else:
-                data[rad_key] = math.radians(_convert(float, raw, f"{key}.{deg_key}"))
-    hints = typing.get_type_hints(cls)
-    fields = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - fields)
-    prefix = f"{key}." if key else ""
-    if unknown:
-        raise ConfigError(f"unknown config key '{prefix}{unknown[0]}'; allowed keys here: {sorted(fields)}")
-    missing = sorted(fields - set(data))
-    if missing:
-        raise ConfigError(f"missing config key '{prefix}{missing[0]}'")
-    values = {name: _convert(hints[name], data[name], f"{prefix}{name}") for name in fields}
-    obj = cls(**values)
-    _check_ranges(obj, key)
-    _check_limits(obj, key)
-    return obj
-
-
-def _positive(obj: Any, key: str, *names: str) -> None:
-    for name in names:
-        value = getattr(obj, name)
-        for i, v in enumerate(value if isinstance(value, tuple) else (value,)):
-            if not v > 0:
-                where = f"{key}.{name}" + (f"[{i}]" if isinstance(value, tuple) else "")
-                raise ConfigError(f"{where} must be > 0, got {v!r}")
-
-
-def _check_ranges(obj: Any, key: str) -> None:
-    """Value checks that the types alone cannot express."""
-    if isinstance(obj, TableConfig):
-        _positive(obj, key, "half_extent", "thickness")
-    elif isinstance(obj, PusherConfig):
-        _positive(obj, key, "radius", "length", "mass")
-    elif isinstance(obj, CubeConfig):
-        _positive(obj, key, "size", "mass")
-    elif isinstance(obj, ObstacleConfig):
-        _positive(obj, key, "size", "mass")
-    elif isinstance(obj, RegionConfig):
-        _positive(obj, key, "target_half_width", "target_height", "obstacle_height", "distance_clip")
-        if obj.obstacle_margin < 0:
-            raise ConfigError(f"{key}.obstacle_margin must be >= 0, got {obj.obstacle_margin}")
-    elif isinstance(obj, EpisodeConfig):
-        _positive(obj, key, "duration", "control_period", "physics_timestep")
-        ratio = obj.control_period / obj.physics_timestep
-        if abs(ratio - round(ratio)) > 1e-9:
-            raise ConfigError(f"{key}.control_period ({obj.control_period}) must be a whole multiple "
-                              f"of {key}.physics_timestep ({obj.physics_timestep})")
-    elif isinstance(obj, LayoutConfig):
-        for axis, (lo, hi) in zip("xy", obj.cube_region):
-            if not lo <= hi:
-                raise ConfigError(f"{key}.cube_region ({axis}): min {lo} must be <= max {hi}")
-        lo, hi = obj.radial_range
-        if not 0 < lo <= hi:
-            raise ConfigError(f"{key}.radial_range must satisfy 0 < min <= max, got {obj.radial_range}")
-        _positive(obj, key, "lane_width", "approach_room", "max_tries", "obstacle_draws_per_cube")
-        bad = [d for d in obj.lane_directions if d not in ("+x", "-x")]
-        if bad or not obj.lane_directions:
-            raise ConfigError(f"{key}.lane_directions: {list(obj.lane_directions)} must be a non-empty "
-                              "subset of ['+x', '-x']")
-        if obj.settle_steps < 0:
-            raise ConfigError(f"{key}.settle_steps must be >= 0, got {obj.settle_steps}")
-    elif isinstance(obj, RewardConfig):
-        _positive(obj, key, "obstacle_speed_threshold", "progress_eps")
-    elif isinstance(obj, ActionConfig):
-        _positive(obj, key, "cartesian_max_speed")
-    elif isinstance(obj, StartIKConfig):
-        _positive(obj, key, "tries", "iterations", "damping", "max_step", "position_tolerance",
-                  "tilt_tolerance")
-    elif isinstance(obj, ObservationConfig):
-        if not obj.lane_clip[0] < obj.lane_clip[1]:
-            raise ConfigError(f"{key}.lane_clip must satisfy min < max, got {list(obj.lane_clip)}")
-    elif isinstance(obj, NearCubeStartConfig):
-        for name in ("distance", "height"):
-            lo, hi = getattr(obj, name)
-            if not 0 <= lo <= hi:
-                raise ConfigError(f"{key}.{name} must satisfy 0 <= min <= max, got {[lo, hi]}")
-    elif isinstance(obj, ArmConfig):
-        if obj.joint_jitter < 0:
-            raise ConfigError(f"{key}.joint_jitter must be >= 0, got {obj.joint_jitter}")
-        for axis, (lo, hi) in zip("xyz", obj.start_region):
-            if not lo <= hi:
-                raise ConfigError(f"{key}.start_region ({axis}): min {lo} must be <= max {hi}")
-    elif isinstance(obj, SafetyConfig):
-        _positive(obj, key, "acceleration_limit", "osqp_eps", "osqp_max_iter",
-                  "cartesian_regularization")
-        for name in ("position_margin", "table_margin", "wrist_table_margin", "obstacle_safe_distance",
-                     "cartesian_orientation_weight", "max_obstacle_rows"):
-            if getattr(obj, name) < 0:
-                raise ConfigError(f"{key}.{name} must be >= 0, got {getattr(obj, name)!r}")
-        if not 0 <= obj.velocity_margin < 1:
-            raise ConfigError(f"{key}.velocity_margin must be in [0, 1), got {obj.velocity_margin!r}")
-        if obj.obstacle_activation_distance <= obj.obstacle_safe_distance:
-            raise ConfigError(f"{key}.obstacle_activation_distance ({obj.obstacle_activation_distance}) "
-                              f"must exceed {key}.obstacle_safe_distance ({obj.obstacle_safe_distance})")
-        for i, (lo, hi) in enumerate(zip(obj.workspace_lower, obj.workspace_upper)):
-            if not lo < hi:
-                raise ConfigError(f"{key}.workspace_lower[{i}] ({lo}) must be < workspace_upper[{i}] ({hi})")
-    elif isinstance(obj, SelfCollisionPairs):
-        for robot in (f.name for f in dataclasses.fields(obj)):
-            for i, pair in enumerate(getattr(obj, robot)):
-                where = f"{key}.{robot}[{i}]"
-                for name in pair:
-                    if not SELF_COLLISION_PART.match(name):
-                        raise ConfigError(f"{where}: {name!r} is not an arm part; use base, link1 ... "
-                                          "link9 or pusher")
-                if pair[0] == pair[1]:
-                    raise ConfigError(f"{where}: a part cannot be paired with itself ({list(pair)})")
-    elif isinstance(obj, MechanismConfig):
-        orders = [("fixed_order", obj.fixed_order)]
-        orders += [(f"manual_orders[{k}]", o) for k, o in enumerate(obj.manual_orders)]
-        orders += [(f"initial_orders[{k}]", o) for k, o in enumerate(obj.initial_orders)]
-        for name, order in orders:
-            if sorted(order) != sorted(OBJECTIVE_NAMES):
-                raise ConfigError(f"{key}.{name}: {list(order)} must be a permutation of "
-                                  f"{list(OBJECTIVE_NAMES)}")
-        _positive(obj, key, "convergence_window", "convergence_tolerance", "constraint_window",
-                  "priority_period", "blend_band", "blend_slope")
-        if obj.constraint_min_steps < 1 or obj.constraint_margin < 0:
-            raise ConfigError(f"{key}.constraint_min_steps must be >= 1 and constraint_margin >= 0")
-    elif isinstance(obj, PPOConfig):
-        _positive(obj, key, "frames_per_batch", "mini_batch_size", "epochs", "learning_rate",
-                  "clip_epsilon", "max_grad_norm", "hidden_sizes", "init_std", "normalizer_clip",
-                  "final_std", "std_schedule_frames", "reward_scale")
-        if obj.target_kl < 0:
-            raise ConfigError(f"{key}.target_kl must be >= 0 (0: off), got {obj.target_kl}")
-        for name in ("gamma", "gae_lambda"):
-            if not 0 <= getattr(obj, name) <= 1:
-                raise ConfigError(f"{key}.{name} must be in [0, 1], got {getattr(obj, name)}")
-        if obj.bc_coeff_final < 0 or obj.bc_decay_frames < 0:
-            raise ConfigError(f"{key}.bc_coeff_final and {key}.bc_decay_frames must be >= 0")
-        if obj.entropy_coeff < 0 or obj.critic_coeff < 0 or obj.bc_coeff < 0:
-            raise ConfigError(f"{key}.entropy_coeff, critic_coeff and bc_coeff must be >= 0")
-        if obj.frames_per_batch % obj.mini_batch_size:
-            raise ConfigError(f"{key}.frames_per_batch ({obj.frames_per_batch}) must be a multiple of "
-                              f"{key}.mini_batch_size ({obj.mini_batch_size})")
-    elif isinstance(obj, TrainConfig):
-        _positive(obj, key, "episodes", "checkpoint_every", "keep_checkpoints", "threads")
-        if obj.eval_episodes < 0 or obj.eval_every < 0 or obj.eval_every_frames < 0:
-            raise ConfigError(f"{key}.eval_episodes, {key}.eval_every and {key}.eval_every_frames "
-                              f"must be >= 0, got {obj.eval_episodes}, {obj.eval_every} and "
-                              f"{obj.eval_every_frames}")
-        _positive(obj, key, "demo_episodes", "bc_epochs", "bc_learning_rate", "num_envs")
-        if obj.demo_noise < 0:
-            raise ConfigError(f"{key}.demo_noise must be >= 0, got {obj.demo_noise}")
-        if obj.dagger_rounds < 0:
-            raise ConfigError(f"{key}.dagger_rounds must be >= 0, got {obj.dagger_rounds}")
-        _positive(obj, key, "dagger_episodes", "dagger_duration", "curriculum_window",
-                  "curriculum_step", "curriculum_states")
-        if obj.frames < 0 or obj.time_limit < 0:
-            raise ConfigError(f"{key}.frames and {key}.time_limit must be >= 0 (0: off), got "
-                              f"{obj.frames} and {obj.time_limit}")
-        if not 0 <= obj.curriculum_threshold <= 1 or obj.curriculum_step > 1:
-            raise ConfigError(f"{key}.curriculum_threshold must be in [0, 1] and curriculum_step in "
-                              f"(0, 1], got {obj.curriculum_threshold} and {obj.curriculum_step}")
-    elif isinstance(obj, ScriptedConfig):
-        _positive(obj, key, "travel_speed", "push_speed", "position_gain", "tilt_gain", "tilt_speed",
-                  "tilt_tolerance", "orientation_cost", "damping", "clearance", "push_height",
-                  "waypoint_tolerance", "collision_detection", "realign_distance")
-        for name in ("standoff", "push_overshoot", "steer_gain", "max_heading", "collision_margin",
-                     "roll_cost"):
-            if getattr(obj, name) < 0:
-                raise ConfigError(f"{key}.{name} must be >= 0, got {getattr(obj, name)!r}")
-        if not 0 < obj.collision_gain <= 1:
-            raise ConfigError(f"{key}.collision_gain must be in (0, 1], got {obj.collision_gain!r}")
-        if obj.collision_detection <= obj.collision_margin:
-            raise ConfigError(f"{key}.collision_detection ({obj.collision_detection}) must exceed "
-                              f"{key}.collision_margin ({obj.collision_margin})")
-        import qpsolvers  # the solver list is only known at run time
-        if obj.solver not in qpsolvers.available_solvers:
-            raise ConfigError(f"{key}.solver: {obj.solver!r} is not installed; choose one of "
-                              f"{sorted(qpsolvers.available_solvers)}")
-
+_read_yaml = read_yaml  # the earlier name, still imported by a few modules
 
 # Upper bounds: values past these would run (nearly) forever or exhaust the machine. They are
-# limits of this program, not tunables, and sit far above any configuration in use.
+# limits of this program, not tunables, and sit far above any configuration in use. The fields
+# below name them in their rules (``le(LIMITS[...])``).
 LIMITS = {
     "substeps": 1000,  # physics steps per control step (control_period / physics_timestep)
     "control_period": 1.0,  # s
@@ -624,83 +68,504 @@ LIMITS = {
     "window": 1_000_000,  # mechanism windows and periods, episodes or steps
 }
 
+# Shorthands for the field rules.
+Pos = Annotated[Float, gt(0)]  # a number > 0
+NonNeg = Annotated[Float, ge(0)]  # a number >= 0
+PosInt = Annotated[Int, gt(0)]
+NonNegInt = Annotated[Int, ge(0)]
+Pair = tuple[Float, Float]
+Vec3 = tuple[Float, Float, Float]
+Robot = Literal["jaco", "j2s6s200"]  # an arm of ahrm_stack.robot.ARMS
+ROBOTS: tuple[str, ...] = typing.get_args(Robot)
+Method = Literal["ahrm", "mhrm", "fhrm", "ls"]
 
-def _at_most(obj: Any, key: str, name: str, limit: float, what: str = "") -> None:
-    value = getattr(obj, name)
-    if value > limit:
-        raise ConfigError(f"{key}.{name} must be <= {limit}{what}, got {value!r}")
+
+def _at(where: str, check: typing.Callable[[Any], Any], value: Any) -> Any:
+    """``check(value)``, its error moved below ``where`` (e.g. ``.jaco[2]``)."""
+    try:
+        return check(value)
+    except PydanticCustomError as error:
+        fail(f"{where}{error.context['text']}")
 
 
-def _check_limits(obj: Any, key: str) -> None:
-    """Upper bounds (:data:`LIMITS`) and the checks that span several keys or sections."""
-    if isinstance(obj, EpisodeConfig):
-        _at_most(obj, key, "control_period", LIMITS["control_period"], " s")
-        if obj.physics_timestep > obj.control_period:
-            raise ConfigError(f"{key}.physics_timestep ({obj.physics_timestep} s) must be <= "
-                              f"{key}.control_period ({obj.control_period} s): substeps is an integer >= 1")
-        if obj.control_period / obj.physics_timestep > LIMITS["substeps"] + 0.5:
-            raise ConfigError(f"{key}.physics_timestep ({obj.physics_timestep} s) gives "
-                              f"{obj.control_period / obj.physics_timestep:.4g} physics steps per "
-                              f"control period; at most {LIMITS['substeps']} (>= "
-                              f"{obj.control_period / LIMITS['substeps']:g} s)")
-        if obj.duration < obj.control_period:
-            raise ConfigError(f"{key}.duration ({obj.duration} s) must be >= {key}.control_period "
-                              f"({obj.control_period} s): an episode has at least one step")
-        if obj.duration / obj.control_period > LIMITS["episode_steps"] + 0.5:
-            raise ConfigError(f"{key}.duration ({obj.duration} s) gives more than "
+def _degrees(value: Any, where: str = "") -> tuple[float, ...]:
+    if not isinstance(value, (list, tuple)):
+        fail(f"{where}: expected a list, got {value!r}")
+    return tuple(_at(f"{where}[{i}]", _float, v) for i, v in enumerate(value))
+
+
+def _home_deg(value: Any) -> tuple[float, ...] | dict[str, tuple[float, ...]]:
+    """One list of degrees (for whichever robot runs) or a mapping robot name -> degrees."""
+    if isinstance(value, dict):
+        unknown = sorted((k for k in value if k not in ROBOTS), key=str)
+        if unknown:
+            fail(f".{unknown[0]}: no such robot; choose among {list(ROBOTS)}")
+        return FrozenDict({name: _degrees(angles, f".{name}") for name, angles in value.items()})
+    return _degrees(value)
+
+
+def _order(value: tuple[str, str, str]) -> tuple[str, str, str]:
+    if sorted(value) != sorted(OBJECTIVE_NAMES):
+        fail(f": {list(value)} must be a permutation of {list(OBJECTIVE_NAMES)}")
+    return value
+
+
+def _even(value: int) -> int:
+    if value % 2:
+        fail(f" must be even (H.264), got {value}")
+    return value
+
+
+HomeDeg = Annotated[typing.Union[tuple[float, ...], dict[str, tuple[float, ...]]], PlainValidator(_home_deg)]
+Order = Annotated[tuple[Str, Str, Str], AfterValidator(_order)]  # objective names, first = highest
+Frozen = dataclasses.dataclass(frozen=True)
+
+
+# ----------------------------------------------------------------------------------------------
+# Schema.  Field comments state units.  Defaults are NOT given here: every value comes from YAML
+# (fields marked derived() are computed from others and never read or written).
+# ----------------------------------------------------------------------------------------------
+
+
+@Frozen
+class TableConfig(Section):
+    half_extent: tuple[Pos, Pos]  # (x, y) half-size of the table top, m
+    height: Float  # z of the table top surface, m
+    thickness: Pos  # m
+
+
+@Frozen
+class StartIKConfig(Section):
+    """The random start's damped-least-squares IK (``ahrm_stack/env/start_pose.py``)."""
+
+    tries: PosInt  # targets drawn before the home posture is kept
+    iterations: PosInt  # IK iterations per target
+    damping: Pos  # of the least-squares step, (m or rad)^2
+    max_step: Pos  # rad, the largest joint change of one iteration
+    position_tolerance: Pos  # m, tip from its target
+    tilt_tolerance: Pos  # rad, pusher axis from straight down
+
+
+@Frozen
+class NearCubeStartConfig(Section):
+    """Starts near the cube (the easy end of the start curriculum, ``train.start_curriculum``): the
+    pusher tip, pointing down, at a uniform bearing around the cube centre."""
+
+    distance: Pair  # (lo, hi) of the tip's horizontal distance from the cube centre, m
+    height: Pair  # (lo, hi) of the tip's height above the table top, m
+
+    def check(self, key: str) -> None:
+        for name in ("distance", "height"):
+            lo, hi = getattr(self, name)
+            if not 0 <= lo <= hi:
+                raise ConfigError(f"{key}.{name} must satisfy 0 <= min <= max, got {[lo, hi]}")
+
+
+@Frozen
+class ArmConfig(Section):
+    base_position: Vec3  # world position of the arm base, m
+    base_yaw_deg: Float  # rotation of the base about world z, degrees
+    home_deg: HomeDeg  # initial joint angles, degrees: a mapping robot name -> angles (task.robot
+    # picks the entry) or one list for the chosen robot
+    joint_jitter: NonNeg  # uniform per-joint jitter of the initial posture, rad
+    start: Literal["home", "random"]  # home: the jittered home posture; random: the pusher tip
+    # placed by IK at a uniform point of ``start_region`` with the pusher pointing down
+    start_region: tuple[Pair, Pair, Pair]  # random start: (lo, hi) of the tip's world x, y, z, m
+    start_ik: StartIKConfig
+    near_cube: NearCubeStartConfig
+    home: tuple[float, ...] = derived()  # rad: home_deg of task.robot (set by TaskConfig)
+    base_yaw: float = derived()  # rad: base_yaw_deg
+
+    def derive(self) -> None:
+        object.__setattr__(self, "base_yaw", math.radians(self.base_yaw_deg))
+        if not isinstance(self.home_deg, dict):
+            object.__setattr__(self, "home", tuple(math.radians(d) for d in self.home_deg))
+
+    def check(self, key: str) -> None:
+        for axis, (lo, hi) in zip("xyz", self.start_region):
+            if not lo <= hi:
+                raise ConfigError(f"{key}.start_region ({axis}): min {lo} must be <= max {hi}")
+
+
+@Frozen
+class PusherConfig(Section):
+    radius: Pos  # m
+    length: Pos  # full length of the cylinder, m
+    mass: Pos  # kg
+
+
+@Frozen
+class CubeConfig(Section):
+    size: Pos  # edge length, m
+    mass: Pos  # kg
+    position: Pair  # nominal (x, y) of the cube centre on the table, m
+    jitter: Float  # uniform (x, y) jitter of the cube position, m
+
+
+@Frozen
+class ObstacleConfig(Section):
+    size: tuple[Pos, Pos, Pos]  # full edge lengths (x, y, z), m
+    mass: Pos  # kg
+    fixed_layout: tuple[Pair, ...]  # (x, y) centres of the default layout, m;
+    # its length is the number of obstacles in every mode
+
+
+@Frozen
+class LayoutConfig(Section):
+    mode: Literal["fixed", "random"]
+    cube_region: tuple[Pair, Pair]  # random mode: the cube centre uniform in x in [lo, hi] and y in
+    # [lo, hi], m (fixed mode: cube.position +- cube.jitter)
+    obstacle_draws_per_cube: PosInt  # random mode: obstacle draws before the cube is drawn again
+    radial_range: Pair  # obstacle distance from the cube centre in random mode, m
+    min_gap: Float  # smallest allowed gap between two obstacles / obstacle and cube, m
+    lane_width: Pos  # width of the free lane the initializer must keep, m
+    approach_room: Pos  # free length behind the cube (opposite the lane) for the pusher, m
+    lane_directions: Annotated[tuple[Literal["+x", "-x"], ...], count(1)]  # reachable lane directions
+    max_tries: Annotated[PosInt, le(LIMITS["max_tries"])]  # rejection-sampling attempts before giving up
+    settle_steps: Annotated[NonNegInt, le(LIMITS["settle_steps"])]  # physics steps run at reset so
+    # the free bodies come to rest
+
+    def check(self, key: str) -> None:
+        for axis, (lo, hi) in zip("xy", self.cube_region):
+            if not lo <= hi:
+                raise ConfigError(f"{key}.cube_region ({axis}): min {lo} must be <= max {hi}")
+        lo, hi = self.radial_range
+        if not 0 < lo <= hi:
+            raise ConfigError(f"{key}.radial_range must satisfy 0 < min <= max, got {self.radial_range}")
+
+
+@Frozen
+class RegionConfig(Section):
+    target_half_width: Pos  # m
+    target_height: Pos  # m above the table top
+    obstacle_margin: NonNeg  # m
+    obstacle_height: Pos  # m above the table top
+    distance_clip: Pos  # m; the reported region distances are exact within +-this, saturated beyond
+
+
+@Frozen
+class EpisodeConfig(Section):
+    duration: Pos  # s of simulated time
+    control_period: Annotated[Pos, le(LIMITS["control_period"], " s")]  # s
+    physics_timestep: Pos  # s
+
+    def check(self, key: str) -> None:
+        ratio = self.control_period / self.physics_timestep
+        if abs(ratio - round(ratio)) > 1e-9:
+            raise ConfigError(f"{key}.control_period ({self.control_period}) must be a whole multiple "
+                              f"of {key}.physics_timestep ({self.physics_timestep})")
+        if self.physics_timestep > self.control_period:
+            raise ConfigError(f"{key}.physics_timestep ({self.physics_timestep} s) must be <= "
+                              f"{key}.control_period ({self.control_period} s): substeps is an integer >= 1")
+        if ratio > LIMITS["substeps"] + 0.5:
+            raise ConfigError(f"{key}.physics_timestep ({self.physics_timestep} s) gives {ratio:.4g} "
+                              f"physics steps per control period; at most {LIMITS['substeps']} (>= "
+                              f"{self.control_period / LIMITS['substeps']:g} s)")
+        if self.duration < self.control_period:
+            raise ConfigError(f"{key}.duration ({self.duration} s) must be >= {key}.control_period "
+                              f"({self.control_period} s): an episode has at least one step")
+        if self.duration / self.control_period > LIMITS["episode_steps"] + 0.5:
+            raise ConfigError(f"{key}.duration ({self.duration} s) gives more than "
                               f"{LIMITS['episode_steps']} control steps per episode")
-    elif isinstance(obj, LayoutConfig):
-        _at_most(obj, key, "max_tries", LIMITS["max_tries"])
-        _at_most(obj, key, "settle_steps", LIMITS["settle_steps"])
-    elif isinstance(obj, TaskConfig):
+
+
+@Frozen
+class RewardConfig(Section):
+    obstacle_speed_threshold: Pos  # m/s; a faster obstacle counts as touched
+    progress_eps: Pos  # m; f2 needs progress above the best so far by more than this
+
+
+@Frozen
+class ActionConfig(Section):
+    mode: Literal["joint", "cartesian"]
+    cartesian_max_speed: Pos  # m/s, scale of a normalised Cartesian action
+
+
+@Frozen
+class ObservationConfig(Section):
+    relative: Bool  # append the tip and each obstacle relative to the cube (m, world frame)
+    lanes: Bool  # append each reachable lane's clearance (m; see env.layout.lane_clearance)
+    lane_clip: Pair  # m, the lane clearance saturates at these
+
+    def check(self, key: str) -> None:
+        if not self.lane_clip[0] < self.lane_clip[1]:
+            raise ConfigError(f"{key}.lane_clip must satisfy min < max, got {list(self.lane_clip)}")
+
+
+@Frozen
+class TaskConfig(Section):
+    robot: Robot  # an arm of ahrm_stack.robot.ARMS
+    table: TableConfig
+    arm: ArmConfig
+    pusher: PusherConfig
+    cube: CubeConfig
+    obstacles: ObstacleConfig
+    layout: LayoutConfig
+    regions: RegionConfig
+    episode: EpisodeConfig
+    rewards: RewardConfig
+    action: ActionConfig
+    observation: ObservationConfig
+
+    @property
+    def substeps(self) -> int:
+        return int(round(self.episode.control_period / self.episode.physics_timestep))
+
+    @property
+    def max_steps(self) -> int:
+        return int(round(self.episode.duration / self.episode.control_period))
+
+    def derive(self) -> None:
+        home = self.arm.home_deg
+        if isinstance(home, dict) and self.robot in home:
+            object.__setattr__(self, "arm", dataclasses.replace(
+                self.arm, home=tuple(math.radians(d) for d in home[self.robot])))
+
+    def check(self, key: str) -> None:
+        if isinstance(self.arm.home_deg, dict) and self.robot not in self.arm.home_deg:
+            raise ConfigError(f"{key}.arm.home_deg has no entry for robot {self.robot!r} (task.robot); "
+                              f"entries: {sorted(self.arm.home_deg)}")
         import numpy as np
 
         from ahrm_stack.env.layout import Layout, LayoutError, validate_layout  # imports this module
 
-        layout = Layout(np.asarray(obj.cube.position, float),
-                        np.asarray(obj.obstacles.fixed_layout, float).reshape(-1, 2))
-        if obj.layout.mode == "fixed":  # random mode never uses the fixed layout
+        layout = Layout(np.asarray(self.cube.position, float),
+                        np.asarray(self.obstacles.fixed_layout, float).reshape(-1, 2))
+        if self.layout.mode == "fixed":  # random mode never uses the fixed layout
             try:
-                validate_layout(layout, obj.table, obj.cube, obj.obstacles, obj.layout)
+                validate_layout(layout, self.table, self.cube, self.obstacles, self.layout)
             except LayoutError as error:
                 raise ConfigError(f"{key}.obstacles.fixed_layout / {key}.cube.position: {error}") from None
-        if obj.layout.mode == "random":  # the nearest allowed obstacle centre must fit on the table
-            room = np.asarray(obj.table.half_extent) - np.asarray(obj.obstacles.size[:2]) / 2
+        if self.layout.mode == "random":  # the nearest allowed obstacle centre must fit on the table
+            room = np.asarray(self.table.half_extent) - np.asarray(self.obstacles.size[:2]) / 2
             corners = np.array([[sx * room[0], sy * room[1]] for sx in (-1, 1) for sy in (-1, 1)])
-            middle = np.mean(np.asarray(obj.layout.cube_region, float), axis=1)  # the region's centre
+            middle = np.mean(np.asarray(self.layout.cube_region, float), axis=1)  # the region's centre
             reach = float(np.max(np.linalg.norm(corners - middle, axis=1)))
-            if obj.layout.radial_range[0] > reach:
-                raise ConfigError(f"{key}.layout.radial_range {list(obj.layout.radial_range)}: no "
+            if self.layout.radial_range[0] > reach:
+                raise ConfigError(f"{key}.layout.radial_range {list(self.layout.radial_range)}: no "
                                   f"obstacle that far from the cube fits on the table (at most "
                                   f"{reach:.3f} m)")
-    elif isinstance(obj, SafetyConfig):
-        _at_most(obj, key, "osqp_max_iter", LIMITS["osqp_max_iter"])
-        _at_most(obj, key, "max_obstacle_rows", LIMITS["max_obstacle_rows"])
-    elif isinstance(obj, MechanismConfig):
-        for name in ("convergence_window", "constraint_window", "constraint_min_steps",
-                     "priority_period"):
-            _at_most(obj, key, name, LIMITS["window"])
-    elif isinstance(obj, PPOConfig):
-        _at_most(obj, key, "frames_per_batch", LIMITS["frames_per_batch"])
-        _at_most(obj, key, "epochs", LIMITS["epochs"])
-        if not 1 <= len(obj.hidden_sizes) <= LIMITS["hidden_layers"]:
-            raise ConfigError(f"{key}.hidden_sizes must list 1 to {LIMITS['hidden_layers']} layer "
-                              f"widths, got {list(obj.hidden_sizes)}")
-        if max(obj.hidden_sizes) > LIMITS["hidden_width"]:
-            raise ConfigError(f"{key}.hidden_sizes: layer widths must be <= {LIMITS['hidden_width']}, "
-                              f"got {list(obj.hidden_sizes)}")
-    elif isinstance(obj, TrainConfig):
-        for name in ("episodes", "demo_episodes", "bc_epochs", "eval_episodes", "num_envs",
-                     "keep_checkpoints", "seed"):
-            _at_most(obj, key, name, LIMITS[name])
-        if obj.seed < 0:
-            raise ConfigError(f"{key}.seed must be >= 0, got {obj.seed}")
-        _at_most(obj, key, "threads", LIMITS["threads"], " (train.py also refuses more than this "
-                 "machine's CPU count)")
-        if not obj.runs_dir.strip():
-            raise ConfigError(f"{key}.runs_dir must name a folder, got {obj.runs_dir!r}")
-    elif isinstance(obj, Config):
-        ppo, train, episode = obj.ppo, obj.train, obj.task.episode
+
+
+@Frozen
+class ScriptedConfig(Section):
+    """The mink differential-IK waypoint controller (classical baseline). Positions: pusher tip."""
+
+    travel_speed: Pos  # m/s, top tip speed toward a waypoint (lift, travel, descend)
+    push_speed: Pos  # m/s, tip speed along the push direction
+    position_gain: Pos  # 1/s, proportional gain toward a waypoint / onto the push line
+    tilt_gain: Pos  # 1/s, rate of turning the pusher axis toward straight down
+    tilt_speed: Pos  # rad/s, top rate of that turn
+    tilt_tolerance: Pos  # rad, largest pusher tilt from vertical at which the push may start
+    orientation_cost: Pos  # weight of the pusher-pointing-down task (position task weight 1)
+    roll_cost: NonNeg  # weight of holding the pusher's spin about its own axis at zero
+    damping: Pos  # Levenberg-Marquardt damping of the IK
+    clearance: Pos  # m, tip height of the travel plane above the obstacles' tops
+    standoff: NonNeg  # m, gap between the pusher and the cube face where the descent ends
+    push_height: Pos  # m, tip height above the table while pushing
+    push_overshoot: NonNeg  # m, the push stops this far past the table edge
+    steer_gain: NonNeg  # 1/m, tan of the push direction's lean toward the lane line per metre of
+    # the cube's offset from that line
+    max_heading: NonNeg  # rad, largest lean of the push direction from the lane
+    realign_distance: Pos  # m, the push stops advancing while the tip is this far off its line
+    waypoint_tolerance: Pos  # m
+    collision_margin: NonNeg  # m, distance the IK keeps between the arm/pusher and the obstacles
+    collision_detection: Pos  # m, distance at which that constraint becomes active
+    collision_gain: Annotated[Float, within(0, 1, "(]")]  # fraction of the gap beyond the margin
+    # one control step may close
+    solver: Str  # QP solver name for mink (qpsolvers), e.g. daqp
+
+    def check(self, key: str) -> None:
+        if self.collision_detection <= self.collision_margin:
+            raise ConfigError(f"{key}.collision_detection ({self.collision_detection}) must exceed "
+                              f"{key}.collision_margin ({self.collision_margin})")
+        import qpsolvers  # the solver list is only known at run time
+        if self.solver not in qpsolvers.available_solvers:
+            raise ConfigError(f"{key}.solver: {self.solver!r} is not installed; choose one of "
+                              f"{sorted(qpsolvers.available_solvers)}")
+
+
+SELF_COLLISION_PART = re.compile(r"^(base|pusher|link[1-9])$")
+
+
+@Frozen
+class SelfCollisionPairs(Section):
+    """Per arm (``task.robot``), the pairs of arm parts that get a self-collision distance row.
+    Parts are named ``base``, ``link1`` ... ``link6`` (the body each joint turns) and ``pusher``."""
+
+    jaco: tuple[tuple[Str, Str], ...]
+    j2s6s200: tuple[tuple[Str, Str], ...]
+
+    def check(self, key: str) -> None:
+        for robot in (f.name for f in dataclasses.fields(self)):
+            for i, pair in enumerate(getattr(self, robot)):
+                where = f"{key}.{robot}[{i}]"
+                for name in pair:
+                    if not SELF_COLLISION_PART.match(name):
+                        raise ConfigError(f"{where}: {name!r} is not an arm part; use base, link1 ... "
+                                          "link9 or pusher")
+                if pair[0] == pair[1]:
+                    raise ConfigError(f"{where}: a part cannot be paired with itself ({list(pair)})")
+
+
+@Frozen
+class SafetyConfig(Section):
+    """The QP action filter (spec §5). Joint limits and velocity limits come from the robot
+    description; only margins and the extra limits the description lacks live here."""
+
+    enabled: Bool  # false only for an explicit ablation (logged as such)
+    solver: Literal["osqp", "daqp"]
+    position_margin: NonNeg  # rad, kept from each finite joint limit
+    velocity_margin: Annotated[Float, within(0, 1, "[)")]  # fraction of each joint's velocity limit
+    # left unused: headroom for the velocity controller, whose joints run faster than commanded
+    # under gravity (servo error)
+    acceleration_limit: tuple[Pos, ...]  # rad/s^2 per joint, |u - u_prev| <= a_max dt
+    braking_horizon: Bool  # true: position and Cartesian rows look ahead max(dt, max_i v_i/a_i) s
+    # (the time to brake from full speed), which keeps them satisfiable under the acceleration
+    # limits; false: one control period dt, the literal one-step rows
+    table_rows: Bool  # the tip and wrist stay table_margin above the table top
+    table_margin: NonNeg  # m, the pusher tip stays this far above the table top
+    wrist_table_margin: NonNeg  # m, the wrist point (the pusher's attachment, inside the wrist
+    # ring) stays this far above the table top: the ring's radius plus a clearance
+    workspace_rows: Bool  # the tip and wrist stay inside the workspace box
+    workspace_lower: Vec3  # m, world-frame box the tip and wrist stay in
+    workspace_upper: Vec3
+    table_distance_rows: Bool  # distance rows robot part-table (pusher body, link capsules)
+    obstacle_rows: Bool  # distance rows robot part-obstacle (off in training, on in deployment)
+    obstacle_safe_distance: NonNeg  # m, d_safe
+    obstacle_activation_distance: Float  # m, pairs farther than this add no row
+    max_obstacle_rows: Annotated[NonNegInt, le(LIMITS["max_obstacle_rows"])]  # the nearest pairs
+    # within the activation distance get a row
+    self_collision_rows: Bool  # distance rows between the arm's own parts (the pairs below), with
+    # the obstacle rows' safe distance, activation distance and horizon
+    self_collision_pairs: SelfCollisionPairs
+    osqp_eps: Pos  # OSQP absolute and relative tolerance
+    osqp_max_iter: Annotated[PosInt, le(LIMITS["osqp_max_iter"])]
+    cartesian_regularization: Pos  # lambda of ||u||^2 in cartesian mode, (m/rad)^2
+    cartesian_orientation_weight: NonNeg  # weight of holding the pusher's axis direction, m^2
+
+    def check(self, key: str) -> None:
+        if self.obstacle_activation_distance <= self.obstacle_safe_distance:
+            raise ConfigError(f"{key}.obstacle_activation_distance ({self.obstacle_activation_distance}) "
+                              f"must exceed {key}.obstacle_safe_distance ({self.obstacle_safe_distance})")
+        for i, (lo, hi) in enumerate(zip(self.workspace_lower, self.workspace_upper)):
+            if not lo < hi:
+                raise ConfigError(f"{key}.workspace_lower[{i}] ({lo}) must be < workspace_upper[{i}] ({hi})")
+
+
+Window = Annotated[PosInt, le(LIMITS["window"])]
+
+
+@Frozen
+class MechanismConfig(Section):
+    """Reward mechanisms of spec §4. Orders list objective names: avoid, manipulate, time."""
+
+    method: Method
+    fixed_order: Order  # FHRM: one order for every phase
+    manual_orders: tuple[Order, Order, Order]  # MHRM, per phase
+    initial_orders: tuple[Order, Order, Order]  # AHRM, per phase
+    convergence_window: Window  # W episodes
+    convergence_tolerance: Pos  # relative to max(1, |mean|)
+    constraint_window: Window  # episodes averaged for tau
+    constraint_min_steps: Window  # steps in a phase before the constraint is checked
+    constraint_margin: NonNeg  # a per-step average below tau - margin ends the episode
+    priority_period: Window  # P: visiting episodes between priority determinations
+    blend_band: Pos  # delta, m
+    blend_slope: Pos  # alpha, 1/m
+
+
+@Frozen
+class PPOConfig(Section):
+    """PPO hyper-parameters (spec §6). ``configs/ppo.yaml`` holds the learnability study's choices;
+    the paper's Table I values are ``configs/profiles/paper.yaml``."""
+
+    gamma: Annotated[Float, within(0, 1)]
+    gae_lambda: Annotated[Float, within(0, 1)]
+    frames_per_batch: Annotated[PosInt, le(LIMITS["frames_per_batch"])]
+    mini_batch_size: PosInt
+    epochs: Annotated[PosInt, le(LIMITS["epochs"])]
+    learning_rate: Pos
+    clip_epsilon: Pos
+    entropy_coeff: NonNeg
+    critic_coeff: NonNeg
+    max_grad_norm: Pos
+    hidden_sizes: Annotated[tuple[Annotated[PosInt, le(LIMITS["hidden_width"])], ...],
+                            count(1, LIMITS["hidden_layers"])]  # actor and critic layer widths
+    activation: Literal["tanh", "relu", "elu"]
+    init_std: Pos  # initial standard deviation of the (pre-tanh) Gaussian policy
+    std_mode: Literal["learned", "fixed", "scheduled"]  # scheduled: init_std -> final_std
+    final_std: Pos  # std_mode scheduled: the standard deviation reached after std_schedule_frames
+    std_schedule_frames: PosInt  # frames over which the std goes (log-linearly) to final_std
+    target_kl: NonNeg  # stop a batch's epochs once the approximate KL exceeds 1.5x this (0: off)
+    normalize_advantage: Bool  # scale each mini-batch's advantages to zero mean, unit std
+    normalize_observations: Bool
+    normalizer_clip: Pos  # normalised observations are clipped to +-this
+    update_normalizer: Bool  # keep updating its statistics from every batch (false: frozen once set)
+    bc_coeff: NonNeg  # weight of a behaviour-cloning term toward the demonstrations (0: off)
+    bc_coeff_final: NonNeg  # the anchor's weight goes linearly from bc_coeff to this ...
+    bc_decay_frames: NonNegInt  # ... over this many frames (0: constant bc_coeff)
+    reward_scale: Pos  # rewards are multiplied by this before GAE (the critic learns scaled returns)
+
+    def check(self, key: str) -> None:
+        if self.frames_per_batch % self.mini_batch_size:
+            raise ConfigError(f"{key}.frames_per_batch ({self.frames_per_batch}) must be a multiple of "
+                              f"{key}.mini_batch_size ({self.mini_batch_size})")
+
+
+@Frozen
+class TrainConfig(Section):
+    episodes: Annotated[PosInt, le(LIMITS["episodes"])]  # training stops after this many episodes
+    seed: Annotated[NonNegInt, le(LIMITS["seed"])]
+    runs_dir: Str  # run folders are created here (relative to the working directory)
+    checkpoint_every: PosInt  # batches between checkpoints
+    keep_checkpoints: Annotated[PosInt, le(LIMITS["keep_checkpoints"])]  # most recent kept on disk
+    eval_episodes: Annotated[NonNegInt, le(LIMITS["eval_episodes"])]  # deterministic evaluation
+    # episodes at the end of training (0: none)
+    eval_every: NonNegInt  # also evaluate (eval_episodes) every this many training episodes (0: never)
+    threads: Annotated[PosInt, le(LIMITS["threads"], " (train.py also refuses more than this "
+                                                     "machine's CPU count)")]  # torch intra-op threads
+    warm_start: Literal["none", "bc"]  # bc: behaviour cloning from scripted demonstrations first
+    demo_episodes: Annotated[PosInt, le(LIMITS["demo_episodes"])]  # scripted-controller episodes
+    # recorded for warm start and the BC anchor
+    bc_epochs: Annotated[PosInt, le(LIMITS["bc_epochs"])]  # passes over the demonstrations for
+    # behaviour cloning and the critic refit
+    bc_learning_rate: Pos
+    demo_noise: NonNeg  # std of noise on the executed demonstration actions (normalised; labels clean)
+    num_envs: Annotated[PosInt, le(LIMITS["num_envs"])]  # environments stepped together (in one
+    # process, sharing the reward mechanism)
+    dagger_rounds: NonNegInt  # after cloning: rounds of (run the clone, label its states with the
+    # scripted controller, refit on all data so far); 0: none
+    dagger_episodes: PosInt  # episodes per round
+    dagger_duration: Pos  # s, a round's episode is cut after this much simulated time
+    frames: NonNegInt  # training stops once this many frames are collected (0: ``episodes`` decides)
+    eval_every_frames: NonNegInt  # ... or evaluate every this many frames (0: never); either triggers
+    time_limit: NonNeg  # s, training episodes are truncated here (0: task.episode.duration);
+    # evaluation keeps task.episode.duration
+    start_curriculum: Literal["none", "near_cube", "scripted_states"]  # near_cube: start near the
+    # cube (task.arm.near_cube), more starts by task.arm.start as the level rises; scripted_states:
+    # start from the scripted controller's recorded states, further back as the level rises
+    curriculum_states: PosInt  # scripted_states: scripted episodes recorded (the won ones are used)
+    curriculum_window: PosInt  # training episodes whose success rate decides a rise of the level
+    curriculum_threshold: Annotated[Float, within(0, 1)]  # success rate over the window that raises it
+    curriculum_step: Annotated[Float, within(0, 1, "(]")]  # the level's rise (0 to 1; at 1 the task
+    # draws every start)
+
+    def check(self, key: str) -> None:
+        if not self.runs_dir.strip():
+            raise ConfigError(f"{key}.runs_dir must name a folder, got {self.runs_dir!r}")
+
+
+@Frozen
+class Config(Section):
+    task: TaskConfig
+    scripted: ScriptedConfig
+    safety: SafetyConfig
+    mechanism: MechanismConfig
+    ppo: PPOConfig
+    train: TrainConfig
+
+    def check(self, key: str) -> None:
+        ppo, train, episode = self.ppo, self.train, self.task.episode
         if ppo.frames_per_batch % train.num_envs:
             raise ConfigError(f"ppo.frames_per_batch ({ppo.frames_per_batch}) must be a multiple of "
                               f"train.num_envs ({train.num_envs})")
@@ -710,13 +575,13 @@ def _check_limits(obj: Any, key: str) -> None:
             raise ConfigError(f"train.demo_episodes ({train.demo_episodes}) x {steps} steps per "
                               f"episode (task.episode.duration) exceeds {LIMITS['demo_steps']} "
                               "demonstration steps held in memory")
-        if len(obj.safety.acceleration_limit) != len(obj.task.arm.home):
-            raise ConfigError(f"safety.acceleration_limit has {len(obj.safety.acceleration_limit)} "
-                              f"values, task.arm.home_deg {len(obj.task.arm.home)}: both give one "
-                              f"value per joint of task.robot ({obj.task.robot})")
-        if obj.task.regions.distance_clip < obj.mechanism.blend_band:
-            raise ConfigError(f"task.regions.distance_clip ({obj.task.regions.distance_clip} m) must "
-                              f"be >= mechanism.blend_band ({obj.mechanism.blend_band} m)")
+        if len(self.safety.acceleration_limit) != len(self.task.arm.home):
+            raise ConfigError(f"safety.acceleration_limit has {len(self.safety.acceleration_limit)} "
+                              f"values, task.arm.home_deg {len(self.task.arm.home)}: both give one "
+                              f"value per joint of task.robot ({self.task.robot})")
+        if self.task.regions.distance_clip < self.mechanism.blend_band:
+            raise ConfigError(f"task.regions.distance_clip ({self.task.regions.distance_clip} m) must "
+                              f"be >= mechanism.blend_band ({self.mechanism.blend_band} m)")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -725,40 +590,6 @@ def _check_limits(obj: Any, key: str) -> None:
 
 SECTIONS = {"task": "task.yaml", "scripted": "scripted.yaml", "safety": "safety.yaml",
             "mechanism": "mechanism.yaml", "ppo": "ppo.yaml", "train": "train.yaml"}
-
-
-def _read_yaml(path: Path) -> dict:
-    if not path.is_file():
-        raise ConfigError(f"config file not found: {path}")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
-    if not isinstance(data, dict):
-        raise ConfigError(f"{path}: expected a mapping at the top level")
-    return data
-
-
-def apply_override(data: dict, override: str) -> None:
-    """Apply one ``dotted.key=value`` override to a nested dict, in place."""
-    if "=" not in override:
-        raise ConfigError(f"override {override!r} must look like key.sub=value")
-    dotted, raw = override.split("=", 1)
-    parts = dotted.strip().split(".")
-    node = data
-    for i, part in enumerate(parts):
-        if not isinstance(node, dict):
-            raise ConfigError(f"config key '{'.'.join(parts[:i])}' in override {override!r} is a value, "
-                              "not a section with keys")
-        if part not in node:
-            raise ConfigError(f"unknown config key '{'.'.join(parts[: i + 1])}' in override {override!r}; "
-                              f"allowed keys here: {sorted(node)}")
-        if i < len(parts) - 1:
-            node = node[part]
-    try:
-        node[parts[-1]] = yaml.safe_load(raw)
-    except yaml.YAMLError:
-        raise ConfigError(f"override {override!r}: value is not valid YAML") from None
 
 
 PROFILE_DIR = "profiles"  # under the config folder: named sets of overrides
@@ -783,7 +614,7 @@ def profile_overrides(name: str, config_dir: Path | str = CONFIG_DIR) -> list[st
     if not path.is_file():
         known = sorted(p.stem for p in folder.glob("*.yaml")) if folder.is_dir() else []
         raise ConfigError(f"profile={name}: no file {path}; known profiles: {known}")
-    return _flatten(_read_yaml(path))
+    return _flatten(read_yaml(path))
 
 
 def apply_overrides(data: dict, overrides: Sequence[str], config_dir: Path | str = CONFIG_DIR) -> None:
@@ -791,22 +622,64 @@ def apply_overrides(data: dict, overrides: Sequence[str], config_dir: Path | str
     its place in the list (so later overrides win over it)."""
     for override in overrides:
         if override.strip().startswith("profile="):
-            for item in profile_overrides(override.split("=", 1)[1].strip(), config_dir):
-                apply_override(data, item)
+            name = override.split("=", 1)[1].strip()
+            for item in profile_overrides(name, config_dir):
+                try:
+                    apply_override(data, item)
+                except ConfigError as error:
+                    path = show_path(Path(config_dir) / PROFILE_DIR / f"{name}.yaml")
+                    raise ConfigError(f"{error} ({path})") from None
         else:
             apply_override(data, override)
 
 
 def load_raw(config_dir: Path | str = CONFIG_DIR) -> dict:
     config_dir = Path(config_dir)
-    return {section: _read_yaml(config_dir / name) for section, name in SECTIONS.items()}
+    return {section: read_yaml(config_dir / name) for section, name in SECTIONS.items()}
+
+
+def config_source(config_dir: Path | str = CONFIG_DIR, overrides: Sequence[str] = (),
+                  path: Path | str | None = None) -> Source:
+    """Where a key's value came from, for messages: "override" for a key that ``overrides`` set
+    (a profile's keys count as the profile's file), else ``path`` (a run's config.yaml) or the
+    section's file under ``config_dir``."""
+    changed, profiles = [], []
+    for item in overrides:
+        if item.strip().startswith("profile="):
+            profiles.append(item.split("=", 1)[1].strip())
+        else:
+            changed += override_keys([item])
+
+    def at(key: str, keys: list[str]) -> bool:  # key is one of keys or lies below one
+        return any(key == k or key.startswith((f"{k}.", f"{k}[")) for k in keys)
+
+    def note(key: str) -> str | None:
+        if at(key, changed):
+            return "override"
+        for name in profiles:
+            try:
+                keys = override_keys(profile_overrides(name, config_dir))
+            except ConfigError:
+                continue
+            if at(key, keys):
+                return show_path(Path(config_dir) / PROFILE_DIR / f"{name}.yaml")
+        section = key.split(".")[0].split("[")[0]
+        if path is not None:
+            where = show_path(path)
+        elif section in SECTIONS:
+            where = show_path(Path(config_dir) / SECTIONS[section])
+        else:
+            return None
+        # a rule over several keys of a section (key: the section) that an override took part in
+        return f"{where} with overrides" if any(at(k, [key]) for k in changed) else where
+    return note
 
 
 def load_config(overrides: Sequence[str] = (), config_dir: Path | str = CONFIG_DIR) -> Config:
     """Read ``configs/*.yaml``, apply ``overrides`` (``profile=NAME`` among them) and validate."""
     data = load_raw(config_dir)
     apply_overrides(data, overrides, config_dir)
-    return config_from_dict(data)
+    return config_from_dict(data, source=config_source(config_dir, overrides))
 
 
 # Keys added after runs were recorded: a run's config.yaml that lacks them takes them from the
@@ -839,7 +712,7 @@ def _legacy_fill(data: dict) -> dict:
             (observation, ("lane_clip",)))):
         return data
     data = copy.deepcopy(data)
-    defaults = {name: _read_yaml(CONFIG_DIR / file) for name, file in SECTIONS.items()}
+    defaults = {name: read_yaml(CONFIG_DIR / file) for name, file in SECTIONS.items()}
     if arm is not None and "start" not in arm:
         data["task"]["arm"].setdefault("start", "home")
         data["task"]["arm"].setdefault("start_region", defaults["task"]["arm"]["start_region"])
@@ -859,6 +732,9 @@ def _legacy_fill(data: dict) -> dict:
     if train is not None:  # keys whose default leaves training as it was before they existed
         for key in NEUTRAL_TRAIN_KEYS:
             data["train"].setdefault(key, defaults["train"][key])
+    if ppo is not None:
+        for key in NEUTRAL_PPO_KEYS:
+            data["ppo"].setdefault(key, defaults["ppo"][key])
     if train is not None:
         for key in ("dagger_rounds", "dagger_episodes", "dagger_duration"):
             data["train"].setdefault(key, 0 if key == "dagger_rounds" else defaults["train"][key])
@@ -866,16 +742,20 @@ def _legacy_fill(data: dict) -> dict:
         data["task"]["observation"] = {"relative": False, "lanes": False}
     if isinstance(data.get("task"), dict) and isinstance(data["task"].get("observation"), dict):
         data["task"]["observation"].setdefault("lane_clip", defaults["task"]["observation"]["lane_clip"])
-    if ppo is not None:
-        for key in NEUTRAL_PPO_KEYS:
-            data["ppo"].setdefault(key, defaults["ppo"][key])
     if ppo is not None and "bc_coeff_final" not in ppo and "bc_coeff" in ppo:
         data["ppo"].setdefault("bc_coeff_final", ppo["bc_coeff"])
         data["ppo"].setdefault("bc_decay_frames", 0)
     return data
 
 
-def config_from_dict(data: dict, runnable: bool = True) -> Config:
+def config_from_dict(data: dict, runnable: bool = True, source: Source | None = None) -> Config:
+    """Validate a parsed configuration (the sections of ``configs/`` or a run folder's
+    ``config.yaml``, old run folders' missing keys filled) into a :class:`Config`.
+
+    ``runnable``: also refuse combinations that cannot run (deploy reads a checkpoint's config,
+    whose safety settings it replaces, with False). ``source`` (see :func:`config_source`) names
+    the file in messages. ``config_from_dict(config.to_dict()) == config``.
+    """
     if isinstance(data, dict):
         data = _legacy_fill(data)
     if isinstance(data, dict) and any(isinstance(data.get(section), dict) and
@@ -884,9 +764,9 @@ def config_from_dict(data: dict, runnable: bool = True) -> Config:
         data = dict(data)
         for section, keys in BACKFILLED.items():
             if isinstance(data.get(section), dict):
-                defaults = _read_yaml(CONFIG_DIR / SECTIONS[section])
+                defaults = read_yaml(CONFIG_DIR / SECTIONS[section])
                 data[section] = {**{k: defaults[k] for k in keys}, **data[section]}
-    config = _build(Config, data, "")
+    config = validate(Config, data, "", source)
     if runnable and config.task.action.mode == "cartesian" and not config.safety.enabled:
         # a rule for running the task, not for reading a run's file: deploy reads a checkpoint's
         # config (and replaces its safety settings with its own) with runnable=False
@@ -901,109 +781,67 @@ def config_from_dict(data: dict, runnable: bool = True) -> Config:
 # ----------------------------------------------------------------------------------------------
 
 
-@dataclasses.dataclass(frozen=True)
-class VideoConfig:
+@Frozen
+class VideoConfig(Section):
     """Offscreen evaluation videos (``configs/video.yaml``)."""
 
-    camera: str  # a named camera of the arena
-    width: int  # px, even
-    height: int  # px, even
-    frame_every: int  # control steps per frame
-    shadows: bool  # shadows cost most of the rendering time in software OpenGL
-    quality: int  # imageio-ffmpeg quality 0..10
-    gl_backends: tuple[str, ...]  # MUJOCO_GL values tried in order when MUJOCO_GL is unset
+    camera: Str  # a named camera of the arena
+    width: Annotated[PosInt, AfterValidator(_even)]  # px, even
+    height: Annotated[PosInt, AfterValidator(_even)]  # px, even
+    frame_every: PosInt  # control steps per frame
+    shadows: Bool  # shadows cost most of the rendering time in software OpenGL
+    quality: Annotated[Int, within(0, 10)]  # imageio-ffmpeg quality 0..10
+    gl_backends: Annotated[tuple[Literal["egl", "osmesa", "glfw"], ...], count(1)]  # MUJOCO_GL values
+    # tried in order when MUJOCO_GL is unset
 
 
-@dataclasses.dataclass(frozen=True)
-class PaperRow:
+@Frozen
+class PaperRow(Section):
     """One method's row of the paper's Table II."""
 
-    successes: int
-    episodes: int
-    touched: int  # episodes touching an obstacle
-    time: tuple[float, float]  # mean, std time to success, s
-    travel: tuple[float, float]  # mean, std cube travel, m
+    successes: NonNegInt
+    episodes: PosInt
+    touched: NonNegInt  # episodes touching an obstacle
+    time: Pair  # mean, std time to success, s
+    travel: Pair  # mean, std cube travel, m
 
 
-@dataclasses.dataclass(frozen=True)
-class ExperimentConfig:
+@Frozen
+class ExperimentConfig(Section):
     """The four-method grid, its budgets and its report (``configs/experiment.yaml``)."""
 
-    methods: tuple[str, ...]  # mechanism.method values
-    seeds: int  # training seeds 0 .. seeds-1
-    episodes: int  # training episodes per run
-    eval_episodes: int  # deterministic evaluation episodes per run
-    scripted_episodes: int  # evaluation episodes of the scripted controller (0: no row)
-    eval_layout: str  # a name in configs/layouts.yaml
-    video_episode: int  # evaluation episode rendered per method (-1: no videos)
-    cpus_per_run: float  # Ray num_cpus of one run
-    ray_temp_dir: str
-    ray_object_store_mb: int
-    success_threshold: float  # fraction of successes for "episodes to reach it"
-    success_window: int  # trailing training episodes of that fraction
-    curve_window: int  # trailing window of the learning curves, episodes
-    suite: bool  # also evaluate every run (and its clone, and the scripted controller) on the suite
-    bootstrap_samples: int  # resamples of the bootstrap intervals on differences between methods
-    paper_table2: dict[str, PaperRow]
+    methods: Annotated[tuple[Method, ...], count(1)]  # mechanism.method values, distinct
+    seeds: PosInt  # training seeds 0 .. seeds-1
+    episodes: PosInt  # training episodes per run
+    eval_episodes: PosInt  # deterministic evaluation episodes per run
+    scripted_episodes: NonNegInt  # evaluation episodes of the scripted controller (0: no row)
+    eval_layout: Str  # a name in configs/layouts.yaml
+    video_episode: Annotated[Int, ge(-1)]  # evaluation episode rendered per method (-1: no videos)
+    cpus_per_run: Pos  # Ray num_cpus of one run
+    ray_temp_dir: Str
+    ray_object_store_mb: PosInt
+    success_threshold: Annotated[Float, within(0, 1, "(]")]  # fraction of successes for "episodes
+    # to reach it"
+    success_window: PosInt  # trailing training episodes of that fraction
+    curve_window: PosInt  # trailing window of the learning curves, episodes
+    suite: Bool  # also evaluate every run (and its clone, and the scripted controller) on the suite
+    bootstrap_samples: PosInt  # resamples of the bootstrap intervals on differences between methods
+    paper_table2: dict[Str, PaperRow]
 
-
-def _check_extra(obj: Any, where: str) -> None:
-    if isinstance(obj, VideoConfig):
-        _positive(obj, where, "width", "height", "frame_every")
-        for name in ("width", "height"):
-            if getattr(obj, name) % 2:
-                raise ConfigError(f"{where}.{name} must be even (H.264), got {getattr(obj, name)}")
-        if not 0 <= obj.quality <= 10:
-            raise ConfigError(f"{where}.quality must be in 0..10, got {obj.quality}")
-        bad = [b for b in obj.gl_backends if b not in ("egl", "osmesa", "glfw")]
-        if bad or not obj.gl_backends:
-            raise ConfigError(f"{where}.gl_backends: {list(obj.gl_backends)} must be a non-empty list "
-                              "of egl, osmesa, glfw")
-    elif isinstance(obj, ExperimentConfig):
-        allowed = typing.get_args(typing.get_type_hints(MechanismConfig)["method"])
-        bad = [m for m in obj.methods if m not in allowed]
-        if bad or not obj.methods or len(set(obj.methods)) != len(obj.methods):
-            raise ConfigError(f"{where}.methods: {list(obj.methods)} must be distinct values of "
-                              f"{list(allowed)}")
-        _positive(obj, where, "seeds", "episodes", "eval_episodes", "cpus_per_run",
-                  "ray_object_store_mb", "success_window", "curve_window")
-        if obj.scripted_episodes < 0 or obj.video_episode < -1:
-            raise ConfigError(f"{where}.scripted_episodes must be >= 0 and video_episode >= -1")
-        if obj.video_episode >= obj.eval_episodes:
-            raise ConfigError(f"{where}.video_episode ({obj.video_episode}) must be < eval_episodes "
-                              f"({obj.eval_episodes})")
-        if not 0 < obj.success_threshold <= 1:
-            raise ConfigError(f"{where}.success_threshold must be in (0, 1], got {obj.success_threshold}")
-
-
-def _convert_extra(tp: Any, value: Any, key: str) -> Any:
-    if typing.get_origin(tp) is dict:
-        if not isinstance(value, dict):
-            raise ConfigError(f"{key}: expected a mapping, got {value!r}")
-        item = typing.get_args(tp)[1]
-        return {str(k): _build(item, v, f"{key}.{k}") for k, v in value.items()}
-    return _convert(tp, value, key)
+    def check(self, key: str) -> None:
+        if len(set(self.methods)) != len(self.methods):
+            raise ConfigError(f"{key}.methods: {list(self.methods)} must be distinct values of "
+                              f"{list(typing.get_args(Method))}")
+        if self.video_episode >= self.eval_episodes:
+            raise ConfigError(f"{key}.video_episode ({self.video_episode}) must be < eval_episodes "
+                              f"({self.eval_episodes})")
 
 
 def load_extra(cls: type, name: str, overrides: Sequence[str] = (),
                config_dir: Path | str = CONFIG_DIR) -> Any:
     """Load ``configs/<name>.yaml`` into ``cls`` (VideoConfig, ExperimentConfig) with ``key=value``
-    overrides (keys relative to the file), validated."""
-    path = Path(config_dir) / f"{name}.yaml"
-    data = _read_yaml(path)
-    for override in overrides:
-        apply_override(data, override)
-    hints = typing.get_type_hints(cls)
-    fields = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - fields)
-    if unknown:
-        raise ConfigError(f"{path}: unknown key '{name}.{unknown[0]}'; allowed keys: {sorted(fields)}")
-    missing = sorted(fields - set(data))
-    if missing:
-        raise ConfigError(f"{path}: missing key '{name}.{missing[0]}'")
-    obj = cls(**{k: _convert_extra(hints[k], data[k], f"{name}.{k}") for k in fields})
-    _check_extra(obj, name)
-    return obj
+    overrides (keys relative to the file), validated; keys are named ``<name>.<key>``."""
+    return load_file(cls, Path(config_dir) / f"{name}.yaml", name, overrides)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1013,42 +851,31 @@ def load_extra(cls: type, name: str, overrides: Sequence[str] = (),
 ROBOTS_DIR = CONFIG_DIR / "robots"
 
 
-@dataclasses.dataclass(frozen=True)
-class UrdfArmConfig:
+@Frozen
+class UrdfArmConfig(Section):
     """How to build a simulated arm from a URDF of the ``example-robot-data`` package. Joint
     limits, velocity limits, efforts, inertias and meshes come from the URDF; this file holds only
     the simulation parameters a URDF does not carry, and which links to use."""
 
-    urdf: str  # path under example-robot-data's share folder, e.g. robots/.../kinova.urdf
-    root_link: str  # the link placed at the arm's base frame
-    flange_link: str  # the last link kept: the hand mounts here and the pusher replaces it
-    end_effector_link: str  # a link below the flange: the pusher points from the flange toward it
-    hand_meshes: tuple[str, ...]  # mesh file names of the hand on the flange link (not built)
-    velocity_gain: float  # kv of the velocity actuators, N m s/rad
-    min_velocity_margin: float  # lower bound on safety.velocity_margin for this arm (fraction of
-    # each velocity limit): the filter keeps max(safety.velocity_margin, this) as servo headroom
-    joint_damping: float  # N m s/rad, every actuated joint
-    armature: tuple[float, ...]  # kg m^2, per actuated joint (rotor inertia)
-    frictionloss: tuple[float, ...]  # N m, per actuated joint
+    urdf: Str  # path under example-robot-data's share folder, e.g. robots/.../kinova.urdf
+    root_link: Str  # the link placed at the arm's base frame
+    flange_link: Str  # the last link kept: the hand mounts here and the pusher replaces it
+    end_effector_link: Str  # a link below the flange: the pusher points from the flange toward it
+    hand_meshes: tuple[Str, ...]  # mesh file names of the hand on the flange link (not built)
+    velocity_gain: Pos  # kv of the velocity actuators, N m s/rad
+    min_velocity_margin: Annotated[Float, within(0, 1, "[)")]  # lower bound on safety.velocity_margin
+    # for this arm (fraction of each velocity limit): the filter keeps max(safety.velocity_margin,
+    # this) as servo headroom
+    joint_damping: NonNeg  # N m s/rad, every actuated joint
+    armature: tuple[NonNeg, ...]  # kg m^2, per actuated joint (rotor inertia)
+    frictionloss: tuple[NonNeg, ...]  # N m, per actuated joint
 
-
-def _check_urdf_arm(obj: UrdfArmConfig, key: str) -> None:
-    _positive(obj, key, "velocity_gain")
-    if not 0 <= obj.min_velocity_margin < 1:
-        raise ConfigError(f"{key}.min_velocity_margin must be in [0, 1), got {obj.min_velocity_margin!r}")
-    for name in ("joint_damping", "armature", "frictionloss"):
-        value = getattr(obj, name)
-        for i, v in enumerate(value if isinstance(value, tuple) else (value,)):
-            if v < 0:
-                raise ConfigError(f"{key}.{name} must be >= 0, got {v!r}")
-    if len(obj.armature) != len(obj.frictionloss):
-        raise ConfigError(f"{key}: armature ({len(obj.armature)} values) and frictionloss "
-                          f"({len(obj.frictionloss)} values) must both give one value per joint")
+    def check(self, key: str) -> None:
+        if len(self.armature) != len(self.frictionloss):
+            raise ConfigError(f"{key}: armature ({len(self.armature)} values) and frictionloss "
+                              f"({len(self.frictionloss)} values) must both give one value per joint")
 
 
 def load_robot_config(name: str, robots_dir: Path | str = ROBOTS_DIR) -> UrdfArmConfig:
     """The validated ``<robots_dir>/<name>.yaml``; keys are named as ``robots/<name>.<key>``."""
-    data = _read_yaml(Path(robots_dir) / f"{name}.yaml")
-    config = _build(UrdfArmConfig, data, f"robots/{name}")
-    _check_urdf_arm(config, f"robots/{name}")
-    return config
+    return load_file(UrdfArmConfig, Path(robots_dir) / f"{name}.yaml", f"robots/{name}")

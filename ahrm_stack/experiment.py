@@ -29,8 +29,7 @@ from pathlib import Path
 from typing import Sequence
 
 from ahrm_stack.cli import add_verbose_flag, library_log_level, quiet
-from ahrm_stack.config import (ConfigError, ExperimentConfig, VideoConfig, apply_overrides,
-                               config_from_dict, load_extra, load_raw)
+from ahrm_stack.config import ConfigError, ExperimentConfig, VideoConfig, load_config, load_extra, load_raw
 
 DONE, FAILED, GRID = "done.json", "failed.json", "grid.json"
 RESULT_KEYS = ("overrides", "eval_episodes", "episodes", "layout")  # a run's spec keys that change its result
@@ -77,9 +76,7 @@ def build_grid(args: argparse.Namespace) -> dict:
             experiment_overrides.append(f"{key}={json.dumps(value)}")
     experiment = load_extra(ExperimentConfig, "experiment", experiment_overrides)
     load_extra(VideoConfig, "video", video_overrides)  # fail now, not in every task
-    raw = load_raw()
-    apply_overrides(raw, train_overrides)
-    config_from_dict(raw)  # fail now, not in every task
+    load_config(train_overrides)  # fail now, not in every task
     from ahrm_stack.env.layout_catalog import apply_layout
     apply_layout(load_raw(), experiment.eval_layout)
     out = Path(args.out).resolve()
@@ -138,12 +135,10 @@ def run_one(spec: dict) -> dict:
             (run_dir / FAILED).unlink(missing_ok=True)
             if not (run_dir / "policy.pt").is_file():
                 from ahrm_stack.train import train
-                raw = load_raw()
-                apply_overrides(raw, spec["overrides"])
-                config = config_from_dict(raw)
+                config = load_config(spec["overrides"])
                 checkpoints = run_dir / "checkpoints"
                 resume = checkpoints.is_dir() and any(checkpoints.glob("ckpt-*.pt"))
-                train(config, raw, run_dir, resume=resume, progress=False)
+                train(config, run_dir, resume=resume, progress=False)
             from ahrm_stack.evaluate import evaluate
             evaluation = evaluate(run_dir, spec["eval_episodes"], spec["layout"], run_dir / "eval",
                                   Path(spec["video"]) if spec["video"] else None,

@@ -12,8 +12,12 @@ from __future__ import annotations
 import dataclasses
 import functools
 from pathlib import Path
+from typing import Annotated, Any
 
-from ahrm_stack.config import CONFIG_DIR, ConfigError, _read_yaml
+from pydantic import PlainValidator
+
+from ahrm_stack.config import CONFIG_DIR, ConfigError
+from ahrm_stack.schema import Int, Section, fail, ge, load_file
 
 SEEDS_FILE = CONFIG_DIR / "seeds.yaml"
 
@@ -35,10 +39,42 @@ class SeedRange:
         return self.start + index
 
 
+def _seed_range(value: Any) -> SeedRange:
+    """``[start, size]`` (integers, start >= 0, size >= 1) -> a SeedRange (named by the table)."""
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        fail(f": expected [start, size], got {value!r}")
+    for what, number, least in (("start", value[0], 0), ("size", value[1], 1)):
+        if isinstance(number, bool) or not isinstance(number, int) or number < least:
+            fail(f" {what} must be an integer >= {least}, got {number!r}")
+    return SeedRange("", value[0], value[1])
+
+
 @dataclasses.dataclass(frozen=True)
-class SeedTable:
-    env_stride: int
-    ranges: dict[str, SeedRange]
+class SeedTable(Section):
+    """``configs/seeds.yaml``: the environment stride and the named, disjoint ranges."""
+
+    env_stride: Annotated[Int, ge(1)]  # training environment i is seeded train.seed + i * this
+    ranges: dict[str, Annotated[SeedRange, PlainValidator(_seed_range)]]  # name: [start, size]
+
+    def derive(self) -> None:
+        object.__setattr__(self, "ranges", {name: dataclasses.replace(r, name=name)
+                                            for name, r in self.ranges.items()})
+
+    def check(self, key: str) -> None:
+        ordered = sorted(self.ranges.values(), key=lambda r: r.start)
+        for a, b in zip(ordered, ordered[1:]):
+            if b.start < a.stop:
+                raise ConfigError(f"seed ranges '{a.name}' [{a.start}, {a.stop}) and '{b.name}' "
+                                  f"[{b.start}, {b.stop}) overlap")
+        for required in ("training", "demonstrations", "evaluation"):
+            if required not in self.ranges:
+                raise ConfigError(f"missing seed range 'ranges.{required}'")
+        if ordered and ordered[-1].stop > 2**32:
+            raise ConfigError("seed ranges must end below 2**32 (numpy's seed range)")
+
+    def to_dict(self) -> dict:
+        return {"env_stride": self.env_stride,
+                "ranges": {name: [r.start, r.size] for name, r in self.ranges.items()}}
 
     def __getitem__(self, name: str) -> SeedRange:
         if name not in self.ranges:
@@ -46,37 +82,9 @@ class SeedTable:
         return self.ranges[name]
 
 
-def _int(value, where: str, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ConfigError(f"{where} must be an integer >= {minimum}, got {value!r}")
-    return value
-
-
 def load_seed_table(path: Path | str = SEEDS_FILE) -> SeedTable:
     """Read and check the seed ranges: integer [start, size] pairs that do not overlap."""
-    path = Path(path)
-    data = _read_yaml(path)
-    unknown = sorted(set(data) - {"env_stride", "ranges"})
-    if unknown:
-        raise ConfigError(f"{path}: unknown key '{unknown[0]}'; allowed: ['env_stride', 'ranges']")
-    stride = _int(data.get("env_stride"), f"{path}: env_stride", 1)
-    ranges = {}
-    for name, pair in (data.get("ranges") or {}).items():
-        where = f"{path}: ranges.{name}"
-        if not isinstance(pair, list) or len(pair) != 2:
-            raise ConfigError(f"{where}: expected [start, size], got {pair!r}")
-        ranges[name] = SeedRange(name, _int(pair[0], f"{where} start", 0), _int(pair[1], f"{where} size", 1))
-    ordered = sorted(ranges.values(), key=lambda r: r.start)
-    for a, b in zip(ordered, ordered[1:]):
-        if b.start < a.stop:
-            raise ConfigError(f"{path}: seed ranges '{a.name}' [{a.start}, {a.stop}) and '{b.name}' "
-                              f"[{b.start}, {b.stop}) overlap")
-    for required in ("training", "demonstrations", "evaluation"):
-        if required not in ranges:
-            raise ConfigError(f"{path}: missing seed range '{required}'")
-    if ordered and ordered[-1].stop > 2**32:
-        raise ConfigError(f"{path}: seed ranges must end below 2**32 (numpy's seed range)")
-    return SeedTable(stride, ranges)
+    return load_file(SeedTable, path)
 
 
 @functools.lru_cache(maxsize=1)

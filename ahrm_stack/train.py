@@ -38,8 +38,8 @@ import numpy as np
 import yaml
 
 from ahrm_stack.cli import add_verbose_flag, quiet
-from ahrm_stack.config import (Config, ConfigError, _read_yaml, apply_overrides, config_from_dict,
-                               load_raw)
+from ahrm_stack.config import (Config, ConfigError, apply_overrides, config_from_dict, config_source,
+                               load_config, read_yaml)
 
 # torchrl announces its own deprecations at import, and dm_control turns every DeprecationWarning
 # on (warnings.simplefilter('always')): on stderr they would bury a one-line error. The warnings
@@ -80,7 +80,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
-def resolve_config(args: argparse.Namespace) -> tuple[Config, dict, Path]:
+def resolve_config(args: argparse.Namespace) -> tuple[Config, Path]:
+    """The validated configuration (``configs/`` or the resumed run's ``config.yaml``, with the
+    overrides) and the run folder."""
     if args.resume:
         run_dir = Path(args.resume)
         path = run_dir / "config.yaml"
@@ -89,19 +91,17 @@ def resolve_config(args: argparse.Namespace) -> tuple[Config, dict, Path]:
         if not path.is_file():
             raise ConfigError(f"--resume {run_dir}: no config.yaml there; is it a run folder? (a run "
                               "killed before writing it has nothing to resume: start it again)")
-        raw = _read_yaml(path)  # one-line errors for a missing, broken or non-mapping file
-    else:
-        raw = load_raw()
-    apply_overrides(raw, args.overrides)
-    config = config_from_dict(raw)
-    if args.resume:
-        return config, raw, Path(args.resume)
+        raw = read_yaml(path)  # one-line errors for a missing, broken or non-mapping file
+        apply_overrides(raw, args.overrides)
+        config = config_from_dict(raw, source=config_source(overrides=args.overrides, path=path))
+        return config, run_dir
+    config = load_config(args.overrides)
     if args.run_dir:
         run_dir = Path(args.run_dir)
     else:
         stamp = time.strftime("%Y%m%d-%H%M%S")
         run_dir = Path(config.train.runs_dir) / f"{config.mechanism.method}-seed{config.train.seed}-{stamp}"
-    return config, raw, run_dir
+    return config, run_dir
 
 
 # ----------------------------------------------------------------------------------------------
@@ -294,10 +294,11 @@ class RunLog:
 # ----------------------------------------------------------------------------------------------
 
 
-def _write_config(run_dir: Path, raw: dict) -> None:
-    """``run_dir/config.yaml``, atomically; a new folder appears only once it holds it, so a run
-    folder without a config.yaml is never left behind by a kill."""
-    text = yaml.safe_dump(raw, sort_keys=False)
+def _write_config(run_dir: Path, config: Config) -> None:
+    """``run_dir/config.yaml`` (the resolved configuration, ``config.to_dict()``), atomically; a new
+    folder appears only once it holds it, so a run folder without a config.yaml is never left
+    behind by a kill."""
+    text = yaml.safe_dump(config.to_dict(), sort_keys=False)
     if run_dir.is_dir():
         _write_atomically(run_dir / "config.yaml", text)
         return
@@ -315,7 +316,7 @@ def _write_config(run_dir: Path, raw: dict) -> None:
         _write_atomically(run_dir / "config.yaml", text)
 
 
-def _start_run(config: Config, raw: dict, run_dir: Path, resume: bool, rewrite_config: bool,
+def _start_run(config: Config, run_dir: Path, resume: bool, rewrite_config: bool,
                checkpoints: CheckpointManager, trainer: Trainer) -> Restored:
     """Everything a run checks before it writes, then the writes: config.yaml, corrupt
     checkpoints moved aside, the logs cut back to the checkpoint. Says what it did."""
@@ -333,7 +334,7 @@ def _start_run(config: Config, raw: dict, run_dir: Path, resume: bool, rewrite_c
                                   f"by an override?): {first}") from None
     # validated: from here on the run folder is written
     if not resume or rewrite_config:
-        _write_config(run_dir, raw)
+        _write_config(run_dir, config)
     for path, reason in restored.skipped:
         print(f"warning: {reason}; moved aside to {path.name}.corrupt", file=sys.stderr)
     checkpoints.discard(restored.skipped)
@@ -353,14 +354,14 @@ def _start_run(config: Config, raw: dict, run_dir: Path, resume: bool, rewrite_c
     return restored
 
 
-def train(config: Config, raw: dict, run_dir: Path, resume: bool, progress: bool = True,
+def train(config: Config, run_dir: Path, resume: bool, progress: bool = True,
           rewrite_config: bool = False) -> Path:
     """Run (or continue) training; returns the run folder.
 
     Raises ``ConfigError`` (a bad value that only the built environment reveals, a fresh run into
     a folder with checkpoints) or :class:`CheckpointError` (no usable checkpoint to resume from)
-    before anything is written. ``rewrite_config``: on resume, store ``raw`` (the run's config with
-    this resume's overrides) as the run's config.yaml.
+    before anything is written. ``rewrite_config``: on resume, store ``config`` (the run's config
+    with this resume's overrides) as the run's config.yaml.
     """
     cpus = os.cpu_count() or 1
     if config.train.threads > cpus:
@@ -373,7 +374,7 @@ def train(config: Config, raw: dict, run_dir: Path, resume: bool, progress: bool
     except (SafetyFilterError, ConstraintDefinitionError) as error:
         raise ConfigError(f"safety: {error}") from None
     try:
-        restored = _start_run(config, raw, run_dir, resume, rewrite_config, checkpoints, trainer)
+        restored = _start_run(config, run_dir, resume, rewrite_config, checkpoints, trainer)
         trainer.collect_demos()
         if restored.state is not None:  # exactly the state saved, whatever the demos drew
             torch.set_rng_state(restored.state["torch_rng"])
@@ -456,8 +457,8 @@ def main(argv: list[str] | None = None) -> int:
     quiet(args.verbose)
     started = time.perf_counter()
     try:
-        config, raw, run_dir = resolve_config(args)
-        run_dir = train(config, raw, run_dir, resume=bool(args.resume), progress=not args.no_progress,
+        config, run_dir = resolve_config(args)
+        run_dir = train(config, run_dir, resume=bool(args.resume), progress=not args.no_progress,
                         rewrite_config=bool(args.resume and args.overrides))
     except ConfigError as error:
         print(f"error: {error}", file=sys.stderr)

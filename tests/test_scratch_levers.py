@@ -123,8 +123,8 @@ def test_start_curriculum_widens_when_the_success_rate_reaches_the_threshold():
 
 
 @pytest.mark.parametrize("override, key", [
-    ("train.time_limit=-1", "train.frames and train.time_limit"),
-    ("train.frames=-5", "train.frames and train.time_limit"),
+    ("train.time_limit=-1", "train.time_limit"),
+    ("train.frames=-5", "train.frames"),
     ("train.curriculum_threshold=1.5", "train.curriculum_threshold"),
     ("train.curriculum_step=0", "train.curriculum_step"),
     ("train.start_curriculum=maybe", "train.start_curriculum"),

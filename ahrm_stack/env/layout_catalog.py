@@ -11,27 +11,39 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import Literal, Optional
 
 import numpy as np
 
-from ahrm_stack.config import CONFIG_DIR, ConfigError, _read_yaml, config_from_dict
+from ahrm_stack.config import CONFIG_DIR, ConfigError, Pair, config_from_dict
 from ahrm_stack.env.layout import Layout, LayoutError, validate_layout
+from ahrm_stack.schema import Bool, Section, derived, read_yaml, validate
 from ahrm_stack.seeds import SEEDS_FILE, seed_table
 
 LAYOUTS_FILE = CONFIG_DIR / "layouts.yaml"
-_KEYS = {"mode", "cube", "obstacles", "radial_range", "cube_region", "suite"}
 
 
 @dataclasses.dataclass(frozen=True)
-class NamedLayout:
-    name: str
-    mode: str  # fixed | random
-    cube: tuple[float, float] | None  # nominal cube (x, y), m; None: the run's own
-    obstacles: tuple[tuple[float, float], ...] | None  # obstacle (x, y) centres, m; None: the run's
-    radial_range: tuple[float, float] | None  # random mode, m; None: the run's own
-    cube_region: tuple[tuple[float, float], tuple[float, float]] | None  # random mode: cube x, y
-    # ranges, m; None: the run's own
-    suite: bool  # part of the evaluation suite (evaluate --suite)
+class NamedLayout(Section):
+    """One entry of ``configs/layouts.yaml`` (its name is the entry's key)."""
+
+    mode: Literal["fixed", "random"]
+    cube: Optional[Pair] = None  # fixed mode: nominal cube (x, y), m; None: the run's own
+    obstacles: Optional[tuple[Pair, ...]] = None  # fixed mode: obstacle (x, y) centres, m; None: the run's
+    radial_range: Optional[Pair] = None  # random mode, m; None: the run's own
+    cube_region: Optional[tuple[Pair, Pair]] = None  # random mode: cube x, y ranges, m; None: the run's own
+    suite: Bool = True  # part of the evaluation suite (evaluate --suite)
+    name: str = derived()  # the entry's key
+
+    def check(self, key: str) -> None:
+        if self.mode == "random" and (self.cube is not None or self.obstacles is not None):
+            raise ConfigError(f"{key}: cube/obstacles belong to fixed layouts only")
+        for field in ("radial_range", "cube_region"):
+            if self.mode == "fixed" and getattr(self, field) is not None:
+                raise ConfigError(f"{key}: {field} belongs to random layouts only")
+        if self.cube_region is not None and any(lo > hi for lo, hi in self.cube_region):
+            raise ConfigError(f"{key}.cube_region: expected [[x_lo, x_hi], [y_lo, y_hi]] with lo <= hi, "
+                              f"got {[list(r) for r in self.cube_region]}")
 
     @property
     def seed_offset(self) -> int:
@@ -43,52 +55,11 @@ class NamedLayout:
         return table.ranges[self.name].start
 
 
-def _pairs(value, where: str, count: int | None = None) -> tuple:
-    array = np.asarray(value, dtype=float) if isinstance(value, list) else None
-    if array is None or array.ndim != 2 or array.shape[1] != 2 or not np.isfinite(array).all():
-        raise ConfigError(f"{where}: expected a list of [x, y] pairs in m, got {value!r}")
-    return tuple(tuple(map(float, row)) for row in array)
-
-
-def _pair(value, where: str) -> tuple[float, float]:
-    return _pairs([value] if isinstance(value, list) else value, where)[0]
-
-
 def load_layouts(path: Path | str = LAYOUTS_FILE) -> dict[str, NamedLayout]:
-    """Every entry of the layouts file, shape-checked (placement is checked by :func:`apply_layout`)."""
-    path = Path(path)
-    layouts = {}
-    for name, entry in _read_yaml(path).items():
-        where = f"{path}: layout '{name}'"
-        if not isinstance(entry, dict):
-            raise ConfigError(f"{where}: expected a mapping with keys {sorted(_KEYS)}")
-        unknown = sorted(set(entry) - _KEYS)
-        if unknown:
-            raise ConfigError(f"{where}: unknown key '{unknown[0]}'; allowed keys: {sorted(_KEYS)}")
-        mode = entry.get("mode")
-        if mode not in ("fixed", "random"):
-            raise ConfigError(f"{where}: mode must be fixed or random, got {mode!r}")
-        if mode == "random" and ("cube" in entry or "obstacles" in entry):
-            raise ConfigError(f"{where}: cube/obstacles belong to fixed layouts only")
-        for key in ("radial_range", "cube_region"):
-            if mode == "fixed" and key in entry:
-                raise ConfigError(f"{where}: {key} belongs to random layouts only")
-        suite = entry.get("suite", True)
-        if not isinstance(suite, bool):
-            raise ConfigError(f"{where}.suite: expected true/false, got {suite!r}")
-        region = None
-        if "cube_region" in entry:
-            region = _pairs(entry["cube_region"], f"{where}.cube_region")
-            if len(region) != 2 or any(lo > hi for lo, hi in region):
-                raise ConfigError(f"{where}.cube_region: expected [[x_lo, x_hi], [y_lo, y_hi]] with "
-                                  f"lo <= hi, got {entry['cube_region']!r}")
-        layouts[name] = NamedLayout(
-            name=name, mode=mode,
-            cube=_pair(entry["cube"], f"{where}.cube") if "cube" in entry else None,
-            obstacles=_pairs(entry["obstacles"], f"{where}.obstacles") if "obstacles" in entry else None,
-            radial_range=_pair(entry["radial_range"], f"{where}.radial_range") if "radial_range" in entry else None,
-            cube_region=region, suite=suite)
-    return layouts
+    """Every entry of the layouts file, shape-checked (placement is checked by :func:`apply_layout`);
+    messages name the entry and key, e.g. ``unknown config key 'typo.cubes'``."""
+    layouts = validate(dict[str, NamedLayout], read_yaml(path), "", path)
+    return {name: dataclasses.replace(entry, name=name) for name, entry in layouts.items()}
 
 
 def apply_layout(raw: dict, name: str, path: Path | str = LAYOUTS_FILE) -> NamedLayout:
