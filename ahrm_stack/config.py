@@ -304,6 +304,7 @@ class TrainConfig:
     bc_learning_rate: float
     demo_noise: float  # std of noise on the executed demonstration actions (normalised; labels clean)
     num_envs: int  # environments stepped together (in one process, sharing the reward mechanism)
+    env_workers: int  # processes the num_envs environments are split over (1: the trainer's own)
     dagger_rounds: int  # after cloning: rounds of (run the clone, label its states with the
     # scripted controller, refit on all data so far); 0: none
     dagger_episodes: int  # episodes per round
@@ -538,7 +539,10 @@ def _check_ranges(obj: Any, key: str) -> None:
         if obj.eval_episodes < 0 or obj.eval_every < 0:
             raise ConfigError(f"{key}.eval_episodes and {key}.eval_every must be >= 0, got "
                               f"{obj.eval_episodes} and {obj.eval_every}")
-        _positive(obj, key, "demo_episodes", "bc_epochs", "bc_learning_rate", "num_envs")
+        _positive(obj, key, "demo_episodes", "bc_epochs", "bc_learning_rate", "num_envs", "env_workers")
+        if obj.num_envs % obj.env_workers:
+            raise ConfigError(f"{key}.num_envs ({obj.num_envs}) must be a multiple of "
+                              f"{key}.env_workers ({obj.env_workers})")
         if obj.demo_noise < 0:
             raise ConfigError(f"{key}.demo_noise must be >= 0, got {obj.demo_noise}")
         if obj.dagger_rounds < 0:
@@ -776,7 +780,7 @@ def load_config(overrides: Sequence[str] = (), config_dir: Path | str = CONFIG_D
 
 # Keys added after runs were recorded: a run's config.yaml that lacks them takes them from the
 # repository's configs (so the committed run folders and older checkpoints still load).
-BACKFILLED = {"safety": ("self_collision_rows", "self_collision_pairs")}
+BACKFILLED = {"safety": ("self_collision_rows", "self_collision_pairs"), "train": ("env_workers",)}
 
 
 def _legacy_fill(data: dict) -> dict:
