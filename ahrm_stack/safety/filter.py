@@ -57,7 +57,6 @@ VIOLATION_TOLERANCE = 1e-6  # m: a coupled row short by more than this is report
 # minimised first and the brake towards zero second.
 VIOLATION_WEIGHT = 1e4
 SANE = 1e300  # inputs beyond this magnitude (rad, rad/s, m/s) take the careful path
-_UNCONSTRAINED = Outcome(None, "optimal")
 
 
 class SafetyFilterError(ValueError):
@@ -272,7 +271,7 @@ class SafetyFilter:
             outcome = None
         elif (np.less_equal(lower, free).all() and np.less_equal(free, upper).all()
               and (not len(bound) or np.less_equal(matrix @ free, bound).all())):
-            outcome = _UNCONSTRAINED._replace(x=free)
+            outcome = Outcome(free, "optimal")
         else:
             outcome = self.solver.solve(hessian, linear, lower, upper, matrix, bound)
         if outcome is not None and outcome.x is not None:
@@ -349,7 +348,8 @@ class SafetyFilter:
         jac = self._snapshot.jacobian(tip)
         linear_jac, angular_jac = jac[:3], jac[3:]
         # A request faster than any command could give is scaled down along its direction.
-        reach = float(np.linalg.norm(linear_jac, axis=0) @ self.velocity.limit)
+        # (np.linalg.norm(linear_jac, axis=0), without its wrapper: the same sums)
+        reach = float(np.sqrt(np.add.reduce(linear_jac * linear_jac, axis=0)) @ self.velocity.limit)
         largest = float(np.abs(v_nom).max())
         if largest > 0:
             unit = v_nom / largest
