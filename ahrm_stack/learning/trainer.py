@@ -301,7 +301,9 @@ class Trainer:
         os.replace(tmp, path)
 
     def close(self) -> None:
+        threads = torch.get_num_threads()  # closing a ParallelEnv raises this process's count
         if self._collector is not None:
             self._collector.shutdown()
         if self.workers and not self.env.is_closed:
             self.env.close()
+        torch.set_num_threads(threads)

@@ -128,7 +128,9 @@ def make_worker_envs(config: Config, seeds: list[int]) -> ParallelEnv:
     groups = [functools.partial(_make_group, config.task, config.safety, config.mechanism,
                                 tuple(seeds[w * per:(w + 1) * per]), tuple(range(w * per, (w + 1) * per)))
               for w in range(workers)]
-    env = ParallelEnv(workers, groups, use_buffers=False, num_threads=1, num_sub_threads=1)
+    # num_threads is what TorchRL sets in this process (keep train.threads); each worker gets one
+    env = ParallelEnv(workers, groups, use_buffers=False, num_threads=config.train.threads,
+                      num_sub_threads=1)
     env.start()
     return env
 
