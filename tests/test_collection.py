@@ -14,6 +14,7 @@ import os
 
 import numpy as np
 import pytest
+import torch
 
 from ahrm_stack.config import ConfigError, load_config
 from ahrm_stack.learning import trainer as trainer_module
@@ -57,8 +58,10 @@ def test_env_workers_run_the_environments_in_other_processes():
     serial_episodes = serial.iteration().episodes  # a second batch: the episodes' summaries
     serial.close()
 
+    threads = torch.get_num_threads()
     parallel = Trainer(load_config([*TINY, "train.num_envs=2", "train.env_workers=2"]))
     try:
+        assert torch.get_num_threads() == threads  # the trainer's process keeps its thread count
         assert parallel.workers and parallel.envs == []
         pids = parallel.env.process_id()
         assert len(set(pids)) == 2 and os.getpid() not in pids
@@ -75,6 +78,7 @@ def test_env_workers_run_the_environments_in_other_processes():
         assert parallel.state_dict()["env_rng"] == state["env_rng"]
     finally:
         parallel.close()
+    assert torch.get_num_threads() == threads
 
 
 def test_env_workers_must_divide_num_envs():

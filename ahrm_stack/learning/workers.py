@@ -22,6 +22,7 @@ import functools
 import os
 
 import numpy as np
+import torch
 from torchrl.envs import EnvBase, ParallelEnv, SerialEnv
 
 from ahrm_stack.config import Config, MechanismConfig, SafetyConfig, TaskConfig
@@ -128,8 +129,8 @@ def make_worker_envs(config: Config, seeds: list[int]) -> ParallelEnv:
     groups = [functools.partial(_make_group, config.task, config.safety, config.mechanism,
                                 tuple(seeds[w * per:(w + 1) * per]), tuple(range(w * per, (w + 1) * per)))
               for w in range(workers)]
-    # num_threads is what TorchRL sets in this process (keep train.threads); each worker gets one
-    env = ParallelEnv(workers, groups, use_buffers=False, num_threads=config.train.threads,
+    # num_threads is what TorchRL sets in this process: keep its count; each worker gets one
+    env = ParallelEnv(workers, groups, use_buffers=False, num_threads=torch.get_num_threads(),
                       num_sub_threads=1)
     env.start()
     return env
