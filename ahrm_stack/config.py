@@ -533,6 +533,7 @@ class TrainConfig(Section):
     demo_noise: NonNeg  # std of noise on the executed demonstration actions (normalised; labels clean)
     num_envs: Annotated[PosInt, le(LIMITS["num_envs"])]  # environments stepped together (in one
     # process, sharing the reward mechanism)
+    env_workers: PosInt  # processes the num_envs environments are split over (1: the trainer's own)
     dagger_rounds: NonNegInt  # after cloning: rounds of (run the clone, label its states with the
     # scripted controller, refit on all data so far); 0: none
     dagger_episodes: PosInt  # episodes per round
@@ -551,6 +552,12 @@ class TrainConfig(Section):
     # draws every start)
 
     def check(self, key: str) -> None:
+        if self.num_envs % self.env_workers:
+            raise ConfigError(f"{key}.num_envs ({self.num_envs}) must be a multiple of "
+                              f"{key}.env_workers ({self.env_workers})")
+        if self.env_workers > 1 and self.start_curriculum != "none":
+            raise ConfigError(f"{key}.start_curriculum ({self.start_curriculum}) needs "
+                              f"{key}.env_workers: 1 (the level is not sent to worker processes)")
         if not self.runs_dir.strip():
             raise ConfigError(f"{key}.runs_dir must name a folder, got {self.runs_dir!r}")
 
@@ -684,7 +691,7 @@ def load_config(overrides: Sequence[str] = (), config_dir: Path | str = CONFIG_D
 
 # Keys added after runs were recorded: a run's config.yaml that lacks them takes them from the
 # repository's configs (so the committed run folders and older checkpoints still load).
-BACKFILLED = {"safety": ("self_collision_rows", "self_collision_pairs")}
+BACKFILLED = {"safety": ("self_collision_rows", "self_collision_pairs"), "train": ("env_workers",)}
 
 
 NEUTRAL_PPO_KEYS = ("reward_scale",)

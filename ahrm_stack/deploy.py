@@ -508,11 +508,16 @@ class PolicyController:
         from torchrl.envs.utils import ExplorationType, set_exploration_type
 
         from ahrm_stack.env.torchrl_env import action_to_command
+        from ahrm_stack.learning.ppo import lean_actor
 
         self.cartesian = config.task.action.mode == "cartesian"
         self._max_tip_speed = config.task.action.cartesian_max_speed
         self.world = world
         self.actor = actor
+        # An actor of make_modules (or its LeanActor, what load_policy gives) runs as one plain
+        # torch forward on the observation tensor: the same deterministic action, no TensorDict.
+        lean = lean_actor(actor)
+        self._act = None if lean is None else lean.act
         self._torch, self._tensordict = torch, TensorDict
         self._deterministic, self._exploration = set_exploration_type, ExplorationType
         self._to_command = action_to_command
@@ -527,9 +532,12 @@ class PolicyController:
         frame); an entry whose action was NaN or infinite is NaN (the loop stops on it)."""
         torch = self._torch
         observation = torch.as_tensor(self.world.observation(), dtype=torch.float32)
-        with torch.no_grad(), self._deterministic(self._exploration.DETERMINISTIC):
-            action = self.actor(self._tensordict({"observation": observation}, batch_size=[]))
-        action = np.asarray(action["action"].numpy(), dtype=float).reshape(-1)
+        if self._act is not None:
+            action = self._act(observation)
+        else:  # any other policy: the TensorDict call
+            with torch.no_grad(), self._deterministic(self._exploration.DETERMINISTIC):
+                action = self.actor(self._tensordict({"observation": observation}, batch_size=[]))["action"]
+        action = np.asarray(action.numpy(), dtype=float).reshape(-1)
         bad = ~np.isfinite(action)
         if self.cartesian:
             command = np.clip(action, -1.0, 1.0) * self._max_tip_speed

@@ -1,12 +1,20 @@
-"""Training throughput: the whole PPO loop against environment-only collection, in one run.
+"""Training throughput: the whole PPO loop against env-only collection of the same environments.
 
-env only : a TorchRL ``Collector`` over the same environment with a random policy;
-training   : ``Trainer.iteration`` (collection with the configured policy — ``ppo.hidden_sizes``,
-             3x256 by default, 3x1000 with ``ppo.hidden_sizes=[1000,1000,1000]`` — GAE, PPO epochs).
-Both in frames per second, interleaved; prints the ratio and the projected wall time of the default
-300-episode run at the measured training rate for 1200-step (unsuccessful) episodes — the worst case.
+For each setting (by default two: one environment in the trainer's process, ``train.num_envs=1``;
+and two environments in two worker processes, ``train.num_envs=2 train.env_workers=2``):
 
-Usage: python benchmarks/bench_training.py [--batches N] [--quick] [key=value overrides]
+env only : a TorchRL ``Collector`` with a random policy over the same environments, built the way
+           the trainer builds them (one ``PushOffEnv``, a ``SerialEnv``, or the worker processes of
+           :mod:`ahrm_stack.learning.workers`);
+training : ``Trainer.iteration`` (collection with the configured policy through its lean collection
+           path — ``ppo.hidden_sizes``, 3x256 by default — GAE, PPO epochs with the BC anchor).
+
+Both in frames per second, batches interleaved; prints per setting the ratio training/env (goal
+>= 0.8), the absolute training rate (aim >= 1000 frames/s) and the projected wall time of the
+300-episode run for 1200-step (unsuccessful) episodes — the worst case.
+
+Usage: python benchmarks/bench_training.py [--batches N] [--settings S ...] [--quick] [key=value ...]
+       a setting is a comma-separated override list, e.g. --settings "" "train.num_envs=2,train.env_workers=2"
 """
 
 from __future__ import annotations
@@ -23,56 +31,84 @@ cli.quiet_argv()  # before the heavy imports: the libraries' warnings and INFO l
 
 import torch  # noqa: E402
 from torchrl.collectors import Collector  # noqa: E402
+from torchrl.envs import SerialEnv  # noqa: E402
 
 from ahrm_stack.config import load_config  # noqa: E402
 from ahrm_stack.env.torchrl_env import PushOffEnv  # noqa: E402
+from ahrm_stack.learning import workers  # noqa: E402
+from ahrm_stack.learning.mechanisms import RewardMechanism  # noqa: E402
 from ahrm_stack.learning.trainer import Trainer  # noqa: E402
-
+from ahrm_stack.seeds import training_seeds  # noqa: E402
 
 QUICK_OVERRIDES = ("ppo.frames_per_batch=64", "ppo.mini_batch_size=32", "ppo.epochs=1",
                    "train.demo_episodes=1", "train.bc_epochs=1")
+SETTINGS = ("", "train.num_envs=2,train.env_workers=2")
+GOAL_RATIO, AIM_RATE = 0.8, 1000.0
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    cli.add_verbose_flag(parser)
-    parser.add_argument("--batches", type=int, default=4)
-    parser.add_argument("overrides", nargs="*")
-    parser.add_argument("--quick", action="store_true", default=os.environ.get("AHRM_BENCH_QUICK") == "1",
-                        help="a brief run (1 batch of 64 frames, 1 demonstration): checks that the benchmark works")
-    args = parser.parse_args()
-    if args.quick:
-        args.batches = 1
-        args.overrides = [*args.overrides, *QUICK_OVERRIDES]
-    config = load_config(args.overrides)
+def env_only(config):
+    """The environments of ``config`` built as the trainer builds them (other seeds)."""
+    seeds = training_seeds(config.train.seed + 1, config.train.num_envs)
+    if config.train.env_workers > 1:
+        return workers.make_worker_envs(config, seeds)
+    mechanism = RewardMechanism(config.mechanism)  # the reward as in training
+    envs = [PushOffEnv(config.task, config.safety, seed=seed, mechanism=mechanism) for seed in seeds]
+    return envs[0] if len(envs) == 1 else SerialEnv(len(envs), [lambda env=env: env for env in envs])
+
+
+def measure(overrides: list[str], batches: int) -> dict:
+    config = load_config(overrides)
     torch.set_num_threads(config.train.threads)
     trainer = Trainer(config)
-    env = PushOffEnv(config.task, config.safety, seed=1)
     frames = config.ppo.frames_per_batch
-    collector = Collector(env, None, frames_per_batch=frames, total_frames=-1)
-    batches = iter(collector)
-    next(batches)
+    collector = Collector(env_only(config), None, frames_per_batch=frames, total_frames=-1)
+    collected = iter(collector)
+    next(collected)
     trainer.iteration()  # warm-up of both
     env_time = train_time = 0.0
-    for _ in range(args.batches):
+    for _ in range(batches):
         t0 = time.perf_counter()
-        next(batches)
+        next(collected)
         env_time += time.perf_counter() - t0
         t0 = time.perf_counter()
         trainer.iteration()
         train_time += time.perf_counter() - t0
     collector.shutdown()
     trainer.close()
-    n = frames * args.batches
-    env_rate, train_rate = n / env_time, n / train_time
-    worst = config.train.episodes * config.task.max_steps / train_rate / 60
-    print(f"network {list(config.ppo.hidden_sizes)}, {config.train.threads} thread(s), "
-          f"{frames} frames/batch, {config.ppo.epochs} epochs")
-    print(f"env only (random policy) : {env_rate:7.0f} frames/s")
-    print(f"training loop            : {train_rate:7.0f} frames/s")
-    print(f"ratio training/env       : {train_rate / env_rate:.3f}   (goal >= 0.5)")
-    print(f"{config.train.episodes} episodes of {config.task.max_steps} steps at that rate: "
-          f"{worst:.0f} min (worst case: no episode ends early; goal <= 20 min)")
+    n = frames * batches
+    return dict(config=config, env=n / env_time, train=n / train_time)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    cli.add_verbose_flag(parser)
+    parser.add_argument("--batches", type=int, default=4)
+    parser.add_argument("--settings", nargs="+", default=list(SETTINGS),
+                        help="comma-separated override lists, one per setting ('' = the config)")
+    parser.add_argument("overrides", nargs="*", help="overrides for every setting")
+    parser.add_argument("--quick", action="store_true", default=os.environ.get("AHRM_BENCH_QUICK") == "1",
+                        help="a brief run (1 batch of 64 frames, 1 demonstration): checks that the benchmark works")
+    args = parser.parse_args()
+    if args.quick:
+        args.batches = 1
+        args.overrides = [*args.overrides, *QUICK_OVERRIDES]
+    for setting in args.settings:
+        extra = [o for o in setting.split(",") if o]
+        result = measure([*args.overrides, *extra], args.batches)
+        config, env_rate, train_rate = result["config"], result["env"], result["train"]
+        ratio = train_rate / env_rate
+        worst = config.train.episodes * config.task.max_steps / train_rate / 60
+        print(f"setting: num_envs={config.train.num_envs} env_workers={config.train.env_workers} "
+              f"({' '.join(extra) or 'the config'}); network {list(config.ppo.hidden_sizes)}, "
+              f"{config.train.threads} thread(s), {config.ppo.frames_per_batch} frames/batch, "
+              f"{config.ppo.epochs} epochs, {args.batches} batches")
+        print(f"  env only (random policy) : {env_rate:7.0f} frames/s")
+        print(f"  training loop            : {train_rate:7.0f} frames/s   (aim >= {AIM_RATE:.0f}: "
+              f"{'met' if train_rate >= AIM_RATE else 'NOT met'})")
+        print(f"  ratio training/env       : {ratio:.3f}   (goal >= {GOAL_RATIO}: "
+              f"{'met' if ratio >= GOAL_RATIO else 'NOT met'})")
+        print(f"  {config.train.episodes} episodes of {config.task.max_steps} steps at that rate: "
+              f"{worst:.0f} min (worst case: no episode ends early)")
 
 
 if __name__ == "__main__":

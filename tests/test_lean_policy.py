@@ -74,3 +74,24 @@ def test_lean_collection_actor_matches_torchrl_actor(mode):
             got = lean(TensorDict({"observation": obs}, batch_size=batch))
         for key in ("observation_norm", "loc", "scale", "action", "action_log_prob"):
             np.testing.assert_allclose(got[key].numpy(), want[key].numpy(), atol=1e-6, rtol=1e-6, err_msg=key)
+
+
+@pytest.mark.parametrize("mode", ["cartesian", "joint"])
+def test_deploy_policy_controller_takes_the_lean_path_with_the_same_request(mode):
+    """deploy's PolicyController runs ``LeanActor.act`` on the observation tensor (no TensorDict)
+    and requests what the TensorDict call of the TorchRL actor gives for the same observation."""
+    from types import SimpleNamespace
+
+    from ahrm_stack.deploy import PolicyController
+
+    config = load_config([f"task.action.mode={mode}"])
+    modules = _modules(act_dim=3 if mode == "cartesian" else 5)
+    robot = SimpleNamespace(velocity_limit=np.linspace(0.5, 1.0, 6), commanded_joints=(0, 1, 2, 3, 4))
+    world = SimpleNamespace(robot=robot, current=None)
+    world.observation = lambda: world.current
+    lean = PolicyController(world, lean_actor(modules.actor), config)
+    reference = PolicyController(world, lambda td: modules.actor(td), config)  # not lean-able
+    assert lean._act is not None and reference._act is None
+    for observation in torch.randn(20, 40).numpy() * 3.0:
+        world.current = observation
+        np.testing.assert_allclose(lean(), reference(), atol=1e-6, rtol=0)

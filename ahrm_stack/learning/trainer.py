@@ -8,7 +8,14 @@ that ended in the batch.
 
 With ``train.num_envs`` > 1 the environments are stepped together by a TorchRL ``SerialEnv`` in
 this process: they share the one reward mechanism (its adaptive state sees every episode, as in
-the single-environment case); each keeps its own seed stream and its own f3 phase budgets.
+the single-environment case); each keeps its own seed stream and its own f3 phase budgets. With
+``train.env_workers`` > 1 they are split over that many worker processes (a ``ParallelEnv``, see
+:mod:`ahrm_stack.learning.workers`): the policy still runs once per step for all of them, here,
+and the mechanism's state reaches the workers at the end of each batch.
+
+Collection runs the actor's lean path (:class:`~ahrm_stack.learning.ppo.LeanCollectionActor`:
+the same keys, values and random draws as the TorchRL actor, as plain torch ops); the PPO loss
+evaluates the TorchRL actor.
 """
 
 from __future__ import annotations
@@ -17,6 +24,7 @@ import dataclasses
 import os
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -30,7 +38,9 @@ from ahrm_stack.env.torchrl_env import PushOffEnv
 from ahrm_stack.learning.demonstrations import (bc_loss, collect_corrections, collect_demonstrations,
                                                 warm_start)
 from ahrm_stack.learning.mechanisms import OBJECTIVES, RewardMechanism
-from ahrm_stack.learning.ppo import anchor_coeff, make_buffer, make_loss, make_modules, scheduled_std
+from ahrm_stack.learning import workers
+from ahrm_stack.learning.ppo import (anchor_coeff, lean_collection_actor, make_buffer, make_loss,
+                                     make_modules, scheduled_std)
 from ahrm_stack.learning.start_states import ScriptedStartStates, record_trajectories
 from ahrm_stack.seeds import training_seeds
 
@@ -69,10 +79,19 @@ class Trainer:
         np.random.seed(config.train.seed)
         self.mechanism = RewardMechanism(config.mechanism)
         count = config.train.num_envs  # ppo.frames_per_batch is a multiple of it (config.py)
-        self.envs = [PushOffEnv(config.task, config.safety, mechanism=self.mechanism, seed=seed,
-                                time_limit=config.train.time_limit)
-                     for seed in training_seeds(config.train.seed, count)]  # configs/seeds.yaml
+        seeds = training_seeds(config.train.seed, count)  # configs/seeds.yaml
+        self.workers = config.train.env_workers > 1
+        if self.workers:  # the environments live in the worker processes
+            self.envs: list[PushOffEnv] = []
+            self.env = workers.make_worker_envs(config, seeds)
+        else:
+            self.envs = [PushOffEnv(config.task, config.safety, mechanism=self.mechanism, seed=seed,
+                                    time_limit=config.train.time_limit)
+                         for seed in seeds]
+            self.env = self.envs[0] if count == 1 else SerialEnv(
+                count, [lambda env=env: env for env in self.envs])
         # the start curriculum (train.start_curriculum): its level rises from 0 to 1 with success
+        # (config.py refuses it with worker processes: the level is not sent to them)
         self.curriculum_level = 0.0 if config.train.start_curriculum != "none" else 1.0
         self._curriculum_window: list[bool] = []
         self.start_states = None
@@ -82,10 +101,8 @@ class Trainer:
             for env in self.envs:
                 env.task.start_states = self.start_states
         self._apply_curriculum()
-        self.env = self.envs[0] if count == 1 else SerialEnv(
-            count, [lambda env=env: env for env in self.envs])
-        observation_dim = self.envs[0].observation_spec["observation"].shape[-1]
-        action_dim = self.envs[0].action_spec.shape[-1]
+        observation_dim = self.env.observation_spec["observation"].shape[-1]
+        action_dim = self.env.action_spec.shape[-1]
         self.modules = make_modules(config.ppo, observation_dim, action_dim)
         self.loss, self.advantage = make_loss(config.ppo, self.modules)
         self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=config.ppo.learning_rate)
@@ -138,7 +155,10 @@ class Trainer:
     # ------------------------------------------------------------------ one iteration
     def _collect(self):
         if self._collector is None:
-            self._collector = Collector(self.env, self.modules.actor,
+            if self.workers:
+                self.env.load_mechanism(self.mechanism.state_dict())
+            policy = lean_collection_actor(self.modules.actor) or self.modules.actor
+            self._collector = Collector(self.env, policy,
                                         frames_per_batch=self.config.ppo.frames_per_batch,
                                         total_frames=-1, exploration_type=ExplorationType.RANDOM,
                                         auto_register_policy_transforms=False)
@@ -239,9 +259,26 @@ class Trainer:
     def _std(self) -> torch.Tensor:
         return self.modules.head.log_std.exp().mean()
 
+    def _completed(self) -> list:
+        """The episodes completed since the last call, in this process or the workers' (whose
+        ends are applied to the mechanism here, in the order they ended, and the new state sent)."""
+        if not self.workers:
+            summaries = [summary for env in self.envs for summary in env.completed]
+            for env in self.envs:
+                env.completed.clear()
+            return summaries
+        summaries = []
+        for pending in workers.drain(self.env):
+            pending.summary.events = self.mechanism.end_episode(
+                pending.f, pending.phase, constraint_terminated=pending.constraint_terminated,
+                terminated_phase=pending.terminated_phase)
+            summaries.append(pending.summary)
+        self.env.load_mechanism(self.mechanism.state_dict())
+        return summaries
+
     def _drain_episodes(self) -> tuple[list[dict], list]:
         rows, events = [], []
-        for summary in [summary for env in self.envs for summary in env.completed]:
+        for summary in self._completed():
             self.episodes += 1
             for event in summary.events:
                 event.episode = self.episodes
@@ -251,8 +288,6 @@ class Trainer:
             row.update(episode=self.episodes, frames=self.frames, failure_mode=summary.failure_mode(),
                        orders=self.mechanism_orders(), levels=list(self.mechanism.levels))
             rows.append(row)
-        for env in self.envs:
-            env.completed.clear()
         return rows, events
 
     def mechanism_orders(self) -> str:
@@ -266,15 +301,21 @@ class Trainer:
             "critic": self.modules.critic.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "mechanism": self.mechanism.state_dict(),
-            "time_objective": [env.task.time_objective.state_dict() for env in self.envs],
+            "time_objective": [budget for _, budget, _ in self._env_states()],
             "counters": {"episodes": self.episodes, "frames": self.frames, "batches": self.batches},
             "curriculum": {"level": self.curriculum_level, "window": list(self._curriculum_window)},
             "torch_rng": torch.get_rng_state(),
-            "env_rng": [_random_state_to_list(env.runner.random_state.get_state())
-                        for env in self.envs],
+            "env_rng": [_random_state_to_list(rng) for _, _, rng in self._env_states()],
             # the anchor's data: with DAgger it holds the corrections, which a resume cannot redo
             "demos": None if self.demos is None else {k: v for k, v in self.demos.items()},
         }
+
+    def _env_states(self) -> list[tuple[int, dict, Any]]:
+        """(index, f3's phase budgets, random state) of every environment, in index order."""
+        if self.workers:
+            return sorted(workers.per_environment(self.env, "worker_state"), key=lambda s: s[0])
+        return [(i, env.task.time_objective.state_dict(), env.runner.random_state.get_state())
+                for i, env in enumerate(self.envs)]
 
     def load_state_dict(self, state: dict) -> None:
         self.modules.actor.load_state_dict(state["actor"])
@@ -284,9 +325,11 @@ class Trainer:
         budgets, rngs = state["time_objective"], state["env_rng"]
         if isinstance(budgets, dict):  # checkpoints of single-environment runs before num_envs
             budgets, rngs = [budgets], [rngs]
-        if len(budgets) != len(self.envs):
+        if len(budgets) != self.config.train.num_envs:
             raise ConfigError(f"the checkpoint has {len(budgets)} environments, train.num_envs is "
-                              f"{len(self.envs)}")
+                              f"{self.config.train.num_envs}")
+        if self.workers:
+            self.env.load_worker_state(budgets, [_random_state_from_list(rng) for rng in rngs])
         for env, budget, rng in zip(self.envs, budgets, rngs):
             env.task.time_objective.load_state_dict(budget)
             env.runner.random_state.set_state(_random_state_from_list(rng))
@@ -308,11 +351,15 @@ class Trainer:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(f".{path.name}.tmp")  # written whole, then renamed: never torn
         torch.save({"actor": self.modules.actor.state_dict(),
-                    "observation_dim": int(self.envs[0].observation_spec["observation"].shape[-1]),
-                    "action_dim": int(self.envs[0].action_spec.shape[-1]),
+                    "observation_dim": int(self.env.observation_spec["observation"].shape[-1]),
+                    "action_dim": int(self.env.action_spec.shape[-1]),
                     "episodes": self.episodes, "frames": self.frames}, tmp)
         os.replace(tmp, path)
 
     def close(self) -> None:
+        threads = torch.get_num_threads()  # closing a ParallelEnv raises this process's count
         if self._collector is not None:
             self._collector.shutdown()
+        if self.workers and not self.env.is_closed:
+            self.env.close()
+        torch.set_num_threads(threads)

@@ -44,6 +44,7 @@ from ahrm_stack.robot import RobotDescription
 from ahrm_stack.safety.constraints import (AccelerationLimit, ArmSnapshot, ControlPoints,
                                            CoordinateRows, DistanceLimit, PositionLimit, Rows, TableLimit,
                                            VelocityLimit, WorkspaceLimit)
+from ahrm_stack.safety.constraints.base import JointBounds
 from ahrm_stack.safety.result import (DISABLED, INFEASIBLE, NONFINITE_INPUT, OPTIMAL, SOLVER_FAILED,
                                       FilterResult)
 from ahrm_stack.safety.solvers import DaqpSolver, Outcome, OsqpSolver, QPSolver
@@ -56,7 +57,6 @@ VIOLATION_TOLERANCE = 1e-6  # m: a coupled row short by more than this is report
 # minimised first and the brake towards zero second.
 VIOLATION_WEIGHT = 1e4
 SANE = 1e300  # inputs beyond this magnitude (rad, rad/s, m/s) take the careful path
-_UNCONSTRAINED = Outcome(None, "optimal")
 
 
 class SafetyFilterError(ValueError):
@@ -132,7 +132,10 @@ class SafetyFilter:
                       if config.table_rows else None)
         self.workspace = (WorkspaceLimit(config.workspace_lower, config.workspace_upper, self.horizon,
                                          CONTROL_POINTS) if config.workspace_rows else None)
-        self._snapshot = ArmSnapshot(kinematics.model, kinematics.base, kinematics.configuration)
+        # Pinocchio's configuration is q itself when every joint stores its angle (nq = nv): no map
+        identity_map = kinematics.model.nq == nv and not len(kinematics.joint_map.continuous)
+        self._snapshot = ArmSnapshot(kinematics.model, kinematics.base,
+                                     None if identity_map else kinematics.configuration)
         self.distances: DistanceLimit | None = None
         if scene is not None:
             if scene.kinematics.model.nq != kinematics.model.nq or scene.kinematics.model.nv != nv:
@@ -162,6 +165,14 @@ class SafetyFilter:
         self._previous = np.zeros(nv)
         self.last_rows: tuple[str, ...] = ()  # names of the coupled rows built by the last call
         self._bound_names = (self.position.names, self.velocity.names, self.acceleration.names)
+        # Per-call work space: the three families' bounds side by side, (lower/upper, family, joint);
+        # velocity (index 1) is constant, acceleration and position are rewritten in place.
+        self._box = np.empty((2, 3, nv))
+        self._box[0, 1], self._box[1, 1] = self.velocity.bounds()
+        self._step = np.stack((-self.acceleration.step, self.acceleration.step))  # (2, nv)
+        self._position_limits = np.stack((self.position.lower, self.position.upper))  # (2, nv)
+        self._rate = 1.0 / self.position.horizon
+        self._check = np.empty(3 * nv)
 
     # ------------------------------------------------------------------ public API
     @property
@@ -202,7 +213,9 @@ class SafetyFilter:
         if with_obstacles and self.distances is None:
             raise SafetyFilterError("obstacle rows requested but the filter has no collision scene")
         # One reduction on the common path: every input finite and of sane size (NaN fails it).
-        if np.abs(np.concatenate((q, dq, request))).max() < SANE:
+        check = self._check[:2 * nv + len(request)]
+        check[:nv], check[nv:2 * nv], check[2 * nv:] = q, dq, request
+        if np.maximum.reduce(np.abs(check, out=check)) < SANE:
             state_ok = request_ok = True
         else:
             state_ok = bool(np.isfinite(q).all() and np.isfinite(dq).all())
@@ -223,13 +236,17 @@ class SafetyFilter:
         # The hard box. Velocity and acceleration always intersect (|u_prev| <= v_max); where the
         # position bound lies beyond them the joint is pinned to the closest value they allow, and
         # the problem as posed is infeasible.
-        velocity = self.velocity.bounds()
-        acceleration = self.acceleration.bounds(previous)
-        position = self.position.bounds(q)
-        lower = np.maximum(np.maximum(velocity.lower, acceleration.lower), position.lower)
-        upper = np.minimum(np.minimum(velocity.upper, acceleration.upper), position.upper)
+        # (The same values as the families' ``bounds``, written into the preallocated work space.)
+        box = self._box
+        np.add(previous, self._step, out=box[:, 2])  # acceleration
+        np.subtract(self._position_limits, q, out=box[:, 0])  # position: (limit - q) / T
+        box[:, 0] *= self._rate
+        lower, upper = np.maximum.reduce(box[0]), np.minimum.reduce(box[1])
+        velocity, acceleration, position = (JointBounds(box[0, 1], box[1, 1]),
+                                            JointBounds(box[0, 2], box[1, 2]),
+                                            JointBounds(box[0, 0], box[1, 0]))
         box_violated: tuple[str, ...] = ()
-        if (lower > upper).any():
+        if np.greater(lower, upper).any():
             lower, upper, box_violated = self._pin_unreachable(velocity, acceleration, position)
 
         # Coupled rows and the objective.
@@ -252,9 +269,9 @@ class SafetyFilter:
         start = time.perf_counter()
         if box_violated:
             outcome = None
-        elif (np.maximum(lower - free, free - upper).max() <= 0.0
-              and (not len(bound) or (matrix @ free - bound).max() <= 0.0)):
-            outcome = _UNCONSTRAINED._replace(x=free)
+        elif (np.less_equal(lower, free).all() and np.less_equal(free, upper).all()
+              and (not len(bound) or np.less_equal(matrix @ free, bound).all())):
+            outcome = Outcome(free, "optimal")
         else:
             outcome = self.solver.solve(hessian, linear, lower, upper, matrix, bound)
         if outcome is not None and outcome.x is not None:
@@ -266,11 +283,11 @@ class SafetyFilter:
         if not (state_ok and previous_ok and request_ok):
             status, fallback = NONFINITE_INPUT, True
 
-        active = self._active_bounds(command, lower, upper, (position, velocity, acceleration))
+        active = self._active_box(command, lower, upper)
         worst, violated = np.inf, box_violated
         if len(bound):
             margins = bound - matrix @ command
-            worst = float(margins.min())
+            worst = float(np.minimum.reduce(margins))
             if worst <= ACTIVE_TOLERANCE:
                 active += tuple(rows.names[i] for i in np.flatnonzero(margins <= ACTIVE_TOLERANCE))
                 if worst < -VIOLATION_TOLERANCE:
@@ -278,7 +295,7 @@ class SafetyFilter:
         if cartesian:
             modified = fallback or bool(active)
         else:
-            modified = not (request_ok and np.abs(command - raw_request).max() <= ACTIVE_TOLERANCE)
+            modified = not (request_ok and np.maximum.reduce(np.abs(command - raw_request)) <= ACTIVE_TOLERANCE)
         self._previous = command.copy()
         return FilterResult(command, modified, active, status, solve_time, fallback, worst, violated)
 
@@ -301,7 +318,8 @@ class SafetyFilter:
         ok = bool(np.isfinite(previous).all())
         if not ok:
             previous = np.where(np.isfinite(previous), previous, np.where(np.isfinite(dq), dq, 0.0))
-        return np.clip(previous, -self.velocity.limit, self.velocity.limit), ok
+        limit = self.velocity.limit
+        return np.minimum(np.maximum(previous, -limit), limit), ok
 
     def _rows(self, with_obstacles: bool) -> Rows:
         parts = []
@@ -330,7 +348,8 @@ class SafetyFilter:
         jac = self._snapshot.jacobian(tip)
         linear_jac, angular_jac = jac[:3], jac[3:]
         # A request faster than any command could give is scaled down along its direction.
-        reach = float(np.linalg.norm(linear_jac, axis=0) @ self.velocity.limit)
+        # (np.linalg.norm(linear_jac, axis=0), without its wrapper: the same sums)
+        reach = float(np.sqrt(np.add.reduce(linear_jac * linear_jac, axis=0)) @ self.velocity.limit)
         largest = float(np.abs(v_nom).max())
         if largest > 0:
             unit = v_nom / largest
@@ -388,15 +407,29 @@ class SafetyFilter:
         return FilterResult(command, modified, (), DISABLED if finite else NONFINITE_INPUT, 0.0,
                             False, np.inf, ())
 
+    def _active_box(self, command, lower, upper) -> tuple[str, ...]:
+        """:meth:`_active_bounds` of the three families in the work space ``self._box`` (as
+        written by this call), in one pass: the same names in the same order (family, joint)."""
+        at_lower = command <= lower + ACTIVE_TOLERANCE
+        at_upper = command >= upper - ACTIVE_TOLERANCE
+        if not (at_lower.any() or at_upper.any()):
+            return ()
+        box = self._box
+        owned = (at_lower & (box[0] == lower)) | (at_upper & (box[1] == upper))  # (family, joint)
+        families, joints = np.nonzero(owned)
+        names = self._bound_names
+        return tuple(names[f][i] for f, i in zip(families.tolist(), joints.tolist()))
+
     def _active_bounds(self, command, lower, upper, families) -> tuple[str, ...]:
         """Names of the hard bounds the command sits on (within ACTIVE_TOLERANCE); ``families``:
         the position, velocity and acceleration bounds (position None when not evaluated). The
         effective bound is the max (min) of the families', so it equals its owners' exactly."""
         at_lower = command <= lower + ACTIVE_TOLERANCE
         at_upper = command >= upper - ACTIVE_TOLERANCE
-        joints = np.flatnonzero(at_lower | at_upper).tolist()
-        if not joints:
+        either = at_lower | at_upper
+        if not either.any():
             return ()
+        joints = np.flatnonzero(either).tolist()
         low, high = lower.tolist(), upper.tolist()
         low_side, high_side = at_lower.tolist(), at_upper.tolist()
         names = []
@@ -438,6 +471,8 @@ def self_collision_pairs(robot: RobotDescription, config: SafetyConfig,
 
 
 def _vector(value, size: int, name: str) -> np.ndarray:
+    if type(value) is np.ndarray and value.dtype == np.float64 and value.shape == (size,):
+        return value  # the common case, as np.asarray would return it
     array = np.asarray(value, dtype=float)
     if array.shape != (size,):
         raise SafetyFilterError(f"{name} must have shape ({size},), got {array.shape}")

@@ -1,0 +1,161 @@
+"""Environment worker processes for training (``train.env_workers`` > 1).
+
+The ``train.num_envs`` environments are split evenly over ``train.env_workers`` processes (a TorchRL
+``ParallelEnv``; each worker steps its share, several through a ``SerialEnv``), so the physics of
+different environments runs on different cores while the trainer's process runs the policy once
+per step for all of them (one batched call).
+
+The reward mechanism's adaptive state stays the trainer's. Each worker holds a copy of it for the
+per-step reward and the priority constraint, and defers every episode end to the trainer: at the end
+of each collected batch the trainer drains the completed episodes, applies them to its mechanism in
+the order they ended (by step, then environment index: the order a ``SerialEnv`` would apply them
+in), and sends the new state back to every worker. So within one batch the workers reward with
+the state of the batch's start; with one process (``env_workers: 1``) an episode's end changes the
+reward of the very next step. Everything else (seeds, f3's budgets, the environments' dynamics) is
+as in one process.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import os
+from typing import Any
+
+import numpy as np
+import torch
+from torchrl.envs import EnvBase, ParallelEnv, SerialEnv
+
+from ahrm_stack.config import Config, MechanismConfig, SafetyConfig, TaskConfig
+from ahrm_stack.env.episode import EpisodeSummary
+from ahrm_stack.env.torchrl_env import PushOffEnv
+from ahrm_stack.learning.mechanisms import RewardMechanism
+
+
+@dataclasses.dataclass
+class PendingEpisode:
+    """An episode that ended in a worker, waiting for the trainer's mechanism."""
+
+    step: int  # the environment's step count when it ended (all environments step together)
+    index: int  # the environment's index in 0..num_envs-1
+    summary: EpisodeSummary
+    f: np.ndarray  # (steps, 3) the ±1 components
+    phase: np.ndarray  # (steps,)
+    constraint_terminated: bool
+    terminated_phase: int | None
+
+
+class _DeferredMechanism:
+    """A worker's copy of the mechanism: rewards and constraint monitors from the state last sent
+    by the trainer; episode ends are recorded, not applied (the trainer applies them)."""
+
+    def __init__(self, config: MechanismConfig) -> None:
+        self.local = RewardMechanism(config)
+        self.pending: list[dict] = []
+
+    def reward(self, g, distances):
+        return self.local.reward(g, distances)
+
+    def constraint_monitor(self):
+        return self.local.constraint_monitor()
+
+    def end_episode(self, f, phase, constraint_terminated: bool = False,
+                    terminated_phase: int | None = None) -> list:
+        self.pending.append(dict(f=np.asarray(f, dtype=float).reshape(-1, 3),
+                                 phase=np.asarray(phase, dtype=int).reshape(-1),
+                                 constraint_terminated=bool(constraint_terminated),
+                                 terminated_phase=terminated_phase))
+        return []  # the trainer's end_episode makes the events
+
+
+class WorkerEnv(PushOffEnv):
+    """A :class:`PushOffEnv` living in a worker process (environment ``index`` of the trainer's)."""
+
+    def __init__(self, task: TaskConfig, safety: SafetyConfig, mechanism: MechanismConfig,
+                 seed: int, index: int, time_limit: float = 0.0) -> None:
+        super().__init__(task, safety, seed=seed, mechanism=_DeferredMechanism(mechanism),
+                         time_limit=time_limit)
+        self.index = index
+        self.steps_taken = 0
+        self._ends: list[tuple[int, EpisodeSummary]] = []
+
+    def _step(self, tensordict):
+        self.steps_taken += 1
+        return super()._step(tensordict)
+
+    # Called by the trainer through the ParallelEnv (same arguments for every environment).
+    def drain(self) -> list[PendingEpisode]:
+        """The episodes completed since the last call (and forget them here)."""
+        out = [PendingEpisode(step, self.index, summary, **pending)
+               for (step, summary), pending in zip(self._ends, self.mechanism.pending)]
+        self.completed.clear()
+        self.mechanism.pending.clear()
+        self._ends.clear()
+        return out
+
+    def _finish_episode(self, constrained: bool) -> None:
+        super()._finish_episode(constrained)
+        self._ends.append((self.steps_taken, self.completed[-1]))
+
+    def load_mechanism(self, state: dict) -> None:
+        self.mechanism.local.load_state_dict(state)
+
+    def worker_state(self) -> tuple[int, dict, Any]:
+        """(index, f3's phase budgets, the environment's random state)."""
+        return self.index, self.task.time_objective.state_dict(), self.runner.random_state.get_state()
+
+    def load_worker_state(self, budgets: list, rngs: list) -> None:
+        """Take this environment's entries of the trainer's per-environment lists."""
+        self.task.time_objective.load_state_dict(budgets[self.index])
+        self.runner.random_state.set_state(rngs[self.index])
+
+    def process_id(self) -> int:
+        return os.getpid()
+
+
+def _make_group(task: TaskConfig, safety: SafetyConfig, mechanism: MechanismConfig,
+                seeds: tuple[int, ...], indices: tuple[int, ...], time_limit: float) -> EnvBase:
+    """One worker's environments: a :class:`WorkerEnv`, or a ``SerialEnv`` of several."""
+    if len(indices) == 1:
+        return WorkerEnv(task, safety, mechanism, seeds[0], indices[0], time_limit)
+    return SerialEnv(len(indices), [functools.partial(WorkerEnv, task, safety, mechanism, s, i, time_limit)
+                                    for s, i in zip(seeds, indices)])
+
+
+def make_worker_envs(config: Config, seeds: list[int]) -> ParallelEnv:
+    """``train.env_workers`` processes, each with ``num_envs / env_workers`` consecutive
+    environments. The parent waits on the pipes (``use_buffers=False``): TorchRL's shared-buffer
+    mode spin-polls in the parent, which takes a core from the workers on a small machine."""
+    workers = config.train.env_workers
+    per = len(seeds) // workers  # num_envs is a multiple of env_workers (config.py)
+    groups = [functools.partial(_make_group, config.task, config.safety, config.mechanism,
+                                tuple(seeds[w * per:(w + 1) * per]), tuple(range(w * per, (w + 1) * per)),
+                                config.train.time_limit)
+              for w in range(workers)]
+    # num_threads is what TorchRL sets in this process: keep its count; each worker gets one
+    env = ParallelEnv(workers, groups, use_buffers=False, num_threads=torch.get_num_threads(),
+                      num_sub_threads=1)
+    env.start()
+    return env
+
+
+def _flat(results: list) -> list:
+    """A dispatched call's results, one per environment (a SerialEnv worker returns a list)."""
+    out = []
+    for result in results:
+        out.extend(result if isinstance(result, list) else [result])
+    return out
+
+
+def drain(env: ParallelEnv) -> list[PendingEpisode]:
+    """Every worker's completed episodes, in the order they ended (step, then environment)."""
+    return sorted(_flat(env.drain()), key=lambda p: (p.step, p.index))
+
+
+def per_environment(env: ParallelEnv, method: str, *args) -> list:
+    """``method`` called on every environment; results in environment order."""
+    results = _flat(getattr(env, method)(*args))
+    return results
+
+
+__all__ = ["PendingEpisode", "WorkerEnv", "drain", "make_worker_envs", "per_environment"]
