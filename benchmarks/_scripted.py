@@ -43,7 +43,7 @@ def record(config: Config, episodes: int, seed: int = 0) -> list[Episode]:
     task = PushOffTask(config.task)
     runner = TaskRunner(task, seed=seed, safety=config.safety)
     pusher = ScriptedPusher(task, config.scripted)
-    cartesian = config.task.action.mode == "cartesian"
+    cartesian = runner.control.cartesian  # the request the learner's actions map to
     out = []
     for episode_seed in range(seed, seed + episodes):
         runner.seed(episode_seed)

@@ -41,13 +41,11 @@ GOAL_RATIO = 0.9
 def replay(cfg, episodes: list, repeats: int, times: dict, phases: list) -> None:
     """Replay ``episodes`` (recorded with ``cfg``) ``repeats`` times: bare, full and TorchRL, interleaved
     episode by episode; adds the seconds to ``times`` and the full step's phases to ``phases``."""
-    cartesian = cfg.task.action.mode == "cartesian"
     bare_runner = TaskRunner(PushOffTask(cfg.task), seed=0)  # no filter: raw physics
     full_runner = TaskRunner(PushOffTask(cfg.task), seed=0, safety=cfg.safety)
     env = PushOffEnv(cfg.task, cfg.safety, seed=0)
-    commanded = list(env.robot.commanded_joints)
-    scale = torch.as_tensor(1.0 / cfg.task.action.cartesian_max_speed if cartesian
-                            else 1.0 / env.robot.velocity_limit[commanded], dtype=torch.float32)
+    control = full_runner.control  # the action <-> request maps of the config's action mode
+    cartesian = control.cartesian
     substeps = cfg.task.substeps
     for _ in range(repeats):
         for episode in episodes:
@@ -73,8 +71,8 @@ def replay(cfg, episodes: list, repeats: int, times: dict, phases: list) -> None
 
             env.set_seed(episode.seed)
             td = env.reset()
-            requests = episode.requests if cartesian else episode.requests[:, commanded]
-            actions = torch.as_tensor(requests, dtype=torch.float32) * scale
+            actions = torch.as_tensor(np.array([control.action(r) for r in episode.requests]),
+                                      dtype=torch.float32)
             t0 = time.perf_counter()
             for action in actions:
                 td["action"] = action

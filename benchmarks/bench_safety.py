@@ -33,9 +33,9 @@ cli.quiet_argv()  # before the heavy imports: the libraries' warnings and INFO l
 import numpy as np  # noqa: E402
 
 from ahrm_stack.config import load_config  # noqa: E402
+from ahrm_stack.env.control_step import make_task_filter  # noqa: E402
 from ahrm_stack.env.runner import TaskRunner  # noqa: E402
 from ahrm_stack.env.task import PushOffTask  # noqa: E402
-from ahrm_stack.safety import make_filter  # noqa: E402
 
 VARIANTS = {
     "box": dict(table_rows=False, workspace_rows=False, table_distance_rows=False,
@@ -53,10 +53,7 @@ def build(runner, config, changes, scene=None):
     config = dataclasses.replace(config, **changes)
     if scene is None and (config.table_distance_rows or config.obstacle_rows or config.self_collision_rows):
         scene = task.make_collision_scene(runner.physics)
-    return make_filter(task.robot, task.kinematics, config,
-                       control_period=task.config.episode.control_period,
-                       table_height=task.config.table.height, tip_site=task.pusher.tip_site,
-                       wrist_site=task.arm.wrist_site, scene=scene)
+    return make_task_filter(task, config, scene=scene)
 
 
 def record_stream(runner, config, steps, seed=0):

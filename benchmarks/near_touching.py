@@ -30,9 +30,9 @@ cli.quiet_argv()  # before the heavy imports: the libraries' warnings and INFO l
 import numpy as np  # noqa: E402
 
 from ahrm_stack.config import load_config  # noqa: E402
+from ahrm_stack.env.control_step import make_task_filter  # noqa: E402
 from ahrm_stack.env.runner import TaskRunner  # noqa: E402
 from ahrm_stack.env.task import PushOffTask  # noqa: E402
-from ahrm_stack.safety import make_filter  # noqa: E402
 
 GAPS = (0.0, 1e-12, -1e-12, 1e-10, -1e-10, 1e-9, -1e-9, 1e-6)  # m
 ACCURACY = 1e-6  # m
@@ -88,10 +88,8 @@ def run(robot_name: str, placements: int, seed: int = 0) -> Outcome:
     task = runner.task
     kin = task.kinematics
     scene = task.make_collision_scene(runner.physics)
-    safety = make_filter(task.robot, kin, dataclasses.replace(config.safety, obstacle_rows=True),
-                         control_period=config.task.episode.control_period,
-                         table_height=config.task.table.height, tip_site=task.pusher.tip_site,
-                         wrist_site=task.arm.wrist_site, scene=scene)
+    safety = make_task_filter(task, dataclasses.replace(config.safety, obstacle_rows=True),
+                              scene=scene)
     half_sizes = np.asarray(config.task.obstacles.size) / 2
     parts = list(scene.moving_parts)
     count = len([n for n in scene.environment if n.startswith("obstacle_")])

@@ -249,20 +249,11 @@ class SimArm(ArmAdapter):
 
     def _bind(self) -> None:
         physics, task = self.physics, self.task
-        model = physics.model
         self._actuators = np.asarray(physics.bind(task.arm.actuators).element_id, dtype=int)
-        self._arm_qpos = np.asarray(physics.bind(task.arm.joints).qposadr, dtype=int)
-
-        def free(prop):
-            body = int(physics.bind(prop.geom).bodyid)
-            joint = int(model.body_jntadr[body])
-            return (int(model.jnt_qposadr[joint]) + np.arange(7),
-                    int(model.jnt_dofadr[joint]) + np.arange(3))
-
-        self._cube_qpos, self._cube_dof = free(task.cube)
-        pairs = [free(o) for o in task.obstacles]
-        self._obstacle_qpos = np.array([p[0] for p in pairs], dtype=int).reshape(-1, 7)
-        self._obstacle_dof = np.array([p[1] for p in pairs], dtype=int).reshape(-1, 3)
+        addresses = task.addresses  # bound to this physics by the runner's reset
+        self._arm_qpos = addresses.arm_qpos
+        self._cube_qpos, self._cube_dof = addresses.cube_qpos, addresses.cube_dof
+        self._obstacle_qpos, self._obstacle_dof = addresses.obstacle_qpos, addresses.obstacle_dof
         self._lower = np.where(self._robot.limited, self._robot.position_lower, -np.inf)
         self._upper = np.where(self._robot.limited, self._robot.position_upper, np.inf)
 

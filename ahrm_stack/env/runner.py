@@ -21,8 +21,9 @@ import numpy as np
 from dm_control import mjcf
 
 from ahrm_stack.config import SafetyConfig
+from ahrm_stack.env.control_step import ControlStep, filter_call, make_task_filter
 from ahrm_stack.env.task import PushOffTask, StepInfo
-from ahrm_stack.safety import FilterResult, InterventionStats, SafetyFilter, make_filter
+from ahrm_stack.safety import FilterResult, InterventionStats, SafetyFilter
 
 log = logging.getLogger(__name__)
 
@@ -43,6 +44,10 @@ class TaskRunner:
     :attr:`safety_stats` report what it did. ``safety=None`` steps the raw physics — for
     physics-level tests and the bare-step benchmark only — and ``safety.enabled: false`` is the
     explicit ablation; both are logged as warnings.
+
+    :meth:`step_action` takes a policy's normalised action (``task.action.mode``), mapped to the
+    filter's request by :attr:`control` (:class:`~ahrm_stack.env.control_step.ControlStep`);
+    :meth:`step_only` and :meth:`step_cartesian` take requests (rad/s, or m/s for the tip).
     """
 
     def __init__(self, task: PushOffTask, seed: int | None = None,
@@ -50,6 +55,7 @@ class TaskRunner:
         self.task = task
         self.physics = mjcf.Physics.from_mjcf_model(task.root_entity.mjcf_model)
         self.safety_config = safety
+        self.control = ControlStep(task.robot, task.config.action)
         self.filter: SafetyFilter | None = None
         self.safety_stats = InterventionStats()
         self.last_filter_result: FilterResult | None = None
@@ -84,12 +90,7 @@ class TaskRunner:
         if self.safety_config is not None and self.safety_config.enabled:
             if self.filter is None:  # needs the task bound to this physics: built at first reset
                 self._scene = self.task.make_collision_scene(self.physics)
-                task = self.task
-                self.filter = make_filter(
-                    task.robot, task.kinematics, self.safety_config,
-                    control_period=task.config.episode.control_period,
-                    table_height=task.config.table.height, tip_site=task.pusher.tip_site,
-                    wrist_site=task.arm.wrist_site, scene=self._scene)
+                self.filter = make_task_filter(self.task, self.safety_config, scene=self._scene)
             self.filter.reset()
         self.safety_stats.reset()
         self.last_filter_result = None
@@ -104,10 +105,18 @@ class TaskRunner:
         q, dq = self.task.arm_state(self.physics)
         if self.safety_config.obstacle_rows:
             self.task.place_objects(self._scene, self.physics)
-        result = (self.filter.cartesian if cartesian else self.filter)(q, dq, request)
+        result = filter_call(self.filter, cartesian)(q, dq, request)
         self.last_filter_result = result
         self.safety_stats.add(result)
         return result.command
+
+    def step_action(self, action: np.ndarray) -> tuple[StepInfo, bool, bool]:
+        """Advance one control step on a policy's normalised ``action`` (shape
+        ``(control.action_size,)``, a wrong shape is a ``ValueError``): :attr:`control` maps it to
+        the request of ``task.action.mode`` — joint velocities (rad/s) or the tip velocity (m/s,
+        world frame) — and the safety filter makes the joint command from it."""
+        request = self.control.request(action)
+        return self._advance(self._filtered(request, cartesian=self.control.cartesian))
 
     def step_only(self, request: np.ndarray) -> tuple[StepInfo, bool, bool]:
         """Advance one control step without building the observation dict.

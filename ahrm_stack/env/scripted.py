@@ -136,8 +136,7 @@ class ScriptedPusher:
         self._configuration = mink.Configuration(model)
         self._tip_site = int(physics.bind(task.pusher.tip_site).element_id)
         self._cube_body = int(physics.bind(task.cube.geom).bodyid)
-        cube_dof = int(model.jnt_dofadr[model.body_jntadr[self._cube_body]])
-        self._cube_dofs = np.arange(cube_dof, cube_dof + 2)  # linear (x, y) of its free joint
+        self._cube_dofs = task.addresses.cube_dof[:2]  # linear (x, y) of its free joint
         self._arm_dofs = np.asarray(physics.bind(task.arm.joints).dofadr, dtype=int)
         frozen = sorted(set(range(model.nv)) - set(self._arm_dofs.tolist()))
         self._freeze = mink.DofFreezingTask(model, dof_indices=frozen)

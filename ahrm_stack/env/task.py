@@ -22,6 +22,7 @@ from dm_env import specs
 
 from ahrm_stack.config import ConfigError, TaskConfig
 from ahrm_stack.env.arena import TableArena
+from ahrm_stack.env.control_step import command_to_action
 from ahrm_stack.env.entities import BoxProp, Pusher
 from ahrm_stack.env.layout import Layout, LayoutSampler, lane_clearance
 from ahrm_stack.env.start_pose import solve_start_pose
@@ -57,6 +58,21 @@ class StepInfo:
     def empty(cls) -> "StepInfo":
         return cls(f=np.ones(3), g=np.zeros(3), phase=1, x=0.0, distances=np.zeros(2), success=False, touched=False,
                    tip=np.zeros(3), target=np.zeros(3), progress=0.0, elapsed=0.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class JointAddresses:
+    """Where the arm's joints and the free joints of the cube and the obstacles sit in one
+    compiled physics (indices into ``data.qpos`` / ``data.qvel``). A free joint has 7 qpos —
+    position (3, m, world frame) then orientation quaternion (4, w x y z) — and 6 dofs, of which
+    the first 3 (kept here) are the linear velocity, m/s, world frame."""
+
+    arm_qpos: np.ndarray  # (n_joints,) joint angles, rad
+    arm_dof: np.ndarray  # (n_joints,) joint velocities, rad/s
+    cube_qpos: np.ndarray  # (7,)
+    cube_dof: np.ndarray  # (3,) linear velocity
+    obstacle_qpos: np.ndarray  # (n_obstacles, 7)
+    obstacle_dof: np.ndarray  # (n_obstacles, 3) linear velocities
 
 
 class PushOffTask(composer.Task):
@@ -113,6 +129,7 @@ class PushOffTask(composer.Task):
         self.step_info = StepInfo.empty()  # observables are evaluated once before the first reset
         self.previous_action = np.zeros(len(self.robot.commanded_joints))
         self._command = np.zeros(self.robot.num_joints)
+        self.addresses: JointAddresses | None = None  # set for the physics of each reset
         self._declare_observables()
 
     # ------------------------------------------------------------------ composition
@@ -363,7 +380,8 @@ class PushOffTask(composer.Task):
         physics.forward()
 
     def _bind(self, physics: mjcf.Physics) -> None:
-        """Cache indices into the (possibly rebuilt) physics; called at every reset."""
+        """Cache indices into the (possibly rebuilt) physics; called at every reset. The joint
+        addresses are :attr:`addresses`, which every reader of the joints' state uses."""
         model = physics.model
         joints = physics.bind(self._arm.joints)
         self._arm_qpos = np.asarray(joints.qposadr, dtype=int)
@@ -372,10 +390,16 @@ class PushOffTask(composer.Task):
         props = [self._cube, *self._obstacles]
         bodies = [int(physics.bind(p.geom).bodyid) for p in props]
         self._cube_body, self._obstacle_bodies = bodies[0], np.asarray(bodies[1:], dtype=int)
-        prop_dofs = np.asarray([model.jnt_dofadr[model.body_jntadr[b]] for b in bodies], int)
+        free_joints = [int(model.body_jntadr[b]) for b in bodies]
+        prop_qpos = np.asarray([model.jnt_qposadr[j] for j in free_joints], int)[:, None] + np.arange(7)
+        prop_dofs = np.asarray([model.jnt_dofadr[j] for j in free_joints], int)
         self._prop_bodies = np.asarray(bodies, dtype=int)
         self._prop_linear_dofs = prop_dofs[:, None] + np.arange(3)  # free joint: world-frame velocity
         self._obstacle_linear_dofs = self._prop_linear_dofs[1:]
+        self.addresses = JointAddresses(
+            arm_qpos=self._arm_qpos, arm_dof=self._arm_dof, cube_qpos=prop_qpos[0],
+            cube_dof=self._prop_linear_dofs[0], obstacle_qpos=prop_qpos[1:].reshape(-1, 7),
+            obstacle_dof=self._obstacle_linear_dofs.reshape(-1, 3))
         self._is_obstacle = np.zeros(model.ngeom, dtype=bool)
         self._is_obstacle[[int(physics.bind(o.geom).element_id) for o in self._obstacles]] = True
         arm_bodies = {int(physics.bind(b).element_id) for b in self._arm.mjcf_model.find_all("body")}
@@ -394,8 +418,8 @@ class PushOffTask(composer.Task):
         command = np.asarray(action, dtype=float)
         self._command = command
         physics.data.ctrl[self._arm_actuators] = command
-        limits = self.robot.velocity_limit[list(self.robot.commanded_joints)]
-        self.previous_action = command[list(self.robot.commanded_joints)] / limits
+        self.previous_action = command_to_action(command, self.robot.velocity_limit,
+                                                 self.robot.commanded_joints)
 
     def after_step(self, physics: mjcf.Physics, random_state: np.random.RandomState) -> None:
         self.step_info = self._measure(physics, phase_time=self.config.episode.control_period)

@@ -5,7 +5,8 @@ Keys (all float32 unless noted):
 * ``observation`` — the flat observation of spec §1 (layout: :attr:`PushOffTask.observation_order`);
 * ``action`` — ``action.mode: joint``: normalised joint velocities of the commanded joints, in
   [-1, 1]; ``cartesian``: the pusher tip's linear velocity normalised by
-  ``action.cartesian_max_speed``. Either way the safety filter makes the joint command;
+  ``action.cartesian_max_speed``. Either way the safety filter makes the joint command
+  (:mod:`ahrm_stack.env.control_step` maps the action to the filter's request);
 * ``reward`` — the reward mechanism's scalar (without one: the linear sum of g);
 * ``f`` / ``g`` — the component vectors (avoid, manipulate, time): +-1 form and penalty form;
 * ``phase`` (int64, 1..3), ``x`` (boundary distance, m), ``distances`` (signed distances of the
@@ -17,40 +18,16 @@ torchrl's ``DMControlWrapper`` cannot wrap composer tasks, hence this class.
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Binary, Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from ahrm_stack.config import SafetyConfig, TaskConfig
+from ahrm_stack.env.control_step import action_to_command, check_action_shape  # noqa: F401 (re-exported)
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.episode import EpisodeRecorder, EpisodeSummary
 from ahrm_stack.env.task import PushOffTask, StepInfo
-
-
-def check_action_shape(action: np.ndarray, expected: tuple[int, ...], mode: str) -> None:
-    """Raise ``ValueError`` unless ``action`` has exactly shape ``expected``: a wrong-sized action
-    is a bug upstream, and broadcasting it would drive every joint with one value."""
-    if np.shape(action) != expected:
-        raise ValueError(f"action.mode {mode}: the action must have shape {expected}, got "
-                         f"{np.shape(action)}")
-
-
-def action_to_command(action: np.ndarray, velocity_limit: np.ndarray,
-                      commanded: tuple[int, ...]) -> np.ndarray:
-    """Map a normalised action of the commanded joints to joint velocities (rad/s) for all joints.
-
-    ``action`` must have shape ``(len(commanded),)``: one value per commanded joint, never
-    broadcast (a ``ValueError`` says what came). Non-finite entries become 0 and the action is
-    clipped to [-1, 1]; joints that are not commanded get 0.
-    """
-    action = np.asarray(action, dtype=float)
-    check_action_shape(action, (len(commanded),), "joint")
-    action = np.nan_to_num(action, nan=0.0, posinf=0.0, neginf=0.0)
-    command = np.zeros(len(velocity_limit))
-    command[list(commanded)] = np.clip(action, -1.0, 1.0) * velocity_limit[list(commanded)]
-    return command
 
 
 class PushOffEnv(EnvBase):
@@ -76,10 +53,7 @@ class PushOffEnv(EnvBase):
         if time_limit > 0:
             self.runner.max_steps = max(1, int(round(time_limit / config.episode.control_period)))
         self.robot = self.task.robot
-        self._commanded = self.robot.commanded_joints
-        self._cartesian = config.action.mode == "cartesian"
-        self._max_tip_speed = config.action.cartesian_max_speed
-        action_dim = 3 if self._cartesian else len(self._commanded)
+        action_dim = self.runner.control.action_size
         self.runner.reset()
         obs_dim = self.runner.flat_observation().shape[0]
         self.observation_spec = Composite(
@@ -124,14 +98,7 @@ class PushOffEnv(EnvBase):
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict["action"].detach().cpu().numpy()
-        check_action_shape(action, tuple(self.action_spec.shape),
-                           "cartesian" if self._cartesian else "joint")
-        if self._cartesian:
-            tip_velocity = np.clip(np.nan_to_num(action, nan=0.0, posinf=0.0, neginf=0.0), -1, 1)
-            info, terminated, truncated = self.runner.step_cartesian(tip_velocity * self._max_tip_speed)
-        else:
-            request = action_to_command(action, self.robot.velocity_limit, self._commanded)
-            info, terminated, truncated = self.runner.step_only(request)
+        info, terminated, truncated = self.runner.step_action(action)
         if self.mechanism is None:
             reward = float(info.g.sum())
         else:

@@ -1,7 +1,8 @@
 """Demonstrations from the scripted mink controller, behaviour cloning and the critic refit.
 
 A demonstration step records the observation the learner would see and the normalised action
-that reproduces the controller's request, in the learner's action mode:
+that reproduces the controller's request, in the learner's action mode (the inverse map of
+:class:`~ahrm_stack.env.control_step.ControlStep`, whose forward map executes it):
 
 - ``action.mode: joint``: a = clip(u[j] / v_max[j], -1, 1) for the commanded joints j (joint 6
   only spins the symmetric pusher and is held at zero, as for the learner), u the mink IK's
@@ -45,14 +46,11 @@ class _Teacher:
     safety filter, as the learner's actions are."""
 
     def __init__(self, config: Config) -> None:
-        self.cartesian = config.task.action.mode == "cartesian"
         self.task = PushOffTask(config.task)
         self.runner = TaskRunner(self.task, seed=DEMO_SEED_OFFSET, safety=config.safety)
+        self.control = self.runner.control  # the learner's action <-> filter request maps
         self.controller = ScriptedPusher(self.task, config.scripted)
         self.mechanism = RewardMechanism(config.mechanism)
-        self.commanded = list(self.task.robot.commanded_joints)
-        self.limits = self.task.robot.velocity_limit[self.commanded]
-        self.max_speed = config.task.action.cartesian_max_speed
 
     def reset(self, episode: int) -> None:
         """Demonstration episode ``episode``: seed ``DEMO_SEED_OFFSET + episode``."""
@@ -63,22 +61,16 @@ class _Teacher:
     def label(self) -> np.ndarray:
         """The controller's action in the current state, normalised and clipped to ACTION_LIMIT."""
         physics = self.runner.physics
-        if self.cartesian:
-            action = self.controller.tip_velocity(physics) / self.max_speed
-        else:
-            action = self.controller(physics)[self.commanded] / self.limits
-        return np.clip(action, -ACTION_LIMIT, ACTION_LIMIT)
+        # the controller's request in the learner's mode: tip velocity (m/s) or joints (rad/s)
+        request = (self.controller.tip_velocity(physics) if self.control.cartesian
+                   else self.controller(physics))
+        return np.clip(self.control.action(request), -ACTION_LIMIT, ACTION_LIMIT)
 
     def execute(self, action: np.ndarray) -> tuple[float, bool, bool]:
-        """One control step with the normalised ``action`` (clipped to [-1, 1]); returns the
-        mechanism's reward, terminated (success) and truncated."""
-        action = np.clip(action, -1.0, 1.0)
-        if self.cartesian:
-            info, terminated, truncated = self.runner.step_cartesian(action * self.max_speed)
-        else:
-            command = np.zeros(self.task.robot.num_joints)
-            command[self.commanded] = action * self.limits
-            info, terminated, truncated = self.runner.step_only(command)
+        """One control step with the normalised ``action``, exactly as the learner's actions are
+        executed (:meth:`TaskRunner.step_action`: clipped to [-1, 1], through the safety filter);
+        returns the mechanism's reward, terminated (success) and truncated."""
+        info, terminated, truncated = self.runner.step_action(action)
         return float(self.mechanism.reward(info.g, info.distances)), terminated, truncated
 
 

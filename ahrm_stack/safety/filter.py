@@ -483,14 +483,8 @@ def make_filter(robot: RobotDescription, kinematics: ArmKinematics, config: Safe
                 control_period: float, table_height: float, tip_site, wrist_site,
                 scene: CollisionScene | None = None) -> SafetyFilter:
     """The filter for an arm whose pusher tip and wrist are the MJCF sites ``tip_site`` and
-    ``wrist_site`` of the kinematics' model. In the environment::
-
-        make_filter(task.robot, task.kinematics, cfg.safety,
-                    control_period=task.config.episode.control_period,
-                    table_height=task.config.table.height,
-                    tip_site=task.pusher.tip_site, wrist_site=task.arm.wrist_site,
-                    scene=task.make_collision_scene(physics))   # only needed for obstacle rows
-    """
+    ``wrist_site`` of the kinematics' model; ``control_period`` in s, ``table_height`` in m.
+    For a task, :func:`ahrm_stack.env.control_step.make_task_filter` fills these in from it."""
     return SafetyFilter(robot, kinematics, config, dt=control_period, table_height=table_height,
                         tip_frame=kinematics.element_frame_id(tip_site),
                         wrist_frame=kinematics.element_frame_id(wrist_site), scene=scene)

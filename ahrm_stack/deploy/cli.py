@@ -1,0 +1,117 @@
+"""The command line: ``python -m ahrm_stack.deploy --backend sim|kinova-gen2|kortex [...]``
+(:func:`main`)."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+from pathlib import Path
+from typing import Sequence
+
+from ahrm_stack.config import ConfigError
+from ahrm_stack.deploy.loop import DeployFault, DeployLoop
+from ahrm_stack.deploy.run import deploy
+from ahrm_stack.deploy.settings import (DEPLOY_CONFIG, DeployConfigError, DeploySettings,
+                                        load_deploy_settings)
+from hardware.backends import BACKENDS
+
+
+def run_backend(backend: str, settings: DeploySettings, checkpoint: Path | None,
+                overrides: Sequence[str], scene: str = "sim",
+                layout_file: Path | None = None) -> DeployLoop:
+    """One deploy run on the arm adapter named ``backend`` (one of
+    :data:`hardware.backends.BACKENDS`) with object poses from ``scene``: the one place the
+    command line chooses them. Raises what :func:`~ahrm_stack.deploy.run.deploy` raises."""
+    return deploy(settings, checkpoint, overrides, backend=backend, scene=scene,
+                  layout_file=layout_file)
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
+    parser = _Parser(prog="python -m ahrm_stack.deploy",
+                     description="Run the deployment loop (policy or scripted controller → safety "
+                                 "filter → arm adapter).")
+    parser.add_argument("--backend", choices=list(BACKENDS), required=True,
+                        help="arm adapter: " + "; ".join(f"{b.name}: {b.help}"
+                                                         for b in BACKENDS.values()))
+    parser.add_argument("--checkpoint", type=Path, help="run folder with config.yaml and policy.pt "
+                        "(default: the scripted controller)")
+    parser.add_argument("--duration", type=float, help="s (default: deploy.yaml)")
+    parser.add_argument("--rate", type=float, dest="rate_hz", help="loop rate, Hz (default: deploy.yaml)")
+    pace = parser.add_mutually_exclusive_group()
+    pace.add_argument("--realtime", dest="realtime", action="store_const", const=True,
+                      help="pace to the wall clock")
+    pace.add_argument("--fast", dest="realtime", action="store_const", const=False,
+                      help="as fast as possible (sim only)")
+    parser.add_argument("--seed", type=int, help="sim layout seed (default: deploy.yaml)")
+    parser.add_argument("--telemetry", help="JSONL log path ('' for none; default: deploy.yaml)")
+    parser.add_argument("--config", type=Path, default=DEPLOY_CONFIG, help="deploy settings YAML")
+    parser.add_argument("--scene", choices=["sim", "camera"], default="sim",
+                        help="object poses: the simulator's (sim) or the AprilTag camera's for the "
+                             "cube and a measured layout file for the obstacles (camera; "
+                             "configs/perception.yaml)")
+    parser.add_argument("--layout-file", type=Path, help="with --scene camera: the measured obstacle "
+                        "layout (default: perception.layout_file, else surveyed from the sim)")
+    parser.add_argument("overrides", nargs="*", metavar="key=value",
+                        help="config overrides without --checkpoint, e.g. task.robot=j2s6s200")
+    return parser.parse_args(argv)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    from ahrm_stack.cli import quiet_argv
+
+    args = _parse(quiet_argv(argv))  # --verbose: the libraries' warnings and INFO logs too
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger("ahrm_stack.env.runner").setLevel(logging.ERROR)  # the sim filters nothing:
+    # by design, the deploy loop does
+    try:
+        settings = load_deploy_settings(args.config, rate_hz=args.rate_hz, duration=args.duration,
+                                        realtime=args.realtime, seed=args.seed,
+                                        telemetry=args.telemetry)
+    except DeployConfigError as error:
+        print(f"python -m ahrm_stack.deploy: error: {error}", file=sys.stderr)
+        return 2
+
+    def terminate(signum, frame):  # SIGTERM stops the arm like Ctrl-C
+        raise KeyboardInterrupt
+
+    from ahrm_stack.learning.checkpoint import CheckpointError
+
+    if args.scene == "camera":  # offscreen rendering: MUJOCO_GL must be chosen before mujoco loads
+        from ahrm_stack.config import VideoConfig, load_extra
+        from ahrm_stack.env.video import RenderError, select_gl_backend
+
+        try:
+            select_gl_backend(load_extra(VideoConfig, "video").gl_backends)
+        except (RenderError, ConfigError) as error:
+            print(f"python -m ahrm_stack.deploy: error: {error}", file=sys.stderr)
+            return 2
+    previous = signal.signal(signal.SIGTERM, terminate)
+    try:
+        loop = run_backend(args.backend, settings, args.checkpoint, args.overrides, args.scene,
+                           args.layout_file)
+    except (ConfigError, DeployConfigError, CheckpointError) as error:  # before anything moved
+        print(f"python -m ahrm_stack.deploy: error: {error}", file=sys.stderr)
+        return 2
+    except DeployFault as error:  # the arm was stopped; the stop and the summary are recorded
+        print(error.summary)
+        print(f"python -m ahrm_stack.deploy: error: the arm was stopped on a fault: {error}",
+              file=sys.stderr)
+        return 3
+    except KeyboardInterrupt:  # during set-up, before the arm moved
+        print("interrupted before the loop started", file=sys.stderr)
+        return 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    summary = loop.summary()
+    print(summary)
+    if loop.interrupted:
+        return 130
+    return 0 if summary.success else 1
+

@@ -1,0 +1,414 @@
+"""The deploy loop: one control period of feedback, world model, controller, safety filter and
+command per :meth:`DeployLoop.tick`, and every way a run ends (:class:`DeployFault`,
+:class:`DeploySummary`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+import time
+
+import numpy as np
+
+from ahrm_stack.deploy.safety_settings import require_filter
+from ahrm_stack.deploy.settings import DeploySettings, control_periods
+from ahrm_stack.deploy.world import WorldModel
+from hardware.protocol import (ArmFaultError, CommandRefusedError, ConnectionLostError,
+                               FeedbackTimeoutError, HardwareError, ServoingMode)
+
+log = logging.getLogger("ahrm_stack.deploy")
+
+
+@dataclasses.dataclass
+class DeploySummary:
+    success: bool
+    duration: float  # s of loop time
+    ticks: int
+    interventions: int  # ticks whose command the safety filter modified
+    fallbacks: int
+    deadline_misses: int
+    latency_p50_ms: float  # feedback received -> command sent
+    latency_p99_ms: float
+    stop_reason: str
+    emergency_stops: int
+    adapter_refusals: int
+    fault: str = ""  # the software fault that stopped the run (exception, NaN request), or ''
+
+    def __str__(self) -> str:
+        return (f"deploy summary: success {self.success} | duration {self.duration:.2f} s | "
+                f"ticks {self.ticks} | interventions {self.interventions} | fallbacks "
+                f"{self.fallbacks} | deadline misses {self.deadline_misses} | latency p50 "
+                f"{self.latency_p50_ms:.3f} ms p99 {self.latency_p99_ms:.3f} ms | e-stops "
+                f"{self.emergency_stops} | stop: {self.stop_reason}")
+
+
+class DeployFault(RuntimeError):
+    """A software fault stopped the run: an exception in start-up, perception, the world model,
+    the controller, the safety filter or the loop itself, or a non-finite controller request. The
+    arm was commanded to zero velocity and the stop and the summary were recorded before this is
+    raised. ``summary`` is the run's :class:`DeploySummary`; ``__cause__`` the original exception
+    (None for a NaN request)."""
+
+    def __init__(self, message: str, summary: DeploySummary) -> None:
+        super().__init__(message)
+        self.summary = summary
+
+
+class _Halt(Exception):
+    """Internal: end the run; the arm was already stopped or e-stopped."""
+
+
+class DeployLoop:
+    """One deployment run on ``arm`` (a connected :class:`~hardware.protocol.ArmAdapter` with a
+    ``perception()`` method), paced by the adapter's clock.
+
+    Every way a run ends commands the arm to stop (zero velocity, or an e-stop), writes a stop
+    event with its cause to the log and the telemetry, and (through :meth:`run`) the summary: the
+    watchdog and hardware checks, the safety filter's report, an adapter error, success, the
+    duration, Ctrl-C, and any exception in start-up or in a tick's stages (a *fault*: the stop
+    reason names the stage, ``perception fault: ValueError: ...``; :meth:`run` then raises
+    :class:`DeployFault`). A controller request that is not finite (NaN from a policy) is a fault
+    too, never a silent zero.
+
+    Args:
+        arm: the adapter; its ``clock`` paces the loop and stamps the feedback.
+        world: the :class:`WorldModel` of the deployed task.
+        controller: a :class:`ScriptedController` or :class:`PolicyController`.
+        safety: the ``safety`` config; the loop turns the obstacle rows on.
+        settings: the deploy settings (rate, watchdog).
+        telemetry: an open text file for the JSONL log, or None.
+        scene: where perception comes from: a scene source (``poses()`` -> ObjectPoses, e.g.
+            :mod:`ahrm_stack.perception`'s camera scene), or None for the adapter's
+            ``perception()``. An exception from it is a perception fault (the arm stops).
+    """
+
+    def __init__(self, arm, world: WorldModel, controller, safety, settings: DeploySettings,
+                 telemetry=None, scene=None) -> None:
+        from ahrm_stack.env.control_step import filter_call, make_task_filter, request_size
+        from ahrm_stack.safety import InterventionStats
+
+        require_filter(safety)
+        self.arm, self.world, self.controller = arm, world, controller
+        self._perceive = scene.poses if scene is not None else arm.perception
+        self.settings = settings
+        self.period = settings.period
+        self.clock = arm.clock
+        self.telemetry = telemetry
+        task = world.task
+        robot = task.robot
+        self._lower, self._upper = robot.position_lower, robot.position_upper
+        self._speed_alarm = robot.velocity_limit * (1.0 + settings.watchdog.velocity_tolerance)
+        self.scene = world.make_collision_scene()
+        self.filter = make_task_filter(task, dataclasses.replace(safety, obstacle_rows=True),
+                                       scene=self.scene, control_period=self.period)
+        # a Cartesian request (tip velocity, m/s) goes through the same QP as differential IK
+        cartesian = getattr(controller, "cartesian", False)
+        self._solve = filter_call(self.filter, cartesian)
+        self._request_size = request_size(robot, cartesian)
+        self.stats = InterventionStats()
+        self.latencies: list[float] = []  # s, feedback received -> command sent
+        self.deadline_misses = 0
+        self.emergency_stops = 0
+        self.adapter_refusals = 0
+        self.success = False
+        self.stop_reason = ""
+        self.fault = ""  # the stop reason when a software fault stopped the run
+        self.error: BaseException | None = None  # the exception behind the fault, if any
+        self.stopped_at: float | None = None  # clock time the arm was stopped / e-stopped
+        self.tick_time: float | None = None  # clock time the current (or last) tick began
+        self.halted = False
+        self.interrupted = False
+        self._sent = np.zeros(robot.num_joints)
+        self._last_frame = -1
+        self._ticks = 0
+        self._t0 = 0.0
+        self._started = False
+        self._stage = "start-up"
+
+    # ------------------------------------------------------------------ helpers
+    def _write(self, record: dict) -> None:
+        """A telemetry line; a failing log never stops the stop logic (the error is logged)."""
+        if self.telemetry is None:
+            return
+        try:
+            self.telemetry.write(json.dumps(record) + "\n")
+        except (OSError, ValueError) as error:  # disk full, a closed file
+            log.error("deploy: telemetry write failed (%s: %s)", type(error).__name__, error)
+
+    def _event(self, level: int, kind: str, message: str) -> None:
+        log.log(level, "deploy: %s: %s", kind.upper(), message)
+        self._write({"t": round(self.clock.now() - self._t0, 6), "event": kind, "reason": message})
+
+    def _halt(self, reason: str, emergency: bool, level: int = logging.WARNING) -> None:
+        """Stop (or e-stop) the arm, log why (``level``; e-stops at ERROR), end the run."""
+        self.stop_reason = reason
+        self.halted = True
+        self._sent = np.zeros_like(self._sent)
+        try:
+            if emergency:
+                self.arm.apply_emergency_stop()
+                self.emergency_stops += 1
+            else:
+                self.arm.stop()
+        except Exception as error:  # e.g. the link is gone: the arm's own watchdog stops it
+            log.error("deploy: could not %s the arm (%s)", "e-stop" if emergency else "stop",
+                      type(error).__name__)
+            if emergency:  # a plain stop is the next best command
+                try:
+                    self.arm.stop()
+                except Exception:  # noqa: BLE001 - nothing more to try from here
+                    pass
+        self.stopped_at = self.clock.now()
+        self._event(logging.ERROR if emergency else level,
+                    "emergency stop" if emergency else "stop", reason)
+        raise _Halt(reason)
+
+    def _stop_on_fault(self, error: BaseException | None, reason: str) -> None:
+        """Record a software fault (``reason``; ``error`` the exception, if any), stop the arm."""
+        self.fault = reason
+        self.error = error
+        try:
+            self._halt(reason, emergency=False, level=logging.ERROR)
+        except _Halt:
+            pass
+
+    def _fault_reason(self, error: BaseException) -> str:
+        text = (str(error).splitlines() or [""])[0][:300]
+        return f"{self._stage} fault: {type(error).__name__}" + (f": {text}" if text else "")
+
+    def _check_feedback(self, feedback) -> None:
+        age = self.clock.now() - feedback.timestamp
+        max_age = self.settings.watchdog.max_feedback_age * self.period
+        if feedback.frame_id <= self._last_frame or age > max_age:
+            self._halt(f"watchdog: stale feedback (frame {feedback.frame_id}, age "
+                       f"{age * 1e3:.1f} ms > {max_age * 1e3:.1f} ms)", emergency=False)
+        self._last_frame = feedback.frame_id
+        for name, values in (("position", feedback.position), ("velocity", feedback.velocity),
+                             ("torque", feedback.torque)):
+            bad = np.flatnonzero(~np.isfinite(values))
+            if bad.size:
+                self._halt(f"non-finite feedback: {name}[{bad[0]}] = {values[bad[0]]}",
+                           emergency=True)
+        if not feedback.healthy:
+            self._halt(f"arm fault: state {feedback.arm_state.value}, flags {feedback.faults!r}",
+                       emergency=True)
+        past = np.flatnonzero((feedback.position < self._lower) | (feedback.position > self._upper))
+        if past.size:
+            i = past[0]
+            self._halt(f"limit violation: joint {i} at {feedback.position[i]:.4f} rad, outside "
+                       f"[{self._lower[i]:.4f}, {self._upper[i]:.4f}]", emergency=True)
+        fast = np.flatnonzero(np.abs(feedback.velocity) > self._speed_alarm)
+        if fast.size:
+            i = fast[0]
+            self._halt(f"limit violation: joint {i} moving at {feedback.velocity[i]:.3f} rad/s, "
+                       f"alarm at {self._speed_alarm[i]:.3f} rad/s", emergency=True)
+
+    def _check_request(self, u_nom) -> np.ndarray:
+        """The controller's request as a float vector; a wrong size or a non-finite entry (NaN
+        from a policy) is a controller fault: the arm stops and the run ends."""
+        try:
+            request = np.asarray(u_nom, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            request = None
+        if request is None or request.size != self._request_size:
+            reason = (f"controller fault: request {u_nom!r:.80} is not {self._request_size} "
+                      "numbers")
+            self._stop_on_fault(None, reason)
+            raise _Halt(reason)
+        bad = np.flatnonzero(~np.isfinite(request))
+        if bad.size:
+            reason = (f"controller fault: non-finite request u_nom[{bad[0]}] = {request[bad[0]]} "
+                      f"({bad.size} of {request.size} entries)")
+            self._stop_on_fault(None, reason)
+            raise _Halt(reason)
+        return request
+
+    def _deadline(self, tick_time: float, where: str) -> None:
+        late = self.clock.now() - (tick_time + self.settings.watchdog.command_deadline * self.period)
+        if late > 0:
+            self.deadline_misses += 1
+            message = f"missed deadline {where} by {late * 1e3:.2f} ms"
+            if self.deadline_misses > self.settings.watchdog.max_deadline_misses:
+                self._halt(f"watchdog: {message}", emergency=False)
+            self._event(logging.WARNING, "deadline", message)
+
+    @property
+    def next_tick_time(self) -> float:
+        """Clock time (s) at which the next :meth:`tick` begins."""
+        return self._t0 + self._ticks * self.period
+
+    # ------------------------------------------------------------------ the loop
+    def start(self) -> None:
+        """Synchronise with the arm: first feedback, plan, warm the controller and filter (so
+        their first-call costs do not hit a deadline), then schedule tick 0 at the clock's now."""
+        self._stage = "start-up"
+        self._t0 = self.clock.now()
+        if self.arm.servoing_mode != ServoingMode.SINGLE_LEVEL_SERVOING:
+            self.arm.set_servoing_mode(ServoingMode.SINGLE_LEVEL_SERVOING)
+        self.arm.stop()
+        feedback = self.arm.refresh_feedback()
+        self._last_frame = feedback.frame_id - 1
+        self._t0 = self.clock.now()
+        self.world.update(feedback, self._perceive(), 0.0)
+        self.controller.reset()
+        self.world.place_objects(self.scene)
+        request = np.asarray(self.controller(), dtype=float).reshape(-1)
+        if request.size != self._request_size:
+            raise ValueError(f"the controller's request has {request.size} entries, not "
+                             f"{self._request_size}")
+        if not np.isfinite(request).all():  # never sent: each tick checks its own request
+            log.warning("deploy: the controller's warm-up request is not finite: %s", request)
+            request = np.zeros_like(request)
+        self._solve(feedback.position, feedback.velocity, request, u_prev=self._sent)
+        self.filter.reset()
+        self.controller.reset()
+        self._sent = np.zeros_like(self._sent)
+        self._t0 = self.clock.now()
+        self._started = True
+
+    def resume(self) -> None:
+        """Continue after a halt (the caller cleared the arm's faults / reconnected it)."""
+        self.halted = False
+        self.stop_reason = ""
+        self.fault = ""
+        self.error = None
+        self._sent = np.zeros_like(self._sent)
+        self.filter.reset()
+        feedback = self.arm.refresh_feedback()
+        self._last_frame = feedback.frame_id - 1
+        self._ticks = int(math.ceil((self.clock.now() - self._t0) / self.period))
+
+    def tick(self) -> bool:
+        """One control period; False when the run ended (success, a halt or a fault: the arm is
+        then stopped and the stop recorded). Never raises but for Ctrl-C (KeyboardInterrupt)."""
+        tick_time = self._t0 + self._ticks * self.period
+        self.clock.sleep_until(tick_time)
+        self.tick_time = tick_time
+        self._ticks += 1
+        try:
+            self._stage = "feedback"
+            try:
+                feedback = self.arm.refresh_feedback()
+            except FeedbackTimeoutError:
+                self._halt("watchdog: feedback dropped (no frame in time)", emergency=False)
+            except ConnectionLostError:
+                self._halt("connection lost: the arm's own watchdog stops it", emergency=False)
+            received = time.perf_counter()
+            self._check_feedback(feedback)
+            self._stage = "perception"
+            poses = self._perceive()
+            if not poses.finite:
+                self._halt("non-finite perception (object poses)", emergency=False)
+            elapsed = tick_time - self._t0
+            info = self.world.update(feedback, poses, elapsed)
+            if info.success:
+                self.success = True
+                self._halt("success: the cube left the table", emergency=False, level=logging.INFO)
+            self._stage = "controller"
+            u_nom = self._check_request(self.controller())
+            self._stage = "safety filter"
+            self.world.place_objects(self.scene)
+            result = self._solve(feedback.position, feedback.velocity, u_nom, u_prev=self._sent)
+            self.stats.add(result)
+            if result.violated:
+                self._halt(f"safety filter reports violated constraints {list(result.violated)}",
+                           emergency=True)
+            self._deadline(tick_time, "before the command")
+            self._stage = "command"
+            try:
+                sent = self.arm.send_joint_speeds(result.command)
+            except CommandRefusedError as error:
+                self.adapter_refusals += 1
+                self.emergency_stops += 1
+                self._halt(f"adapter refused the command and e-stopped: {error}", emergency=False)
+            except ArmFaultError as error:
+                self._halt(f"arm in fault: {error}", emergency=True)
+            except ConnectionLostError:
+                self._halt("connection lost: the arm's own watchdog stops it", emergency=False)
+            latency = time.perf_counter() - received
+            self.latencies.append(latency)
+            self._sent = sent
+            self._deadline(tick_time, "sending the command")
+            self._stage = "telemetry"
+            self.world.record_command(sent)
+            self._write({
+                "t": round(elapsed, 6), "phase": int(info.phase), "x": round(float(info.x), 6),
+                "stage": self.controller.stage,
+                "u_nom": [round(float(v), 6) for v in u_nom],
+                "u": [round(float(v), 6) for v in sent], "active": list(result.active),
+                "status": result.status, "latency_ms": round(latency * 1e3, 4)})
+            return True
+        except _Halt:
+            return False
+        except HardwareError as error:  # anything else from the adapter: stop, never continue
+            try:
+                self._halt(f"adapter error {type(error).__name__}: {error}", emergency=True)
+            except _Halt:
+                return False
+        except Exception as error:  # noqa: BLE001 - a crash in a stage: stop, record, end the run
+            self._stop_on_fault(error, self._fault_reason(error))
+            return False
+
+    def run(self, duration: float) -> DeploySummary:
+        """Tick until success, a halt or ``duration`` s, then stop the arm; the summary is the
+        telemetry's last line. Ctrl-C (SIGINT) stops the arm too, sets :attr:`interrupted` and
+        returns the summary. A software fault (start-up, a stage's exception, a NaN request)
+        raises :class:`DeployFault` once the arm is stopped and the summary written; any other
+        exception escaping the loop (e.g. SystemExit) stops the arm, is recorded, and propagates."""
+        ticks = control_periods(duration, self.period)
+        try:
+            if not self._started:
+                try:
+                    self.start()
+                except HardwareError as error:
+                    self._stage = "start-up"
+                    self._stop_on_fault(error, f"start-up fault: adapter error "
+                                               f"{type(error).__name__}: {error}")
+                except Exception as error:  # noqa: BLE001 - perception, controller, filter
+                    self._stop_on_fault(error, self._fault_reason(error))
+            while not self.halted and self._ticks < ticks and self.tick():
+                pass
+            if not self.halted:
+                try:
+                    self._halt(f"duration of {duration:g} s reached", emergency=False,
+                               level=logging.INFO)
+                except _Halt:
+                    pass
+        except KeyboardInterrupt:
+            self.interrupted = True
+            try:
+                self._halt("interrupted (Ctrl-C / SIGINT / SIGTERM)", emergency=False)
+            except _Halt:
+                pass
+        except BaseException as error:  # SystemExit, MemoryError, a bug in the loop itself
+            if not self.halted:
+                self._stop_on_fault(error, self._fault_reason(error))
+            self._finish()
+            raise
+        summary = self._finish()
+        if self.fault:
+            raise DeployFault(self.fault, summary) from self.error
+        return summary
+
+    def _finish(self) -> DeploySummary:
+        summary = self.summary()
+        self._write({"summary": dataclasses.asdict(summary)})
+        if self.telemetry is not None:
+            try:
+                self.telemetry.flush()
+            except (OSError, ValueError):
+                pass
+        return summary
+
+    def summary(self) -> DeploySummary:
+        latencies = np.asarray(self.latencies) * 1e3
+        p50, p99 = (np.percentile(latencies, [50, 99]) if latencies.size else (math.nan, math.nan))
+        return DeploySummary(
+            success=self.success, duration=self._ticks * self.period, ticks=self._ticks,
+            interventions=self.stats.interventions, fallbacks=self.stats.fallbacks,
+            deadline_misses=self.deadline_misses, latency_p50_ms=float(p50),
+            latency_p99_ms=float(p99), stop_reason=self.stop_reason,
+            emergency_stops=self.emergency_stops, adapter_refusals=self.adapter_refusals,
+            fault=self.fault)

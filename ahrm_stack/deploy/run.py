@@ -1,0 +1,197 @@
+"""Building one deploy run: the controller's config (a checkpoint's, with the safety settings
+merged), the telemetry file, the adapter, world model, controller and loop; a fault while
+building is recorded like a fault in the loop (:func:`deploy`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+from pathlib import Path
+from typing import Sequence
+
+import yaml
+
+from ahrm_stack.config import Config, ConfigError, load_config
+from ahrm_stack.deploy.controllers import make_controller
+from ahrm_stack.deploy.loop import DeployFault, DeployLoop, DeploySummary
+from ahrm_stack.deploy.safety_settings import SafetyNote, merge_safety, require_filter
+from ahrm_stack.deploy.settings import DeployConfigError, DeploySettings
+from ahrm_stack.deploy.world import WorldModel
+
+log = logging.getLogger("ahrm_stack.deploy")
+
+
+def load_controller_config(checkpoint: Path | None, overrides: Sequence[str] = (),
+                           notes: list[SafetyNote] | None = None) -> tuple[Config, object]:
+    """The config (and actor) of a checkpoint run, or the repository's config with ``overrides``
+    (``key=value``, e.g. ``task.robot=j2s6s200``) and no actor. A checkpoint fixes its own task
+    (the arm it was trained on), so it takes no overrides; its safety section never weakens the
+    repository's ``configs/safety.yaml`` (:func:`merge_safety`: each difference is logged, and
+    appended to ``notes``). Errors are one line: :class:`ConfigError` (the run folder or its
+    ``config.yaml``), :class:`~ahrm_stack.learning.checkpoint.CheckpointError` (``policy.pt``,
+    e.g. a refused pickle), :class:`DeployConfigError` (the merged safety settings)."""
+    if checkpoint is None:
+        config = load_config(overrides)
+        require_filter(config.safety)
+        return config, None
+    if overrides:
+        raise ConfigError(f"overrides {list(overrides)} cannot change a checkpoint's config "
+                          f"({checkpoint}/config.yaml fixes the arm and the task)")
+    run = Path(checkpoint)
+    for name in ("config.yaml", "policy.pt"):
+        if not (run / name).is_file():
+            raise ConfigError(f"--checkpoint {run}: no {name} there (a training run folder holds "
+                              "config.yaml and policy.pt)")
+    deploy_safety = load_config().safety
+    import torch
+
+    from ahrm_stack.learning.checkpoint import CheckpointError
+    from ahrm_stack.learning.rollouts import load_policy
+
+    torch.set_num_threads(1)
+    try:
+        config, actor = load_policy(run, runnable=False)  # its safety section is replaced below
+    except (ConfigError, CheckpointError):
+        raise
+    except yaml.YAMLError as error:
+        raise ConfigError(f"{run / 'config.yaml'} is not valid YAML "
+                          f"({str(error).splitlines()[0]})") from None
+    except (KeyError, TypeError, ValueError, RuntimeError) as error:
+        first = (str(error).splitlines() or [""])[0][:200]
+        raise CheckpointError(f"{run / 'policy.pt'} does not fit {run / 'config.yaml'} "
+                              f"({type(error).__name__}: {first})") from None
+    safety, differences = merge_safety(deploy_safety, config.safety)
+    for note in differences:
+        log.log(logging.WARNING if note.kind == "weaker" else logging.INFO, "deploy: %s", note.text)
+    if notes is not None:
+        notes.extend(differences)
+    return dataclasses.replace(config, safety=safety), actor
+
+
+def open_telemetry(path: str):
+    """The JSONL telemetry file opened for writing (its folder made), or None for ''; a path that
+    cannot be written is a one-line :class:`DeployConfigError`."""
+    if not path:
+        return None
+    target = Path(path)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        return target.open("w")
+    except OSError as error:
+        raise DeployConfigError(f"deploy.telemetry: cannot write {target}: "
+                                f"{error.strerror or error}") from None
+
+
+def _start_up_fault(arm, telemetry, error: BaseException) -> DeployFault:
+    """A fault before the loop existed (building the sim, the world model, the controller, the
+    filter): stop the arm if it is connected, record the stop and a summary; the DeployFault to
+    raise."""
+    text = (str(error).splitlines() or [""])[0][:300]
+    reason = f"start-up fault: {type(error).__name__}" + (f": {text}" if text else "")
+    if arm is not None and arm.is_connected:
+        try:
+            arm.stop()
+        except Exception as stop_error:  # noqa: BLE001 - disconnecting stops it as well
+            log.error("deploy: could not stop the arm (%s)", type(stop_error).__name__)
+    log.error("deploy: STOP: %s", reason)
+    summary = DeploySummary(success=False, duration=0.0, ticks=0, interventions=0, fallbacks=0,
+                            deadline_misses=0, latency_p50_ms=math.nan, latency_p99_ms=math.nan,
+                            stop_reason=reason, emergency_stops=0, adapter_refusals=0, fault=reason)
+    if telemetry is not None:
+        try:
+            telemetry.write(json.dumps({"t": 0.0, "event": "stop", "reason": reason}) + "\n")
+            telemetry.write(json.dumps({"summary": dataclasses.asdict(summary)}) + "\n")
+        except (OSError, ValueError):
+            pass
+    return DeployFault(reason, summary)
+
+
+def deploy(settings: DeploySettings, checkpoint: Path | None = None,
+           overrides: Sequence[str] = (), backend: str = "sim", scene: str = "sim",
+           layout_file: Path | str | None = None) -> DeployLoop:
+    """One run of the deploy loop against ``backend`` (a name of
+    :data:`hardware.backends.BACKENDS`, whose ``check`` runs before anything is written or
+    contacted and whose ``make`` builds the adapter); returns the finished loop (its
+    :meth:`DeployLoop.summary`, :attr:`DeployLoop.interrupted`). ``overrides``: config
+    ``key=value`` pairs for the scripted controller's run (no checkpoint).
+
+    ``scene``: ``sim`` (the adapter's own ``perception()``: the simulator's exact object poses, or a
+    backend's static layout) or ``camera`` (:mod:`ahrm_stack.perception`: the cube from the
+    AprilTag on MuJoCo frames of the perception camera, ``configs/perception.yaml``; the obstacles
+    from ``layout_file``, or ``perception.layout_file``, or else surveyed from the simulator at the
+    start into ``layout.yaml`` beside the telemetry; sim backend only).
+
+    Bad input (the settings, the checkpoint, its safety settings, the backend's settings, the
+    telemetry path) raises a one-line error before anything is written or the arm is touched. From
+    then on every end is recorded: a fault in set-up, start-up or the loop stops the arm, writes the
+    stop event and the summary to the telemetry and raises :class:`DeployFault`."""
+    from hardware import backends
+
+    notes: list[SafetyNote] = []
+    config, actor = load_controller_config(checkpoint, overrides, notes)
+    try:
+        chosen = backends.get(backend)
+        chosen.check(config, settings)
+    except ValueError as error:
+        raise DeployConfigError(str(error)) from None
+    if scene == "camera" and backend != "sim":
+        raise DeployConfigError(f"--scene camera renders the simulator's table: it runs with --backend "
+                                f"sim only (no frame source for a real camera exists), got {backend}")
+    perception = None
+    if scene == "camera":  # bad settings or a bad layout file: one line, nothing written
+        from ahrm_stack.perception.scene_source import LayoutFileObstacles
+        from ahrm_stack.perception.settings import load_perception_settings
+
+        perception = load_perception_settings()
+        layout_file = layout_file or perception.layout_file or None
+        if layout_file:
+            LayoutFileObstacles(layout_file, count=len(config.task.obstacles.fixed_layout))
+    elif scene != "sim":
+        raise DeployConfigError(f"--scene {scene!r}: choose sim or camera")
+    control_period = config.task.episode.control_period
+    if not math.isclose(settings.period, control_period, rel_tol=1e-9):
+        log.warning("deploy: the loop runs at %g Hz; the controller was built for %g Hz "
+                    "(task.episode.control_period %g s)", settings.rate_hz, 1.0 / control_period,
+                    control_period)
+    telemetry = open_telemetry(settings.telemetry)
+    arm = source = None
+    try:
+        for note in notes if telemetry is not None else ():
+            telemetry.write(json.dumps({"t": 0.0, "event": "safety setting", "key": note.key,
+                                        "kind": note.kind, "reason": note.text}) + "\n")
+        try:
+            arm = chosen.make(config, settings)
+            world = WorldModel(config.task, seed=settings.seed)
+            controller = make_controller(world, config, actor)
+            arm.connect()
+            if perception is not None:
+                from ahrm_stack.perception.sim_camera import sim_camera_scene, survey_obstacles
+
+                if not layout_file:  # a survey of the simulated table stands in for a measurement
+                    import tempfile
+
+                    folder = (Path(settings.telemetry).parent if settings.telemetry
+                              else Path(tempfile.mkdtemp(prefix="deploy-layout-")))
+                    layout_file = survey_obstacles(arm, folder / "layout.yaml")
+                source = sim_camera_scene(arm, config.task, perception, layout_file)
+            loop = DeployLoop(arm, world, controller, config.safety, settings, telemetry, source)
+        except Exception as error:  # noqa: BLE001 - recorded, then raised as a fault
+            raise _start_up_fault(arm, telemetry, error) from error
+        loop.run(settings.duration)
+    finally:
+        if arm is not None and arm.is_connected:
+            arm.disconnect()  # stops the arm as well
+        if source is not None:
+            source.close()
+        if telemetry is not None:
+            telemetry.close()
+    return loop
+
+
+def deploy_sim(settings: DeploySettings, checkpoint: Path | None = None,
+               overrides: Sequence[str] = (), scene: str = "sim",
+               layout_file: Path | str | None = None) -> DeployLoop:
+    """:func:`deploy` against the sim backend."""
+    return deploy(settings, checkpoint, overrides, backend="sim", scene=scene, layout_file=layout_file)
