@@ -4,11 +4,10 @@ one line naming the key path and the file; the typed configuration writes itself
 
 import copy
 import dataclasses
-import json
 import pickle
 import re
 import shutil
-from typing import Annotated, Optional
+from typing import Annotated
 
 import pytest
 import yaml
@@ -16,7 +15,7 @@ import yaml
 from ahrm_stack.config import (CONFIG_DIR, SECTIONS, Config, ConfigError, ExperimentConfig, VideoConfig,
                                config_from_dict, load_config, load_extra, load_raw, load_robot_config)
 from ahrm_stack.env.layout_catalog import load_layouts
-from ahrm_stack.schema import Bool, Float, Int, Section, Str, ge, gt, le, load_file, validate
+from ahrm_stack.schema import Float, Int, Section, gt, le, load_file, validate
 from ahrm_stack.seeds import load_seed_table
 
 
@@ -190,94 +189,3 @@ def test_another_module_defines_its_file_in_a_few_lines_and_keeps_its_error_clas
     with pytest.raises(DeployError, match=r"deploy\.watchdog\.max_deadline_misses must be <= 10, got 11 \(override\)"):
         load_file(Settings, path, "deploy", ["watchdog.max_feedback_age=1", "watchdog.max_deadline_misses=11"],
                   error=DeployError)
-
-
-# ------------------------------------------------------------------ deploy.yaml, ready to move
-# The schema of configs/deploy.yaml in this system, for deploy's settings module (deploy.py is being
-# split into a package meanwhile and keeps its hand-written validator until then). Checked here
-# against deploy's own loader: same values from the file, the same keys named in errors.
-
-
-@dataclasses.dataclass(frozen=True)
-class WatchdogSettings(Section):
-    max_feedback_age: Annotated[Float, gt(0)]  # control periods
-    command_deadline: Annotated[Float, gt(0), le(1, " period")]  # control periods after the tick
-    max_deadline_misses: Annotated[Int, ge(0)]  # tolerated before a stop (0: the first miss stops)
-    velocity_tolerance: Annotated[Float, ge(0)]  # fraction over the velocity limit a speed may reach
-
-
-@dataclasses.dataclass(frozen=True)
-class SimSettings(Section):
-    command_delay: Annotated[Float, ge(0)]  # s
-
-
-@dataclasses.dataclass(frozen=True)
-class KortexSection(Section):
-    address: Optional[Str]  # the arm's IP address: required, never defaulted
-    port: Annotated[Int, gt(0)]
-    session_inactivity_timeout_ms: Annotated[Int, gt(0)]
-    connection_inactivity_timeout_ms: Annotated[Int, gt(0)]
-    credentials_file: Optional[Str]
-
-
-@dataclasses.dataclass(frozen=True)
-class DeploySettings(Section):
-    rate_hz: Annotated[Float, gt(0)]  # Hz
-    duration: Annotated[Float, gt(0)]  # s
-    realtime: Bool
-    seed: Annotated[Int, ge(0)]
-    telemetry: Str  # path; '' for none
-    watchdog: WatchdogSettings
-    sim: SimSettings
-    kortex: KortexSection
-
-    @property
-    def period(self) -> float:
-        return 1.0 / self.rate_hz
-
-    def check(self, key):
-        if int(round(self.duration * self.rate_hz)) < 1:
-            raise ConfigError(f"{key}.rate_hz {self.rate_hz!r} Hz with {key}.duration {self.duration!r} s "
-                              "gives no control period: the loop would not run")
-        if 1e3 / self.rate_hz > self.kortex.connection_inactivity_timeout_ms:
-            raise ConfigError(f"{key}.rate_hz {self.rate_hz!r} Hz: a control period of {1 / self.rate_hz:g} s "
-                              f"is longer than {key}.kortex.connection_inactivity_timeout_ms "
-                              f"({self.kortex.connection_inactivity_timeout_ms} ms), after which the arm "
-                              "stops itself between two commands")
-
-
-def load_deploy_settings(path=CONFIG_DIR / "deploy.yaml", **overrides):
-    """deploy.load_deploy_settings in this system: keyword overrides of top-level keys."""
-    from ahrm_stack.deploy import DeployConfigError
-
-    items = [f"{k}={json.dumps(v)}" for k, v in overrides.items() if v is not None]
-    return load_file(DeploySettings, path, "deploy", items, error=DeployConfigError)
-
-
-def test_deploy_yaml_through_the_schema_matches_deploys_loader(tmp_path):
-    deploy = pytest.importorskip("ahrm_stack.deploy")
-    ours, theirs = load_deploy_settings(), deploy.load_deploy_settings()
-    assert ours.to_dict() == dataclasses.asdict(theirs) and ours.period == theirs.period
-    assert load_deploy_settings(rate_hz=10.0, realtime=False).rate_hz == 10.0
-
-    def bad(mutate) -> str:
-        data = yaml.safe_load((CONFIG_DIR / "deploy.yaml").read_text())
-        mutate(data)
-        path = tmp_path / "deploy.yaml"
-        path.write_text(yaml.safe_dump(data))
-        with pytest.raises(deploy.DeployConfigError) as error:
-            load_deploy_settings(path)
-        return str(error.value)
-
-    # tests/test_deploy.py's cases
-    assert "deploy.rate_hz" in bad(lambda d: d.update(rate_hz=0))
-    assert "deploy.watchdog.max_feedback_age" in bad(lambda d: d["watchdog"].update(max_feedback_age="x"))
-    assert "deploy.watchdog.colour" in bad(lambda d: d["watchdog"].update(colour=1))
-    assert "deploy.sim.command_delay" in bad(lambda d: d["sim"].pop("command_delay"))
-    assert "deploy.realtime" in bad(lambda d: d.update(realtime="yes"))
-    assert "deploy.kortex.port" in bad(lambda d: d["kortex"].update(port=-1))
-    assert "deploy.watchdog.command_deadline must be <= 1 period" in bad(
-        lambda d: d["watchdog"].update(command_deadline=2))
-    assert "gives no control period" in bad(lambda d: d.update(duration=0.001))
-    with pytest.raises(deploy.DeployConfigError, match=r"deploy\.rate_hz must be > 0, got -5\.0 \(override\)"):
-        load_deploy_settings(rate_hz=-5.0)
