@@ -4,11 +4,11 @@ an optional extra) and :mod:`hardware.kinova_gen2` (a JACO2 over Kinova's Gen2 C
 deploy can build are in :mod:`hardware.backends`, a static scene source in :mod:`hardware.scene`.
 Backends are imported from their modules so that the protocol stays light."""
 
-from hardware.protocol import (ArmAdapter, ArmFaultError, ArmState, CommandRefusedError,
+from hardware.protocol import (ArmAdapter, ArmFaultError, DescribedArm, ArmState, CommandRefusedError,
                                ConnectionLostError, FastClock, Fault, Feedback,
                                FeedbackTimeoutError, HardwareError, NotConnectedError, ObjectPoses,
                                ServoingMode, WallClock, check_joint_speeds)
 
-__all__ = ["ArmAdapter", "ArmFaultError", "ArmState", "CommandRefusedError", "ConnectionLostError",
+__all__ = ["ArmAdapter", "ArmFaultError", "DescribedArm", "ArmState", "CommandRefusedError", "ConnectionLostError",
            "FastClock", "Fault", "Feedback", "FeedbackTimeoutError", "HardwareError",
            "NotConnectedError", "ObjectPoses", "ServoingMode", "WallClock", "check_joint_speeds"]

@@ -65,7 +65,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from ahrm_stack.robot import RobotDescription
-from hardware.protocol import (ArmAdapter, ArmFaultError, ArmState, CommandRefusedError,
+from hardware.protocol import (DescribedArm, ArmFaultError, ArmState, CommandRefusedError,
                                ConnectionLostError, Fault, Feedback, HardwareError,
                                NotConnectedError, ServoingMode, WallClock, check_joint_speeds)
 
@@ -469,7 +469,7 @@ def _disconnect_all() -> None:  # pragma: no cover - runs at interpreter exit
             pass
 
 
-class KinovaGen2Arm(ArmAdapter):
+class KinovaGen2Arm(DescribedArm):
     """A Kinova Gen2 arm (JACO2) over the C SDK, with a 100 Hz sender thread and a command
     watchdog (see the module docstring).
 
@@ -522,18 +522,6 @@ class KinovaGen2Arm(ArmAdapter):
 
     # ------------------------------------------------------------------ description
     @property
-    def joint_names(self) -> tuple[str, ...]:
-        return self._robot.joint_names
-
-    @property
-    def velocity_limit(self) -> np.ndarray:
-        return self._robot.velocity_limit.copy()
-
-    @property
-    def clock(self) -> WallClock:
-        return self._clock
-
-    @property
     def serial(self) -> str:
         return self._serial
 
@@ -541,10 +529,6 @@ class KinovaGen2Arm(ArmAdapter):
     def command_timeout(self) -> float:
         """s without a fresh command before the sender stops the arm."""
         return self._timeout
-
-    @property
-    def is_connected(self) -> bool:
-        return self._connected
 
     # ------------------------------------------------------------------ session
     def connect(self) -> None:

@@ -62,7 +62,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ahrm_stack.robot import RobotDescription
-from hardware.protocol import (ArmAdapter, ArmFaultError, ArmState, CommandRefusedError,
+from hardware.protocol import (DescribedArm, ArmFaultError, ArmState, CommandRefusedError,
                                ConnectionLostError, Fault, Feedback, FeedbackTimeoutError,
                                HardwareError, NotConnectedError, ServoingMode, WallClock,
                                check_joint_speeds)
@@ -568,7 +568,7 @@ class CommandWatchdog:
 _FAULT_SUB_CODES = ("ROBOT_IN_FAULT", "ROBOT_IN_EMERGENCY_STOP", "WRONG_SERVOING_MODE")
 
 
-class KortexArm(ArmAdapter):
+class KortexArm(DescribedArm):
     """A Gen3-family arm over ``kortex_api`` (TCP transport, router, session, BaseClient,
     BaseCyclicClient).
 
@@ -607,22 +607,6 @@ class KortexArm(ArmAdapter):
         self._range_centre = np.where(
             limited, 0.5 * (np.where(limited, robot.position_lower, 0.0)
                             + np.where(limited, robot.position_upper, 0.0)), 0.0)
-
-    @property
-    def joint_names(self) -> tuple[str, ...]:
-        return self._robot.joint_names
-
-    @property
-    def velocity_limit(self) -> np.ndarray:
-        return self._robot.velocity_limit.copy()
-
-    @property
-    def clock(self) -> WallClock:
-        return self._clock
-
-    @property
-    def is_connected(self) -> bool:
-        return self._connected
 
     @property
     def watchdog(self) -> CommandWatchdog:

@@ -31,6 +31,7 @@ import abc
 import dataclasses
 import enum
 import time
+from typing import Any
 
 import numpy as np
 
@@ -292,3 +293,29 @@ class ArmAdapter(abc.ABC):
 
     def __exit__(self, *exc) -> None:
         self.disconnect()
+
+
+class DescribedArm(ArmAdapter):
+    """An adapter holding its arm model in ``_robot`` (a
+    :class:`~ahrm_stack.robot.RobotDescription`), its clock in ``_clock`` and its session flag in
+    ``_connected``: the description properties, written once for every backend."""
+
+    _robot: Any
+    _clock: WallClock
+    _connected: bool
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self._robot.joint_names
+
+    @property
+    def velocity_limit(self) -> np.ndarray:
+        return self._robot.velocity_limit.copy()
+
+    @property
+    def clock(self) -> WallClock:
+        return self._clock
+
+    @property
+    def is_connected(self) -> bool:
+        return self._connected

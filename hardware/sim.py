@@ -29,7 +29,7 @@ import numpy as np
 from ahrm_stack.config import TaskConfig
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.task import PushOffTask
-from hardware.protocol import (ArmAdapter, ArmFaultError, ArmState, CommandRefusedError,
+from hardware.protocol import (DescribedArm, ArmFaultError, ArmState, CommandRefusedError,
                                ConnectionLostError, Fault, Feedback, FeedbackTimeoutError,
                                NotConnectedError, ObjectPoses, ServoingMode, WallClock,
                                check_joint_speeds)
@@ -52,7 +52,7 @@ class InjectedFault(enum.Enum):
     LOST_CONNECTION = "lost_connection"  # the session drops; every call raises ConnectionLost
 
 
-class SimArm(ArmAdapter):
+class SimArm(DescribedArm):
     """The simulated arm.
 
     Args:
@@ -86,27 +86,11 @@ class SimArm(ArmAdapter):
 
     # ------------------------------------------------------------------ description
     @property
-    def joint_names(self) -> tuple[str, ...]:
-        return self._robot.joint_names
-
-    @property
-    def velocity_limit(self) -> np.ndarray:
-        return self._robot.velocity_limit.copy()
-
-    @property
-    def clock(self) -> WallClock:
-        return self._clock
-
-    @property
     def physics(self):
         """The simulator's physics (tests and the sim's own bookkeeping; never the deploy loop)."""
         return self.runner.physics
 
     # ------------------------------------------------------------------ session
-    @property
-    def is_connected(self) -> bool:
-        return self._connected
-
     def connect(self) -> None:
         if self._connected:
             raise RuntimeError("SimArm is already connected")

@@ -110,17 +110,18 @@ class DeployRig:
         clock = clock if clock is not None else FastClock()
         world = WorldModel(config.task, seed=seed)
         data = world.physics.data
-        start = np.degrees(data.qpos[world._arm_qpos])
+        at = world.task.addresses  # where the joints sit in the world model's physics
+        start = np.degrees(data.qpos[at.arm_qpos])
         self.adapter, self.fake = make_for(world.robot, positions_deg=start, opts=opts, clock=clock)
         qpos, qvel = data.qpos.copy(), data.qvel.copy()
 
         def perception() -> ObjectPoses:
             return ObjectPoses(
-                timestamp=clock.now(), cube_position=qpos[world._cube_qpos[:3]],
-                cube_quaternion=qpos[world._cube_qpos[3:]], cube_velocity=np.zeros(3),
-                obstacle_positions=qpos[world._obstacle_qpos[:, :3]],
-                obstacle_quaternions=qpos[world._obstacle_qpos[:, 3:]],
-                obstacle_velocities=np.zeros((len(world._obstacle_qpos), 3)))
+                timestamp=clock.now(), cube_position=qpos[at.cube_qpos[:3]],
+                cube_quaternion=qpos[at.cube_qpos[3:]], cube_velocity=np.zeros(3),
+                obstacle_positions=qpos[at.obstacle_qpos[:, :3]],
+                obstacle_quaternions=qpos[at.obstacle_qpos[:, 3:]],
+                obstacle_velocities=np.zeros((len(at.obstacle_qpos), 3)))
 
         del qvel
         self.adapter.perception = perception  # the static scene (instance attribute)
