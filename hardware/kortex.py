@@ -352,24 +352,27 @@ def load_credentials(file: str | Path | None = None, env: Mapping[str, str] | No
     return Credentials(username, password)
 
 
+#: The vendor modules the backend uses, keyed as the adapter reads them.
+KORTEX_MODULES = {
+    "TCPTransport": "kortex_api.TCPTransport",
+    "RouterClient": "kortex_api.RouterClient",
+    "SessionManager": "kortex_api.SessionManager",
+    "BaseClientRpc": "kortex_api.autogen.client_stubs.BaseClientRpc",
+    "BaseCyclicClientRpc": "kortex_api.autogen.client_stubs.BaseCyclicClientRpc",
+    "Base_pb2": "kortex_api.autogen.messages.Base_pb2",
+    "Common_pb2": "kortex_api.autogen.messages.Common_pb2",
+    "Session_pb2": "kortex_api.autogen.messages.Session_pb2",
+    "Errors_pb2": "kortex_api.autogen.messages.Errors_pb2",
+    "KServerException": "kortex_api.Exceptions.KServerException",
+    "KClientException": "kortex_api.Exceptions.KClientException",
+}
+
 
 def import_kortex_api() -> dict:
-    """The vendor modules the backend uses, or :class:`KortexNotInstalledError`."""
-    names = {
-        "TCPTransport": "kortex_api.TCPTransport",
-        "RouterClient": "kortex_api.RouterClient",
-        "SessionManager": "kortex_api.SessionManager",
-        "BaseClientRpc": "kortex_api.autogen.client_stubs.BaseClientRpc",
-        "BaseCyclicClientRpc": "kortex_api.autogen.client_stubs.BaseCyclicClientRpc",
-        "Base_pb2": "kortex_api.autogen.messages.Base_pb2",
-        "Common_pb2": "kortex_api.autogen.messages.Common_pb2",
-        "Session_pb2": "kortex_api.autogen.messages.Session_pb2",
-        "Errors_pb2": "kortex_api.autogen.messages.Errors_pb2",
-        "KServerException": "kortex_api.Exceptions.KServerException",
-        "KClientException": "kortex_api.Exceptions.KClientException",
-    }
+    """The vendor modules the backend uses (:data:`KORTEX_MODULES`), or
+    :class:`KortexNotInstalledError`."""
     try:
-        return {key: importlib.import_module(module) for key, module in names.items()}
+        return {key: importlib.import_module(module) for key, module in KORTEX_MODULES.items()}
     except ImportError:
         raise KortexNotInstalledError(INSTALL_HINT) from None
 

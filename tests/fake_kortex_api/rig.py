@@ -24,20 +24,9 @@ _addresses = itertools.count(1)
 @functools.lru_cache(maxsize=1)
 def fake_api() -> dict:
     """The fake vendor modules, keyed like :func:`hardware.kortex.import_kortex_api`."""
-    names = {
-        "TCPTransport": "kortex_api.TCPTransport",
-        "RouterClient": "kortex_api.RouterClient",
-        "SessionManager": "kortex_api.SessionManager",
-        "BaseClientRpc": "kortex_api.autogen.client_stubs.BaseClientRpc",
-        "BaseCyclicClientRpc": "kortex_api.autogen.client_stubs.BaseCyclicClientRpc",
-        "Base_pb2": "kortex_api.autogen.messages.Base_pb2",
-        "Common_pb2": "kortex_api.autogen.messages.Common_pb2",
-        "Session_pb2": "kortex_api.autogen.messages.Session_pb2",
-        "Errors_pb2": "kortex_api.autogen.messages.Errors_pb2",
-        "KServerException": "kortex_api.Exceptions.KServerException",
-        "KClientException": "kortex_api.Exceptions.KClientException",
-        "_fake_arm": "kortex_api._fake_arm",
-    }
+    from hardware.kortex import KORTEX_MODULES
+
+    names = {**KORTEX_MODULES, "_fake_arm": "kortex_api._fake_arm"}
     sys.path.insert(0, str(HERE))
     try:
         modules = {key: importlib.import_module(name) for key, name in names.items()}
