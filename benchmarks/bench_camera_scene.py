@@ -192,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
 
     import torch
 
-    from ahrm_stack.learning.evaluation import load_policy
+    from ahrm_stack.learning.rollouts import load_policy
     from ahrm_stack.perception.settings import load_perception_settings
     from ahrm_stack.perception.sim_camera import SimCamera
     from ahrm_stack.config import config_from_dict

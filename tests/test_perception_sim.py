@@ -94,7 +94,7 @@ def test_tracked_velocity_follows_the_pushed_cube(setup):
     from ahrm_stack.config import load_config
     from ahrm_stack.deploy import (DeployLoop, PolicyController, WorldModel, load_deploy_settings,
                                    merge_safety)
-    from ahrm_stack.learning.evaluation import load_policy
+    from ahrm_stack.learning.rollouts import load_policy
 
     config, settings, camera, detector, offset = setup
     torch.set_num_threads(1)

@@ -84,6 +84,13 @@ class DeployLoop:
             ``perception()``. An exception from it is a perception fault (the arm stops).
     """
 
+    def _perceive(self):
+        """This tick's object poses: the scene source's, or the adapter's ``perception()`` (looked
+        up at each call)."""
+        if self._scene_source is not None:
+            return self._scene_source.poses()
+        return self.arm.perception()
+
     def __init__(self, arm, world: WorldModel, controller, safety, settings: DeploySettings,
                  telemetry=None, scene=None) -> None:
         from ahrm_stack.env.control_step import filter_call, make_task_filter, request_size
@@ -91,7 +98,7 @@ class DeployLoop:
 
         require_filter(safety)
         self.arm, self.world, self.controller = arm, world, controller
-        self._perceive = scene.poses if scene is not None else arm.perception
+        self._scene_source = scene
         self.settings = settings
         self.period = settings.period
         self.clock = arm.clock
