@@ -86,7 +86,8 @@ def test_deploy_policy_controller_takes_the_lean_path_with_the_same_request(mode
 
     config = load_config([f"task.action.mode={mode}"])
     modules = _modules(act_dim=3 if mode == "cartesian" else 5)
-    robot = SimpleNamespace(velocity_limit=np.linspace(0.5, 1.0, 6), commanded_joints=(0, 1, 2, 3, 4))
+    robot = SimpleNamespace(velocity_limit=np.linspace(0.5, 1.0, 6), commanded_joints=(0, 1, 2, 3, 4),
+                            num_joints=6)
     world = SimpleNamespace(robot=robot, current=None)
     world.observation = lambda: world.current
     lean = PolicyController(world, lean_actor(modules.actor), config)
