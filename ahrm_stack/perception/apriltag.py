@@ -132,7 +132,7 @@ class TagDetector:
     """The cube's pose in one grey frame (:meth:`measure`), or None when its tag is not seen."""
 
     def __init__(self, settings: PerceptionSettings, cube_size: float) -> None:
-        from pupil_apriltags import Detector
+        from ahrm_stack.perception.detector import Detector
 
         d = settings.detector
         self.settings = settings

@@ -38,7 +38,7 @@ class TagFamily:
 @functools.lru_cache(maxsize=None)
 def tag_family(name: str) -> TagFamily:
     """The code table of family ``name``, read from the detector's C library."""
-    from pupil_apriltags import Detector
+    from ahrm_stack.perception.detector import Detector
 
     detector = Detector(families=name)
     if name not in detector.tag_families:
