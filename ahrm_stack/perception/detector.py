@@ -22,6 +22,9 @@ class Detector(_UpstreamDetector):
     """``pupil_apriltags.Detector`` (same arguments) whose :meth:`close` and ``__del__`` destroy
     the detector before the tag families it points to; closing twice is harmless."""
 
+    tag_detector_ptr: Any  # ctypes pointer to apriltag_detector_t, None once closed
+    tag_families: dict[str, Any]  # family name -> ctypes pointer to apriltag_family_t
+
     def close(self) -> None:
         ptr = getattr(self, "tag_detector_ptr", None)
         if ptr is None:
@@ -30,8 +33,7 @@ class Detector(_UpstreamDetector):
         lib = self.libc
         lib.apriltag_detector_destroy.restype = None
         lib.apriltag_detector_destroy(ptr)  # clears the families while they still exist
-        families: dict[str, Any] = getattr(self, "tag_families", {})
-        for name, family in families.items():
+        for name, family in getattr(self, "tag_families", {}).items():
             destroy = getattr(lib, f"{name}_destroy")
             destroy.restype = None
             destroy(family)
