@@ -531,6 +531,8 @@ class TrainConfig(Section):
     # behaviour cloning and the critic refit
     bc_learning_rate: Pos
     demo_noise: NonNeg  # std of noise on the executed demonstration actions (normalised; labels clean)
+    expert: Literal["stateful", "stateless"]  # the scripted teacher of the demonstrations and the
+    # DAgger labels: stages carried over from step to step, or inferred from each state alone
     num_envs: Annotated[PosInt, le(LIMITS["num_envs"])]  # environments stepped together (in one
     # process, sharing the reward mechanism)
     env_workers: PosInt  # processes the num_envs environments are split over (1: the trainer's own)
@@ -714,7 +716,7 @@ def _legacy_fill(data: dict) -> dict:
     observation = section("task", "observation")
     if not any(s is not None and any(k not in s for k in keys) for s, keys in (
             (arm, ("start", "start_ik")), (layout, ("cube_region", "obstacle_draws_per_cube")),
-            (train, ("dagger_rounds", *NEUTRAL_TRAIN_KEYS)), (arm, ("near_cube",)),
+            (train, ("dagger_rounds", "expert", *NEUTRAL_TRAIN_KEYS)), (arm, ("near_cube",)),
             (ppo, ("bc_coeff_final", *NEUTRAL_PPO_KEYS)), (section("task"), ("observation",)),
             (observation, ("lane_clip",)))):
         return data
@@ -743,6 +745,7 @@ def _legacy_fill(data: dict) -> dict:
         for key in NEUTRAL_PPO_KEYS:
             data["ppo"].setdefault(key, defaults["ppo"][key])
     if train is not None:
+        data["train"].setdefault("expert", "stateful")  # the only teacher before 2026-12-02
         for key in ("dagger_rounds", "dagger_episodes", "dagger_duration"):
             data["train"].setdefault(key, 0 if key == "dagger_rounds" else defaults["train"][key])
     if isinstance(data.get("task"), dict) and "observation" not in data["task"]:

@@ -96,6 +96,7 @@ class ScriptedPusher:
         self._stage = "idle"
         self._direction = 1.0  # +1 pushes toward +x, -1 toward -x
         self._lane_y = 0.0  # m, the lane's centre line is y = lane_y
+        self._planned_start_x = 0.0  # m, x of the push start planned at reset (the strip's back)
         self._tilt = 0.0  # rad, angle of the pusher axis from world -z
 
     @property
@@ -192,27 +193,70 @@ class ScriptedPusher:
                 best = (key, sign)
         self._direction = best[1]
         self._lane_y = float(cube[1])
+        self._planned_start_x = float(cube[0] - best[1] * self._behind)
 
     # ------------------------------------------------------------------ control
-    def __call__(self, physics) -> np.ndarray:
-        """Joint velocities (rad/s) for the 6 arm joints, within ``task.robot.velocity_limit``."""
-        tip, tip_velocity = self._plan(physics)
+    def __call__(self, physics, stateless: bool = False) -> np.ndarray:
+        """Joint velocities (rad/s) for the 6 arm joints, within ``task.robot.velocity_limit``
+        (``stateless``: see :meth:`tip_velocity`)."""
+        tip, tip_velocity = self._plan(physics, stateless)
         return self._solve(tip, tip_velocity)
 
-    def tip_velocity(self, physics) -> np.ndarray:
+    def tip_velocity(self, physics, stateless: bool = False) -> np.ndarray:
         """The stage's desired pusher-tip velocity (m/s, world frame), without the IK: the request
         of ``action.mode: cartesian``, where the safety filter's differential IK makes the joint
-        command (and holds the pusher's tilt instead of turning it toward vertical)."""
-        return self._plan(physics)[1]
+        command (and holds the pusher's tilt instead of turning it toward vertical).
 
-    def _plan(self, physics) -> tuple[np.ndarray, np.ndarray]:
+        ``stateless``: the stage is first inferred from the state alone (:meth:`infer_stage`), not
+        carried over from the previous call, so that the label of a state does not depend on how
+        the tip got there (the expert a DAgger relabelling needs). The lane stays the one chosen
+        at :meth:`reset`, a function of the episode's initial layout."""
+        return self._plan(physics, stateless)[1]
+
+    def _plan(self, physics, stateless: bool = False) -> tuple[np.ndarray, np.ndarray]:
         self._configuration.update(physics.data.qpos)
         tip = self._tip()
         axis = self._configuration.data.site_xmat[self._tip_site].reshape(3, 3)[:, 2]
         self._tilt = float(np.arccos(np.clip(axis @ DOWN, -1.0, 1.0)))
         cube = np.asarray(physics.data.xpos[self._cube_body])
         cube_velocity = np.asarray(physics.data.qvel[self._cube_dofs])  # free joint: world, m/s
+        if stateless:
+            self._stage = self.infer_stage(tip, cube)
         return tip, self._tip_velocity(tip, cube, cube_velocity)
+
+    def infer_stage(self, tip: np.ndarray, cube: np.ndarray) -> str:
+        """The stage for this state alone (positions world frame, m), with the lane chosen at
+        :meth:`reset`:
+
+        - ``hold``: the tip is past the table edge by ``push_overshoot`` along the lane;
+        - ``push``: the tip is at push height (within ``waypoint_tolerance``), in the lane's
+          strip (not behind the push start planned at :meth:`reset`), behind the cube's face (less
+          ``waypoint_tolerance``) and across the lane within the cube's half-width plus the
+          pusher's radius of the push law's line (where the law realigns or advances);
+        - ``descend``: elsewhere, with the tip within twice ``waypoint_tolerance`` of the spot
+          over the push start (``travel`` hands over at once, so a descent is not undone);
+        - ``lift``: below the travel height and not over the push start;
+        - ``travel``: at or above the travel height, not over the push start.
+
+        The pusher's tilt only gates the start of the push, in :meth:`_tip_velocity`, which then
+        runs on from the inferred stage as it does from a carried-over one."""
+        cfg = self.config
+        d = self._direction
+        if d * tip[0] >= self._edge + cfg.push_overshoot:
+            return "hold"
+        along = d * (cube[0] - tip[0])  # m, the cube ahead of the tip along the lane
+        contact = self._cube_half + self._radius
+        lean = np.clip(np.arctan(cfg.steer_gain * d * (cube[1] - self._lane_y)),
+                       -cfg.max_heading, cfg.max_heading)
+        off = tip[1] - (cube[1] + contact * d * np.sin(lean))  # the push law's offset, m
+        in_strip = d * (tip[0] - self._planned_start_x) >= -cfg.waypoint_tolerance
+        if (abs(tip[2] - self._push_z) <= cfg.waypoint_tolerance and in_strip
+                and along >= contact - cfg.waypoint_tolerance and abs(off) <= contact):
+            return "push"
+        start = np.array([cube[0] - d * self._behind, cube[1]])
+        if np.linalg.norm(start - tip[:2]) <= 2 * cfg.waypoint_tolerance:
+            return "descend"
+        return "lift" if tip[2] < self._travel_z - cfg.waypoint_tolerance else "travel"
 
     def _goto(self, tip: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """Proportional approach of ``goal`` at most at ``travel_speed``, m/s."""

@@ -11,7 +11,9 @@ that reproduces the controller's request, in the learner's action mode (the inve
   desired tip velocity (m/s, world frame), executed by the safety filter's differential IK exactly
   as the learner's actions are.
 
-Either way the commands go through the same safety filter as the learner's. With
+Either way the commands go through the same safety filter as the learner's. The teacher is
+``train.expert``: the controller with its stages carried over from step to step (``stateful``)
+or inferred from each state alone (``stateless``, which also re-approaches a cube it lost). With
 ``train.demo_noise`` > 0 the executed action is the controller's plus Gaussian noise of that
 standard deviation (normalised units) while the recorded label stays the controller's own action
 (DART: the demonstrations then cover the states a slightly wrong policy visits, and show how to
@@ -51,6 +53,7 @@ class _Teacher:
         self.control = self.runner.control  # the learner's action <-> filter request maps
         self.controller = ScriptedPusher(self.task, config.scripted)
         self.mechanism = RewardMechanism(config.mechanism)
+        self.stateless = config.train.expert == "stateless"
 
     def reset(self, episode: int) -> None:
         """Demonstration episode ``episode``: seed ``DEMO_SEED_OFFSET + episode``."""
@@ -62,8 +65,9 @@ class _Teacher:
         """The controller's action in the current state, normalised and clipped to ACTION_LIMIT."""
         physics = self.runner.physics
         # the controller's request in the learner's mode: tip velocity (m/s) or joints (rad/s)
-        request = (self.controller.tip_velocity(physics) if self.control.cartesian
-                   else self.controller(physics))
+        stateless = self.stateless
+        request = (self.controller.tip_velocity(physics, stateless) if self.control.cartesian
+                   else self.controller(physics, stateless))
         return np.clip(self.control.action(request), -ACTION_LIMIT, ACTION_LIMIT)
 
     def execute(self, action: np.ndarray) -> tuple[float, bool, bool]:
@@ -128,9 +132,13 @@ def collect_corrections(config: Config, actor, episodes: int, first_episode: int
     Episodes use the demonstration seeds ``DEMO_SEED_OFFSET + first_episode + i`` (after the
     demonstrations', so new layouts) and stop at success, after ``train.dagger_duration`` s, or
     when the controller has pushed past the table edge without success (its ``hold`` stage).
-    The controller is reset at each episode start and queried at every step, so its stage follows
-    the tip the actor moves. Returns the same keys as :func:`collect_demonstrations`; ``return`` is
-    the executed episode's discounted return (no bootstrap when cut), only used to warm the critic.
+    The controller is reset at each episode start and queried at every step; with
+    ``train.expert: stateless`` its stage is inferred from each state alone
+    (:meth:`~ahrm_stack.env.scripted.ScriptedPusher.infer_stage`), so a state's label does not
+    depend on the path the actor took to it (with ``stateful`` the stage follows the tip the actor
+    moves, and states that look alike can get opposite labels). Returns the same keys as
+    :func:`collect_demonstrations`; ``return`` is the executed episode's discounted return (no
+    bootstrap when cut), only used to warm the critic.
     """
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
