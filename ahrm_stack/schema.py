@@ -57,12 +57,16 @@ def fail(text: str) -> typing.NoReturn:
     raise PydanticCustomError("config", "{text}", {"text": text})
 
 
+# The numbers YAML 1.1 (PyYAML) reads as strings: an exponent without a dot or its sign ("1e-4",
+# "2.5e3"). Any other string (a quoted "2", "x") is refused.
+_EXPONENT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
+
+
 def _float(value: Any) -> float:
     if isinstance(value, str):  # YAML 1.1 reads "1e-4" as a string
-        try:
-            value = float(value)
-        except ValueError:
+        if not _EXPONENT.fullmatch(value.strip()):
             fail(f": expected a number, got {value!r}")
+        value = float(value)
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         fail(f": expected a number, got {value!r}")
     if not math.isfinite(value):
