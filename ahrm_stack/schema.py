@@ -142,6 +142,21 @@ def count(least: int, most: int | None = None) -> AfterValidator:
     return AfterValidator(check)
 
 
+def unit_quaternion(tolerance: float) -> AfterValidator:
+    """Rule for a quaternion (w, x, y, z), or None: its norm within ``tolerance`` of 1 (rounding in
+    a hand-written file, never a wrong rotation); the value is returned divided by its norm."""
+    def check(value: Sequence[float] | None) -> tuple[float, ...] | None:
+        if value is None:
+            return None
+        import numpy as np
+
+        norm = float(np.linalg.norm(value))
+        if abs(norm - 1.0) > tolerance:
+            fail(f" must be a unit quaternion (w, x, y, z; norm {norm:.6g}), got {list(value)}")
+        return tuple(float(v) for v in np.divide(value, norm))
+    return AfterValidator(check)
+
+
 class FrozenDict(dict):
     """A read-only, hashable mapping for mapping-valued fields (a section stays hashable)."""
 

@@ -227,8 +227,8 @@ def test_layout_file_round_trip_and_errors(tmp_path):
     assert "obstacles[1].position" in bad("obstacles:\n- {position: [0, 0, 0.45], yaw_deg: 0}\n"
                                           "- {position: [0, .nan, 0.45], yaw_deg: 0}\n")
     assert "obstacles[0].yaw_deg" in bad("obstacles:\n- {position: [0, 0, 0.45], yaw_deg: x}\n")
-    assert "obstacles[0] must have exactly the keys" in bad("obstacles:\n- {position: [0, 0, 0.45]}\n")
-    assert "expected exactly the key 'obstacles'" in bad("boxes: []\n")
+    assert "missing config key 'obstacles[0].yaw_deg'" in bad("obstacles:\n- {position: [0, 0, 0.45]}\n")
+    assert "unknown config key 'boxes'; allowed keys here: ['obstacles']" in bad("boxes: []\n")
     assert "not valid YAML" in bad("obstacles: [\n")
     with pytest.raises(PerceptionConfigError, match="cannot read"):
         LayoutFileObstacles(tmp_path / "none.yaml")

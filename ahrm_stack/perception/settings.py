@@ -16,7 +16,8 @@ import numpy as np
 from pydantic import AfterValidator
 
 from ahrm_stack.config import CONFIG_DIR, ConfigError
-from ahrm_stack.schema import Bool, Float, Int, Section, Str, fail, ge, gt, load_file, validate, within
+from ahrm_stack.schema import (Bool, Float, Int, Section, Str, fail, ge, gt, load_file, unit_quaternion, validate,
+                               within)
 
 PERCEPTION_CONFIG = CONFIG_DIR / "perception.yaml"
 #: The families pupil-apriltags can detect (``pupil_apriltags.Detector(families=...)``).
@@ -40,16 +41,6 @@ def _focal_lengths(value: tuple[float, ...] | None) -> tuple[float, ...] | None:
     return value
 
 
-def _unit(value: tuple[float, ...] | None) -> tuple[float, ...] | None:
-    """A unit quaternion (to 1e-3), returned normalised; None passes."""
-    if value is None:
-        return None
-    norm = float(np.linalg.norm(value))
-    if abs(norm - 1.0) > 1e-3:
-        fail(f" must be a unit quaternion (norm {norm:.6g}), got {list(value)}")
-    return tuple(float(v) for v in np.divide(value, norm))
-
-
 @dataclasses.dataclass(frozen=True)
 class CameraSettings(Section):
     width: Annotated[Int, ge(16)]  # px
@@ -60,7 +51,7 @@ class CameraSettings(Section):
     position: Vec3  # optical centre, m, world frame
     look_at: Optional[Vec3]  # m, world frame
     # camera-to-world (w, x, y, z), optical frame; normalised when read
-    quaternion: Annotated[Optional[Vec4], AfterValidator(_unit)]
+    quaternion: Annotated[Optional[Vec4], unit_quaternion(1e-3)]
 
     def check(self, key: str) -> None:
         if (self.look_at is None) == (self.quaternion is None):
