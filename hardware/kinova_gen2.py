@@ -67,7 +67,8 @@ from pydantic import AfterValidator, PlainValidator
 from ahrm_stack.schema import ConfigError, Float, Int, Section, Str, count, fail, gt, le
 from hardware.protocol import (DescribedArm, ArmFaultError, ArmState, CommandRefusedError,
                                ConnectionLostError, Fault, Feedback, HardwareError,
-                               NotConnectedError, ServoingMode, WallClock, check_joint_speeds)
+                               NotConnectedError, ServoingMode, WallClock, check_joint_speeds,
+                               range_centres, unwrap_positions)
 
 if TYPE_CHECKING:
     from ahrm_stack.robot import RobotDescription
@@ -328,21 +329,6 @@ def model_velocities(reported, convention: JointConvention, feedback_scale: floa
     return np.asarray(convention.sign, dtype=float) * np.radians(v)
 
 
-def unwrap_positions(q: np.ndarray, reference: np.ndarray | None, robot: RobotDescription) -> np.ndarray:
-    """Joint positions (rad) with each continuous joint moved by whole turns to lie within π of
-    ``reference`` (the previous reading; none: as read) and each limited joint by whole turns to
-    lie within π of the centre of its range (a reading of -150° on a 47°-313° joint is 210°)."""
-    q = np.asarray(q, dtype=float)
-    limited = robot.limited
-    centre = np.where(limited, 0.5 * (np.where(limited, robot.position_lower, 0.0)
-                                      + np.where(limited, robot.position_upper, 0.0)), 0.0)
-    out = np.where(limited, q + 2 * np.pi * np.round((centre - q) / (2 * np.pi)), q)
-    if reference is not None:
-        turns = np.round((np.asarray(reference, dtype=float) - q) / (2 * np.pi))
-        out = np.where(limited, out, q + 2 * np.pi * turns)
-    return out
-
-
 # ---------------------------------------------------------------------------------------------
 # The SDK
 # ---------------------------------------------------------------------------------------------
@@ -479,6 +465,7 @@ class KinovaGen2Arm(DescribedArm):
         self._fault_reason = ""
         self._frame = 0
         self._last_position: np.ndarray | None = None
+        self._range_centre = range_centres(robot)
         self._errors_seen = 0
         # shared with the sender thread (under self._state)
         self._state = threading.Lock()
@@ -693,7 +680,7 @@ class KinovaGen2Arm(DescribedArm):
                         f"{self.settings.min_supply_voltage:g} V (e-stop pressed or power lost)")
         convention = self._convention
         q = unwrap_positions(model_positions(_actuators(position.Actuators, n), convention),
-                             self._last_position, self._robot)
+                             self._last_position, ~self._robot.limited, self._range_centre)
         self._last_position = q
         dq = model_velocities(_actuators(velocity.Actuators, n), convention,
                               self.settings.velocity_feedback_scale)
