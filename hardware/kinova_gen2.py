@@ -775,11 +775,6 @@ class KinovaGen2Arm(DescribedArm):
         self._faults, self._fault_reason = Fault.NONE, ""
         log.info("kinova_gen2: faults cleared on %s", self._serial)
 
-    @property
-    def servoing_mode(self) -> ServoingMode:
-        self._require()
-        return self._mode
-
     def set_servoing_mode(self, mode: ServoingMode) -> None:
         """Gen2 has no Kortex servoing modes: single-level is angular control with joint velocity
         commands; any other mode holds the arm stopped and refuses joint speed commands."""

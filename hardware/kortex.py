@@ -836,11 +836,6 @@ class KortexArm(DescribedArm):
             self._set_mode(self._wanted_mode)
         self.stop()
 
-    @property
-    def servoing_mode(self) -> ServoingMode:
-        self._require()
-        return self._mode
-
     def set_servoing_mode(self, mode: ServoingMode) -> None:
         self._require()
         self._set_mode(mode)

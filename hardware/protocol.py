@@ -334,11 +334,17 @@ class ArmAdapter(abc.ABC):
 class DescribedArm(ArmAdapter):
     """An adapter holding its arm model in ``_robot`` (a
     :class:`~ahrm_stack.robot.RobotDescription`), its clock in ``_clock`` and its session flag in
-    ``_connected``: the description properties, written once for every backend."""
+    ``_connected``: the description properties, written once for every backend; its servoing
+    mode in ``_mode`` (read through :meth:`_require`, which refuses an adapter not connected)."""
 
     _robot: Any
     _clock: WallClock
     _connected: bool
+    _mode: ServoingMode
+
+    @abc.abstractmethod
+    def _require(self) -> Any:
+        """Raise :class:`NotConnectedError` (or the backend's lost-link error) unless connected."""
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -355,3 +361,8 @@ class DescribedArm(ArmAdapter):
     @property
     def is_connected(self) -> bool:
         return self._connected
+
+    @property
+    def servoing_mode(self) -> ServoingMode:
+        self._require()
+        return self._mode
