@@ -57,12 +57,16 @@ def fail(text: str) -> typing.NoReturn:
     raise PydanticCustomError("config", "{text}", {"text": text})
 
 
+# The numbers YAML 1.1 (PyYAML) reads as strings: an exponent without a dot or its sign ("1e-4",
+# "2.5e3"). Any other string (a quoted "2", "x") is refused.
+_EXPONENT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
+
+
 def _float(value: Any) -> float:
     if isinstance(value, str):  # YAML 1.1 reads "1e-4" as a string
-        try:
-            value = float(value)
-        except ValueError:
+        if not _EXPONENT.fullmatch(value.strip()):
             fail(f": expected a number, got {value!r}")
+        value = float(value)
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         fail(f": expected a number, got {value!r}")
     if not math.isfinite(value):
@@ -135,6 +139,21 @@ def count(least: int, most: int | None = None) -> AfterValidator:
             span = f"at least {least}" if most is None else f"{least} to {most}"
             fail(f" must list {span} values, got {list(value)}")
         return value
+    return AfterValidator(check)
+
+
+def unit_quaternion(tolerance: float) -> AfterValidator:
+    """Rule for a quaternion (w, x, y, z), or None: its norm within ``tolerance`` of 1 (rounding in
+    a hand-written file, never a wrong rotation); the value is returned divided by its norm."""
+    def check(value: Sequence[float] | None) -> tuple[float, ...] | None:
+        if value is None:
+            return None
+        import numpy as np
+
+        norm = float(np.linalg.norm(value))
+        if abs(norm - 1.0) > tolerance:
+            fail(f" must be a unit quaternion (w, x, y, z; norm {norm:.6g}), got {list(value)}")
+        return tuple(float(v) for v in np.divide(value, norm))
     return AfterValidator(check)
 
 

@@ -54,20 +54,24 @@ import atexit
 import ctypes
 import dataclasses
 import logging
-import math
 import sys
 import threading
 import time
 import weakref
 from pathlib import Path
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Annotated, Any, Optional
 
 import numpy as np
+from pydantic import AfterValidator, PlainValidator
 
-from ahrm_stack.robot import RobotDescription
+from ahrm_stack.schema import ConfigError, Float, Int, Section, Str, count, fail, gt, le
 from hardware.protocol import (DescribedArm, ArmFaultError, ArmState, CommandRefusedError,
                                ConnectionLostError, Fault, Feedback, HardwareError,
-                               NotConnectedError, ServoingMode, WallClock, check_joint_speeds)
+                               NotConnectedError, ServoingMode, WallClock, check_joint_speeds,
+                               range_centres, unwrap_positions)
+
+if TYPE_CHECKING:
+    from ahrm_stack.robot import RobotDescription
 
 log = logging.getLogger(__name__)
 
@@ -200,101 +204,72 @@ class Gen2ConfigError(ValueError):
     names the key (or the path)."""
 
 
+def _sign(value: int) -> int:
+    if value not in (1, -1):
+        fail(f" must be 1 or -1, got {value!r}")
+    return value
+
+
+def _path(value: Any) -> str | None:
+    """A path string (not blank) or None."""
+    if value is not None and (not isinstance(value, str) or not value.strip()):
+        fail(f" must be a path string or null, got {value!r}")
+    return value
+
+
+def _serial(value: Any) -> str | None:
+    """The arm's serial number, stripped (it fits the SDK's char[SERIAL_LENGTH]), or None."""
+    if value is not None and (not isinstance(value, str) or not value.strip()
+                              or len(value.encode()) >= SERIAL_LENGTH):
+        fail(f" must be the arm's serial number (a string of at most {SERIAL_LENGTH - 1} bytes) "
+             f"or null, got {value!r}")
+    return value.strip() if isinstance(value, str) else None
+
+
+def _not_empty(value: dict) -> dict:
+    if not value:
+        fail(" must map each arm name to its sign and offset_deg, got {}")
+    return value
+
+
+FilePath = Annotated[Optional[str], PlainValidator(_path)]
+
+
 @dataclasses.dataclass(frozen=True)
-class JointConvention:
+class JointConvention(Section):
     """model angle (deg) = ``sign`` * Kinova angle (deg) + ``offset_deg``, per joint."""
 
-    sign: tuple[int, ...]
-    offset_deg: tuple[float, ...]
+    sign: Annotated[tuple[Annotated[Int, AfterValidator(_sign)], ...], count(1)]  # +1 or -1 per joint
+    offset_deg: tuple[Float, ...]  # deg, one per joint
+
+    def check(self, key: str) -> None:
+        if len(self.offset_deg) != len(self.sign):
+            raise ConfigError(f"{key}.offset_deg must be {len(self.sign)} finite numbers (deg), "
+                              f"got {list(self.offset_deg)}")
 
 
 @dataclasses.dataclass(frozen=True)
-class Gen2Settings:
-    library: str | None  # the command layer .so
-    comm_library: str | None  # its communication layer, preloaded (RTLD_GLOBAL); None: not
-    serial: str | None  # the arm's serial number; required to connect
-    send_rate_hz: float  # Hz, the sender thread's rate
-    command_timeout: float  # control periods without a fresh command before the sender stops
-    speed_scale: float  # every command is multiplied by this, 0 < s <= 1
-    velocity_feedback_scale: float  # GetAngularVelocity reports 1/this of the real velocity
-    min_supply_voltage: float  # V; below it the actuators are unpowered (the e-stop)
-    scene: str | None  # the static scene layout (hardware/scene.py) deploy uses for perception
-    switch_interval: float  # s, Python's GIL switch interval while connected (sys.setswitchinterval)
-    joints: dict[str, JointConvention]  # per arm (task.robot)
+class Gen2Settings(Section):
+    """``configs/deploy.yaml``'s ``kinova_gen2`` section. Files are not looked at here
+    (:func:`check_library` does, when the backend is used)."""
 
-
-_FIELDS = [f.name for f in dataclasses.fields(Gen2Settings)]
+    library: FilePath  # the command layer .so
+    comm_library: FilePath  # its communication layer, preloaded (RTLD_GLOBAL); None: not
+    serial: Annotated[Optional[str], PlainValidator(_serial)]  # the arm's serial; required to connect
+    send_rate_hz: Annotated[Float, gt(0), le(1000.0)]  # Hz, the sender thread's rate
+    command_timeout: Annotated[Float, gt(0), le(100.0)]  # control periods without a fresh command
+    # before the sender stops
+    speed_scale: Annotated[Float, gt(0), le(1.0)]  # every command is multiplied by this
+    velocity_feedback_scale: Annotated[Float, gt(0)]  # GetAngularVelocity reports 1/this of the real one
+    min_supply_voltage: Annotated[Float, gt(0)]  # V; below it the actuators are unpowered (the e-stop)
+    scene: FilePath  # the static scene layout (hardware/scene.py) deploy uses for perception
+    switch_interval: Annotated[Float, gt(0), le(0.005)]  # s, Python's GIL switch interval while
+    # connected (sys.setswitchinterval)
+    joints: Annotated[dict[Str, JointConvention], AfterValidator(_not_empty)]  # per arm (task.robot)
 
 
 def _key(name: str) -> str:
     return f"deploy.kinova_gen2.{name}"
-
-
-def _positive(value: Any, name: str, upper: float | None = None) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-            or value <= 0 or (upper is not None and value > upper):
-        bound = f" and <= {upper}" if upper is not None else ""
-        raise Gen2ConfigError(f"{_key(name)} must be a number > 0{bound}, got {value!r}")
-    return float(value)
-
-
-def _path(value: Any, name: str) -> str | None:
-    if value is not None and (not isinstance(value, str) or not value.strip()):
-        raise Gen2ConfigError(f"{_key(name)} must be a path string or null, got {value!r}")
-    return value
-
-
-def gen2_settings_from_dict(data: Any) -> Gen2Settings:
-    """Validate the parsed ``kinova_gen2`` section; :class:`Gen2ConfigError` names the first bad
-    key. Files are not looked at here (:func:`check_library` does, when the backend is used)."""
-    if not isinstance(data, Mapping):
-        raise Gen2ConfigError(f"deploy.kinova_gen2 must be a mapping, got {data!r}")
-    unknown = sorted(set(data) - set(_FIELDS))
-    if unknown:
-        raise Gen2ConfigError(f"unknown key {_key(unknown[0])}; allowed: {sorted(_FIELDS)}")
-    missing = [f for f in _FIELDS if f not in data]
-    if missing:
-        raise Gen2ConfigError(f"missing key {_key(missing[0])}")
-    serial = data["serial"]
-    if serial is not None and (not isinstance(serial, str) or not serial.strip()
-                               or len(serial.encode()) >= SERIAL_LENGTH):
-        raise Gen2ConfigError(f"{_key('serial')} must be the arm's serial number (a string of at "
-                              f"most {SERIAL_LENGTH - 1} bytes) or null, got {serial!r}")
-    send_rate = _positive(data["send_rate_hz"], "send_rate_hz", upper=1000.0)
-    joints_data = data["joints"]
-    if not isinstance(joints_data, Mapping) or not joints_data:
-        raise Gen2ConfigError(f"{_key('joints')} must map each arm name to its sign and "
-                              f"offset_deg, got {joints_data!r}")
-    joints = {}
-    for arm, entry in joints_data.items():
-        where = f"joints.{arm}"
-        if not isinstance(entry, Mapping) or set(entry) != {"sign", "offset_deg"}:
-            raise Gen2ConfigError(f"{_key(where)} must have exactly the keys sign and "
-                                  f"offset_deg, got {entry!r}")
-        sign, offset = entry["sign"], entry["offset_deg"]
-        if not isinstance(sign, list) or not sign or any(
-                isinstance(s, bool) or s not in (1, -1) for s in sign):
-            raise Gen2ConfigError(f"{_key(where + '.sign')} must be a list of 1 or -1, got {sign!r}")
-        if not isinstance(offset, list) or len(offset) != len(sign) or any(
-                isinstance(o, bool) or not isinstance(o, (int, float)) or not math.isfinite(o)
-                for o in offset):
-            raise Gen2ConfigError(f"{_key(where + '.offset_deg')} must be {len(sign)} finite "
-                                  f"numbers (deg), got {offset!r}")
-        joints[str(arm)] = JointConvention(tuple(int(s) for s in sign),
-                                           tuple(float(o) for o in offset))
-    return Gen2Settings(
-        library=_path(data["library"], "library"),
-        comm_library=_path(data["comm_library"], "comm_library"),
-        serial=serial.strip() if isinstance(serial, str) else None,
-        send_rate_hz=send_rate,
-        command_timeout=_positive(data["command_timeout"], "command_timeout", upper=100.0),
-        speed_scale=_positive(data["speed_scale"], "speed_scale", upper=1.0),
-        velocity_feedback_scale=_positive(data["velocity_feedback_scale"],
-                                          "velocity_feedback_scale"),
-        min_supply_voltage=_positive(data["min_supply_voltage"], "min_supply_voltage"),
-        scene=_path(data["scene"], "scene"),
-        switch_interval=_positive(data["switch_interval"], "switch_interval", upper=0.005),
-        joints=joints)
 
 
 def check_library(settings: Gen2Settings) -> Path:
@@ -352,21 +327,6 @@ def model_velocities(reported, convention: JointConvention, feedback_scale: floa
     v = np.asarray(reported, dtype=float) * feedback_scale
     v = np.where(v > 180.0, v - 360.0, v)
     return np.asarray(convention.sign, dtype=float) * np.radians(v)
-
-
-def unwrap_positions(q: np.ndarray, reference: np.ndarray | None, robot: RobotDescription) -> np.ndarray:
-    """Joint positions (rad) with each continuous joint moved by whole turns to lie within π of
-    ``reference`` (the previous reading; none: as read) and each limited joint by whole turns to
-    lie within π of the centre of its range (a reading of -150° on a 47°-313° joint is 210°)."""
-    q = np.asarray(q, dtype=float)
-    limited = robot.limited
-    centre = np.where(limited, 0.5 * (np.where(limited, robot.position_lower, 0.0)
-                                      + np.where(limited, robot.position_upper, 0.0)), 0.0)
-    out = np.where(limited, q + 2 * np.pi * np.round((centre - q) / (2 * np.pi)), q)
-    if reference is not None:
-        turns = np.round((np.asarray(reference, dtype=float) - q) / (2 * np.pi))
-        out = np.where(limited, out, q + 2 * np.pi * turns)
-    return out
 
 
 # ---------------------------------------------------------------------------------------------
@@ -505,6 +465,7 @@ class KinovaGen2Arm(DescribedArm):
         self._fault_reason = ""
         self._frame = 0
         self._last_position: np.ndarray | None = None
+        self._range_centre = range_centres(robot)
         self._errors_seen = 0
         # shared with the sender thread (under self._state)
         self._state = threading.Lock()
@@ -719,7 +680,7 @@ class KinovaGen2Arm(DescribedArm):
                         f"{self.settings.min_supply_voltage:g} V (e-stop pressed or power lost)")
         convention = self._convention
         q = unwrap_positions(model_positions(_actuators(position.Actuators, n), convention),
-                             self._last_position, self._robot)
+                             self._last_position, ~self._robot.limited, self._range_centre)
         self._last_position = q
         dq = model_velocities(_actuators(velocity.Actuators, n), convention,
                               self.settings.velocity_feedback_scale)
@@ -813,11 +774,6 @@ class KinovaGen2Arm(DescribedArm):
         self._errors_seen = int(count.value)  # the logged errors are acknowledged
         self._faults, self._fault_reason = Fault.NONE, ""
         log.info("kinova_gen2: faults cleared on %s", self._serial)
-
-    @property
-    def servoing_mode(self) -> ServoingMode:
-        self._require()
-        return self._mode
 
     def set_servoing_mode(self, mode: ServoingMode) -> None:
         """Gen2 has no Kortex servoing modes: single-level is angular control with joint velocity

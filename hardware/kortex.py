@@ -65,7 +65,7 @@ from ahrm_stack.robot import RobotDescription
 from hardware.protocol import (DescribedArm, ArmFaultError, ArmState, CommandRefusedError,
                                ConnectionLostError, Fault, Feedback, FeedbackTimeoutError,
                                HardwareError, NotConnectedError, ServoingMode, WallClock,
-                               check_joint_speeds)
+                               check_joint_speeds, range_centres, unwrap_positions)
 
 log = logging.getLogger(__name__)
 
@@ -105,32 +105,6 @@ def radians_to_degrees(values) -> np.ndarray:
 def degrees_to_radians(values) -> np.ndarray:
     """deg (or deg/s) -> rad (or rad/s)."""
     return np.radians(np.asarray(values, dtype=float))
-
-
-def unwrap_positions(measured: np.ndarray, reference: np.ndarray | None,
-                     continuous: np.ndarray, range_centre: np.ndarray | None = None) -> np.ndarray:
-    """Joint positions (rad) with each continuous joint moved by whole turns to lie within π of
-    ``reference`` (the previous reading, rad), and each limited joint moved by whole turns to lie
-    within π of the centre of its range (``range_centre``, rad; without it, in (-π, π]).
-
-    Kortex reports continuous joints in [0°, 360°) and limited ones in (-180°, 180°]; the model's
-    continuous joints are unbounded (e.g. the JACO home posture is 275° = 4.80 rad), so a reading
-    near 0° right after 359° must become 2π + small, not 0. A limited joint's range may lie past
-    180° (JACO's joint 2 spans 47°–313°), so -150° read there is 210°, the angle inside the range.
-    """
-    measured = np.asarray(measured, dtype=float)
-    continuous = np.asarray(continuous, dtype=bool)
-    if range_centre is None:
-        limited = np.angle(np.exp(1j * measured))  # (-π, π]
-        limited = np.where(limited == -np.pi, np.pi, limited)
-    else:
-        centre = np.asarray(range_centre, dtype=float)
-        limited = measured + 2 * np.pi * np.round((centre - measured) / (2 * np.pi))
-    if reference is None:
-        return np.where(continuous, measured, limited)
-    reference = np.asarray(reference, dtype=float)
-    turns = np.round((reference - measured) / (2 * np.pi))
-    return np.where(continuous, measured + 2 * np.pi * turns, limited)
 
 
 def joint_speeds_message(speeds_rad_s: Sequence[float]) -> list[dict]:
@@ -606,10 +580,7 @@ class KortexArm(DescribedArm):
         self._arm_in_fault = False  # the last feedback reported a fault
         self._watchdog = CommandWatchdog(options.watchdog_timeout, options.watchdog_poll,
                                          self._watchdog_expired, clock=self._clock.now)
-        limited = robot.limited
-        self._range_centre = np.where(
-            limited, 0.5 * (np.where(limited, robot.position_lower, 0.0)
-                            + np.where(limited, robot.position_upper, 0.0)), 0.0)
+        self._range_centre = range_centres(robot)
 
     @property
     def watchdog(self) -> CommandWatchdog:
@@ -864,11 +835,6 @@ class KortexArm(DescribedArm):
         if self._wanted_mode != ServoingMode.SINGLE_LEVEL_SERVOING:
             self._set_mode(self._wanted_mode)
         self.stop()
-
-    @property
-    def servoing_mode(self) -> ServoingMode:
-        self._require()
-        return self._mode
 
     def set_servoing_mode(self, mode: ServoingMode) -> None:
         self._require()

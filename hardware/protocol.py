@@ -210,6 +210,42 @@ def check_joint_speeds(speeds, velocity_limit: np.ndarray) -> np.ndarray:
     return command
 
 
+def unwrap_positions(measured: np.ndarray, reference: np.ndarray | None,
+                     continuous: np.ndarray, range_centre: np.ndarray | None = None) -> np.ndarray:
+    """Joint positions (rad) with each continuous joint moved by whole turns to lie within π of
+    ``reference`` (the previous reading, rad), and each limited joint moved by whole turns to lie
+    within π of the centre of its range (``range_centre``, rad, e.g. :func:`range_centres`; without
+    it, in (-π, π]); no ``reference``: continuous joints as read. Both arm backends unwrap so.
+
+    Kortex reports continuous joints in [0°, 360°) and limited ones in (-180°, 180°]; the model's
+    continuous joints are unbounded (e.g. the JACO home posture is 275° = 4.80 rad), so a reading
+    near 0° right after 359° must become 2π + small, not 0. A limited joint's range may lie past
+    180° (JACO's joint 2 spans 47°–313°), so -150° read there is 210°, the angle inside the range.
+    """
+    measured = np.asarray(measured, dtype=float)
+    continuous = np.asarray(continuous, dtype=bool)
+    if range_centre is None:
+        limited = np.angle(np.exp(1j * measured))  # (-π, π]
+        limited = np.where(limited == -np.pi, np.pi, limited)
+    else:
+        centre = np.asarray(range_centre, dtype=float)
+        limited = measured + 2 * np.pi * np.round((centre - measured) / (2 * np.pi))
+    if reference is None:
+        return np.where(continuous, measured, limited)
+    reference = np.asarray(reference, dtype=float)
+    turns = np.round((reference - measured) / (2 * np.pi))
+    return np.where(continuous, measured + 2 * np.pi * turns, limited)
+
+
+def range_centres(robot: Any) -> np.ndarray:
+    """The centre of each limited joint's position range (rad; 0 for a continuous joint) of a
+    :class:`~ahrm_stack.robot.RobotDescription`: where :func:`unwrap_positions` puts a limited
+    joint's reading."""
+    limited = robot.limited
+    return np.where(limited, 0.5 * (np.where(limited, robot.position_lower, 0.0)
+                                     + np.where(limited, robot.position_upper, 0.0)), 0.0)
+
+
 class ArmAdapter(abc.ABC):
     """A connection to one arm, Kortex style. Contract (every backend):
 
@@ -298,11 +334,17 @@ class ArmAdapter(abc.ABC):
 class DescribedArm(ArmAdapter):
     """An adapter holding its arm model in ``_robot`` (a
     :class:`~ahrm_stack.robot.RobotDescription`), its clock in ``_clock`` and its session flag in
-    ``_connected``: the description properties, written once for every backend."""
+    ``_connected``: the description properties, written once for every backend; its servoing
+    mode in ``_mode`` (read through :meth:`_require`, which refuses an adapter not connected)."""
 
     _robot: Any
     _clock: WallClock
     _connected: bool
+    _mode: ServoingMode
+
+    @abc.abstractmethod
+    def _require(self) -> Any:
+        """Raise :class:`NotConnectedError` (or the backend's lost-link error) unless connected."""
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -319,3 +361,8 @@ class DescribedArm(ArmAdapter):
     @property
     def is_connected(self) -> bool:
         return self._connected
+
+    @property
+    def servoing_mode(self) -> ServoingMode:
+        self._require()
+        return self._mode

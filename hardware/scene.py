@@ -13,17 +13,20 @@ default upright)::
       - {position: [0.16, 0.05, 0.45], quaternion: [1, 0, 0, 0]}
       - ...
 
-Every error is one line naming the file and the key.
+Every error is one line naming the file and the key (:class:`SceneLayout`, a section of
+:mod:`ahrm_stack.schema`). :func:`read_layout` reads any layout file this way: this one and the
+camera scene's measured obstacle layout (:mod:`ahrm_stack.perception.scene_source`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Protocol, Sequence, TypeVar
 
 import numpy as np
-import yaml
 
+from ahrm_stack.schema import Float, Section, read_yaml, unit_quaternion, validate
 from hardware.protocol import ArmAdapter, Feedback, ObjectPoses, ServoingMode, WallClock
 
 
@@ -36,31 +39,44 @@ class SceneError(ValueError):
     """The layout file is missing or invalid; one line naming the file and the key."""
 
 
-def _vector(value: Any, size: int, where: str) -> np.ndarray:
-    if (not isinstance(value, list) or len(value) != size
-            or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value)):
-        raise SceneError(f"{where} must be a list of {size} numbers, got {value!r}")
-    vector = np.asarray(value, dtype=float)
-    if not np.isfinite(vector).all():
-        raise SceneError(f"{where} must be finite, got {value!r}")
-    return vector
+@dataclasses.dataclass(frozen=True)
+class Pose(Section):
+    position: tuple[Float, Float, Float]  # m, world frame
+    # (w, x, y, z), normalised when read; default upright
+    quaternion: Annotated[tuple[Float, Float, Float, Float], unit_quaternion(UNIT_TOLERANCE)] = (1.0, 0.0, 0.0, 0.0)
 
 
-def _pose(entry: Any, where: str) -> tuple[np.ndarray, np.ndarray]:
-    if not isinstance(entry, dict):
-        raise SceneError(f"{where} must be a mapping with position (and quaternion), got {entry!r}")
-    unknown = sorted(set(entry) - {"position", "quaternion"})
-    if unknown:
-        raise SceneError(f"unknown key {where}.{unknown[0]}; allowed: ['position', 'quaternion']")
-    if "position" not in entry:
-        raise SceneError(f"missing key {where}.position")
-    position = _vector(entry["position"], 3, f"{where}.position")
-    quaternion = _vector(entry.get("quaternion", [1.0, 0.0, 0.0, 0.0]), 4, f"{where}.quaternion")
-    norm = float(np.linalg.norm(quaternion))
-    if abs(norm - 1.0) > UNIT_TOLERANCE:
-        raise SceneError(f"{where}.quaternion must be a unit quaternion (w, x, y, z), got "
-                         f"{entry['quaternion']!r} (norm {norm:.6g})")
-    return position, quaternion / norm
+@dataclasses.dataclass(frozen=True)
+class SceneLayout(Section):
+    """A static scene layout file (the module docstring)."""
+
+    cube: Pose
+    obstacles: tuple[Pose, ...]  # in the task's obstacle order
+
+
+class HasObstacles(Protocol):
+    """What :func:`read_layout` needs of a layout section: its ``obstacles``."""
+
+    @property
+    def obstacles(self) -> Sequence[Any]: ...
+
+
+L = TypeVar("L", bound=HasObstacles)
+
+
+def read_layout(cls: type[L], path: Path | str, what: str, count: int | None = None,
+                error: type[Exception] = SceneError) -> L:
+    """The layout file ``path`` validated as ``cls`` (a section with an ``obstacles`` list), with
+    ``count`` obstacles when given (the task's). Errors are one line of class ``error`` that names
+    the key and "``what`` ``path``" (e.g. "scene layout configs/scenes/default.yaml")."""
+    path = Path(path)
+    where = f"{what} {path}"
+    if not path.is_file():
+        raise error(f"cannot read the {where}: no such file")
+    layout: L = validate(cls, read_yaml(path, error), source=lambda key: where, error=error)
+    if count is not None and len(layout.obstacles) != count:
+        raise error(f"{where}: {len(layout.obstacles)} obstacles; the task has {count}")
+    return layout
 
 
 class StaticScene:
@@ -73,31 +89,12 @@ class StaticScene:
 
     def __init__(self, path: Path | str, num_obstacles: int | None = None) -> None:
         self.path = Path(path)
-        where = str(self.path)
-        try:
-            data = yaml.safe_load(self.path.read_text())
-        except OSError as error:
-            raise SceneError(f"cannot read the scene layout {where}: {error.strerror}") from None
-        except yaml.YAMLError as error:
-            raise SceneError(f"{where} is not valid YAML ({str(error).splitlines()[0]})") from None
-        if not isinstance(data, dict):
-            raise SceneError(f"{where} must be a mapping with cube and obstacles, got {data!r:.80}")
-        unknown = sorted(set(data) - {"cube", "obstacles"})
-        if unknown:
-            raise SceneError(f"{where}: unknown key {unknown[0]}; allowed: ['cube', 'obstacles']")
-        for key in ("cube", "obstacles"):
-            if key not in data:
-                raise SceneError(f"{where}: missing key {key}")
-        self.cube_position, self.cube_quaternion = _pose(data["cube"], f"{where}: cube")
-        obstacles = data["obstacles"]
-        if not isinstance(obstacles, list):
-            raise SceneError(f"{where}: obstacles must be a list of poses, got {obstacles!r:.80}")
-        if num_obstacles is not None and len(obstacles) != num_obstacles:
-            raise SceneError(f"{where}: obstacles has {len(obstacles)} entries; the task has "
-                             f"{num_obstacles}")
-        poses = [_pose(o, f"{where}: obstacles[{i}]") for i, o in enumerate(obstacles)]
-        self.obstacle_positions = np.array([p for p, _ in poses], dtype=float).reshape(-1, 3)
-        self.obstacle_quaternions = np.array([q for _, q in poses], dtype=float).reshape(-1, 4)
+        layout = read_layout(SceneLayout, self.path, "scene layout", num_obstacles)
+        self.cube_position = np.asarray(layout.cube.position, dtype=float)
+        self.cube_quaternion = np.asarray(layout.cube.quaternion, dtype=float)
+        self.obstacle_positions = np.array([o.position for o in layout.obstacles], dtype=float).reshape(-1, 3)
+        self.obstacle_quaternions = np.array([o.quaternion for o in layout.obstacles],
+                                             dtype=float).reshape(-1, 4)
 
     def poses(self, timestamp: float) -> ObjectPoses:
         """The layout's poses, zero velocities, stamped ``timestamp`` (s, the arm's clock)."""

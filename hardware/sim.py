@@ -215,11 +215,6 @@ class SimArm(DescribedArm):
         self._faults = Fault.NONE
         self._set_command(np.zeros(self._robot.num_joints))
 
-    @property
-    def servoing_mode(self) -> ServoingMode:
-        self._require()
-        return self._mode
-
     def set_servoing_mode(self, mode: ServoingMode) -> None:
         self._require()
         self._mode = ServoingMode(mode)

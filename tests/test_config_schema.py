@@ -14,9 +14,12 @@ import yaml
 
 from ahrm_stack.config import (CONFIG_DIR, SECTIONS, Config, ConfigError, ExperimentConfig, VideoConfig,
                                config_from_dict, load_config, load_extra, load_raw, load_robot_config)
+from ahrm_stack.deploy.settings import load_deploy_settings
 from ahrm_stack.env.layout_catalog import load_layouts
+from ahrm_stack.perception.settings import load_perception_settings
 from ahrm_stack.schema import Float, Int, Section, gt, le, load_file, validate
 from ahrm_stack.seeds import load_seed_table
+from hardware.scene import StaticScene
 
 
 @pytest.fixture
@@ -58,6 +61,11 @@ UNKNOWN = [
     ("seeds.yaml", (), lambda d: load_seed_table(d / "seeds.yaml"), "colour"),
     ("robots/j2s6s200.yaml", (), lambda d: load_robot_config("j2s6s200", d / "robots"),
      "robots/j2s6s200.colour"),
+    ("deploy.yaml", ("kinova_gen2", "joints", "jaco"), lambda d: load_deploy_settings(d / "deploy.yaml"),
+     "deploy.kinova_gen2.joints.jaco.colour"),
+    ("perception.yaml", ("camera",), lambda d: load_perception_settings(d / "perception.yaml"),
+     "perception.camera.colour"),
+    ("scenes/default.yaml", ("cube",), lambda d: StaticScene(d / "scenes/default.yaml"), "cube.colour"),
 ]
 
 
@@ -65,7 +73,7 @@ UNKNOWN = [
 def test_every_file_refuses_an_unknown_key_naming_its_path_and_the_file(configs, name, keys, read, key):
     read(configs)  # the copy as it is loads
     _edit(configs / name, _put(*keys))
-    with pytest.raises(ConfigError) as error:
+    with pytest.raises(ValueError) as error:  # ConfigError; deploy's and the scene's own classes
         read(configs)
     message = str(error.value)
     assert "\n" not in message
@@ -88,6 +96,14 @@ def test_messages_name_the_file_or_the_override(configs):
     with pytest.raises(ConfigError, match=r"^missing config key 'task\.cube\.mass' \(.*task\.yaml\)$"):
         _edit(configs / "task.yaml", lambda data: data["cube"].pop("mass"))
         load_config(config_dir=configs)
+
+
+def test_numbers_are_numbers_except_the_exponents_yaml_1_1_leaves_as_strings():
+    assert validate(Float, "1e-4") == 1e-4 and validate(Float, "-2.5E+3") == -2500.0  # unquoted in YAML
+    assert yaml.safe_load("x: 1e-4")["x"] == "1e-4"  # PyYAML (YAML 1.1) reads it as a string
+    for value in ("2", "0.5", "x", "nan", "inf", "1e", True):  # a quoted number is not one
+        with pytest.raises(ConfigError, match=": expected a number, got"):
+            validate(Float, value)
 
 
 def test_derived_fields_are_not_keys():

@@ -64,13 +64,13 @@ def test_static_scene_reads_and_validates(tmp_path):
         return str(error.value)
 
     good = yaml.safe_load(SCENE.read_text())
-    assert "obstacles has 4 entries; the task has 3" in bad(yaml.safe_dump(good), num_obstacles=3)
+    assert "4 obstacles; the task has 3" in bad(yaml.safe_dump(good), num_obstacles=3)
     assert "cube.position" in bad(yaml.safe_dump({**good, "cube": {"position": [0, 0]}}))
     assert "cube.quaternion" in bad(yaml.safe_dump({**good, "cube": {"position": [0, 0, 0.4],
                                                                     "quaternion": [1, 0, 0, 1]}}))
     assert "obstacles[1].position" in bad(yaml.safe_dump(
         {**good, "obstacles": [good["obstacles"][0], {"position": [0, ".nan", 0]}]}))
-    assert "unknown key colour" in bad(yaml.safe_dump({**good, "colour": "red"}))
+    assert "unknown config key 'colour'" in bad(yaml.safe_dump({**good, "colour": "red"}))
     with pytest.raises(SceneError, match="cannot read the scene layout"):
         StaticScene(tmp_path / "none.yaml")
 

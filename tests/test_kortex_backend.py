@@ -82,16 +82,16 @@ def test_the_numbers_come_from_deploy_yaml():
 
 @pytest.mark.parametrize("key, value, expected", [
     ("rpc_timeout_ms", 0, "deploy.kortex.rpc_timeout_ms must be > 0"),
-    ("rpc_timeout_ms", 2.5, "deploy.kortex.rpc_timeout_ms must be a finite integer"),
+    ("rpc_timeout_ms", 2.5, "deploy.kortex.rpc_timeout_ms: expected an integer, got 2.5"),
     ("session_rpc_timeout_ms", None,
-     "deploy.kortex.session_rpc_timeout_ms must be a finite integer"),
+     "deploy.kortex.session_rpc_timeout_ms: expected an integer, got None"),
     ("watchdog_periods", 1.0, "deploy.kortex.watchdog_periods must be > 1"),
-    ("watchdog_periods", "2", "deploy.kortex.watchdog_periods must be a finite number"),
+    ("watchdog_periods", "2", "deploy.kortex.watchdog_periods: expected a number, got '2'"),
     ("watchdog_poll_periods", 1.0, "deploy.kortex.watchdog_poll_periods must be <= half"),
     ("reset_wait_ms", -1, "deploy.kortex.reset_wait_ms must be > 0"),
     ("reset_poll_ms", 5000, "deploy.kortex.reset_poll_ms must be <= deploy.kortex.reset_wait_ms"),
-    ("reset_estop_repeats", True, "deploy.kortex.reset_estop_repeats must be a finite integer"),
-    ("feedback_tick_ms", float("nan"), "deploy.kortex.feedback_tick_ms must be a finite number"),
+    ("reset_estop_repeats", True, "deploy.kortex.reset_estop_repeats: expected an integer, got True"),
+    ("feedback_tick_ms", float("nan"), "deploy.kortex.feedback_tick_ms: must be finite, got nan"),
     ("frame_id_modulus", 1, "deploy.kortex.frame_id_modulus must be >= 2"),
 ])
 def test_bad_kortex_numbers_are_one_line_errors_naming_the_key(tmp_path, key, value, expected):
@@ -108,7 +108,7 @@ def test_bad_kortex_numbers_are_one_line_errors_naming_the_key(tmp_path, key, va
     assert expected in str(error.value) and "\n" not in str(error.value)
     del data["kortex"][key]
     path.write_text(yaml.safe_dump(data))
-    with pytest.raises(DeployConfigError, match=f"missing key deploy.kortex.{key}"):
+    with pytest.raises(DeployConfigError, match=f"missing config key 'deploy.kortex.{key}'"):
         load_deploy_settings(path)
 
 

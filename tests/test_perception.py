@@ -180,13 +180,13 @@ def test_perception_settings_load_and_errors_name_the_key(tmp_path):
     assert "perception.detector.max_hamming" in _bad(tmp_path, lambda d: d["detector"].update(max_hamming=3))
     assert "perception.detector.refine_edges" in _bad(tmp_path, lambda d: d["detector"].update(refine_edges=1))
     assert "perception.tracker.max_hold" in _bad(tmp_path, lambda d: d["tracker"].update(max_hold="x"))
-    assert "unknown key perception.tracker.gain" in _bad(tmp_path, lambda d: d["tracker"].update(gain=1))
-    assert "missing key perception.sim" in _bad(tmp_path, lambda d: d.pop("sim"))
+    assert "unknown config key 'perception.tracker.gain'" in _bad(tmp_path, lambda d: d["tracker"].update(gain=1))
+    assert "missing config key 'perception.sim'" in _bad(tmp_path, lambda d: d.pop("sim"))
     path = tmp_path / "broken.yaml"
     path.write_text("camera: [1, 2\n")
-    with pytest.raises(PerceptionConfigError, match="broken.yaml is not valid YAML"):
+    with pytest.raises(PerceptionConfigError, match="broken.yaml: not valid YAML"):
         load_perception_settings(path)
-    with pytest.raises(PerceptionConfigError, match="cannot read"):
+    with pytest.raises(PerceptionConfigError, match="config file not found: .*missing.yaml"):
         load_perception_settings(tmp_path / "missing.yaml")
 
 
@@ -227,8 +227,8 @@ def test_layout_file_round_trip_and_errors(tmp_path):
     assert "obstacles[1].position" in bad("obstacles:\n- {position: [0, 0, 0.45], yaw_deg: 0}\n"
                                           "- {position: [0, .nan, 0.45], yaw_deg: 0}\n")
     assert "obstacles[0].yaw_deg" in bad("obstacles:\n- {position: [0, 0, 0.45], yaw_deg: x}\n")
-    assert "obstacles[0] must have exactly the keys" in bad("obstacles:\n- {position: [0, 0, 0.45]}\n")
-    assert "expected exactly the key 'obstacles'" in bad("boxes: []\n")
+    assert "missing config key 'obstacles[0].yaw_deg'" in bad("obstacles:\n- {position: [0, 0, 0.45]}\n")
+    assert "unknown config key 'boxes'; allowed keys here: ['obstacles']" in bad("boxes: []\n")
     assert "not valid YAML" in bad("obstacles: [\n")
     with pytest.raises(PerceptionConfigError, match="cannot read"):
         LayoutFileObstacles(tmp_path / "none.yaml")

@@ -18,16 +18,20 @@ The layout file (YAML; world frame, m)::
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
-from typing import Protocol
+from typing import Annotated, Protocol
 
 import numpy as np
 import yaml
 
 from ahrm_stack.perception.apriltag import CubePoseSource
 from ahrm_stack.perception.settings import PerceptionConfigError
+from ahrm_stack.schema import Float, Section
+from ahrm_stack.schema import count as entries
 from hardware.protocol import ObjectPoses
+from hardware.scene import read_layout
 
 
 class SceneSource(Protocol):
@@ -50,54 +54,32 @@ def _yaw_quaternion(yaw: float) -> np.ndarray:
     return np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
 
 
+@dataclasses.dataclass(frozen=True)
+class ObstacleEntry(Section):
+    position: tuple[Float, Float, Float]  # m, box centre, world frame
+    yaw_deg: Float  # degrees, rotation about world z
+
+
+@dataclasses.dataclass(frozen=True)
+class ObstacleLayoutFile(Section):
+    """A measured layout file (the module docstring)."""
+
+    obstacles: Annotated[tuple[ObstacleEntry, ...], entries(1)]  # in the task's obstacle order
+
+
 class LayoutFileObstacles:
     """Static obstacle poses read from a measured layout file (format: the module docstring).
 
     Raises :class:`~ahrm_stack.perception.settings.PerceptionConfigError`, one line naming the
     file and the key, for a missing/unreadable file, bad YAML, an unknown or missing key, a
-    non-finite number, or (with ``count``) the wrong number of obstacles."""
+    non-finite number, or (with ``count``) the wrong number of obstacles (read by
+    :func:`hardware.scene.read_layout`, as the static scene's layout)."""
 
     def __init__(self, path: Path | str, count: int | None = None) -> None:
         self.path = Path(path)
-        where = str(self.path)
-        try:
-            data = yaml.safe_load(self.path.read_text())
-        except OSError as error:
-            raise PerceptionConfigError(f"layout file {where}: cannot read it "
-                                        f"({error.strerror or error})") from None
-        except yaml.YAMLError as error:
-            first = (str(error).splitlines() or [""])[0]
-            raise PerceptionConfigError(f"layout file {where} is not valid YAML ({first})") from None
-        if not isinstance(data, dict) or set(data) != {"obstacles"}:
-            keys = sorted(data) if isinstance(data, dict) else data
-            raise PerceptionConfigError(f"layout file {where}: expected exactly the key "
-                                        f"'obstacles', got {keys!r:.80}")
-        entries = data["obstacles"]
-        if not isinstance(entries, list) or not entries:
-            raise PerceptionConfigError(f"layout file {where}: obstacles must be a non-empty list, "
-                                        f"got {entries!r:.80}")
-        if count is not None and len(entries) != count:
-            raise PerceptionConfigError(f"layout file {where}: {len(entries)} obstacles; the task "
-                                        f"has {count}")
-        positions, yaws = [], []
-        for i, entry in enumerate(entries):
-            key = f"obstacles[{i}]"
-            if not isinstance(entry, dict) or set(entry) != {"position", "yaw_deg"}:
-                raise PerceptionConfigError(f"layout file {where}: {key} must have exactly the keys "
-                                            f"['position', 'yaw_deg'], got {entry!r:.80}")
-            position, yaw = entry["position"], entry["yaw_deg"]
-            if (not isinstance(position, list) or len(position) != 3
-                    or any(isinstance(v, bool) or not isinstance(v, (int, float))
-                           or not math.isfinite(v) for v in position)):
-                raise PerceptionConfigError(f"layout file {where}: {key}.position must be 3 finite "
-                                            f"numbers (m), got {position!r}")
-            if isinstance(yaw, bool) or not isinstance(yaw, (int, float)) or not math.isfinite(yaw):
-                raise PerceptionConfigError(f"layout file {where}: {key}.yaw_deg must be a finite "
-                                            f"number (degrees), got {yaw!r}")
-            positions.append([float(v) for v in position])
-            yaws.append(math.radians(float(yaw)))
-        self.positions = np.asarray(positions)
-        self.quaternions = np.stack([_yaw_quaternion(y) for y in yaws])
+        layout = read_layout(ObstacleLayoutFile, self.path, "layout file", count, PerceptionConfigError)
+        self.positions = np.asarray([o.position for o in layout.obstacles], dtype=float)
+        self.quaternions = np.stack([_yaw_quaternion(math.radians(o.yaw_deg)) for o in layout.obstacles])
         self.velocities = np.zeros_like(self.positions)
 
 
