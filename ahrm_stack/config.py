@@ -286,6 +286,7 @@ class ObservationConfig(Section):
     relative: Bool  # append the tip and each obstacle relative to the cube (m, world frame)
     lanes: Bool  # append each reachable lane's clearance (m; see env.layout.lane_clearance)
     lane_clip: Pair  # m, the lane clearance saturates at these
+    lane_choice: Bool  # append the episode's lane, one-hot (see env.layout.choose_lane)
 
     def check(self, key: str) -> None:
         if not self.lane_clip[0] < self.lane_clip[1]:
@@ -718,7 +719,7 @@ def _legacy_fill(data: dict) -> dict:
             (arm, ("start", "start_ik")), (layout, ("cube_region", "obstacle_draws_per_cube")),
             (train, ("dagger_rounds", "expert", *NEUTRAL_TRAIN_KEYS)), (arm, ("near_cube",)),
             (ppo, ("bc_coeff_final", *NEUTRAL_PPO_KEYS)), (section("task"), ("observation",)),
-            (observation, ("lane_clip",)))):
+            (observation, ("lane_clip", "lane_choice")))):
         return data
     data = copy.deepcopy(data)
     defaults = {name: read_yaml(CONFIG_DIR / file) for name, file in SECTIONS.items()}
@@ -752,6 +753,7 @@ def _legacy_fill(data: dict) -> dict:
         data["task"]["observation"] = {"relative": False, "lanes": False}
     if isinstance(data.get("task"), dict) and isinstance(data["task"].get("observation"), dict):
         data["task"]["observation"].setdefault("lane_clip", defaults["task"]["observation"]["lane_clip"])
+        data["task"]["observation"].setdefault("lane_choice", False)  # before 2026-12-02
     if ppo is not None and "bc_coeff_final" not in ppo and "bc_coeff" in ppo:
         data["ppo"].setdefault("bc_coeff_final", ppo["bc_coeff"])
         data["ppo"].setdefault("bc_decay_frames", 0)

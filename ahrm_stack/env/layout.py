@@ -82,6 +82,31 @@ def lane_clearance(cube_xy: np.ndarray, obstacle_xy: np.ndarray, cube_half: floa
     return np.clip(out, *clip)
 
 
+def choose_lane(layout: Layout, tip_xy: np.ndarray, cube_half: float, obstacle_half: np.ndarray,
+                table: TableConfig, rules: LayoutConfig) -> int:
+    """The lane to push the cube along: its index in ``rules.lane_directions``.
+
+    Of the free lanes (:func:`free_lanes`; all lanes when none is), the one whose strip leaves
+    the most room to the obstacles (:func:`lane_clearance`, unclipped); ties to 1 mm go to the
+    lane whose push starts on the tip's side of the cube (nearer the tip). Positions (x, y) in m,
+    world frame. The scripted controller plans its episode with it, and the observation's
+    ``lane_choice`` feature is it, so that a learner sees the decision its teacher made."""
+    free = free_lanes(layout, cube_half, obstacle_half, table, rules)
+    room = lane_clearance(layout.cube_xy, layout.obstacle_xy, cube_half, obstacle_half, table, rules,
+                          (-np.inf, np.inf))
+    best: tuple[tuple[float, float], int] | None = None
+    for i, direction in enumerate(rules.lane_directions):
+        if free and direction not in free:
+            continue
+        sign = 1.0 if direction == "+x" else -1.0
+        start = layout.cube_xy - np.array([sign * (cube_half + rules.approach_room), 0.0])
+        key = (round(float(room[i]), 3), -float(np.linalg.norm(start - tip_xy)))
+        if best is None or key > best[0]:
+            best = (key, i)
+    assert best is not None  # lane_directions is never empty (config check)
+    return best[1]
+
+
 def validate_layout(layout: Layout, table: TableConfig, cube: CubeConfig, obstacles: ObstacleConfig,
                     rules: LayoutConfig) -> None:
     """Raise :class:`LayoutError` naming the first rule that ``layout`` breaks."""

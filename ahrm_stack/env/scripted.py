@@ -40,7 +40,7 @@ import mujoco
 import numpy as np
 
 from ahrm_stack.config import ScriptedConfig
-from ahrm_stack.env.layout import Layout, free_lanes
+from ahrm_stack.env.layout import Layout, choose_lane
 from ahrm_stack.env.task import PushOffTask
 
 DOWN = np.array([0.0, 0.0, -1.0])  # world frame
@@ -167,33 +167,14 @@ class ScriptedPusher:
         return self._configuration.data.site_xpos[self._tip_site].copy()
 
     def _choose_lane(self, tip: np.ndarray, layout: Layout) -> None:
-        """Pick the free lane whose swept strip leaves the most room to the obstacles.
-
-        ``layout``: the settled (x, y) of the cube and the obstacles, m. The strip is what the
-        pusher and the cube sweep: from the pusher's back at the push start to the table edge, the
-        cube's half-width either side of the lane line. Ties (to 1 mm) go to the lane whose push
-        start is nearer the tip.
-        """
+        """Plan the episode's lane (:func:`~ahrm_stack.env.layout.choose_lane`: the free lane with
+        the most room, ties to the tip's side) from the settled ``layout`` ((x, y), m) and the
+        tip; its centre line is the line through the cube along the lane."""
         tc = self.task.config
-        cube = layout.cube_xy
-        lanes = free_lanes(layout, self._cube_half, self._obstacle_half, tc.table, tc.layout)
-        best = None
-        for lane in lanes or tc.layout.lane_directions:  # the sampler guarantees a free lane
-            sign = 1.0 if lane == "+x" else -1.0
-            lo, hi = sorted((cube[0] - sign * (self._behind + self._radius), sign * self._edge))
-            half = np.array([(hi - lo) / 2, self._cube_half])
-            center = np.array([(hi + lo) / 2, cube[1]])
-            sep = np.abs(layout.obstacle_xy - center) - (half + self._obstacle_half)
-            gaps = np.where(np.all(sep < 0, axis=1), sep.max(axis=1),
-                            np.linalg.norm(np.maximum(sep, 0.0), axis=1))
-            room = float(gaps.min()) if len(gaps) else np.inf
-            start = np.array([cube[0] - sign * self._behind, cube[1]])
-            key = (round(room, 3), -float(np.linalg.norm(start - tip[:2])))
-            if best is None or key > best[0]:
-                best = (key, sign)
-        self._direction = best[1]
-        self._lane_y = float(cube[1])
-        self._planned_start_x = float(cube[0] - best[1] * self._behind)
+        lane = choose_lane(layout, tip[:2], self._cube_half, self._obstacle_half, tc.table, tc.layout)
+        self._direction = 1.0 if tc.layout.lane_directions[lane] == "+x" else -1.0
+        self._lane_y = float(layout.cube_xy[1])
+        self._planned_start_x = float(layout.cube_xy[0] - self._direction * self._behind)
 
     # ------------------------------------------------------------------ control
     def __call__(self, physics, stateless: bool = False) -> np.ndarray:

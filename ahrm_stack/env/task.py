@@ -24,7 +24,7 @@ from ahrm_stack.config import ConfigError, TaskConfig
 from ahrm_stack.env.arena import TableArena
 from ahrm_stack.env.control_step import command_to_action
 from ahrm_stack.env.entities import BoxProp, Pusher
-from ahrm_stack.env.layout import Layout, LayoutSampler, lane_clearance
+from ahrm_stack.env.layout import Layout, LayoutSampler, choose_lane, lane_clearance
 from ahrm_stack.env.start_pose import solve_start_pose
 from ahrm_stack.env.rewards import (NUM_PHASES, ProgressObjective, TimeObjective, avoid_component,
                                     obstacle_touched, penalty_form, progress)
@@ -118,6 +118,7 @@ class PushOffTask(composer.Task):
         self.progress_objective = ProgressObjective(config.rewards.progress_eps)
         self.time_objective = TimeObjective(config.episode.duration)
         self.layout: Layout | None = None
+        self._lane_plan: np.ndarray | None = None  # the episode's lane, one-hot (lane_choice)
         self.start_target: np.ndarray | None = None  # the random start's tip target, m (world)
         self.start_fallbacks = 0  # random starts that fell back to the home posture
         # share of episodes that start near the cube (task.arm.near_cube) instead of by
@@ -174,6 +175,9 @@ class PushOffTask(composer.Task):
         if self.config.observation.lanes:
             self._task_observables["lane_clearance"] = observable.Generic(
                 lambda physics: self._lane_clearance(physics))
+        if self.config.observation.lane_choice:
+            self._task_observables["lane_choice"] = observable.Generic(
+                lambda physics: self._lane_choice(physics))
         for obs in self._task_observables.values():
             obs.enabled = True
         # Sample once per control step (at its last substep), not at every physics substep.
@@ -204,7 +208,8 @@ class PushOffTask(composer.Task):
         for prop in props:
             keys += [f"{prop.mjcf_model.model}/position", f"{prop.mjcf_model.model}/linear_velocity"]
         keys += ["previous_action", "phase", "boundary_distance"]
-        return keys + [k for k in ("relative_to_cube", "lane_clearance") if k in self._task_observables]
+        return keys + [k for k in ("relative_to_cube", "lane_clearance", "lane_choice")
+                       if k in self._task_observables]
 
     def _relative_to_cube(self, physics: mjcf.Physics) -> np.ndarray:
         """Tip - cube (3) and each obstacle - cube in (x, y) (2 each), m, world frame."""
@@ -225,6 +230,22 @@ class PushOffTask(composer.Task):
                               cfg.cube.size / 2, self._obstacle_half_sizes[0, :2], cfg.table, cfg.layout,
                               cfg.observation.lane_clip)
 
+    def _lane_choice(self, physics: mjcf.Physics) -> np.ndarray:
+        """One-hot over ``layout.lane_directions``: the episode's lane
+        (:func:`~ahrm_stack.env.layout.choose_lane`), planned from the first state observed after
+        a reset — the settled layout in training, the first perceived one in deployment — and
+        kept for the episode, as the scripted controller keeps its plan."""
+        if self._lane_plan is None:
+            if not hasattr(self, "_cube_body"):
+                self._bind(physics)
+            xpos = physics.data.xpos
+            cfg = self.config
+            layout = Layout(xpos[self._cube_body, :2].copy(), xpos[self._obstacle_bodies, :2].copy())
+            lane = choose_lane(layout, self.step_info.tip[:2], cfg.cube.size / 2,
+                               self._obstacle_half_sizes[0, :2], cfg.table, cfg.layout)
+            self._lane_plan = np.eye(len(cfg.layout.lane_directions))[lane]
+        return self._lane_plan
+
     def flat_observation(self, physics: mjcf.Physics) -> np.ndarray:
         """The observation vector in :attr:`observation_order`, read straight from the physics.
 
@@ -243,6 +264,8 @@ class PushOffTask(composer.Task):
             parts.append(self._relative_to_cube(physics))
         if self.config.observation.lanes:
             parts.append(self._lane_clearance(physics))
+        if self.config.observation.lane_choice:
+            parts.append(self._lane_choice(physics))
         return np.concatenate(parts)
 
     def arm_state(self, physics: mjcf.Physics) -> tuple[np.ndarray, np.ndarray]:
@@ -307,6 +330,7 @@ class PushOffTask(composer.Task):
         self.time_objective.reset()
         self.step_info = self._measure(physics, phase_time=0.0)
         self.progress_objective.reset(self.step_info.progress)
+        self._lane_plan = None  # planned at the episode's first observation
 
     def _restore(self, physics: mjcf.Physics, start) -> None:
         """Start the episode from a recorded state (its layout, qpos and qvel); the arm at rest,
@@ -326,6 +350,7 @@ class PushOffTask(composer.Task):
         self.time_objective.reset()
         self.step_info = self._measure(physics, phase_time=0.0)
         self.progress_objective.reset(self.step_info.progress)
+        self._lane_plan = None  # planned at the episode's first observation
 
     def _random_start(self, physics: mjcf.Physics, random_state: np.random.RandomState,
                       q_home: np.ndarray) -> np.ndarray:
