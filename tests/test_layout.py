@@ -77,3 +77,54 @@ def test_fixed_mode_jitters_only_the_cube():
     np.testing.assert_array_equal(a.obstacle_xy, b.obstacle_xy)
     assert np.all(np.abs(a.cube_xy - config.task.cube.position) <= config.task.cube.jitter)
     assert not np.array_equal(a.cube_xy, b.cube_xy)
+
+
+def test_lane_choice_by_hand(config):
+    """choose_lane on hand layouts around a cube at the origin (obstacles 0.06 m square, cube
+    0.05 m, approach room 0.08 m: the +x strip spans x in [-0.105, 0.45], the -x strip
+    [-0.45, 0.105], both |y| <= 0.025)."""
+    from ahrm_stack.env.layout import choose_lane
+    t = config.task
+    half = np.asarray(t.obstacles.size[:2]) / 2
+    assert list(t.layout.lane_directions) == ["+x", "-x"]
+
+    def lane(obstacles, tip=(0.0, 0.3)):
+        return t.layout.lane_directions[choose_lane(Layout(np.zeros(2), np.array(obstacles)),
+                                                    np.array(tip), 0.025, half, t.table, t.layout)]
+
+    # rooms: +x 0.1 - 0.03 - 0.025 = 0.045 (the obstacle beside it); -x: the one at (0.2, 0.1)
+    # is 0.065 past its end in x and 0.045 off in y, hypot 0.079; the other 0.095 off in y
+    assert lane([[0.2, 0.1], [-0.2, 0.15]]) == "-x"
+    assert lane([[-0.2, 0.1], [0.2, 0.15]]) == "+x"  # the mirror image
+    # equal rooms: the lane whose push starts on the tip's side of the cube
+    assert lane([[0.2, 0.1], [-0.2, 0.1]], tip=(-0.1, 0.0)) == "+x"
+    assert lane([[0.2, 0.1], [-0.2, 0.1]], tip=(0.1, 0.0)) == "-x"
+    # a blocked lane is never chosen while another is free, whatever its room
+    assert lane([[0.2, 0.0], [-0.2, 0.09]]) == "-x"
+
+
+def test_lane_choice_observation_is_the_scripted_plan():
+    """With task.observation.lane_choice the observation ends in the one-hot of the lane the
+    scripted controller plans at reset, kept through the episode."""
+    from ahrm_stack.env.runner import TaskRunner
+    from ahrm_stack.env.scripted import ScriptedPusher
+    from ahrm_stack.env.task import PushOffTask
+
+    config = load_config(["task.observation.lane_choice=true"])
+    task = PushOffTask(config.task)
+    runner = TaskRunner(task, seed=0, safety=config.safety)
+    pusher = ScriptedPusher(task, config.scripted)
+    seen = set()
+    for seed in range(8):
+        runner.seed(seed)
+        runner.reset()
+        pusher.reset(runner.physics)
+        first = runner.flat_observation()
+        expected = np.eye(2)[list(config.task.layout.lane_directions).index(pusher.lane)]
+        np.testing.assert_array_equal(first[-2:], expected)
+        seen.add(pusher.lane)
+        for _ in range(5):
+            runner.step_action(np.array([0.5, -0.5, -0.5]))
+        np.testing.assert_array_equal(runner.flat_observation()[-2:], expected)
+    assert seen == {"+x", "-x"}  # both lanes occur over these seeds
+    assert first.shape == (75,)
