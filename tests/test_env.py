@@ -107,7 +107,8 @@ def test_flat_observation_equals_the_declared_observables(runner):
     np.testing.assert_array_equal(runner.flat_observation(), expected)
     n_obstacles = len(runner.task.obstacles)
     assert expected.shape == (12 + 6 + 3 + 6 * (1 + n_obstacles) + 5 + 3 + 1  # spec §1
-                              + 3 + 2 * n_obstacles + 2,)  # relative to the cube, lane clearance
+                              + 3 + 2 * n_obstacles + 2 + 2,)  # relative to the cube, lane
+    # clearance, lane choice (one-hot over the two lanes)
 
 
 def test_composer_environment_runs_the_same_task(task_config):

@@ -84,12 +84,13 @@ def test_home_start_is_the_jittered_home():
 def test_observation_features_relative_to_the_cube_and_lane_clearance():
     """Hand-checked: the appended features against the positions in the same vector."""
     from ahrm_stack.env.layout import lane_clearance
-    config = load_config([])
+    config = load_config(["task.observation.lane_choice=false"])  # its own test: test_layout.py
     task = PushOffTask(config.task)
     runner = TaskRunner(task, seed=0, safety=config.safety)
     runner.reset()
     obs = runner.flat_observation()
-    spec = load_config(["task.observation.relative=false", "task.observation.lanes=false"])
+    spec = load_config(["task.observation.relative=false", "task.observation.lanes=false",
+                        "task.observation.lane_choice=false"])
     plain = TaskRunner(PushOffTask(spec.task), seed=0, safety=spec.safety)
     plain.reset()
     base = plain.flat_observation()
