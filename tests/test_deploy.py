@@ -192,3 +192,24 @@ def test_trained_policy_pushes_the_cube_off_through_the_deploy_loop(tmp_path, ca
     ticks = [json.loads(line) for line in telemetry.read_text().splitlines() if "latency_ms" in line]
     assert ticks and all(t["stage"] == "policy" and len(t["u_nom"]) == 3 for t in ticks)
     assert {2, 3} <= {t["phase"] for t in ticks}
+
+
+def test_the_lane_choice_is_planned_from_the_first_perceived_scene():
+    """The world model's own layout at construction is a random one; the observation's lane
+    (task.observation.lane_choice) must come from the first scene perception reports."""
+    from ahrm_stack.env.layout import Layout, choose_lane
+
+    config = load_config(["task.observation.lane_choice=true"])
+    t = config.task
+    directions = list(t.layout.lane_directions)
+    for arm_seed in range(6):
+        arm = SimArm(config.task, seed=arm_seed, clock=FastClock())
+        world = WorldModel(config.task, seed=100)
+        arm.connect()
+        feedback, poses = arm.refresh_feedback(), arm.perception()
+        info = world.update(feedback, poses, 0.0)
+        layout = Layout(poses.cube_position[:2], poses.obstacle_positions[:, :2])
+        lane = choose_lane(layout, info.tip[:2], t.cube.size / 2, np.asarray(t.obstacles.size[:2]) / 2,
+                           t.table, t.layout)
+        np.testing.assert_array_equal(world.observation()[-2:], np.eye(len(directions))[lane])
+        arm.disconnect()
