@@ -14,19 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ahrm_stack.learning.diagnostics import moving_average
+from ahrm_stack.learning.diagnostics import moving_average, pyplot, save_figure
 
 OBJECTIVES = ("avoid", "manipulate", "time")
 ORDER_CODES = ["".join(p) for p in permutations("AMT")]  # the six priority orders
-
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def seed_band(curves: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -50,7 +41,7 @@ def plot_curves(out: Path, runs, methods: list[str], window: int) -> Path | None
     grouped = _by_method(runs, methods)
     if not any(grouped.values()):
         return None
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(13, 4.5))
     for i, (method, group) in enumerate(grouped.items()):
         if not group:
@@ -66,18 +57,14 @@ def plot_curves(out: Path, runs, methods: list[str], window: int) -> Path | None
         ax.set_xlabel("training episode")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    fig.tight_layout()
-    path = Path(out) / "learning_curves.png"
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return save_figure(fig, Path(out) / "learning_curves.png", dpi=90)
 
 
 def plot_objectives(out: Path, runs, methods: list[str], window: int) -> Path | None:
     grouped = _by_method(runs, methods)
     if not any(grouped.values()):
         return None
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(3, 3, figsize=(15, 10), sharex=True)
     for i, (method, group) in enumerate(grouped.items()):
         for k in range(3):
@@ -91,11 +78,7 @@ def plot_objectives(out: Path, runs, methods: list[str], window: int) -> Path | 
     for ax in axes[-1]:
         ax.set_xlabel("training episode")
     axes[0, 0].legend(fontsize=8)
-    fig.tight_layout()
-    path = Path(out) / "objectives_per_phase.png"
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return path
+    return save_figure(fig, Path(out) / "objectives_per_phase.png", dpi=80)
 
 
 def order_index(orders: str, phase: int) -> int:
@@ -108,7 +91,7 @@ def plot_orders(out: Path, runs, methods: list[str]) -> Path | None:
     shown = [m for m in methods if grouped[m]]
     if not shown:
         return None
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(len(shown), 3, figsize=(15, 2.4 * len(shown) + 0.6), squeeze=False,
                              sharey=True)
     for row, method in enumerate(shown):
@@ -126,8 +109,4 @@ def plot_orders(out: Path, runs, methods: list[str]) -> Path | None:
     for ax in axes[-1]:
         ax.set_xlabel("training episode")
     fig.suptitle("priority order per phase (A avoid, M manipulate, T time; highest first)")
-    fig.tight_layout()
-    path = Path(out) / "priority_orders.png"
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return path
+    return save_figure(fig, Path(out) / "priority_orders.png", dpi=80)

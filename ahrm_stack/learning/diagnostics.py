@@ -68,12 +68,26 @@ def moving_average(values: np.ndarray, window: int) -> np.ndarray:
     return (cumulative[index] - cumulative[start]) / (index - start)
 
 
-def plot_run(run_dir: Path, window: int = 20) -> Path:
+def pyplot():
+    """matplotlib's pyplot on the Agg backend (files only; no display needed)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    return plt
+
+
+def save_figure(fig, path: Path, dpi: int) -> Path:
+    """Lay ``fig`` out, write it to ``path`` (PNG at ``dpi``), close it; returns ``path``."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    pyplot().close(fig)
+    return path
+
+
+def plot_run(run_dir: Path, window: int = 20) -> Path:
+    plt = pyplot()
     data = read_episodes(run_dir)
     episode = data["episode"]
     fig, axes = plt.subplots(3, 3, figsize=(15, 11))
@@ -128,11 +142,7 @@ def plot_run(run_dir: Path, window: int = 20) -> Path:
     for ax in axes.flat:
         ax.set_xlabel("episode")
         ax.grid(alpha=0.3)
-    fig.tight_layout()
-    out = Path(run_dir) / "diagnostics.png"
-    fig.savefig(out, dpi=80)
-    plt.close(fig)
-    return out
+    return save_figure(fig, Path(run_dir) / "diagnostics.png", dpi=80)
 
 
 def main(argv: list[str] | None = None) -> int:
