@@ -92,7 +92,8 @@ class SafetyFilter:
         scene: the collision scene, needed for the distance rows (``config.table_distance_rows``,
             ``config.obstacle_rows``, ``config.self_collision_rows``, or a call with
             ``obstacles=True``). The filter places its
-            robot parts; the caller keeps its environment objects current
+            robot parts itself (on transforms of its own; the scene's robot objects move only when
+            a query takes the guarded path); the caller keeps its environment objects current
             (``scene.update_objects``). Building the filter calls ``scene.kinematics.update`` (at
             q = 0) and ``scene.update_robot`` once, to learn where each part sits on its link.
 
