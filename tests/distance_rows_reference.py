@@ -11,6 +11,7 @@ from typing import Mapping, Sequence
 
 import coal
 import numpy as np
+import pinocchio as pin
 
 from ahrm_stack.kinematics.scene import (CollisionScene, bounding_radius, capsule_distance, local_extent,
                                          signed_distance)
@@ -32,6 +33,19 @@ def point_rows(snapshot: ArmSnapshot, frames: Sequence[int], points: np.ndarray,
     jacobians = np.array([placed[f][1] for f in frames])  # k x 6 x nv
     moments = np.einsum("ijk,nj,nk->ni", _LEVI_CIVITA, points - origins, directions)  # r x n
     return np.einsum("ki,kij->kj", np.concatenate((directions, moments), axis=1), jacobians)
+
+
+def placements(snapshot: ArmSnapshot, frames: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
+    """``ArmSnapshot.placements`` as it was: world positions (k x 3, m) and rotation matrices of
+    several frames."""
+    model, data = snapshot.model, snapshot.data
+    placed = [pin.updateFramePlacement(model, data, f) for f in frames]
+    local = np.array([p.translation for p in placed])
+    rotations = np.array([p.rotation for p in placed])
+    if snapshot._identity_base:
+        return local + snapshot.base_translation, rotations
+    return (local @ snapshot.base_rotation.T + snapshot.base_translation,
+            np.einsum("ij,kjl->kil", snapshot.base_rotation, rotations))
 
 
 class ReferenceDistanceLimit:
@@ -135,7 +149,7 @@ class ReferenceDistanceLimit:
         self_collision = self_collision and len(self.self_pairs) > 0
         if not (table or obstacles or self_collision):
             return Rows.empty(nv)
-        centers, part_rotations = snapshot.placements(self._part_frames)
+        centers, part_rotations = placements(snapshot, self._part_frames)
         candidates = []  # (kind, part index, object index or part index)
         if table or obstacles:
             # Bounding test: each moving part's ball against each object's world-aligned box.

@@ -57,6 +57,8 @@ VIOLATION_TOLERANCE = 1e-6  # m: a coupled row short by more than this is report
 # minimised first and the brake towards zero second.
 VIOLATION_WEIGHT = 1e4
 SANE = 1e300  # inputs beyond this magnitude (rad, rad/s, m/s) take the careful path
+# ndarray.all / .any without their Python wrappers (the same reductions): these run at every call
+_all, _any = np.logical_and.reduce, np.logical_or.reduce
 
 
 class SafetyFilterError(ValueError):
@@ -247,7 +249,7 @@ class SafetyFilter:
                                             JointBounds(box[0, 2], box[1, 2]),
                                             JointBounds(box[0, 0], box[1, 0]))
         box_violated: tuple[str, ...] = ()
-        if np.greater(lower, upper).any():
+        if _any(np.greater(lower, upper)):
             lower, upper, box_violated = self._pin_unreachable(velocity, acceleration, position)
 
         # Coupled rows and the objective.
@@ -270,8 +272,8 @@ class SafetyFilter:
         start = time.perf_counter()
         if box_violated:
             outcome = None
-        elif (np.less_equal(lower, free).all() and np.less_equal(free, upper).all()
-              and (not len(bound) or np.less_equal(matrix @ free, bound).all())):
+        elif (_all(np.less_equal(lower, free)) and _all(np.less_equal(free, upper))
+              and (not len(bound) or _all(np.less_equal(matrix @ free, bound)))):
             outcome = Outcome(free, "optimal")
         else:
             outcome = self.solver.solve(hessian, linear, lower, upper, matrix, bound)
@@ -290,9 +292,9 @@ class SafetyFilter:
             margins = bound - matrix @ command
             worst = float(np.minimum.reduce(margins))
             if worst <= ACTIVE_TOLERANCE:
-                active += tuple(rows.names[i] for i in np.flatnonzero(margins <= ACTIVE_TOLERANCE))
+                active += tuple(rows.names[i] for i in (margins <= ACTIVE_TOLERANCE).nonzero()[0])
                 if worst < -VIOLATION_TOLERANCE:
-                    violated += tuple(rows.names[i] for i in np.flatnonzero(margins < -VIOLATION_TOLERANCE))
+                    violated += tuple(rows.names[i] for i in (margins < -VIOLATION_TOLERANCE).nonzero()[0])
         if cartesian:
             modified = fallback or bool(active)
         else:
@@ -316,7 +318,7 @@ class SafetyFilter:
         """A caller-given previous command, made finite (non-finite entries are replaced by the
         measured velocity, or zero) and clipped to the velocity limits."""
         previous = _vector(u_prev, self.num_joints, "u_prev")
-        ok = bool(np.isfinite(previous).all())
+        ok = bool(_all(np.isfinite(previous)))
         if not ok:
             previous = np.where(np.isfinite(previous), previous, np.where(np.isfinite(dq), dq, 0.0))
         limit = self.velocity.limit
@@ -413,11 +415,11 @@ class SafetyFilter:
         written by this call), in one pass: the same names in the same order (family, joint)."""
         at_lower = command <= lower + ACTIVE_TOLERANCE
         at_upper = command >= upper - ACTIVE_TOLERANCE
-        if not (at_lower.any() or at_upper.any()):
+        if not (_any(at_lower) or _any(at_upper)):
             return ()
         box = self._box
         owned = (at_lower & (box[0] == lower)) | (at_upper & (box[1] == upper))  # (family, joint)
-        families, joints = np.nonzero(owned)
+        families, joints = owned.nonzero()
         names = self._bound_names
         return tuple(names[f][i] for f, i in zip(families.tolist(), joints.tolist()))
 

@@ -178,13 +178,13 @@ class DistanceLimit:
             moving = centers[self._moving_rows]
             gap = np.maximum(np.abs(moving[:, None, :] - origins) - half, 0.0)
             near = np.sqrt(np.einsum("ijk,ijk->ij", gap, gap)) - self._moving_radius <= self.activation_distance
-            parts, objects = np.nonzero(near)
+            parts, objects = near.nonzero()
             candidates += [(_TABLE if j == 0 else _OBSTACLE, i, j)
                            for i, j in zip(self._moving[parts].tolist(), (objects + first).tolist())]
         if self_collision:
             offset = centers[self._pair_a] - centers[self._pair_b]
             reach = np.sqrt(np.einsum("ij,ij->i", offset, offset)) - self._pair_radius[0] - self._pair_radius[1]
-            near = np.flatnonzero(reach <= self.activation_distance)
+            near = (reach <= self.activation_distance).nonzero()[0]
             candidates += [(_SELF, self._pair_parts[k][0], k) for k in near.tolist()]
         self.last_queries = len(candidates)
         if not candidates:
