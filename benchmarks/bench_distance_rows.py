@@ -61,20 +61,24 @@ def with_reference_rows(safety, scene, reference):
 
 
 def alternate(fast, slow, inputs, repeats):
-    """Per-call times (s) of both filters, called alternately on the same inputs, and how many
-    commands differed."""
-    fast_times, slow_times, differ = [], [], 0
+    """Per-call wall-clock and CPU times (s; the thread's CPU time leaves out the time the
+    process was not running, which dominates the wall-clock p99 on a loaded machine) of both
+    filters, called alternately on the same inputs, and how many commands differed."""
+    times = {fast: ([], []), slow: ([], [])}
+    differ = 0
+    wall, cpu = time.perf_counter, time.thread_time
     for repeat in range(repeats):
         for k, (q, dq, u_nom, u_prev) in enumerate(inputs):
-            order = ((fast, fast_times), (slow, slow_times))
             commands = []
-            for safety, times in (order if (k + repeat) % 2 else order[::-1]):
-                start = time.perf_counter()
+            for safety in ((fast, slow) if (k + repeat) % 2 else (slow, fast)):
+                start, start_cpu = wall(), cpu()
                 result = safety(q, dq, u_nom, u_prev=u_prev)
-                times.append(time.perf_counter() - start)
+                end_cpu, end = cpu(), wall()
+                times[safety][0].append(end - start)
+                times[safety][1].append(end_cpu - start_cpu)
                 commands.append(result.command)
             differ += not np.array_equal(commands[0], commands[1])
-    return fast_times, slow_times, differ
+    return times[fast], times[slow], differ
 
 
 def main() -> None:
@@ -99,7 +103,7 @@ def main() -> None:
 
     print(f"safety filter per call, fast distance rows against the reference routine, called "
           f"alternately, {args.repeats} x {args.steps} calls per case; times in microseconds")
-    print(f"{'rows':12s} {'fast p50':>9s} {'fast p99':>9s} {'ref p50':>9s} {'ref p99':>9s} "
+    print(f"{'rows':12s} {'':4s} {'fast p50':>9s} {'fast p99':>9s} {'ref p50':>9s} {'ref p99':>9s} "
           f"{'p50 ratio':>9s} {'p99 ratio':>9s}  commands differing")
     ratios = []
     for name, changes, inputs, case_scene in (("default", {}, stream, None),
@@ -109,11 +113,13 @@ def main() -> None:
         fast = build(runner, cfg.safety, changes, scene=case_scene)
         slow = with_reference_rows(build(runner, cfg.safety, changes, scene=case_scene), case_scene, reference)
         fast_times, slow_times, differ = alternate(fast, slow, inputs, args.repeats)
-        f50, f99 = percentiles(fast_times)
-        s50, s99 = percentiles(slow_times)
-        ratios.append((name, s50 / f50, s99 / f99))
-        print(f"{name:12s} {f50:9.1f} {f99:9.1f} {s50:9.1f} {s99:9.1f} {s50 / f50:8.2f}x {s99 / f99:8.2f}x  "
-              f"{differ} of {len(fast_times)}")
+        for clock, f_times, s_times in (("wall", fast_times[0], slow_times[0]),
+                                        ("cpu", fast_times[1], slow_times[1])):
+            f50, f99 = percentiles(f_times)
+            s50, s99 = percentiles(s_times)
+            ratios.append((f"{name} {clock}", s50 / f50, s99 / f99))
+            print(f"{name:12s} {clock:4s} {f50:9.1f} {f99:9.1f} {s50:9.1f} {s99:9.1f} {s50 / f50:8.2f}x "
+                  f"{s99 / f99:8.2f}x  {differ} of {len(f_times)}")
     print("ratio reference/fast (p50, p99): " + ", ".join(f"{n} {a:.2f}x {b:.2f}x" for n, a, b in ratios))
     try:
         load = os.getloadavg()[0]

@@ -9,6 +9,7 @@ either; and when coal fails (raises, answers NaN) the fast path takes the same g
 
 from __future__ import annotations
 
+import coal
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -20,7 +21,7 @@ from ahrm_stack.env.control_step import make_task_filter
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.task import PushOffTask
 from ahrm_stack.kinematics import scene as scene_module
-from ahrm_stack.kinematics.scene import GUARD
+from ahrm_stack.kinematics.scene import GUARD, placed_signed_distance, signed_distance
 from ahrm_stack.safety.constraints import ArmSnapshot, DistanceLimit
 
 
@@ -91,6 +92,34 @@ def _assert_same(fast, reference) -> None:
     assert fast.matrix.shape == reference.matrix.shape
     np.testing.assert_array_equal(fast.matrix, reference.matrix)
     np.testing.assert_array_equal(fast.bound, reference.bound)
+
+
+SHAPES = {"capsule": lambda: coal.Capsule(0.04, 0.2), "cylinder": lambda: coal.Cylinder(0.02, 0.15),
+          "box": lambda: coal.Box(0.06, 0.08, 0.1)}
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), a=st.sampled_from(["capsule", "cylinder"]),
+       b=st.sampled_from(list(SHAPES)), spread=st.sampled_from([0.02, 0.1, 0.3]))
+def test_a_prepared_query_answers_what_signed_distance_answers(seed, a, b, spread):
+    """One functor and one result reused over 30 placements (separated, touching, overlapping):
+    each answer is signed_distance's, bit for bit, or None where that one took its guarded path."""
+    rng = np.random.default_rng(seed)
+    first, second = coal.CollisionObject(SHAPES[a]()), coal.CollisionObject(SHAPES[b]())
+    compute = coal.ComputeDistance(first.collisionGeometry(), second.collisionGeometry())
+    result = coal.DistanceResult()
+    for _ in range(30):
+        for obj in (first, second):
+            obj.setRotation(_rotation(rng))
+            obj.setTranslation(rng.uniform(-spread, spread, 3))
+        normals = GUARD.normals
+        d, point_a, point_b, normal, exact = signed_distance(first, second)
+        answer = placed_signed_distance(compute, result, first.getTransform(), second.getTransform(),
+                                        first.getTranslation().tolist(), second.getTranslation().tolist())
+        if answer is None:
+            assert not exact or GUARD.normals > normals
+        else:
+            assert answer == (d, *point_a.tolist(), *point_b.tolist(), *normal.tolist())
 
 
 @settings(max_examples=60, deadline=None)

@@ -174,6 +174,11 @@ class SafetyFilter:
         self._box[0, 1], self._box[1, 1] = self.velocity.bounds()
         self._step = np.stack((-self.acceleration.step, self.acceleration.step))  # (2, nv)
         self._position_limits = np.stack((self.position.lower, self.position.upper))  # (2, nv)
+        box = self._box  # views into it, made once: the per-family bounds as each call writes them
+        self._box_position, self._box_acceleration = box[:, 0], box[:, 2]
+        self._box_families = (JointBounds(box[0, 1], box[1, 1]), JointBounds(box[0, 2], box[1, 2]),
+                              JointBounds(box[0, 0], box[1, 0]))  # velocity, acceleration, position
+        self._negative_velocity_limit = -self.velocity.limit
         self._rate = 1.0 / self.position.horizon
         self._check = np.empty(3 * nv)
 
@@ -241,13 +246,12 @@ class SafetyFilter:
         # the problem as posed is infeasible.
         # (The same values as the families' ``bounds``, written into the preallocated work space.)
         box = self._box
-        np.add(previous, self._step, out=box[:, 2])  # acceleration
-        np.subtract(self._position_limits, q, out=box[:, 0])  # position: (limit - q) / T
-        box[:, 0] *= self._rate
+        velocity, acceleration, position = self._box_families
+        np.add(previous, self._step, out=self._box_acceleration)
+        position_box = self._box_position  # (limit - q) / T
+        np.subtract(self._position_limits, q, out=position_box)
+        position_box *= self._rate
         lower, upper = np.maximum.reduce(box[0]), np.minimum.reduce(box[1])
-        velocity, acceleration, position = (JointBounds(box[0, 1], box[1, 1]),
-                                            JointBounds(box[0, 2], box[1, 2]),
-                                            JointBounds(box[0, 0], box[1, 0]))
         box_violated: tuple[str, ...] = ()
         if _any(np.greater(lower, upper)):
             lower, upper, box_violated = self._pin_unreachable(velocity, acceleration, position)
@@ -321,8 +325,7 @@ class SafetyFilter:
         ok = bool(_all(np.isfinite(previous)))
         if not ok:
             previous = np.where(np.isfinite(previous), previous, np.where(np.isfinite(dq), dq, 0.0))
-        limit = self.velocity.limit
-        return np.minimum(np.maximum(previous, -limit), limit), ok
+        return np.minimum(np.maximum(previous, self._negative_velocity_limit), self.velocity.limit), ok
 
     def _rows(self, with_obstacles: bool) -> Rows:
         parts = []
