@@ -415,16 +415,19 @@ class SafetyFilter:
 
     def _active_box(self, command, lower, upper) -> tuple[str, ...]:
         """:meth:`_active_bounds` of the three families in the work space ``self._box`` (as
-        written by this call), in one pass: the same names in the same order (family, joint)."""
-        at_lower = command <= lower + ACTIVE_TOLERANCE
-        at_upper = command >= upper - ACTIVE_TOLERANCE
-        if not (_any(at_lower) or _any(at_upper)):
+        written by this call), in one pass: the same names in the same order (family, joint). In
+        plain floats (the same comparisons as numpy's): six joints are cheaper so than in arrays."""
+        low, high = lower.tolist(), upper.tolist()
+        values = command.tolist()
+        at_lower = [c <= b + ACTIVE_TOLERANCE for c, b in zip(values, low)]
+        at_upper = [c >= b - ACTIVE_TOLERANCE for c, b in zip(values, high)]
+        if not (True in at_lower or True in at_upper):
             return ()
-        box = self._box
-        owned = (at_lower & (box[0] == lower)) | (at_upper & (box[1] == upper))  # (family, joint)
-        families, joints = owned.nonzero()
+        box_low, box_high = self._box.tolist()  # (family, joint) each
         names = self._bound_names
-        return tuple(names[f][i] for f, i in zip(families.tolist(), joints.tolist()))
+        joints = range(len(low))
+        return tuple([names[f][i] for f in range(len(names)) for i in joints
+                      if (at_lower[i] and box_low[f][i] == low[i]) or (at_upper[i] and box_high[f][i] == high[i])])
 
     def _active_bounds(self, command, lower, upper, families) -> tuple[str, ...]:
         """Names of the hard bounds the command sits on (within ACTIVE_TOLERANCE); ``families``:
