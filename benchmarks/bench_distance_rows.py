@@ -4,7 +4,10 @@ Two filters on the same scene, one with the shipped ``DistanceLimit`` (fast: coa
 transforms set up once, the rows assembled in a few array operations), one with the reference
 routine of ``tests/distance_rows_reference.py`` (one ``signed_distance`` per pair, a fresh coal
 result each, rows assembled pair by pair). They are called alternately on the same inputs (so a
-loaded machine slows both alike), and their commands are compared bit for bit. Cases:
+loaded machine slows both alike), and their commands are compared bit for bit; then the distance
+rows alone (``DistanceLimit.rows``) the same way. "wall" is perf_counter, "cpu" the thread's CPU
+time (it leaves out the time the process was not running, which decides the wall-clock p99 on a
+loaded machine). Cases:
 
 * default      — the shipped configs/safety.yaml (table, workspace, table distance and self rows)
                  on the states of a random-policy episode (bench_safety.record_stream);
@@ -81,6 +84,22 @@ def alternate(fast, slow, inputs, repeats):
     return times[fast], times[slow], differ
 
 
+def alternate_rows(fast, slow, inputs, repeats, obstacles):
+    """Per-call CPU times (s) of the two filters' distance rows alone (``DistanceLimit.rows``
+    after the kinematics update), alternately on the same joint positions."""
+    times: dict = {fast: [], slow: []}
+    config = fast.config
+    for repeat in range(repeats):
+        for k, (q, *_) in enumerate(inputs):
+            for safety in ((fast, slow) if (k + repeat) % 2 else (slow, fast)):
+                safety._snapshot.update(q)
+                start = time.thread_time()
+                safety.distances.rows(safety._snapshot, config.table_distance_rows, obstacles,
+                                      config.self_collision_rows)
+                times[safety].append(time.thread_time() - start)
+    return times[fast], times[slow]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     cli.add_verbose_flag(parser)
@@ -120,6 +139,11 @@ def main() -> None:
             ratios.append((f"{name} {clock}", s50 / f50, s99 / f99))
             print(f"{name:12s} {clock:4s} {f50:9.1f} {f99:9.1f} {s50:9.1f} {s99:9.1f} {s50 / f50:8.2f}x "
                   f"{s99 / f99:8.2f}x  {differ} of {len(f_times)}")
+        f_rows, s_rows = alternate_rows(fast, slow, inputs, args.repeats, bool(changes))
+        (f50, f99), (s50, s99) = percentiles(f_rows), percentiles(s_rows)
+        ratios.append((f"{name} rows", s50 / f50, s99 / f99))
+        print(f"{name:12s} {'rows':4s} {f50:9.1f} {f99:9.1f} {s50:9.1f} {s99:9.1f} {s50 / f50:8.2f}x "
+              f"{s99 / f99:8.2f}x  (the distance rows alone, CPU time)")
     print("ratio reference/fast (p50, p99): " + ", ".join(f"{n} {a:.2f}x {b:.2f}x" for n, a, b in ratios))
     try:
         load = os.getloadavg()[0]
