@@ -20,6 +20,7 @@ RATIO_LINE = {  # a line each benchmark prints when it got to its figures
     "bench_camera_scene.py": "ratio camera/true successes",
     "bench_config.py": "ratio config/plain attribute access",
     "bench_deploy.py": "share of the summed tick time",
+    "bench_distance_rows.py": "ratio reference/fast",
     "bench_env_step.py": "ratio full/bare",
     "bench_kinova_gen2.py": "ratio sends per policy tick",
     "bench_phases.py": "ratio reference/fast",

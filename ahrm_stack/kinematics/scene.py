@@ -249,6 +249,37 @@ def signed_distance(a: coal.CollisionObject, b: coal.CollisionObject
     return (*bounding_distance(a, b), False)
 
 
+def placed_signed_distance(compute: coal.ComputeDistance, result: coal.DistanceResult,
+                           transform_a: coal.Transform3s, transform_b: coal.Transform3s,
+                           center_a: Sequence[float], center_b: Sequence[float]) -> tuple[float, ...] | None:
+    """:func:`signed_distance` on its common path, set up once: ``compute`` is
+    ``coal.ComputeDistance(geometry_a, geometry_b)``, ``result`` a ``DistanceResult`` reused from
+    call to call (cleared here), the shapes placed at ``transform_a`` and ``transform_b`` with
+    origins ``center_a`` and ``center_b`` (world, m). Returns the distance (m), the witness points
+    on a and on b and the normal from b towards a, as ten plain floats, bit for bit what
+    :func:`signed_distance` returns for the same placements; None where :func:`signed_distance`
+    would take another path (coal raised, or answered with a non-finite, absurd or non-unit value,
+    or a normal that does not separate): then ask :func:`signed_distance` itself, which guards the
+    answer and counts it in :data:`GUARD`."""
+    result.clear()  # a DistanceResult keeps the smallest distance it has seen
+    try:
+        d = float(compute(transform_a, transform_b, _REQUEST, result))
+    except Exception:  # noqa: BLE001 - signed_distance answers it, guarded
+        return None
+    ax, ay, az = result.getNearestPoint1().tolist()
+    bx, by, bz = result.getNearestPoint2().tolist()
+    mx, my, mz = result.normal.tolist()
+    nx, ny, nz = -mx, -my, -mz  # coal's normal points from a to b
+    cax, cay, caz = center_a
+    cbx, cby, cbz = center_b
+    if (abs(d) < _SANE_DISTANCE and abs(ax + ay + az + bx + by + bz) < _SANE_DISTANCE
+            and abs(nx * nx + ny * ny + nz * nz - 1.0) <= _UNIT_TOLERANCE
+            and not nx * (cax - ax) + ny * (cay - ay) + nz * (caz - az) < -_SIDE_TOLERANCE
+            and not nx * (cbx - bx) + ny * (cby - by) + nz * (cbz - bz) > _SIDE_TOLERANCE):
+        return d, ax, ay, az, bx, by, bz, nx, ny, nz
+    return None
+
+
 def capsule_distance(center_a: Sequence[float], axis_a: Sequence[float], half_a: float, radius_a: float,
                      center_b: Sequence[float], axis_b: Sequence[float], half_b: float, radius_b: float
                      ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
@@ -256,7 +287,17 @@ def capsule_distance(center_a: Sequence[float], axis_a: Sequence[float], half_a:
     (world, m; ``axis`` a unit vector) swept by ``radius`` (m). Returns the distance (m; minus
     the penetration depth while the segments do not cross), the witness points on a and on b and
     the unit normal from b towards a, as :func:`signed_distance`. The segments' closest points are
-    Ericson's (Real-Time Collision Detection, 5.1.9), in plain floats: this runs for the
+    Ericson's (Real-Time Collision Detection, 5.1.9), in plain floats (:func:`capsule_distance_floats`)."""
+    d, ax, ay, az, bx, by, bz, nx, ny, nz = capsule_distance_floats(
+        center_a, axis_a, half_a, radius_a, center_b, axis_b, half_b, radius_b)
+    return d, np.array([ax, ay, az]), np.array([bx, by, bz]), np.array([nx, ny, nz])
+
+
+def capsule_distance_floats(center_a: Sequence[float], axis_a: Sequence[float], half_a: float,
+                            radius_a: float, center_b: Sequence[float], axis_b: Sequence[float],
+                            half_b: float, radius_b: float) -> tuple[float, ...]:
+    """:func:`capsule_distance` as ten plain floats: the distance (m), the witness point on a, the
+    witness point on b and the normal from b towards a (x, y, z each). This runs for the
     self-collision pairs at every filter call."""
     ax, ay, az = axis_a
     bx, by, bz = axis_b
@@ -296,9 +337,9 @@ def capsule_distance(center_a: Sequence[float], axis_a: Sequence[float], half_a:
         length = math.sqrt(gx * gx + gy * gy + gz * gz)
         nx, ny, nz = (gx / length, gy / length, gz / length) if length > _CROSSING else (0.0, 0.0, 1.0)
     return (between - radius_a - radius_b,
-            np.array([c1[0] - radius_a * nx, c1[1] - radius_a * ny, c1[2] - radius_a * nz]),
-            np.array([c2[0] + radius_b * nx, c2[1] + radius_b * ny, c2[2] + radius_b * nz]),
-            np.array([nx, ny, nz]))
+            c1[0] - radius_a * nx, c1[1] - radius_a * ny, c1[2] - radius_a * nz,
+            c2[0] + radius_b * nx, c2[1] + radius_b * ny, c2[2] + radius_b * nz,
+            nx, ny, nz)
 
 
 def _transform(rotation: np.ndarray, translation: np.ndarray) -> coal.Transform3s:

@@ -57,6 +57,8 @@ VIOLATION_TOLERANCE = 1e-6  # m: a coupled row short by more than this is report
 # minimised first and the brake towards zero second.
 VIOLATION_WEIGHT = 1e4
 SANE = 1e300  # inputs beyond this magnitude (rad, rad/s, m/s) take the careful path
+# ndarray.all / .any without their Python wrappers (the same reductions): these run at every call
+_all, _any = np.logical_and.reduce, np.logical_or.reduce
 
 
 class SafetyFilterError(ValueError):
@@ -92,7 +94,8 @@ class SafetyFilter:
         scene: the collision scene, needed for the distance rows (``config.table_distance_rows``,
             ``config.obstacle_rows``, ``config.self_collision_rows``, or a call with
             ``obstacles=True``). The filter places its
-            robot parts; the caller keeps its environment objects current
+            robot parts itself (on transforms of its own; the scene's robot objects move only when
+            a query takes the guarded path); the caller keeps its environment objects current
             (``scene.update_objects``). Building the filter calls ``scene.kinematics.update`` (at
             q = 0) and ``scene.update_robot`` once, to learn where each part sits on its link.
 
@@ -171,6 +174,11 @@ class SafetyFilter:
         self._box[0, 1], self._box[1, 1] = self.velocity.bounds()
         self._step = np.stack((-self.acceleration.step, self.acceleration.step))  # (2, nv)
         self._position_limits = np.stack((self.position.lower, self.position.upper))  # (2, nv)
+        box = self._box  # views into it, made once: the per-family bounds as each call writes them
+        self._box_position, self._box_acceleration = box[:, 0], box[:, 2]
+        self._box_families = (JointBounds(box[0, 1], box[1, 1]), JointBounds(box[0, 2], box[1, 2]),
+                              JointBounds(box[0, 0], box[1, 0]))  # velocity, acceleration, position
+        self._negative_velocity_limit = -self.velocity.limit
         self._rate = 1.0 / self.position.horizon
         self._check = np.empty(3 * nv)
 
@@ -238,15 +246,14 @@ class SafetyFilter:
         # the problem as posed is infeasible.
         # (The same values as the families' ``bounds``, written into the preallocated work space.)
         box = self._box
-        np.add(previous, self._step, out=box[:, 2])  # acceleration
-        np.subtract(self._position_limits, q, out=box[:, 0])  # position: (limit - q) / T
-        box[:, 0] *= self._rate
+        velocity, acceleration, position = self._box_families
+        np.add(previous, self._step, out=self._box_acceleration)
+        position_box = self._box_position  # (limit - q) / T
+        np.subtract(self._position_limits, q, out=position_box)
+        position_box *= self._rate
         lower, upper = np.maximum.reduce(box[0]), np.minimum.reduce(box[1])
-        velocity, acceleration, position = (JointBounds(box[0, 1], box[1, 1]),
-                                            JointBounds(box[0, 2], box[1, 2]),
-                                            JointBounds(box[0, 0], box[1, 0]))
         box_violated: tuple[str, ...] = ()
-        if np.greater(lower, upper).any():
+        if _any(np.greater(lower, upper)):
             lower, upper, box_violated = self._pin_unreachable(velocity, acceleration, position)
 
         # Coupled rows and the objective.
@@ -269,8 +276,8 @@ class SafetyFilter:
         start = time.perf_counter()
         if box_violated:
             outcome = None
-        elif (np.less_equal(lower, free).all() and np.less_equal(free, upper).all()
-              and (not len(bound) or np.less_equal(matrix @ free, bound).all())):
+        elif (_all(np.less_equal(lower, free)) and _all(np.less_equal(free, upper))
+              and (not len(bound) or _all(np.less_equal(matrix @ free, bound)))):
             outcome = Outcome(free, "optimal")
         else:
             outcome = self.solver.solve(hessian, linear, lower, upper, matrix, bound)
@@ -289,9 +296,9 @@ class SafetyFilter:
             margins = bound - matrix @ command
             worst = float(np.minimum.reduce(margins))
             if worst <= ACTIVE_TOLERANCE:
-                active += tuple(rows.names[i] for i in np.flatnonzero(margins <= ACTIVE_TOLERANCE))
+                active += tuple(rows.names[i] for i in (margins <= ACTIVE_TOLERANCE).nonzero()[0])
                 if worst < -VIOLATION_TOLERANCE:
-                    violated += tuple(rows.names[i] for i in np.flatnonzero(margins < -VIOLATION_TOLERANCE))
+                    violated += tuple(rows.names[i] for i in (margins < -VIOLATION_TOLERANCE).nonzero()[0])
         if cartesian:
             modified = fallback or bool(active)
         else:
@@ -315,11 +322,10 @@ class SafetyFilter:
         """A caller-given previous command, made finite (non-finite entries are replaced by the
         measured velocity, or zero) and clipped to the velocity limits."""
         previous = _vector(u_prev, self.num_joints, "u_prev")
-        ok = bool(np.isfinite(previous).all())
+        ok = bool(_all(np.isfinite(previous)))
         if not ok:
             previous = np.where(np.isfinite(previous), previous, np.where(np.isfinite(dq), dq, 0.0))
-        limit = self.velocity.limit
-        return np.minimum(np.maximum(previous, -limit), limit), ok
+        return np.minimum(np.maximum(previous, self._negative_velocity_limit), self.velocity.limit), ok
 
     def _rows(self, with_obstacles: bool) -> Rows:
         parts = []
@@ -409,16 +415,19 @@ class SafetyFilter:
 
     def _active_box(self, command, lower, upper) -> tuple[str, ...]:
         """:meth:`_active_bounds` of the three families in the work space ``self._box`` (as
-        written by this call), in one pass: the same names in the same order (family, joint)."""
-        at_lower = command <= lower + ACTIVE_TOLERANCE
-        at_upper = command >= upper - ACTIVE_TOLERANCE
-        if not (at_lower.any() or at_upper.any()):
+        written by this call), in one pass: the same names in the same order (family, joint). In
+        plain floats (the same comparisons as numpy's): six joints are cheaper so than in arrays."""
+        low, high = lower.tolist(), upper.tolist()
+        values = command.tolist()
+        at_lower = [c <= b + ACTIVE_TOLERANCE for c, b in zip(values, low)]
+        at_upper = [c >= b - ACTIVE_TOLERANCE for c, b in zip(values, high)]
+        if not (True in at_lower or True in at_upper):
             return ()
-        box = self._box
-        owned = (at_lower & (box[0] == lower)) | (at_upper & (box[1] == upper))  # (family, joint)
-        families, joints = np.nonzero(owned)
+        box_low, box_high = self._box.tolist()  # (family, joint) each
         names = self._bound_names
-        return tuple(names[f][i] for f, i in zip(families.tolist(), joints.tolist()))
+        joints = range(len(low))
+        return tuple([names[f][i] for f in range(len(names)) for i in joints
+                      if (at_lower[i] and box_low[f][i] == low[i]) or (at_upper[i] and box_high[f][i] == high[i])])
 
     def _active_bounds(self, command, lower, upper, families) -> tuple[str, ...]:
         """Names of the hard bounds the command sits on (within ACTIVE_TOLERANCE); ``families``:

@@ -56,9 +56,9 @@ class ControlPoints(NamedTuple):
 
 
 _AXES = "xyz"
-_LEVI_CIVITA = np.zeros((3, 3, 3))
-_LEVI_CIVITA[0, 1, 2] = _LEVI_CIVITA[1, 2, 0] = _LEVI_CIVITA[2, 0, 1] = 1.0
-_LEVI_CIVITA[0, 2, 1] = _LEVI_CIVITA[2, 1, 0] = _LEVI_CIVITA[1, 0, 2] = -1.0
+# (r x n)_i = r_{i+1} n_{i+2} - r_{i+2} n_{i+1}, indices mod 3: the factors of both products
+_R_CROSS = np.array([1, 2, 0, 2, 0, 1])
+_N_CROSS = np.array([2, 0, 1, 1, 2, 0])
 
 
 class CoordinateRows:
@@ -179,9 +179,8 @@ class ArmSnapshot:
     def placements(self, frames: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
         """World positions (k x 3, m) and rotation matrices (k x 3 x 3) of several frames."""
         model, data = self.model, self.data
-        placed = [pin.updateFramePlacement(model, data, f) for f in frames]
-        local = np.array([p.translation for p in placed])
-        rotations = np.array([p.rotation for p in placed])
+        homogeneous = np.array([pin.updateFramePlacement(model, data, f).homogeneous for f in frames])
+        local, rotations = homogeneous[:, :3, 3], homogeneous[:, :3, :3]
         if self._identity_base:
             return local + self.base_translation, rotations
         return (local @ self.base_rotation.T + self.base_translation,
@@ -199,14 +198,19 @@ class ArmSnapshot:
         self.update(self._q)
         return new
 
-    def point_rows(self, frames: Sequence[int], points: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    def point_rows(self, frames: Sequence[int], points: np.ndarray, directions: np.ndarray,
+                   origins: np.ndarray | None = None) -> np.ndarray:
         """``directions[k]^T J_k`` (k x nv, m per rad/s along the unit ``directions[k]``) with J_k
         the linear Jacobian of the world point ``points[k]`` (m) rigidly attached to
         ``frames[k]``: ``J_v - [r]_x J_w``, r the point relative to the frame's origin, so
-        ``n^T J_k = n^T J_v + (r x n)^T J_w``."""
-        placed = {f: (self.position(f), self.jacobian(f)) for f in set(frames)}
-        origins = np.array([placed[f][0] for f in frames])
-        jacobians = np.array([placed[f][1] for f in frames])  # k x 6 x nv
-        moments = np.einsum("ijk,nj,nk->ni", _LEVI_CIVITA, points - origins, directions)  # r x n
+        ``n^T J_k = n^T J_v + (r x n)^T J_w``. ``origins`` (k x 3, m): the frames' world positions
+        when the caller has them (:meth:`placements`), else they are looked up here."""
+        if origins is None:
+            placed = {f: self.position(f) for f in set(frames)}
+            origins = np.array([placed[f] for f in frames])
+        jacobian = self.jacobian
+        jacobians = np.array([jacobian(f) for f in frames])  # k x 6 x nv
+        # r x n: (r_{i+1} n_{i+2}) - (r_{i+2} n_{i+1}), indices mod 3, both products in one
+        products = (points - origins)[:, _R_CROSS] * directions[:, _N_CROSS]
+        moments = products[:, :3] - products[:, 3:]
         return np.einsum("ki,kij->kj", np.concatenate((directions, moments), axis=1), jacobians)
-

@@ -17,6 +17,13 @@ rows between two parts of the arm (the configured self-collision pairs) ``self:<
 The base never moves: it only takes part in self-collision pairs. Pairs that cannot be within the
 activation distance are skipped without a query, by a bound of each part's bounding ball against
 each object's world-aligned bounding box (or the other part's ball).
+
+The per-call work is set up once: a ``coal.ComputeDistance`` per pair of shapes, a ``Transform3s``
+per robot part updated in place, one reused ``DistanceResult``
+(:func:`~ahrm_stack.kinematics.scene.placed_signed_distance`, bit for bit what ``signed_distance``
+answers; its guarded path where that one would take it), the pairs' names and indices in tables.
+``tests/distance_rows_reference.py`` keeps the routine before this, which the tests hold this one to
+(the same rows, bit for bit) and ``benchmarks/bench_distance_rows.py`` times this one against.
 """
 
 from __future__ import annotations
@@ -26,8 +33,8 @@ from typing import Mapping, Sequence
 import coal
 import numpy as np
 
-from ahrm_stack.kinematics.scene import (CollisionScene, bounding_radius, capsule_distance, local_extent,
-                                         signed_distance)
+from ahrm_stack.kinematics.scene import (CollisionScene, bounding_radius, capsule_distance_floats,
+                                         local_extent, placed_signed_distance, signed_distance)
 from ahrm_stack.safety.constraints.base import ArmSnapshot, ConstraintDefinitionError, Rows
 
 TABLE = "table"
@@ -96,6 +103,7 @@ class DistanceLimit:
         self.self_pairs = tuple((self.part_names[i], self.part_names[j]) for i, j in pairs)
         self._pair_a = np.array([p[0] for p in pairs], dtype=int)
         self._pair_b = np.array([p[1] for p in pairs], dtype=int)
+        self._pair_parts = pairs  # (part a, part b) of each self pair, plain ints
         # A frame at each part's origin, fixed to the frame carrying it, as the scene placed it.
         self._part_frames = [snapshot.attach_frame(f"safety/{name}", int(part_frames[name]),
                                                    obj.getTranslation(), obj.getRotation())
@@ -104,6 +112,12 @@ class DistanceLimit:
         self.object_names = (TABLE,) + tuple(n for n in scene.environment if n.startswith("obstacle_"))
         self._objects = [scene.environment[name] for name in self.object_names]
         self._part_radius = np.array([bounding_radius(o.collisionGeometry()) for o in self._parts])
+        self._pair_radius = (self._part_radius[self._pair_a], self._part_radius[self._pair_b])
+        self._moving_radius = self._part_radius[self._moving, None]
+        # the moving parts' rows of the placements: a slice when they are consecutive (no copy)
+        first = int(self._moving[0]) if len(self._moving) else 0
+        consecutive = np.array_equal(self._moving, np.arange(first, first + len(self._moving)))
+        self._moving_rows = slice(first, first + len(self._moving)) if consecutive else self._moving
         # For the bounding test: the table's world-aligned box as it lies (the scene never moves
         # it); each obstacle's local box, turned with it at every call.
         table = self._objects[0]
@@ -119,6 +133,18 @@ class DistanceLimit:
         self._capsule = [isinstance(o.collisionGeometry(), coal.Capsule) for o in self._parts]
         self._half_radius = [(float(o.collisionGeometry().halfLength), float(o.collisionGeometry().radius))
                              for o in self._parts]
+        # Set up once for the queries: each part's placement (updated in place), one result, and
+        # a distance functor per (part, object) and per self pair that coal answers.
+        self._transforms = [coal.Transform3s() for _ in self._parts]
+        self._result = coal.DistanceResult()
+        moving = set(self._moving.tolist())
+        self._object_compute = [[coal.ComputeDistance(part.collisionGeometry(), obj.collisionGeometry())
+                                 for obj in self._objects] if i in moving else []
+                                for i, part in enumerate(self._parts)]
+        self._self_compute = [None if self._capsule[a] and self._capsule[b] else
+                              coal.ComputeDistance(self._parts[a].collisionGeometry(),
+                                                   self._parts[b].collisionGeometry())
+                              for a, b in pairs]
         self.last_queries = 0  # distance queries made by the last call (after the bounding test)
 
     def max_rows(self, table: bool, obstacles: bool, self_collision: bool = False) -> int:
@@ -136,7 +162,7 @@ class DistanceLimit:
         if not (table or obstacles or self_collision):
             return Rows.empty(nv)
         centers, part_rotations = snapshot.placements(self._part_frames)
-        candidates = []  # (kind, part index, object index or part index)
+        candidates = []  # (kind, part index, object index or self pair index)
         if table or obstacles:
             # Bounding test: each moving part's ball against each object's world-aligned box.
             first = 0 if table else 1
@@ -149,65 +175,102 @@ class DistanceLimit:
                 half = np.concatenate(([self._table_half], half)) if table else half
             else:
                 origins, half = self._table_origin[None], self._table_half[None]
-            moving = centers[self._moving]
+            moving = centers[self._moving_rows]
             gap = np.maximum(np.abs(moving[:, None, :] - origins) - half, 0.0)
-            near = np.sqrt(np.einsum("ijk,ijk->ij", gap, gap)) - self._part_radius[self._moving, None] \
-                <= self.activation_distance
-            parts, objects = np.nonzero(near)
+            near = np.sqrt(np.einsum("ijk,ijk->ij", gap, gap)) - self._moving_radius <= self.activation_distance
+            parts, objects = near.nonzero()
             candidates += [(_TABLE if j == 0 else _OBSTACLE, i, j)
                            for i, j in zip(self._moving[parts].tolist(), (objects + first).tolist())]
         if self_collision:
             offset = centers[self._pair_a] - centers[self._pair_b]
-            reach = np.sqrt(np.einsum("ij,ij->i", offset, offset)) \
-                - self._part_radius[self._pair_a] - self._part_radius[self._pair_b]
-            near = np.flatnonzero(reach <= self.activation_distance)
-            candidates += [(_SELF, i, j) for i, j in zip(self._pair_a[near].tolist(),
-                                                         self._pair_b[near].tolist())]
+            reach = np.sqrt(np.einsum("ij,ij->i", offset, offset)) - self._pair_radius[0] - self._pair_radius[1]
+            near = (reach <= self.activation_distance).nonzero()[0]
+            candidates += [(_SELF, self._pair_parts[k][0], k) for k in near.tolist()]
         self.last_queries = len(candidates)
         if not candidates:
             return Rows.empty(nv)
-        # Signed distances, witness points and normals of the candidates.
-        placed = set()
-        found = []
-        for kind, i, j in candidates:
-            if kind == _SELF and self._capsule[i] and self._capsule[j]:
-                d, point_a, point_b, normal = capsule_distance(
-                    centers[i].tolist(), part_rotations[i][:, 2].tolist(), *self._half_radius[i],
-                    centers[j].tolist(), part_rotations[j][:, 2].tolist(), *self._half_radius[j])
-                if d <= self.activation_distance:
-                    found.append((kind, d, i, j, point_a, point_b, normal))
-                continue
-            for k in ((i, j) if kind == _SELF else (i,)):
-                if k not in placed:
-                    self._parts[k].setRotation(part_rotations[k])
-                    self._parts[k].setTranslation(centers[k])
-                    placed.add(k)
-            other = self._parts[j] if kind == _SELF else self._objects[j]
-            d, point_a, point_b, normal, _ = signed_distance(self._parts[i], other)
-            if d <= self.activation_distance:
-                found.append((kind, d, i, j, point_a, point_b, normal))
+        # Signed distances, witness points and normals of the candidates: (kind, d, part, object
+        # or pair index, 9 floats: witness on the part, witness on the other, normal towards the part).
+        found = self._measure(candidates, centers, part_rotations)
         if not found:
             return Rows.empty(nv)
         obstacle_rows = sorted((f for f in found if f[0] == _OBSTACLE), key=lambda f: f[1])
         found = ([f for f in found if f[0] == _TABLE] + obstacle_rows[:self.max_obstacle_rows]
                  + [f for f in found if f[0] == _SELF])
-        # The rows, all at once: row = -T n^T (J_a(p_a) - J_b(p_b)), J_b = 0 off the arm.
-        distance = np.array([f[1] for f in found])
-        normal = np.array([f[6] for f in found])
-        frames = [self._part_frames[f[2]] for f in found]
-        points = [f[4] for f in found]
-        directions = list(normal)
-        moving_b = [k for k, f in enumerate(found) if f[0] == _SELF]
-        frames += [self._part_frames[found[k][3]] for k in moving_b]
-        points += [found[k][5] for k in moving_b]
-        directions += [-normal[k] for k in moving_b]
-        rates = snapshot.point_rows(frames, np.array(points), np.array(directions))
-        matrix = rates[:len(found)]
-        if moving_b:
-            matrix[moving_b] += rates[len(found):]
-        names = tuple(self._self_names[self._pair_index(f[2], f[3])] if f[0] == _SELF
-                      else self._names[f[2]][f[3]] for f in found)
-        return Rows(-self.horizon * matrix, distance - self.safe_distance, names)
+        # The rows, all at once: row = -T n^T (J_a(p_a) - J_b(p_b)), J_b = 0 off the arm; the
+        # self rows (last) get -n^T J_b(p_b) as rows of their own, added below.
+        count = len(found)
+        carriers = [f[2] for f in found]  # the part carrying each witness point
+        points = [f[4][:3] for f in found]
+        directions = [f[4][6:] for f in found]
+        own = count
+        for f in found:
+            if f[0] == _SELF:
+                own -= 1
+                b = self._pair_parts[f[3]][1]
+                carriers.append(b)
+                points.append(f[4][3:6])
+                directions.append(tuple(-x for x in f[4][6:]))
+        part_frames = self._part_frames
+        rates = snapshot.point_rows([part_frames[k] for k in carriers], np.array(points),
+                                    np.array(directions), centers[carriers])
+        matrix = rates[:count]
+        if own < count:
+            matrix[own:] += rates[count:]
+        names = tuple(self._self_names[f[3]] if f[0] == _SELF else self._names[f[2]][f[3]] for f in found)
+        return Rows(-self.horizon * matrix, np.array([f[1] for f in found]) - self.safe_distance, names)
 
-    def _pair_index(self, a: int, b: int) -> int:
-        return int(np.flatnonzero((self._pair_a == a) & (self._pair_b == b))[0])
+    def _measure(self, candidates: list[tuple[int, int, int]], centers: np.ndarray, rotations: np.ndarray
+                 ) -> list[tuple[int, float, int, int, tuple[float, ...]]]:
+        """The candidates within the activation distance, measured: one tuple (kind, d, a, b,
+        the 9 floats of witness a, witness b, normal) each, in the candidates' order; ``b`` is
+        the object index for table and obstacle rows, the pair index for self rows."""
+        centers_list = centers.tolist()
+        axes = rotations[:, :, 2].tolist()
+        transforms, placed = self._transforms, [False] * len(self._parts)
+        result, activation = self._result, self.activation_distance
+        objects: dict[int, tuple[coal.Transform3s, list[float]]] = {}  # object index -> transform, origin
+        found = []
+        for kind, i, j in candidates:
+            if kind == _SELF:
+                a, b = self._pair_parts[j]
+                compute = self._self_compute[j]
+                if compute is None:  # two capsules: closed form
+                    answer = capsule_distance_floats(centers_list[a], axes[a], *self._half_radius[a],
+                                                     centers_list[b], axes[b], *self._half_radius[b])
+                else:
+                    for k in (a, b):
+                        if not placed[k]:
+                            transforms[k].setRotation(rotations[k])
+                            transforms[k].setTranslation(centers[k])
+                            placed[k] = True
+                    answer = (placed_signed_distance(compute, result, transforms[a], transforms[b],
+                                                     centers_list[a], centers_list[b])
+                              or self._guarded(a, self._parts[b], centers, rotations, b))
+            else:
+                a = i
+                if not placed[a]:
+                    transforms[a].setRotation(rotations[a])
+                    transforms[a].setTranslation(centers[a])
+                    placed[a] = True
+                other = objects.get(j)
+                if other is None:
+                    obj = self._objects[j]
+                    other = objects[j] = (obj.getTransform(), obj.getTranslation().tolist())
+                answer = (placed_signed_distance(self._object_compute[a][j], result, transforms[a],
+                                                 other[0], centers_list[a], other[1])
+                          or self._guarded(a, self._objects[j], centers, rotations))
+            if answer[0] <= activation:
+                found.append((kind, answer[0], a, j, answer[1:]))
+        return found
+
+    def _guarded(self, a: int, other: coal.CollisionObject, centers: np.ndarray, rotations: np.ndarray,
+                 b: int | None = None) -> tuple[float, ...]:
+        """:func:`signed_distance` itself on the scene's objects, placed: the guarded answer
+        (counted in ``GUARD``), as the ten floats of ``placed_signed_distance``."""
+        for k in (a,) if b is None else (a, b):
+            self._parts[k].setRotation(rotations[k])
+            self._parts[k].setTranslation(centers[k])
+        d, point_a, point_b, normal, _ = signed_distance(self._parts[a], other)
+        return (d, *point_a.tolist(), *point_b.tolist(), *normal.tolist())
+

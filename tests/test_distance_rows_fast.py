@@ -1,0 +1,216 @@
+"""The distance rows' fast path gives, bit for bit, the rows of the routine it replaced.
+
+``tests/distance_rows_reference.py`` keeps that routine (one ``signed_distance`` per candidate
+pair, a fresh coal result each, the rows assembled pair by pair). On random configurations of both
+arms, random obstacle poses crowding the arm and every combination of the row switches, both give
+the same matrix, bounds, names and number of queries; the filter gives the same commands with
+either; and when coal fails (raises, answers NaN) the fast path takes the same guarded answer. One
+prepared coal query (functor and result reused) answers what ``signed_distance`` answers, bit for bit.
+"""
+
+from __future__ import annotations
+
+import coal
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from distance_rows_reference import ReferenceDistanceLimit
+from ahrm_stack.config import load_config
+from ahrm_stack.env.control_step import make_task_filter
+from ahrm_stack.env.runner import TaskRunner
+from ahrm_stack.env.task import PushOffTask
+from ahrm_stack.kinematics import scene as scene_module
+from ahrm_stack.kinematics.scene import GUARD, placed_signed_distance, signed_distance
+from ahrm_stack.safety.constraints import ArmSnapshot, DistanceLimit
+
+
+class Pair:
+    """The fast and the reference distance rows of one arm, each on its own kinematics snapshot,
+    over one collision scene."""
+
+    def __init__(self, robot: str) -> None:
+        config = load_config([f"task.robot={robot}"])
+        self.runner = TaskRunner(PushOffTask(config.task), seed=0)
+        self.runner.reset()
+        task = self.runner.task
+        self.task, self.config = task, config
+        self.scene = task.make_collision_scene(self.runner.physics)
+        self.filter = make_task_filter(task, config.safety, scene=self.scene)  # places the scene's parts at q = 0
+        self.fast: DistanceLimit = self.filter.distances
+        self.snapshot = self.filter._snapshot
+        kin = task.kinematics
+        identity = kin.model.nq == task.robot.num_joints and not len(kin.joint_map.continuous)
+        self.reference_snapshot = ArmSnapshot(kin.model, kin.base, None if identity else kin.configuration)
+        self.reference_snapshot.update(np.zeros(task.robot.num_joints))
+        safety = config.safety
+        frames = {name: kin.frame_id(name) for name in self.scene.robot if name != "pusher"}
+        frames["pusher"] = kin.element_frame_id(task.pusher.tip_site)
+        self.reference = ReferenceDistanceLimit(
+            self.scene, self.reference_snapshot, frames, safety.obstacle_safe_distance,
+            safety.obstacle_activation_distance, safety.max_obstacle_rows, self.filter.horizon,
+            self.fast.self_pairs)
+        self.robot = task.robot
+
+    def place_obstacles(self, rng: np.random.Generator, q: np.ndarray) -> None:
+        """Each obstacle near a random part of the arm at ``q`` (up to 15 cm off its origin),
+        turned at random."""
+        self.reference_snapshot.update(q)
+        centers, _ = self.reference_snapshot.placements(self.reference._part_frames)
+        count = len(self.fast.object_names) - 1
+        rotations = np.array([_rotation(rng) for _ in range(count)])
+        positions = centers[rng.integers(len(centers), size=count)] + rng.uniform(-0.15, 0.15, (count, 3))
+        self.scene.update_objects(np.array([3.0, 3.0, 0.0]), np.eye(3), positions, rotations)
+
+    def both(self, q: np.ndarray, table: bool, obstacles: bool, self_collision: bool):
+        self.snapshot.update(q)
+        self.reference_snapshot.update(q)
+        fast = self.fast.rows(self.snapshot, table, obstacles, self_collision)
+        reference = self.reference.rows(self.reference_snapshot, table, obstacles, self_collision)
+        return fast, reference
+
+
+def _rotation(rng) -> np.ndarray:
+    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
+    q = q * np.sign(np.diag(r))
+    return q if np.linalg.det(q) > 0 else -q
+
+
+@pytest.fixture(scope="module", params=["jaco", "j2s6s200"])
+def pair(request) -> Pair:
+    return Pair(request.param)
+
+
+def _configuration(robot, rng) -> np.ndarray:
+    """Joint angles within the limits widened by 0.3 rad (continuous joints: any angle)."""
+    return rng.uniform(np.where(robot.limited, robot.position_lower - 0.3, -np.pi),
+                       np.where(robot.limited, robot.position_upper + 0.3, np.pi))
+
+
+def _assert_same(fast, reference) -> None:
+    assert fast.names == reference.names
+    assert fast.matrix.shape == reference.matrix.shape
+    np.testing.assert_array_equal(fast.matrix, reference.matrix)
+    np.testing.assert_array_equal(fast.bound, reference.bound)
+
+
+SHAPES = {"capsule": lambda: coal.Capsule(0.04, 0.2), "cylinder": lambda: coal.Cylinder(0.02, 0.15),
+          "box": lambda: coal.Box(0.06, 0.08, 0.1)}
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), a=st.sampled_from(["capsule", "cylinder"]),
+       b=st.sampled_from(list(SHAPES)), spread=st.sampled_from([0.02, 0.1, 0.3]))
+def test_a_prepared_query_answers_what_signed_distance_answers(seed, a, b, spread):
+    """One functor and one result reused over 30 placements (separated, touching, overlapping):
+    each answer is signed_distance's, bit for bit, or None where that one took its guarded path."""
+    rng = np.random.default_rng(seed)
+    first, second = coal.CollisionObject(SHAPES[a]()), coal.CollisionObject(SHAPES[b]())
+    compute = coal.ComputeDistance(first.collisionGeometry(), second.collisionGeometry())
+    result = coal.DistanceResult()
+    for _ in range(30):
+        for obj in (first, second):
+            obj.setRotation(_rotation(rng))
+            obj.setTranslation(rng.uniform(-spread, spread, 3))
+        normals = GUARD.normals
+        d, point_a, point_b, normal, exact = signed_distance(first, second)
+        answer = placed_signed_distance(compute, result, first.getTransform(), second.getTransform(),
+                                        first.getTranslation().tolist(), second.getTranslation().tolist())
+        if answer is None:
+            assert not exact or GUARD.normals > normals
+        else:
+            assert answer == (d, *point_a.tolist(), *point_b.tolist(), *normal.tolist())
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), table=st.booleans(), obstacles=st.booleans(),
+       self_collision=st.booleans())
+def test_the_fast_rows_are_the_reference_rows(pair, seed, table, obstacles, self_collision):
+    rng = np.random.default_rng(seed)
+    q = _configuration(pair.robot, rng)
+    pair.place_obstacles(rng, q)
+    fast, reference = pair.both(q, table, obstacles, self_collision)
+    _assert_same(fast, reference)
+    assert pair.fast.last_queries == pair.reference.last_queries
+
+
+def test_crowded_poses_give_many_rows_of_every_kind(pair):
+    """The comparison above is not vacuous: over 40 draws it sees table, obstacle and self rows,
+    obstacle rows cut to ``max_obstacle_rows``, and coal's pairs as well as the closed form."""
+    rng = np.random.default_rng(7)
+    kinds, most, queries = set(), 0, 0
+    for _ in range(40):
+        q = _configuration(pair.robot, rng)
+        pair.place_obstacles(rng, q)
+        fast, reference = pair.both(q, True, True, True)
+        _assert_same(fast, reference)
+        kinds |= {name.split(":")[0] for name in fast.names}
+        most = max(most, sum(name.startswith("obstacle:") for name in fast.names))
+        queries += pair.fast.last_queries
+    assert kinds == {"table", "obstacle", "self"}
+    assert most == pair.fast.max_obstacle_rows and queries > 40 * most
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), cartesian=st.booleans())
+def test_the_filter_commands_are_the_reference_filters(pair, seed, cartesian):
+    """The same commands, statuses and active rows from the filter with the fast rows and with
+    the reference rows, over a short random request stream with the obstacle rows on."""
+    rng = np.random.default_rng(seed)
+    robot = pair.robot
+    q = _configuration(robot, rng)
+    pair.place_obstacles(rng, q)
+    fast, reference = pair.filter, make_task_filter(pair.task, pair.config.safety, scene=pair.scene)
+    reference.distances = pair.reference
+    reference._snapshot = pair.reference_snapshot
+    fast.reset()
+    reference.reset()
+    for _ in range(4):
+        q = q + rng.uniform(-0.05, 0.05, q.shape)
+        dq = rng.uniform(-0.5, 0.5, q.shape) * robot.velocity_limit
+        request = rng.uniform(-0.3, 0.3, 3) if cartesian else rng.uniform(-1.2, 1.2, q.shape) * robot.velocity_limit
+        call = "cartesian" if cartesian else "__call__"
+        got = getattr(fast, call)(q, dq, request, obstacles=True)
+        want = getattr(reference, call)(q, dq, request, obstacles=True)
+        np.testing.assert_array_equal(got.command, want.command)
+        assert (got.status, got.active, got.violated, got.modified) == \
+            (want.status, want.active, want.violated, want.modified)
+        assert got.worst_margin == want.worst_margin or np.isnan(got.worst_margin) and np.isnan(want.worst_margin)
+        assert fast.last_rows == reference.last_rows
+
+
+@pytest.mark.parametrize("failure", ["raise", "nan", "both"])
+def test_a_failing_query_takes_the_guarded_answer(pair, monkeypatch, failure):
+    """A prepared query that raises or answers NaN is asked again through ``signed_distance``:
+    the rows stay the reference's (coal itself answering there), and when coal fails there too
+    ("both") both routines give the same conservative bound, counted in GUARD."""
+    def broken(*args):
+        if failure == "nan":
+            return float("nan")
+        raise RuntimeError("std::logic_error: simulated")
+
+    fast = pair.fast
+    monkeypatch.setattr(fast, "_object_compute", [[broken] * len(row) for row in fast._object_compute])
+    monkeypatch.setattr(fast, "_self_compute", [None if c is None else broken for c in fast._self_compute])
+    if failure == "both":
+        monkeypatch.setattr(scene_module.coal, "distance", broken)
+    rng = np.random.default_rng(11)
+    failures, seen = GUARD.failures, 0
+    for _ in range(10):
+        q = _configuration(pair.robot, rng)
+        pair.place_obstacles(rng, q)
+        pair.snapshot.update(q)
+        pair.reference_snapshot.update(q)
+        before = GUARD.failures
+        fast_rows = fast.rows(pair.snapshot, True, True, True)
+        middle = GUARD.failures
+        reference_rows = pair.reference.rows(pair.reference_snapshot, True, True, True)
+        _assert_same(fast_rows, reference_rows)
+        assert middle - before == GUARD.failures - middle  # the same queries guarded
+        if failure != "both":
+            assert middle == before
+        seen += len(fast_rows.names)
+    assert seen > 0
+    assert (GUARD.failures > failures) == (failure == "both")
+
