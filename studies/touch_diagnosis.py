@@ -1,0 +1,113 @@
+"""Why a policy touched obstacles on the suite (issue 14): replay each touching episode and name the
+first touch and the lane.
+
+    python studies/touch_diagnosis.py RUN_DIR [--policy-file policies/clone.pt] [--suite RUN_DIR/suite]
+
+For every family folder of a suite evaluation (``python -m ahrm_stack.evaluate RUN_DIR --suite``),
+the episodes whose ``touched_steps`` > 0 are replayed with the same seeds and the run's
+deterministic policy. At the first touching step it prints what is in contact with an obstacle
+(``cube``, ``pusher``, ``arm`` or ``none``: the obstacle only moving), how far the cube has moved,
+the lane the policy is pushing along (the sign of the cube's x displacement) and the lane the
+scripted controller plans for that episode (:func:`ahrm_stack.env.layout.choose_lane`). It ends
+with the counts. Replays only; nothing is written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import torch
+import yaml
+
+from ahrm_stack.config import config_from_dict
+from ahrm_stack.env.layout_catalog import apply_layout
+from ahrm_stack.env.runner import TaskRunner
+from ahrm_stack.env.scripted import ScriptedPusher
+from ahrm_stack.env.task import PushOffTask
+from ahrm_stack.learning.rollouts import load_policy
+
+
+def _first_touch(runner: TaskRunner, policy, task: PushOffTask) -> dict | None:
+    """Run the episode already reset in ``runner`` until its first touching step (None: none)."""
+    physics = runner.physics
+    obstacles = {int(physics.bind(o.geom).element_id) for o in task.obstacles}
+    cube = int(physics.bind(task.cube.geom).element_id)
+    pusher = {int(g) for g in physics.bind(task.pusher.mjcf_model.find_all("geom")).element_id}
+    table = {int(g) for g in physics.bind(task.root_entity.mjcf_model.find_all("geom")).element_id}
+    cube_body = int(physics.bind(task.cube.geom).bodyid)
+    start = physics.data.xpos[cube_body, :2].copy()
+    while True:
+        observation = torch.as_tensor(runner.flat_observation(), dtype=torch.float32)
+        info, terminated, truncated = runner.step_action(policy.act(observation).numpy())
+        if info.touched:
+            kinds = set()
+            for contact in physics.data.contact[:physics.data.ncon]:
+                pair = {int(contact.geom1), int(contact.geom2)}
+                if not pair & obstacles:
+                    continue
+                other = pair - obstacles
+                if not other:
+                    kinds.add("obstacle")
+                    continue
+                geom = other.pop()
+                if geom == cube:
+                    kinds.add("cube")
+                elif geom in pusher:
+                    kinds.add("pusher")
+                elif geom not in table:
+                    kinds.add("arm")
+            moved = physics.data.xpos[cube_body, :2] - start
+            return {"kinds": ",".join(sorted(kinds)) or "none", "moved": moved,
+                    "lane": "+x" if moved[0] > 0 else "-x", "time": info.elapsed}
+        if terminated or truncated:
+            return None
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run_dir", type=Path)
+    parser.add_argument("--policy-file", type=Path, default=None,
+                        help="relative to RUN_DIR (default: policy.pt)")
+    parser.add_argument("--suite", type=Path, default=None, help="default: RUN_DIR/suite")
+    args = parser.parse_args(argv)
+    run = args.run_dir
+    policy_file = run / args.policy_file if args.policy_file else None
+    suite = args.suite or run / "suite"
+    _, policy = load_policy(run, policy_file)
+    counts: Counter = Counter()
+    lanes: Counter = Counter()
+    for family_dir in sorted(p for p in suite.iterdir() if p.is_dir()):
+        with open(family_dir / "evaluation.csv") as handle:
+            rows = list(csv.DictReader(handle))
+        touching = [i for i, row in enumerate(rows) if int(row["touched_steps"]) > 0]
+        if not touching:
+            continue
+        raw = yaml.safe_load((run / "config.yaml").read_text())
+        offset = apply_layout(raw, family_dir.name).seed_offset
+        config = config_from_dict(raw)
+        task = PushOffTask(config.task)
+        runner = TaskRunner(task, seed=offset, safety=config.safety)
+        planner = ScriptedPusher(task, config.scripted)
+        for i in touching:
+            runner.seed(offset + i)
+            runner.reset()
+            planner.reset(runner.physics)
+            touch = _first_touch(runner, policy, task)
+            if touch is None:
+                print(f"{family_dir.name} episode {i}: no touch on replay")
+                continue
+            counts[touch["kinds"]] += 1
+            lanes["same lane" if touch["lane"] == planner.lane else "other lane"] += 1
+            print(f"{family_dir.name} episode {i}: t={touch['time']:.2f} s, touch {touch['kinds']}, "
+                  f"cube moved {np.round(touch['moved'], 3).tolist()} m, policy's lane "
+                  f"{touch['lane']}, planned {planner.lane}")
+    print(f"first touches: {dict(counts)}; lanes: {dict(lanes)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
