@@ -9,7 +9,23 @@ from dm_control import composer, mjcf
 from dm_control.composer.observation import observable
 
 
-class Pusher(composer.Entity):
+class _OneGeomEntity(composer.Entity):
+    """An entity built as its own MJCF model around one geom: ``_build`` sets ``_mjcf_root`` and
+    ``_geom``."""
+
+    _mjcf_root: mjcf.RootElement
+    _geom: mjcf.Element
+
+    @property
+    def mjcf_model(self) -> mjcf.RootElement:
+        return self._mjcf_root
+
+    @property
+    def geom(self) -> mjcf.Element:
+        return self._geom
+
+
+class Pusher(_OneGeomEntity):
     """A solid cylinder that replaces the hand. Its axis is the local +z of the attachment site.
 
     Sites: ``center`` at the cylinder's centre and ``tip`` at the centre of its free end face,
@@ -27,14 +43,6 @@ class Pusher(composer.Entity):
         self.half_length = length / 2
 
     @property
-    def mjcf_model(self) -> mjcf.RootElement:
-        return self._mjcf_root
-
-    @property
-    def geom(self) -> mjcf.Element:
-        return self._geom
-
-    @property
     def center_site(self) -> mjcf.Element:
         return self._center_site
 
@@ -43,7 +51,7 @@ class Pusher(composer.Entity):
         return self._tip_site
 
 
-class BoxProp(composer.Entity):
+class BoxProp(_OneGeomEntity):
     """A free box (the target cube or an obstacle). ``half_size`` in metres, ``mass`` in kg."""
 
     def _build(self, name: str, half_size: Sequence[float], mass: float,
@@ -66,14 +74,6 @@ class BoxProp(composer.Entity):
 
     def _build_observables(self) -> "BoxPropObservables":
         return BoxPropObservables(self)
-
-    @property
-    def mjcf_model(self) -> mjcf.RootElement:
-        return self._mjcf_root
-
-    @property
-    def geom(self) -> mjcf.Element:
-        return self._geom
 
 
 class BoxPropObservables(composer.Observables):
