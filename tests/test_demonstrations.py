@@ -16,7 +16,7 @@ def test_demonstrations_are_successful_scripted_episodes():
     demos = collect_demonstrations(config, 2)
     assert demos.shape[0] > 40  # two successful pushes of ~3-4 s at 20 Hz
     assert demos["action"].abs().max() <= ACTION_LIMIT
-    assert demos["observation"].shape[-1] == 60 + 11 + 2  # spec §1, relative to the cube, lanes
+    assert demos["observation"].shape[-1] == 60 + 11 + 2 + 2  # spec §1, relative, lanes, lane choice
     # returns are discounted sums of non-positive penalties, and the last step of a success is terminal
     assert (demos["return"] <= 0).all()
 
