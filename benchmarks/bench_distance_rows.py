@@ -37,7 +37,7 @@ import numpy as np  # noqa: E402
 from ahrm_stack.config import load_config  # noqa: E402
 from ahrm_stack.env.runner import TaskRunner  # noqa: E402
 from ahrm_stack.env.task import PushOffTask  # noqa: E402
-from bench_safety import build, crowded_scene, percentiles, record_stream  # noqa: E402
+from bench_safety import build, crowded_inputs, percentiles, record_stream  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -113,11 +113,7 @@ def main() -> None:
     cfg = load_config()
     runner = TaskRunner(PushOffTask(cfg.task), seed=0)
     stream = record_stream(runner, cfg.safety, args.steps)
-    scene, q_crowd = crowded_scene(runner)
-    rng = np.random.default_rng(2)
-    limit = runner.task.robot.velocity_limit
-    crowd = [(q_crowd + rng.uniform(-0.02, 0.02, 6), np.zeros(6), rng.uniform(-1, 1, 6) * limit,
-              rng.uniform(-0.5, 0.5, 6) * limit) for _ in range(args.steps)]
+    scene, crowd = crowded_inputs(runner, args.steps)
     reference = reference_module()
 
     print(f"safety filter per call, fast distance rows against the reference routine, called "

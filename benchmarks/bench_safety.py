@@ -136,6 +136,16 @@ def in_loop(runner, safety, steps, seed=1):
     return np.array(filter_times), np.array(step_times)
 
 
+def crowded_inputs(runner, steps: int):
+    """The crowded scene and ``steps`` filter inputs in it: joint positions (rad) within 0.02 of
+    its pose, zero velocity, random requests (rad/s, within the velocity limits, and half of them)."""
+    scene, q_crowd = crowded_scene(runner)
+    rng = np.random.default_rng(2)
+    limit = runner.task.robot.velocity_limit
+    return scene, [(q_crowd + rng.uniform(-0.02, 0.02, 6), np.zeros(6), rng.uniform(-1, 1, 6) * limit,
+                    rng.uniform(-0.5, 0.5, 6) * limit) for _ in range(steps)]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     cli.add_verbose_flag(parser)
@@ -150,12 +160,7 @@ def main() -> None:
     runner = TaskRunner(PushOffTask(cfg.task), seed=0)
     stream = record_stream(runner, cfg.safety, args.steps)
 
-    # the crowded scene: joint positions near the pose, random requests
-    scene, q_crowd = crowded_scene(runner)
-    rng = np.random.default_rng(2)
-    limit = runner.task.robot.velocity_limit
-    crowd_inputs = [(q_crowd + rng.uniform(-0.02, 0.02, 6), np.zeros(6), rng.uniform(-1, 1, 6) * limit,
-                     rng.uniform(-0.5, 0.5, 6) * limit) for _ in range(args.steps)]
+    scene, crowd_inputs = crowded_inputs(runner, args.steps)
 
     print(f"safety filter latency, {args.repeats} x {args.steps} calls per row (hot) and one "
           f"{args.steps}-step random-policy episode per row (in loop); times in microseconds")
