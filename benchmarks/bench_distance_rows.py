@@ -19,7 +19,6 @@ Usage: python benchmarks/bench_distance_rows.py [--repeats R] [--steps N] [--qui
 
 from __future__ import annotations
 
-import argparse
 import importlib.util
 import os
 import sys
@@ -34,10 +33,7 @@ cli.quiet_argv()  # before the heavy imports: the libraries' warnings and INFO l
 
 import numpy as np  # noqa: E402
 
-from ahrm_stack.config import load_config  # noqa: E402
-from ahrm_stack.env.runner import TaskRunner  # noqa: E402
-from ahrm_stack.env.task import PushOffTask  # noqa: E402
-from bench_safety import build, crowded_inputs, percentiles, record_stream  # noqa: E402
+from bench_safety import build, filter_bench_setup, percentiles  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -101,19 +97,7 @@ def alternate_rows(fast, slow, inputs, repeats, obstacles):
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    cli.add_verbose_flag(parser)
-    parser.add_argument("--repeats", type=int, default=5, help="replays of the inputs")
-    parser.add_argument("--steps", type=int, default=600, help="states per case")
-    parser.add_argument("--quick", action="store_true", default=os.environ.get("AHRM_BENCH_QUICK") == "1",
-                        help="a brief run (40 states, 1 repeat): checks that the benchmark works")
-    args = parser.parse_args()
-    if args.quick:
-        args.repeats, args.steps = 1, 40
-    cfg = load_config()
-    runner = TaskRunner(PushOffTask(cfg.task), seed=0)
-    stream = record_stream(runner, cfg.safety, args.steps)
-    scene, crowd = crowded_inputs(runner, args.steps)
+    args, cfg, runner, stream, scene, crowd = filter_bench_setup(__doc__.splitlines()[0])
     reference = reference_module()
 
     print(f"safety filter per call, fast distance rows against the reference routine, called "

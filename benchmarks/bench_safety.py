@@ -146,8 +146,11 @@ def crowded_inputs(runner, steps: int):
                     rng.uniform(-0.5, 0.5, 6) * limit) for _ in range(steps)]
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def filter_bench_setup(description: str):
+    """The filter benchmarks' command line (``--repeats``, ``--steps``, ``--quick``: 40 steps, 1
+    repeat, also from ``AHRM_BENCH_QUICK=1``) and inputs: returns (args, config, runner, the
+    recorded scripted stream, the crowded scene, its inputs)."""
+    parser = argparse.ArgumentParser(description=description)
     cli.add_verbose_flag(parser)
     parser.add_argument("--repeats", type=int, default=5, help="replays of the recorded inputs")
     parser.add_argument("--steps", type=int, default=600, help="control steps recorded / in loop")
@@ -159,8 +162,11 @@ def main() -> None:
     cfg = load_config()
     runner = TaskRunner(PushOffTask(cfg.task), seed=0)
     stream = record_stream(runner, cfg.safety, args.steps)
+    return (args, cfg, runner, stream, *crowded_inputs(runner, args.steps))
 
-    scene, crowd_inputs = crowded_inputs(runner, args.steps)
+
+def main() -> None:
+    args, cfg, runner, stream, scene, crowd_inputs = filter_bench_setup(__doc__.splitlines()[0])
 
     print(f"safety filter latency, {args.repeats} x {args.steps} calls per row (hot) and one "
           f"{args.steps}-step random-policy episode per row (in loop); times in microseconds")
