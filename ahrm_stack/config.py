@@ -370,6 +370,8 @@ class ScriptedConfig(Section):
     max_heading: NonNeg  # rad, largest lean of the push direction from the lane
     realign_distance: Pos  # m, the push stops advancing while the tip is this far off its line
     waypoint_tolerance: Pos  # m
+    descend_radius: Pos  # m, the stateless stage inference (train.expert: stateless) has the tip
+    # over the push start within this (above waypoint_tolerance, so a descent is not undone)
     collision_margin: NonNeg  # m, distance the IK keeps between the arm/pusher and the obstacles
     collision_detection: Pos  # m, distance at which that constraint becomes active
     collision_gain: Annotated[Float, within(0, 1, "(]")]  # fraction of the gap beyond the margin
@@ -719,7 +721,7 @@ def _legacy_fill(data: dict) -> dict:
             (arm, ("start", "start_ik")), (layout, ("cube_region", "obstacle_draws_per_cube")),
             (train, ("dagger_rounds", "expert", *NEUTRAL_TRAIN_KEYS)), (arm, ("near_cube",)),
             (ppo, ("bc_coeff_final", *NEUTRAL_PPO_KEYS)), (section("task"), ("observation",)),
-            (observation, ("lane_clip", "lane_choice")))):
+            (observation, ("lane_clip", "lane_choice")), (section("scripted"), ("descend_radius",)))):
         return data
     data = copy.deepcopy(data)
     defaults = {name: read_yaml(CONFIG_DIR / file) for name, file in SECTIONS.items()}
@@ -745,6 +747,8 @@ def _legacy_fill(data: dict) -> dict:
     if ppo is not None:
         for key in NEUTRAL_PPO_KEYS:
             data["ppo"].setdefault(key, defaults["ppo"][key])
+    if section("scripted") is not None:  # read only by the stateless teacher, new with it
+        data["scripted"].setdefault("descend_radius", defaults["scripted"]["descend_radius"])
     if train is not None:
         data["train"].setdefault("expert", "stateful")  # the only teacher before 2026-12-02
         for key in ("dagger_rounds", "dagger_episodes", "dagger_duration"):

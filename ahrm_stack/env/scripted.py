@@ -214,8 +214,8 @@ class ScriptedPusher:
           strip (not behind the push start planned at :meth:`reset`), behind the cube's face (less
           ``waypoint_tolerance``) and across the lane within the cube's half-width plus the
           pusher's radius of the push law's line (where the law realigns or advances);
-        - ``descend``: elsewhere, with the tip within twice ``waypoint_tolerance`` of the spot
-          over the push start (``travel`` hands over at once, so a descent is not undone);
+        - ``descend``: elsewhere, with the tip within ``descend_radius`` of the spot over the push
+          start (wider than ``travel``'s ``waypoint_tolerance``, so a descent is not undone);
         - ``lift``: below the travel height and not over the push start;
         - ``travel``: at or above the travel height, not over the push start.
 
@@ -235,7 +235,7 @@ class ScriptedPusher:
                 and along >= contact - cfg.waypoint_tolerance and abs(off) <= contact):
             return "push"
         start = np.array([cube[0] - d * self._behind, cube[1]])
-        if np.linalg.norm(start - tip[:2]) <= 2 * cfg.waypoint_tolerance:
+        if np.linalg.norm(start - tip[:2]) <= cfg.descend_radius:
             return "descend"
         return "lift" if tip[2] < self._travel_z - cfg.waypoint_tolerance else "travel"
 
