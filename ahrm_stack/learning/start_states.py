@@ -15,7 +15,7 @@ import dataclasses
 
 import numpy as np
 
-from ahrm_stack.config import Config
+from ahrm_stack.config import Config, ConfigError
 from ahrm_stack.env.layout import Layout
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.scripted import ScriptedPusher
@@ -70,7 +70,8 @@ class ScriptedStartStates:
 
     def __init__(self, trajectories: list[Trajectory]) -> None:
         if not trajectories:
-            raise RuntimeError("the scripted controller won none of the start-state episodes")
+            raise ConfigError("train.curriculum_states: the scripted controller won none of its "
+                              "start-state episodes; record more")
         self.trajectories = trajectories
         self.level = 0.0
 
