@@ -324,6 +324,11 @@ class PushOffTask(composer.Task):
         physics.data.qpos[self._arm_qpos] = q0
         physics.data.ctrl[:] = 0.0
         self._settle(physics, q0)
+        self._begin_episode(physics)
+
+    def _begin_episode(self, physics: mjcf.Physics) -> None:
+        """The episode's bookkeeping once its state is set: no previous command, the clock and
+        the objectives restarted, the first step measured, the lane to be planned."""
         self.previous_action = np.zeros(len(self.robot.commanded_joints))
         self._command = np.zeros(self.robot.num_joints)
         self._episode_start = physics.data.time
@@ -344,13 +349,7 @@ class PushOffTask(composer.Task):
         data.qacc_warmstart[:] = 0.0
         physics.forward()
         self.start_target = None
-        self.previous_action = np.zeros(len(self.robot.commanded_joints))
-        self._command = np.zeros(self.robot.num_joints)
-        self._episode_start = data.time
-        self.time_objective.reset()
-        self.step_info = self._measure(physics, phase_time=0.0)
-        self.progress_objective.reset(self.step_info.progress)
-        self._lane_plan = None  # planned at the episode's first observation
+        self._begin_episode(physics)
 
     def _random_start(self, physics: mjcf.Physics, random_state: np.random.RandomState,
                       q_home: np.ndarray) -> np.ndarray:

@@ -16,6 +16,7 @@ import numpy as np
 from pydantic import AfterValidator
 
 from ahrm_stack.config import CONFIG_DIR, ConfigError
+from hardware.scene import UNIT_TOLERANCE
 from ahrm_stack.schema import (Bool, Float, Int, Section, Str, fail, ge, gt, load_file, unit_quaternion, validate,
                                within)
 
@@ -51,7 +52,7 @@ class CameraSettings(Section):
     position: Vec3  # optical centre, m, world frame
     look_at: Optional[Vec3]  # m, world frame
     # camera-to-world (w, x, y, z), optical frame; normalised when read
-    quaternion: Annotated[Optional[Vec4], unit_quaternion(1e-3)]
+    quaternion: Annotated[Optional[Vec4], unit_quaternion(UNIT_TOLERANCE)]
 
     def check(self, key: str) -> None:
         if (self.look_at is None) == (self.quaternion is None):
