@@ -143,8 +143,10 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
     if scene == "camera":  # bad settings or a bad layout file: one line, nothing written
         from ahrm_stack.perception.scene_source import LayoutFileObstacles
         from ahrm_stack.perception.settings import load_perception_settings
+        from ahrm_stack.perception.sim_camera import check_sim_camera
 
         perception = load_perception_settings()
+        check_sim_camera(perception, config.task.cube.size)
         layout_file = layout_file or perception.layout_file or None
         if layout_file:
             LayoutFileObstacles(layout_file, count=len(config.task.obstacles.fixed_layout))
@@ -179,6 +181,9 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
             loop = DeployLoop(arm, world, controller, config.safety, settings, telemetry, source)
         except Exception as error:  # noqa: BLE001 - recorded, then raised as a fault
             raise _start_up_fault(arm, telemetry, error) from error
+        except KeyboardInterrupt as error:  # Ctrl-C during set-up: stopped and recorded too
+            _start_up_fault(arm, telemetry, error)
+            raise
         loop.run(settings.duration)
     finally:
         if arm is not None and arm.is_connected:

@@ -53,6 +53,18 @@ def cube_face_images(settings: PerceptionSettings, cube_size: float, rgba) -> di
     return faces
 
 
+def check_sim_camera(settings: PerceptionSettings, cube_size: float | None = None) -> None:
+    """Raise :class:`PerceptionConfigError` (one line) where ``settings`` cannot drive the sim
+    camera: intrinsics given (MuJoCo renders a centred pinhole from ``camera.fovy_deg``), and, with
+    ``cube_size`` (m), a tag that cannot be drawn on the cube's face (family, id, size)."""
+    if settings.camera.intrinsics is not None:
+        raise PerceptionConfigError(
+            "perception.camera.intrinsics must be null for the sim camera: MuJoCo renders a "
+            "centred pinhole from camera.fovy_deg")
+    if cube_size is not None:
+        tag_face_image(settings.tag, cube_size)
+
+
 class SimCamera:
     """Grey frames of a simulated scene (the sim backend's ``physics``) from the perception
     camera; see the module docstring."""
@@ -64,10 +76,7 @@ class SimCamera:
         from ahrm_stack.env.task import CUBE_RGBA, PushOffTask
 
         camera = settings.camera
-        if camera.intrinsics is not None:
-            raise PerceptionConfigError(
-                "perception.camera.intrinsics must be null for the sim camera: MuJoCo renders a "
-                "centred pinhole from camera.fovy_deg")
+        check_sim_camera(settings)
         self._mujoco = mujoco
         self.intrinsics = Intrinsics.from_settings(camera)
         self.pose = CameraPose.from_settings(camera)
