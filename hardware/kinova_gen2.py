@@ -257,8 +257,9 @@ class Gen2Settings(Section):
     comm_library: FilePath  # its communication layer, preloaded (RTLD_GLOBAL); None: not
     serial: Annotated[Optional[str], PlainValidator(_serial)]  # the arm's serial; required to connect
     send_rate_hz: Annotated[Float, gt(0), le(1000.0)]  # Hz, the sender thread's rate
-    command_timeout: Annotated[Float, gt(0), le(100.0)]  # control periods without a fresh command
-    # before the sender stops
+    command_timeout: Annotated[Float, gt(1, " (a healthy loop sends one command per period)"),
+                               le(100.0)]  # control periods without a fresh command before the
+    # sender stops
     speed_scale: Annotated[Float, gt(0), le(1.0)]  # every command is multiplied by this
     velocity_feedback_scale: Annotated[Float, gt(0)]  # GetAngularVelocity reports 1/this of the real one
     min_supply_voltage: Annotated[Float, gt(0)]  # V; below it the actuators are unpowered (the e-stop)
