@@ -699,7 +699,7 @@ def load_config(overrides: Sequence[str] = (), config_dir: Path | str = CONFIG_D
 BACKFILLED = {"safety": ("self_collision_rows", "self_collision_pairs"), "train": ("env_workers",)}
 
 
-NEUTRAL_PPO_KEYS = ("reward_scale",)
+LEGACY_PPO = {"reward_scale": 1.0}  # before the key existed: rewards unscaled
 NEUTRAL_TRAIN_KEYS = ("frames", "eval_every_frames", "time_limit", "start_curriculum", "curriculum_states",
                       "curriculum_window", "curriculum_threshold", "curriculum_step")
 
@@ -720,7 +720,7 @@ def _legacy_fill(data: dict) -> dict:
     if not any(s is not None and any(k not in s for k in keys) for s, keys in (
             (arm, ("start", "start_ik")), (layout, ("cube_region", "obstacle_draws_per_cube")),
             (train, ("dagger_rounds", "expert", *NEUTRAL_TRAIN_KEYS)), (arm, ("near_cube",)),
-            (ppo, ("bc_coeff_final", *NEUTRAL_PPO_KEYS)), (section("task"), ("observation",)),
+            (ppo, ("bc_coeff_final", *LEGACY_PPO)), (section("task"), ("observation",)),
             (observation, ("lane_clip", "lane_choice")), (section("scripted"), ("descend_radius",)))):
         return data
     data = copy.deepcopy(data)
@@ -745,8 +745,8 @@ def _legacy_fill(data: dict) -> dict:
         for key in NEUTRAL_TRAIN_KEYS:
             data["train"].setdefault(key, defaults["train"][key])
     if ppo is not None:
-        for key in NEUTRAL_PPO_KEYS:
-            data["ppo"].setdefault(key, defaults["ppo"][key])
+        for key, value in LEGACY_PPO.items():
+            data["ppo"].setdefault(key, value)
     if section("scripted") is not None:  # read only by the stateless teacher, new with it
         data["scripted"].setdefault("descend_radius", defaults["scripted"]["descend_radius"])
     if train is not None:
@@ -828,7 +828,8 @@ class ExperimentConfig(Section):
 
     methods: Annotated[tuple[Method, ...], count(1)]  # mechanism.method values, distinct
     seeds: PosInt  # training seeds 0 .. seeds-1
-    episodes: PosInt  # training episodes per run
+    episodes: PosInt  # training episodes per run (when frames is 0)
+    frames: NonNegInt  # training frames per run, the same for every method (0: episodes decides)
     eval_episodes: PosInt  # deterministic evaluation episodes per run
     scripted_episodes: NonNegInt  # evaluation episodes of the scripted controller (0: no row)
     eval_layout: Str  # a name in configs/layouts.yaml

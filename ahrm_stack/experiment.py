@@ -1,7 +1,7 @@
 """The four-method experiment: train and evaluate AHRM, MHRM, FHRM and LS over several seeds with
 identical budgets, on Ray, then write the report (``ahrm_stack.report``).
 
-    python -m ahrm_stack.experiment [--methods ahrm mhrm fhrm ls] [--seeds 3] [--episodes 300]
+    python -m ahrm_stack.experiment [--methods ahrm mhrm fhrm ls] [--seeds 3] [--episodes 300] [--frames N]
                                     [--out DIR] [--address RAY_ADDRESS] [--config key=value ...]
 
 Defaults come from ``configs/experiment.yaml``. ``--config`` overrides go to the training config
@@ -44,7 +44,8 @@ def _parse(argv: Sequence[str]) -> argparse.Namespace:
     parser = _Parser(prog="python -m ahrm_stack.experiment", description=__doc__.split("\n\n")[0])
     parser.add_argument("--methods", nargs="+", help="reward mechanisms (default: configs/experiment.yaml)")
     parser.add_argument("--seeds", type=int, help="training seeds 0..N-1 per method")
-    parser.add_argument("--episodes", type=int, help="training episodes per run")
+    parser.add_argument("--episodes", type=int, help="training episodes per run (with frames 0)")
+    parser.add_argument("--frames", type=int, help="training frames per run (0: --episodes decides)")
     parser.add_argument("--out", default="runs/experiment", help="the grid and report folder")
     parser.add_argument("--address", help="Ray cluster address (default: a local Ray instance)")
     parser.add_argument("--config", nargs="*", default=[], metavar="key=value",
@@ -70,7 +71,10 @@ def _split_overrides(overrides: Sequence[str]) -> tuple[list[str], list[str], li
 def build_grid(args: argparse.Namespace) -> dict:
     """The grid's plan (written to ``OUT/grid.json``): validated settings and one spec per run."""
     train_overrides, experiment_overrides, video_overrides = _split_overrides(args.config)
-    for flag, key in (("methods", "methods"), ("seeds", "seeds"), ("episodes", "episodes")):
+    if args.episodes is not None and args.frames is None:
+        args.frames = 0  # an episode budget asked for on the command line: frames do not decide
+    for flag, key in (("methods", "methods"), ("seeds", "seeds"), ("episodes", "episodes"),
+                      ("frames", "frames")):
         value = getattr(args, flag)
         if value is not None:
             experiment_overrides.append(f"{key}={json.dumps(value)}")
@@ -89,13 +93,15 @@ def build_grid(args: argparse.Namespace) -> dict:
                 "name": name, "method": method, "seed": seed, "run_dir": str(out / "runs" / name),
                 "overrides": train_overrides + [f"mechanism.method={method}", f"train.seed={seed}",
                                                 f"train.episodes={experiment.episodes}",
+                                                f"train.frames={experiment.frames}",
                                                 "train.eval_episodes=0"],
                 "eval_episodes": experiment.eval_episodes, "layout": experiment.eval_layout,
                 "suite": experiment.suite, "suite_clone": experiment.suite and method == experiment.methods[0],
                 "video": str(out / "videos" / f"{method}.mp4") if with_video and seed == 0 else None,
                 "video_episode": experiment.video_episode, "video_overrides": video_overrides})
     return {"out": str(out), "methods": list(experiment.methods), "seeds": experiment.seeds,
-            "episodes": experiment.episodes, "eval_episodes": experiment.eval_episodes,
+            "episodes": experiment.episodes, "frames": experiment.frames,
+            "eval_episodes": experiment.eval_episodes,
             "layout": experiment.eval_layout, "train_overrides": train_overrides,
             "experiment_overrides": experiment_overrides, "video_overrides": video_overrides,
             "runs": runs,
@@ -290,8 +296,9 @@ def main(argv: list[str] | None = None) -> int:
                 from ahrm_stack.env.video import select_gl_backend
                 select_gl_backend(video.gl_backends)  # inherited by the Ray workers
             started = time.perf_counter()
+            from ahrm_stack.report import budget
             print(f"experiment: {len(grid['runs'])} runs ({', '.join(grid['methods'])} x "
-                  f"{grid['seeds']} seeds, {grid['episodes']} episodes) -> {out}", flush=True)
+                  f"{grid['seeds']} seeds, {budget(grid)}) -> {out}", flush=True)
             run_grid(grid, experiment, args.address)
             print(f"grid finished in {(time.perf_counter() - started) / 60:.1f} min")
         from ahrm_stack.report import write_report

@@ -54,6 +54,13 @@ def mean_std(values: Sequence[float]) -> tuple[float, float, int]:
     return float(np.mean(finite)), float(np.std(finite)), len(finite)
 
 
+def budget(grid: dict) -> str:
+    """A grid's training budget per run, in words: its frames when set, else its episodes (grids
+    written before ``experiment.frames`` existed have episodes only)."""
+    frames = grid.get("frames", 0)
+    return f"{frames:,} frames" if frames else f"{grid['episodes']} episodes"
+
+
 def episodes_to_threshold(success: Sequence[bool], threshold: float, window: int) -> int | None:
     """The first training episode (1-based) whose trailing ``window`` episodes reach a success
     fraction of ``threshold``; None if none does (a window must be full)."""
@@ -351,8 +358,8 @@ def write_report(out: Path | str, experiment: ExperimentConfig | None = None) ->
 
     lines = [f"# AHRM experiment: {', '.join(METHOD_NAMES.get(m, m) for m in methods)}", "",
              f"Generated {time.strftime('%Y-%m-%d %H:%M')} by `python -m ahrm_stack.experiment` from the "
-             f"files in this folder. {grid['seeds']} seed(s) per method, {grid['episodes']} training "
-             f"episodes per run, {grid['eval_episodes']} deterministic evaluation episodes per run on the "
+             f"files in this folder. {grid['seeds']} seed(s) per method, {budget(grid)} of "
+             f"training per run, {grid['eval_episodes']} deterministic evaluation episodes per run on the "
              f"`{grid['layout']}` layout (fresh seeds), every command through the safety filter.",
              f"Training overrides: `{' '.join(grid['train_overrides']) or 'none'}`.", "",
              "## Findings", ""]

@@ -67,6 +67,23 @@ def test_changed_settings_do_not_reuse_finished_runs(grid, capsys):
     assert "ahrm-seed0/done.json was made with other settings (overrides differ)" in capsys.readouterr().err
 
 
+def test_the_budget_is_frames_unless_episodes_are_asked_for(tmp_path):
+    from ahrm_stack.experiment import _parse, build_grid
+    from ahrm_stack.report import budget
+
+    def overrides(*flags):
+        grid = build_grid(_parse(["--out", str(tmp_path), *flags, "--config", *TINY]))
+        return grid, {o.split("=")[0]: o.split("=")[1] for o in grid["runs"][0]["overrides"]
+                      if o.startswith("train.")}
+
+    grid, train = overrides()  # configs/experiment.yaml: frames decide, the same for every method
+    assert train["train.frames"] == "60000" and budget(grid) == "60,000 frames"
+    grid, train = overrides("--episodes", "7")
+    assert train["train.frames"] == "0" and train["train.episodes"] == "7" and budget(grid) == "7 episodes"
+    grid, train = overrides("--frames", "512")
+    assert train["train.frames"] == "512" and budget(grid) == "512 frames"
+
+
 def test_report_tables_figures_and_videos(grid):
     out = grid["out"]
     report = (out / "report.md").read_text()
