@@ -3,8 +3,9 @@
 ``tests/distance_rows_reference.py`` keeps that routine (one ``signed_distance`` per candidate
 pair, a fresh coal result each, the rows assembled pair by pair). On random configurations of both
 arms, random obstacle poses crowding the arm and every combination of the row switches, both give
-the same matrix, bounds, names and number of queries; the filter gives the same commands with
-either; and when coal fails (raises, answers NaN) the fast path takes the same guarded answer. One
+the same matrix, bounds, names and number of queries (less the obstacle candidates that could not
+be among the ``max_obstacle_rows`` nearest, which the fast path leaves unmeasured); the filter gives
+the same commands with either; and when coal fails (raises, answers NaN) the fast path takes the same guarded answer. One
 prepared coal query (functor and result reused) answers what ``signed_distance`` answers, bit for bit.
 """
 
@@ -132,14 +133,53 @@ def test_the_fast_rows_are_the_reference_rows(pair, seed, table, obstacles, self
     pair.place_obstacles(rng, q)
     fast, reference = pair.both(q, table, obstacles, self_collision)
     _assert_same(fast, reference)
-    assert pair.fast.last_queries == pair.reference.last_queries
+    # the same queries, less the obstacle candidates that could not be among the nearest
+    assert pair.fast.last_queries <= pair.reference.last_queries
+    if not obstacles:
+        assert pair.fast.last_queries == pair.reference.last_queries
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), keep=st.integers(1, 4))
+def test_pruned_obstacle_candidates_could_not_be_among_the_nearest(pair, seed, keep):
+    """With few obstacle rows kept, many candidates are left unmeasured once the nearest are
+    found; the rows stay the reference's (which measures every candidate), bit for bit, and every
+    obstacle pair within the activation distance that got no row is, by ``signed_distance`` on the
+    scene's own objects, no nearer than the farthest obstacle row kept."""
+    rng = np.random.default_rng(seed)
+    q = _configuration(pair.robot, rng)
+    pair.place_obstacles(rng, q)
+    saved = pair.fast.max_obstacle_rows
+    try:
+        pair.fast.max_obstacle_rows = pair.reference.max_obstacle_rows = keep
+        fast, reference = pair.both(q, True, True, False)
+    finally:
+        pair.fast.max_obstacle_rows = pair.reference.max_obstacle_rows = saved
+    _assert_same(fast, reference)
+    assert pair.fast.last_queries <= pair.reference.last_queries
+    kept = [k for k, name in enumerate(fast.names) if name.startswith("obstacle:")]
+    assert len(kept) <= keep
+    if len(kept) == keep:  # independent: every robot-obstacle distance, measured on the scene
+        scene = pair.scene
+        pair.reference_snapshot.update(q)
+        centers, rotations = pair.reference_snapshot.placements(pair.reference._part_frames)
+        farthest = max(fast.bound[kept]) + pair.fast.safe_distance
+        for k, name in enumerate(pair.fast.part_names):
+            if name not in scene.moving_parts:
+                continue
+            scene.robot[name].setRotation(rotations[k])
+            scene.robot[name].setTranslation(centers[k])
+            for obstacle in pair.fast.object_names[1:]:
+                if f"obstacle:{name}/{obstacle}" not in fast.names:
+                    d = signed_distance(scene.robot[name], scene.environment[obstacle])[0]
+                    assert d >= farthest - 1e-9
 
 
 def test_crowded_poses_give_many_rows_of_every_kind(pair):
     """The comparison above is not vacuous: over 40 draws it sees table, obstacle and self rows,
     obstacle rows cut to ``max_obstacle_rows``, and coal's pairs as well as the closed form."""
     rng = np.random.default_rng(7)
-    kinds, most, queries = set(), 0, 0
+    kinds, most, queries, pruned = set(), 0, 0, 0
     for _ in range(40):
         q = _configuration(pair.robot, rng)
         pair.place_obstacles(rng, q)
@@ -148,8 +188,10 @@ def test_crowded_poses_give_many_rows_of_every_kind(pair):
         kinds |= {name.split(":")[0] for name in fast.names}
         most = max(most, sum(name.startswith("obstacle:") for name in fast.names))
         queries += pair.fast.last_queries
+        pruned += pair.reference.last_queries - pair.fast.last_queries
     assert kinds == {"table", "obstacle", "self"}
     assert most == pair.fast.max_obstacle_rows and queries > 40 * most
+    assert pruned > 0  # the pruning of obstacle candidates beyond the nearest was exercised
 
 
 @settings(max_examples=25, deadline=None)
@@ -207,7 +249,9 @@ def test_a_failing_query_takes_the_guarded_answer(pair, monkeypatch, failure):
         middle = GUARD.failures
         reference_rows = pair.reference.rows(pair.reference_snapshot, True, True, True)
         _assert_same(fast_rows, reference_rows)
-        assert middle - before == GUARD.failures - middle  # the same queries guarded
+        # the same queries guarded, less the obstacle candidates pruned (never among the nearest)
+        assert middle - before <= GUARD.failures - middle
+        assert (middle - before == GUARD.failures - middle) or fast.last_queries < pair.reference.last_queries
         if failure != "both":
             assert middle == before
         seen += len(fast_rows.names)

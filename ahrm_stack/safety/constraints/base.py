@@ -194,6 +194,26 @@ class ArmSnapshot:
         else:
             out[...] = out @ self.base_rotation.T + self.base_translation
 
+    def place(self, frames: Sequence[int], out: np.ndarray) -> list[pin.SE3]:
+        """World positions of several frames written into ``out`` (len(frames) x 3, m; the numbers
+        of :meth:`placements`), and their placements in the model's frame, for
+        :meth:`world_rotation` to turn into world rotations where needed."""
+        model, data = self.model, self.data
+        placed = [pin.updateFramePlacement(model, data, f) for f in frames]
+        for k, local in enumerate(placed):
+            out[k] = local.translation
+        if self._identity_base:
+            np.add(out, self.base_translation, out=out)
+        else:
+            out[...] = out @ self.base_rotation.T + self.base_translation
+        return placed
+
+    def world_rotation(self, local: pin.SE3) -> np.ndarray:
+        """The world rotation matrix of a placement from :meth:`place` (that of :meth:`placements`)."""
+        if self._identity_base:
+            return local.rotation
+        return np.einsum("ij,kjl->kil", self.base_rotation, local.rotation[None])[0]
+
     def placements(self, frames: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
         """World positions (k x 3, m) and rotation matrices (k x 3 x 3) of several frames."""
         model, data = self.model, self.data

@@ -28,6 +28,7 @@ answers; its guarded path where that one would take it), the pairs' names and in
 
 from __future__ import annotations
 
+import bisect
 from typing import Mapping, Sequence
 
 import coal
@@ -39,6 +40,10 @@ from ahrm_stack.safety.constraints.base import ArmSnapshot, ConstraintDefinition
 
 TABLE = "table"
 _TABLE, _OBSTACLE, _SELF = 0, 1, 2  # kinds of row, in the order they are stacked
+# m: an obstacle candidate whose distance's lower bound exceeds the farthest of the nearest
+# max_obstacle_rows found by more than this is not measured. Far above coal's error on separated
+# shapes (~3e-7 m with the scene's GJK tolerance), so no measured distance falls below the bound.
+PRUNE_MARGIN = 1e-5
 
 
 class DistanceLimit:
@@ -146,6 +151,13 @@ class DistanceLimit:
                                                    self._parts[b].collisionGeometry())
                               for a, b in pairs]
         self.last_queries = 0  # distance queries made by the last call (after the bounding test)
+        # Per-call work space: the parts' world positions (m), the moving parts' rows of it (a view
+        # when they are consecutive), the table's box as the bounding test takes it.
+        self._centers = np.zeros((len(self._parts), 3))
+        self._moving_list = self._moving.tolist()
+        self._table_origins, self._table_halves = self._table_origin[None], self._table_half[None]
+        self._moving_view = (self._centers[self._moving_rows][:, None, :]
+                             if isinstance(self._moving_rows, slice) else None)
 
     def max_rows(self, table: bool, obstacles: bool, self_collision: bool = False) -> int:
         return ((len(self._moving) if table else 0) + (self.max_obstacle_rows if obstacles else 0)
@@ -161,8 +173,10 @@ class DistanceLimit:
         self_collision = self_collision and len(self.self_pairs) > 0
         if not (table or obstacles or self_collision):
             return Rows.empty(nv)
-        centers, part_rotations = snapshot.placements(self._part_frames)
+        centers = self._centers
+        placed = snapshot.place(self._part_frames, centers)  # rotations only where a query needs them
         candidates = []  # (kind, part index, object index or self pair index)
+        ranked: list[tuple[float, int, int]] = []  # obstacle candidates: (lower bound, part, object)
         if table or obstacles:
             # Bounding test: each moving part's ball against each object's world-aligned box.
             first = 0 if table else 1
@@ -174,29 +188,39 @@ class DistanceLimit:
                 half = np.einsum("kij,kj->ki", rotations, self._obstacle_extent)
                 half = np.concatenate(([self._table_half], half)) if table else half
             else:
-                origins, half = self._table_origin[None], self._table_half[None]
-            moving = centers[self._moving_rows]
-            gap = np.maximum(np.abs(moving[:, None, :] - origins) - half, 0.0)
-            near = np.sqrt(np.einsum("ijk,ijk->ij", gap, gap)) - self._moving_radius <= self.activation_distance
-            parts, objects = near.nonzero()
-            candidates += [(_TABLE if j == 0 else _OBSTACLE, i, j)
-                           for i, j in zip(self._moving[parts].tolist(), (objects + first).tolist())]
+                origins, half = self._table_origins, self._table_halves
+            moving_centers = (self._moving_view if self._moving_view is not None
+                              else centers[self._moving][:, None, :])
+            gap = np.abs(moving_centers - origins)
+            np.subtract(gap, half, out=gap)
+            np.maximum(gap, 0.0, out=gap)
+            reach = np.sqrt(np.einsum("ijk,ijk->ij", gap, gap))
+            np.subtract(reach, self._moving_radius, out=reach)
+            parts, objects = (reach <= self.activation_distance).nonzero()
+            moving = self._moving_list
+            if obstacles:
+                bounds = reach[parts, objects].tolist()
+                for p, j, bound in zip(parts.tolist(), (objects + first).tolist(), bounds):
+                    if j == 0:
+                        candidates.append((_TABLE, moving[p], 0))
+                    else:
+                        ranked.append((bound, moving[p], j))
+            else:
+                candidates += [(_TABLE, moving[p], 0) for p in parts.tolist()]
         if self_collision:
             offset = centers[self._pair_a] - centers[self._pair_b]
             reach = np.sqrt(np.einsum("ij,ij->i", offset, offset)) - self._pair_radius[0] - self._pair_radius[1]
             near = (reach <= self.activation_distance).nonzero()[0]
             candidates += [(_SELF, self._pair_parts[k][0], k) for k in near.tolist()]
-        self.last_queries = len(candidates)
-        if not candidates:
+        if not (candidates or ranked):
             return Rows.empty(nv)
         # Signed distances, witness points and normals of the candidates: (kind, d, part, object
         # or pair index, 9 floats: witness on the part, witness on the other, normal towards the part).
-        found = self._measure(candidates, centers, part_rotations)
-        if not found:
+        found, nearest = self._measure(candidates, ranked, snapshot, placed)
+        if not (found or nearest):
             return Rows.empty(nv)
-        obstacle_rows = sorted((f for f in found if f[0] == _OBSTACLE), key=lambda f: f[1])
-        found = ([f for f in found if f[0] == _TABLE] + obstacle_rows[:self.max_obstacle_rows]
-                 + [f for f in found if f[0] == _SELF])
+        table_rows = [f for f in found if f[0] == _TABLE]
+        found = table_rows + nearest + [f for f in found if f[0] == _SELF] if table_rows else nearest + found
         # The rows, all at once: row = -T n^T (J_a(p_a) - J_b(p_b)), J_b = 0 off the arm; the
         # self rows (last) get -n^T J_b(p_b) as rows of their own, added below.
         count = len(found)
@@ -217,60 +241,98 @@ class DistanceLimit:
         matrix = rates[:count]
         if own < count:
             matrix[own:] += rates[count:]
-        names = tuple(self._self_names[f[3]] if f[0] == _SELF else self._names[f[2]][f[3]] for f in found)
+        names = tuple([self._self_names[f[3]] if f[0] == _SELF else self._names[f[2]][f[3]] for f in found])
         return Rows(-self.horizon * matrix, np.array([f[1] for f in found]) - self.safe_distance, names)
 
-    def _measure(self, candidates: list[tuple[int, int, int]], centers: np.ndarray, rotations: np.ndarray
-                 ) -> list[tuple[int, float, int, int, tuple[float, ...]]]:
+    def _measure(self, candidates: list[tuple[int, int, int]], ranked: list[tuple[float, int, int]],
+                 snapshot: ArmSnapshot, placed: list) -> tuple[list, list]:
         """The candidates within the activation distance, measured: one tuple (kind, d, a, b,
         the 9 floats of witness a, witness b, normal) each, in the candidates' order; ``b`` is
-        the object index for table and obstacle rows, the pair index for self rows."""
+        the object index for table and obstacle rows, the pair index for self rows. Then the
+        obstacle candidates ``ranked`` (lower bound of the distance, part, object; in the
+        bounding test's order): the ``max_obstacle_rows`` nearest within the activation
+        distance, ordered by distance and, on ties, by their place in ``ranked`` (as a stable
+        sort of all of them would order them). Those measured in order of their lower bound,
+        and once ``max_obstacle_rows`` are found, a candidate whose lower bound exceeds both
+        ``PRUNE_MARGIN`` and the farthest of them by ``PRUNE_MARGIN`` is not measured: its
+        distance is at least its lower bound, so it could not be among them. Counts the queries
+        in ``last_queries``."""
+        centers = self._centers
         centers_list = centers.tolist()
-        axes = rotations[:, :, 2].tolist()
-        transforms, placed = self._transforms, [False] * len(self._parts)
+        rotations: list = [None] * len(self._parts)  # world rotation of each part, when needed
+
+        def rotation(k: int) -> np.ndarray:
+            if rotations[k] is None:
+                rotations[k] = snapshot.world_rotation(placed[k])
+            return rotations[k]
+
+        transforms, placed_parts = self._transforms, [False] * len(self._parts)
         result, activation = self._result, self.activation_distance
         objects: dict[int, tuple[coal.Transform3s, list[float]]] = {}  # object index -> transform, origin
+
+        def against_object(a: int, j: int) -> tuple[float, ...]:
+            if not placed_parts[a]:
+                transforms[a].setRotation(rotation(a))
+                transforms[a].setTranslation(centers[a])
+                placed_parts[a] = True
+            other = objects.get(j)
+            if other is None:
+                obj = self._objects[j]
+                other = objects[j] = (obj.getTransform(), obj.getTranslation().tolist())
+            return (placed_signed_distance(self._object_compute[a][j], result, transforms[a],
+                                           other[0], centers_list[a], other[1])
+                    or self._guarded(a, self._objects[j], rotation))
+
         found = []
         for kind, i, j in candidates:
             if kind == _SELF:
                 a, b = self._pair_parts[j]
                 compute = self._self_compute[j]
                 if compute is None:  # two capsules: closed form
-                    answer = capsule_distance_floats(centers_list[a], axes[a], *self._half_radius[a],
-                                                     centers_list[b], axes[b], *self._half_radius[b])
+                    answer = capsule_distance_floats(centers_list[a], rotation(a)[:, 2].tolist(), *self._half_radius[a],
+                                                     centers_list[b], rotation(b)[:, 2].tolist(), *self._half_radius[b])
                 else:
                     for k in (a, b):
-                        if not placed[k]:
-                            transforms[k].setRotation(rotations[k])
+                        if not placed_parts[k]:
+                            transforms[k].setRotation(rotation(k))
                             transforms[k].setTranslation(centers[k])
-                            placed[k] = True
+                            placed_parts[k] = True
                     answer = (placed_signed_distance(compute, result, transforms[a], transforms[b],
                                                      centers_list[a], centers_list[b])
-                              or self._guarded(a, self._parts[b], centers, rotations, b))
+                              or self._guarded(a, rotation=rotation, b=b))
             else:
                 a = i
-                if not placed[a]:
-                    transforms[a].setRotation(rotations[a])
-                    transforms[a].setTranslation(centers[a])
-                    placed[a] = True
-                other = objects.get(j)
-                if other is None:
-                    obj = self._objects[j]
-                    other = objects[j] = (obj.getTransform(), obj.getTranslation().tolist())
-                answer = (placed_signed_distance(self._object_compute[a][j], result, transforms[a],
-                                                 other[0], centers_list[a], other[1])
-                          or self._guarded(a, self._objects[j], centers, rotations))
+                answer = against_object(a, j)
             if answer[0] <= activation:
                 found.append((kind, answer[0], a, j, answer[1:]))
-        return found
+        queries = len(candidates)
+        keep = self.max_obstacle_rows
+        nearest: list = []
+        if ranked:
+            order = sorted(range(len(ranked)), key=lambda k: ranked[k][0]) if len(ranked) > keep else range(len(ranked))
+            kept: list[float] = []  # the distances found, ascending
+            for k in order:
+                bound, a, j = ranked[k]
+                if len(kept) >= keep and bound > PRUNE_MARGIN and bound - PRUNE_MARGIN > kept[keep - 1]:
+                    break  # this and every later candidate: lower bound beyond the nearest found
+                answer = against_object(a, j)
+                queries += 1
+                if answer[0] <= activation:
+                    nearest.append((answer[0], k, (_OBSTACLE, answer[0], a, j, answer[1:])))
+                    bisect.insort(kept, answer[0])
+            nearest.sort(key=lambda n: (n[0], n[1]))
+            nearest = [n[2] for n in nearest[:keep]]
+        self.last_queries = queries
+        return found, nearest
 
-    def _guarded(self, a: int, other: coal.CollisionObject, centers: np.ndarray, rotations: np.ndarray,
+    def _guarded(self, a: int, other: coal.CollisionObject | None = None, rotation=None,
                  b: int | None = None) -> tuple[float, ...]:
-        """:func:`signed_distance` itself on the scene's objects, placed: the guarded answer
-        (counted in ``GUARD``), as the ten floats of ``placed_signed_distance``."""
+        """:func:`signed_distance` itself on the scene's objects, placed (part ``a`` against
+        ``other``, or against part ``b``; ``rotation(k)`` gives part k's world rotation): the
+        guarded answer (counted in ``GUARD``), as the ten floats of ``placed_signed_distance``."""
+        centers = self._centers
         for k in (a,) if b is None else (a, b):
-            self._parts[k].setRotation(rotations[k])
+            self._parts[k].setRotation(rotation(k))
             self._parts[k].setTranslation(centers[k])
-        d, point_a, point_b, normal, _ = signed_distance(self._parts[a], other)
+        d, point_a, point_b, normal, _ = signed_distance(self._parts[a], self._parts[b] if b is not None else other)
         return (d, *point_a.tolist(), *point_b.tolist(), *normal.tolist())
-
