@@ -5,8 +5,9 @@ pair, a fresh coal result each, the rows assembled pair by pair). On random conf
 arms, random obstacle poses crowding the arm and every combination of the row switches, both give
 the same matrix, bounds, names and number of queries (less the obstacle candidates that could not
 be among the ``max_obstacle_rows`` nearest, which the fast path leaves unmeasured); the filter gives
-the same commands with either; and when coal fails (raises, answers NaN) the fast path takes the same guarded answer. One
-prepared coal query (functor and result reused) answers what ``signed_distance`` answers, bit for bit.
+the same commands with either; and when coal fails (raises, answers NaN) the fast path takes the
+same guarded answer. One prepared coal query (functor and result reused) answers what
+``signed_distance`` answers, bit for bit.
 """
 
 from __future__ import annotations

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import math
 import time
+from typing import cast
 
 import numpy as np
 
@@ -43,7 +44,7 @@ from ahrm_stack.kinematics.model import ArmKinematics
 from ahrm_stack.kinematics.scene import CollisionScene
 from ahrm_stack.robot import RobotDescription
 from ahrm_stack.safety.constraints import (AccelerationLimit, ArmSnapshot, ControlPoints,
-                                           CoordinateRows, DistanceLimit, PositionLimit, Rows, TableLimit,
+                                           CoordinateRows, DistanceLimit, PositionLimit, TableLimit,
                                            VelocityLimit, WorkspaceLimit)
 from ahrm_stack.safety.constraints.base import JointBounds
 from ahrm_stack.safety.result import (DISABLED, INFEASIBLE, NONFINITE_INPUT, OPTIMAL, SOLVER_FAILED,
@@ -166,6 +167,7 @@ class SafetyFilter:
                                  OsqpSolver(nv, self.max_rows, config.osqp_eps, config.osqp_max_iter))
         self._fallback_solver = DaqpSolver(nv + 1, self.max_rows)
         self._identity = np.eye(nv)
+        self._regularization = config.cartesian_regularization * self._identity
         self._previous = np.zeros(nv)
         self.last_rows: tuple[str, ...] = ()  # names of the coupled rows built by the last call
         self._bound_names = (self.position.names, self.velocity.names, self.acceleration.names)
@@ -195,7 +197,7 @@ class SafetyFilter:
         self._distance_rows = bool(config.table_distance_rows or config.self_collision_rows)
         # The same bounds as plain floats, for the fast path (six joints are cheaper so than in arrays)
         self._velocity_lower, self._velocity_upper = self._box[0, 1].tolist(), self._box[1, 1].tolist()
-        self._step_list = self.acceleration.step.tolist()
+        self._step_list: list[float] = np.asarray(self.acceleration.step).tolist()
         self._position_lower, self._position_upper = self.position.lower.tolist(), self.position.upper.tolist()
         self._commanded_list = self._commanded.tolist()
 
@@ -306,7 +308,8 @@ class SafetyFilter:
         active = self._box_names(command, lower, upper, ((position_lower, position_upper),
                                                          (velocity_lower, velocity_upper),
                                                          (acceleration_lower, acceleration_upper)))
-        worst, violated = math.inf, ()
+        worst = math.inf
+        violated_rows: tuple[str, ...] = ()
         result = np.array(command)
         if names:
             margins = (bound - matrix @ result).tolist()
@@ -314,13 +317,13 @@ class SafetyFilter:
             if worst <= ACTIVE_TOLERANCE:
                 active += tuple([n for n, m in zip(names, margins) if m <= ACTIVE_TOLERANCE])
                 if worst < -VIOLATION_TOLERANCE:
-                    violated = tuple([n for n, m in zip(names, margins) if m < -VIOLATION_TOLERANCE])
+                    violated_rows = tuple([n for n, m in zip(names, margins) if m < -VIOLATION_TOLERANCE])
         if cartesian:
             modified = fallback or bool(active)
         else:
             modified = not all([abs(c - r) <= ACTIVE_TOLERANCE for c, r in zip(command, request_list)])
         self._previous = np.array(command)
-        return FilterResult(result, modified, active, status, solve_time, fallback, worst, violated)
+        return FilterResult(result, modified, active, status, solve_time, fallback, worst, violated_rows)
 
     def _filter_general(self, q, dq, request, cartesian: bool, obstacles: bool | None,
                         u_prev: np.ndarray | None) -> FilterResult:
@@ -442,7 +445,7 @@ class SafetyFilter:
     def _rows(self, with_obstacles: bool) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
         """This call's coupled rows, written into the work space: (matrix, bound) as views of its
         first rows, and their names. The table and workspace rows first, then the distance rows."""
-        count, names = self._point_count, ()
+        count, names = self._point_count, cast(tuple[str, ...], ())
         if count:
             snap = self._snapshot
             tip, wrist = self._frames
@@ -477,15 +480,15 @@ class SafetyFilter:
         # A request faster than any command could give is scaled down along its direction.
         # (np.linalg.norm(linear_jac, axis=0), without its wrapper: the same sums)
         reach = float(np.sqrt(np.add.reduce(linear_jac * linear_jac, axis=0)) @ self.velocity.limit)
-        largest = float(np.abs(v_nom).max())
+        largest = max(map(abs, v_nom.tolist()))
         if largest > 0:
             unit = v_nom / largest
-            speed = float(np.linalg.norm(unit))
+            speed = math.sqrt(unit @ unit)  # np.linalg.norm's sum (x.dot(x)), without its wrapper
             if largest * speed > reach:
                 v_nom = unit * (reach / speed)
         axis = self._snapshot.placement(tip)[1][:, 2]
-        off_axis = angular_jac - np.outer(axis, axis @ angular_jac)  # P_perp J_w
-        hessian = (linear_jac.T @ linear_jac + self.config.cartesian_regularization * self._identity
+        off_axis = angular_jac - axis[:, None] * (axis @ angular_jac)  # P_perp J_w (np.outer's product)
+        hessian = (linear_jac.T @ linear_jac + self._regularization
                    + self.config.cartesian_orientation_weight * (off_axis.T @ off_axis))
         return hessian, -(linear_jac.T @ v_nom)
 
