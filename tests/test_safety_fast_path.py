@@ -119,9 +119,9 @@ def test_the_fast_path_gives_what_the_general_path_gives(filters, seed, rows, ca
 
 
 def test_the_comparison_exercises_the_fast_path_and_every_outcome(filters, monkeypatch):
-    """Over 150 draws the fast path answers most calls itself (the general path only where a
-    position bound is out of reach), and the draws give active hard bounds, active and violated
-    coupled rows, obstacle rows and solver fallbacks."""
+    """Over 150 draws (a fifth of the joints on or past a limit) the fast path answers many calls
+    itself (the general path takes those where a position bound is out of reach), and the draws
+    give active hard bounds, active and violated coupled rows, obstacle rows and solver fallbacks."""
     safety = filters.filters["default"]
     general_calls = []
     original = safety._filter_general
@@ -147,7 +147,7 @@ def test_the_comparison_exercises_the_fast_path_and_every_outcome(filters, monke
         seen |= {name.split("[")[0].split(":")[0] for name in result.active}
         seen |= {"violated"} if result.violated else set()
         seen |= {"fallback"} if result.fallback else set()
-    assert fast_answers >= 100
+    assert fast_answers >= 50
     assert {"velocity", "acceleration", "position", "obstacle"} <= seen
     assert {"violated", "fallback"} & seen
 
@@ -169,7 +169,11 @@ def test_absurd_or_non_finite_inputs_take_the_general_path(filters):
                 result = safety(inputs[0], inputs[1], inputs[2], u_prev=inputs[3])
                 assert len(calls) == before + 1
                 assert np.all(np.isfinite(result.command))
-        safety(np.zeros(nv), np.zeros(nv), np.full(nv, 0.1 * SANE))  # large but sane: the fast path
-        assert len(calls) == 20
+        robot = filters.robot
+        middle = np.where(robot.limited, (np.where(robot.limited, robot.position_lower, 0.0)
+                                          + np.where(robot.limited, robot.position_upper, 0.0)) / 2, 0.0)
+        result = safety(middle, np.zeros(nv), np.full(nv, 0.1 * SANE))  # large but sane: the fast path
+        assert len(calls) == 20 and result.modified
+        assert np.all(np.abs(result.command) <= np.minimum(safety.acceleration.step, safety.velocity.limit))
     finally:
         del safety._filter_general
