@@ -177,3 +177,32 @@ def test_absurd_or_non_finite_inputs_take_the_general_path(filters):
         assert np.all(np.abs(result.command) <= np.minimum(safety.acceleration.step, safety.velocity.limit))
     finally:
         del safety._filter_general
+
+
+def test_the_work_space_helpers_give_the_numbers_of_the_allocating_ones(filters):
+    """``ArmSnapshot.place``/``world_rotation``/``positions_into`` give :meth:`placements`' and
+    :meth:`positions`' numbers bit for bit, and ``CoordinateRows.write`` gives :meth:`rows`'."""
+    from ahrm_stack.safety.constraints import ControlPoints
+
+    safety = filters.filters["default"]
+    snapshot, distances = safety._snapshot, safety.distances
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        q = _state(filters.robot, rng)[0]
+        snapshot.update(q)
+        frames = distances._part_frames
+        centers, rotations = snapshot.placements(frames)
+        out = np.empty((len(frames), 3))
+        placed = snapshot.place(frames, out)
+        np.testing.assert_array_equal(out, centers)
+        for k, local in enumerate(placed):
+            np.testing.assert_array_equal(snapshot.world_rotation(local), rotations[k])
+        points = np.empty((2, 3))
+        snapshot.positions_into(safety._frames, points)
+        np.testing.assert_array_equal(points, snapshot.positions(safety._frames))
+        jacobians = np.concatenate([snapshot.jacobian(f)[:3] for f in safety._frames])
+        rows = safety._point_rows.rows(ControlPoints(safety._point_rows.points, points.ravel(), jacobians))
+        matrix, bound = np.empty_like(rows.matrix), np.empty_like(rows.bound)
+        safety._point_rows.write(jacobians, points.ravel(), matrix, bound)
+        np.testing.assert_array_equal(matrix, rows.matrix)
+        np.testing.assert_array_equal(bound, rows.bound)
