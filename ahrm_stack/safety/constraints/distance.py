@@ -16,7 +16,10 @@ obstacles ``obstacle:<part>/<obstacle>``, of which only the ``max_obstacle_rows`
 rows between two parts of the arm (the configured self-collision pairs) ``self:<a>/<b>``, all kept.
 The base never moves: it only takes part in self-collision pairs. Pairs that cannot be within the
 activation distance are skipped without a query, by a bound of each part's bounding ball against
-each object's world-aligned bounding box (or the other part's ball).
+each object's world-aligned bounding box (or the other part's ball), then, for a pair of parts, by
+the distance of each one's centre to the other's segment (:func:`_segment_bound`). Obstacle pairs
+are measured nearest bound first; once ``max_obstacle_rows`` are found, a pair whose bound exceeds
+the farthest of them is not measured (it could not be among the nearest). These skips change no row.
 
 The per-call work is set up once: a ``coal.ComputeDistance`` per pair of shapes, a ``Transform3s``
 per robot part updated in place, one reused ``DistanceResult``
@@ -29,6 +32,7 @@ answers; its guarded path where that one would take it), the pairs' names and in
 from __future__ import annotations
 
 import bisect
+import math
 from typing import Mapping, Sequence
 
 import coal
@@ -43,7 +47,27 @@ _TABLE, _OBSTACLE, _SELF = 0, 1, 2  # kinds of row, in the order they are stacke
 # m: an obstacle candidate whose distance's lower bound exceeds the farthest of the nearest
 # max_obstacle_rows found by more than this is not measured. Far above coal's error on separated
 # shapes (~3e-7 m with the scene's GJK tolerance), so no measured distance falls below the bound.
+# Likewise a self-collision candidate whose lower bound (:func:`_segment_bound`) exceeds the
+# activation distance by more than this.
 PRUNE_MARGIN = 1e-5
+
+
+def _segment_bound(center_a: list[float], axis_a: list[float], half_a: float, radius_a: float,
+                   center_b: list[float], axis_b: list[float], half_b: float, radius_b: float) -> float:
+    """A lower bound (m) of the distance between two capsules (segments ``center +- half * axis``,
+    ``axis`` a unit vector, swept by ``radius``), or between shapes they enclose (a cylinder of
+    that radius and half length): the distance from each centre to the other segment, less the
+    own half length (every point of a segment is within its half length of its centre), the larger
+    of the two, less both radii. Plain floats (it runs for every self-collision candidate)."""
+    wx, wy, wz = center_b[0] - center_a[0], center_b[1] - center_a[1], center_b[2] - center_a[2]
+    ux, uy, uz = axis_a
+    t = min(max(wx * ux + wy * uy + wz * uz, -half_a), half_a)
+    ex, ey, ez = wx - t * ux, wy - t * uy, wz - t * uz
+    vx, vy, vz = axis_b
+    s = min(max(-(wx * vx + wy * vy + wz * vz), -half_b), half_b)
+    fx, fy, fz = wx + s * vx, wy + s * vy, wz + s * vz
+    return max(math.sqrt(ex * ex + ey * ey + ez * ez) - half_b,
+               math.sqrt(fx * fx + fy * fy + fz * fz) - half_a) - radius_a - radius_b
 
 
 class DistanceLimit:
@@ -283,14 +307,28 @@ class DistanceLimit:
                                            other[0], centers_list[a], other[1])
                     or self._guarded(a, self._objects[j], rotation))
 
+        axes: list = [None] * len(self._parts)  # each part's world axis (local z): x, y, z
+
+        def axis(k: int) -> list[float]:
+            if axes[k] is None:
+                axes[k] = rotation(k)[:, 2].tolist()
+            return axes[k]
+
+        half_radius = self._half_radius
         found = []
+        queries = 0
         for kind, i, j in candidates:
             if kind == _SELF:
                 a, b = self._pair_parts[j]
+                axis_a, axis_b = axis(a), axis(b)
+                if (_segment_bound(centers_list[a], axis_a, *half_radius[a], centers_list[b], axis_b, *half_radius[b])
+                        > activation + PRUNE_MARGIN):
+                    continue  # farther than the activation distance: no row, no query
+                queries += 1
                 compute = self._self_compute[j]
                 if compute is None:  # two capsules: closed form
-                    answer = capsule_distance_floats(centers_list[a], rotation(a)[:, 2].tolist(), *self._half_radius[a],
-                                                     centers_list[b], rotation(b)[:, 2].tolist(), *self._half_radius[b])
+                    answer = capsule_distance_floats(centers_list[a], axis_a, *half_radius[a],
+                                                     centers_list[b], axis_b, *half_radius[b])
                 else:
                     for k in (a, b):
                         if not placed_parts[k]:
@@ -302,10 +340,10 @@ class DistanceLimit:
                               or self._guarded(a, rotation=rotation, b=b))
             else:
                 a = i
+                queries += 1
                 answer = against_object(a, j)
             if answer[0] <= activation:
                 found.append((kind, answer[0], a, j, answer[1:]))
-        queries = len(candidates)
         keep = self.max_obstacle_rows
         nearest: list = []
         if ranked:
