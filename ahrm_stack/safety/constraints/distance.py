@@ -177,7 +177,20 @@ class DistanceLimit:
         self.last_queries = 0  # distance queries made by the last call (after the bounding test)
         # Per-call work space: the parts' world positions (m), the moving parts' rows of it (a view
         # when they are consecutive), the table's box as the bounding test takes it.
-        self._centers = np.zeros((len(self._parts), 3))
+        # the parts' centres, then the table's (fixed) origin: one array for the bounding test
+        self._points = np.zeros((len(self._parts) + 1, 3))
+        self._points[-1] = self._table_origin
+        self._centers = self._points[:-1]
+        # The bounding test without obstacles in one pass: each moving part's ball against the table's
+        # box, then each self pair's two balls (a box of half size 0 about the second centre).
+        moving_count = len(self._moving)
+        self._near_first = np.concatenate((self._moving, self._pair_a)).astype(int)
+        self._near_second = np.concatenate((np.full(moving_count, len(self._parts)), self._pair_b)).astype(int)
+        self._near_half = np.concatenate((np.tile(self._table_half, (moving_count, 1)), np.zeros((len(pairs), 3))))
+        self._near_radius = np.concatenate((self._part_radius[self._moving],
+                                            self._part_radius[self._pair_a] + self._part_radius[self._pair_b]))
+        self._near_kinds = ([(_TABLE, part, 0) for part in self._moving.tolist()]
+                            + [(_SELF, a, k) for k, (a, _) in enumerate(pairs)])
         self._moving_list = self._moving.tolist()
         self._table_origins, self._table_halves = self._table_origin[None], self._table_half[None]
         self._moving_view = (self._centers[self._moving_rows][:, None, :]
@@ -201,7 +214,16 @@ class DistanceLimit:
         placed = snapshot.place(self._part_frames, centers)  # rotations only where a query needs them
         candidates = []  # (kind, part index, object index or self pair index)
         ranked: list[tuple[float, int, int]] = []  # obstacle candidates: (lower bound, part, object)
-        if table or obstacles:
+        if table and self_collision and not obstacles:  # the default rows: one bounding test
+            points = self._points
+            gap = np.abs(points[self._near_first] - points[self._near_second])
+            np.subtract(gap, self._near_half, out=gap)
+            np.maximum(gap, 0.0, out=gap)
+            reach = np.sqrt(np.einsum("ij,ij->i", gap, gap))
+            np.subtract(reach, self._near_radius, out=reach)
+            kinds = self._near_kinds
+            candidates = [kinds[k] for k in (reach <= self.activation_distance).nonzero()[0].tolist()]
+        elif table or obstacles:
             # Bounding test: each moving part's ball against each object's world-aligned box.
             first = 0 if table else 1
             if obstacles:
@@ -231,7 +253,7 @@ class DistanceLimit:
                         ranked.append((bound, moving[p], j))
             else:
                 candidates += [(_TABLE, moving[p], 0) for p in parts.tolist()]
-        if self_collision:
+        if self_collision and (obstacles or not table):
             offset = centers[self._pair_a] - centers[self._pair_b]
             reach = np.sqrt(np.einsum("ij,ij->i", offset, offset)) - self._pair_radius[0] - self._pair_radius[1]
             near = (reach <= self.activation_distance).nonzero()[0]
