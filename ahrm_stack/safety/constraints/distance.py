@@ -294,7 +294,9 @@ class DistanceLimit:
                  snapshot: ArmSnapshot, placed: list) -> tuple[list, list]:
         """The candidates within the activation distance, measured: one tuple (kind, d, a, b,
         the 9 floats of witness a, witness b, normal) each, in the candidates' order; ``b`` is
-        the object index for table and obstacle rows, the pair index for self rows. Then the
+        the object index for table and obstacle rows, the pair index for self rows (a self pair
+        whose :func:`_segment_bound` exceeds the activation distance by ``PRUNE_MARGIN`` is not
+        measured: it could give no row). Then the
         obstacle candidates ``ranked`` (lower bound of the distance, part, object; in the
         bounding test's order): the ``max_obstacle_rows`` nearest within the activation
         distance, ordered by distance and, on ties, by their place in ``ranked`` (as a stable
