@@ -10,10 +10,16 @@ Rows of the table (each for daqp and for the persistent OSQP workspace):
 * 8 obstacles  — default plus obstacle rows, in a scene where the four obstacles crowd the pusher
                  and wrist so that 8 robot-obstacle pairs are within the activation distance.
 
-"hot" latencies replay the same inputs back to back (the filter alone, caches warm); "in loop"
-latencies are measured inside a random-policy episode, alternating with ``runner.step_only`` (the
-real use: MuJoCo evicts the filter's working set between calls), and the step share is
-sum(filter time) / sum(step_only time) over that episode.
+"hot" latencies replay the same inputs back to back (the filter alone, caches warm), wall clock
+and the thread's CPU time ("cpu": it leaves out the time the process was not running, which decides
+the wall-clock p99 on a loaded 2-core machine); "in loop" latencies are measured inside a
+random-policy episode, alternating with ``runner.step_only`` (the real use: MuJoCo evicts the
+filter's working set between calls), and the step share is sum(filter time) / sum(step_only time)
+over that episode. "default cart" is the default rows in Cartesian mode (tip-velocity requests, the
+training's action mode). For daqp the filter's fast path (every input finite) is then timed against
+its general path (``SafetyFilter._filter_general``, the per-call routine before the fast path, which
+still takes non-finite inputs) on the same inputs, called alternately; their commands must agree
+bit for bit.
 Usage: python benchmarks/bench_safety.py [--repeats R] [--steps N] [--quick]
 """
 
@@ -21,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import gc
 import os
 import time
 
@@ -44,6 +51,7 @@ VARIANTS = {
     "no self": dict(self_collision_rows=False),
     "default": {},
     "8 obstacles": dict(obstacle_rows=True),
+    "default cart": {},
 }
 GOALS_US = {("daqp", "table+ws"): 50.0, ("daqp", "8 obstacles"): 150.0}
 
@@ -102,33 +110,72 @@ def percentiles(samples):
     return float(np.percentile(us, 50)), float(np.percentile(us, 99))
 
 
-def hot_latency(safety, inputs, repeats):
-    """Per-call times (s) and the mean number of obstacle rows built per call."""
-    times, rows = [], []
+def cartesian_inputs(runner, stream, seed=3):
+    """The recorded states with random tip-velocity requests (m/s, within the action's scale)."""
+    rng = np.random.default_rng(seed)
+    speed = runner.task.config.action.cartesian_max_speed
+    return [(q, dq, rng.uniform(-speed, speed, 3), u_prev) for q, dq, _, u_prev in stream]
+
+
+def hot_latency(safety, inputs, repeats, cartesian=False):
+    """Per-call wall-clock and CPU times (s), the QP solver's part of each (s), and the mean
+    number of obstacle rows built per call."""
+    times, cpu, solve, rows = [], [], [], []
+    call = safety.cartesian if cartesian else safety
+    wall_clock, cpu_clock = time.perf_counter, time.thread_time
     for _ in range(repeats):
-        for q, dq, u_nom, u_prev in inputs:
-            start = time.perf_counter()
-            safety(q, dq, u_nom, u_prev=u_prev)
-            times.append(time.perf_counter() - start)
+        for q, dq, request, u_prev in inputs:
+            start, start_cpu = wall_clock(), cpu_clock()
+            result = call(q, dq, request, u_prev=u_prev)
+            end_cpu, end = cpu_clock(), wall_clock()
+            times.append(end - start)
+            cpu.append(end_cpu - start_cpu)
+            solve.append(result.solve_time)
             rows.append(sum(name.startswith("obstacle:") for name in safety.last_rows))
-    return times, float(np.mean(rows))
+    return times, cpu, solve, float(np.mean(rows))
 
 
-def in_loop(runner, safety, steps, seed=1):
-    """Filter and step_only times (s) per control step of one random-policy episode."""
+def fast_against_general(safety, inputs, repeats, cartesian=False):
+    """CPU times (s) per call of the filter's fast path (``safety``'s call) and of its general
+    path on the same inputs, called alternately, and how many commands differ."""
+    fast, general, differ = [], [], 0
+    cpu_clock = time.thread_time
+    fast_call = safety.cartesian if cartesian else safety
+    for repeat in range(repeats):
+        for k, (q, dq, request, u_prev) in enumerate(inputs):
+            commands = []
+            for path in ((0, 1) if (k + repeat) % 2 else (1, 0)):
+                start = cpu_clock()
+                if path == 0:
+                    result = fast_call(q, dq, request, u_prev=u_prev)
+                else:
+                    result = safety._filter_general(q, dq, request, cartesian, None, u_prev)
+                (fast if path == 0 else general).append(cpu_clock() - start)
+                commands.append(result.command)
+            differ += not np.array_equal(commands[0], commands[1])
+    return fast, general, differ
+
+
+def in_loop(runner, safety, steps, seed=1, cartesian=False):
+    """Filter and step_only times (s) per control step of one random-policy episode (joint
+    requests, or tip velocities with ``cartesian``)."""
     runner.reset()
     safety.reset()
     task = runner.task
     joints = runner.physics.bind(task.arm.joints)
     rng = np.random.default_rng(seed)
     filter_times, step_times, u_nom = [], [], np.zeros(6)
+    call = safety.cartesian if cartesian else safety
+    speed = task.config.action.cartesian_max_speed
     for step in range(steps):
         if step % 20 == 0:
             u_nom = rng.uniform(-1.5, 1.5, 6) * task.robot.velocity_limit
             u_nom[5] = 0.0
+            if cartesian:
+                u_nom = rng.uniform(-speed, speed, 3)
         q, dq = np.array(joints.qpos), np.array(joints.qvel)
         start = time.perf_counter()
-        command = safety(q, dq, u_nom).command
+        command = call(q, dq, u_nom).command
         middle = time.perf_counter()
         runner.step_only(command)
         filter_times.append(middle - start)
@@ -167,36 +214,46 @@ def filter_bench_setup(description: str):
 
 def main() -> None:
     args, cfg, runner, stream, scene, crowd_inputs = filter_bench_setup(__doc__.splitlines()[0])
+    cart_inputs = cartesian_inputs(runner, stream)
 
     print(f"safety filter latency, {args.repeats} x {args.steps} calls per row (hot) and one "
-          f"{args.steps}-step random-policy episode per row (in loop); times in microseconds")
-    print(f"{'solver':6s} {'rows':12s} {'hot p50':>8s} {'hot p99':>8s} {'loop p50':>9s} "
-          f"{'loop p99':>9s} {'step p50':>9s} {'share':>7s}  goal")
-    results = {}
+          f"{args.steps}-step random-policy episode per row (in loop); times in microseconds; "
+          f"load average (1 min) {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
+    print(f"{'solver':6s} {'rows':12s} {'hot p50':>8s} {'hot p99':>8s} {'cpu p50':>8s} {'cpu p99':>8s} "
+          f"{'QP p50':>7s} {'loop p50':>9s} {'loop p99':>9s} {'step p50':>9s} {'share':>7s}  goal")
+    results, paths = {}, {}
     for solver in ("daqp", "osqp"):
         for name, changes in VARIANTS.items():
             changes = dict(changes, solver=solver)
+            cartesian = name.endswith("cart")
             if name == "8 obstacles":
                 safety = build(runner, cfg.safety, changes, scene=scene)
-                hot, obstacle_rows = hot_latency(safety, crowd_inputs, args.repeats)
-                loop_filter, loop_step = np.array([np.nan]), np.array([np.nan])
+                inputs = crowd_inputs
             else:
                 safety = build(runner, cfg.safety, changes)
-                hot, obstacle_rows = hot_latency(safety, stream, args.repeats)
-                loop_filter, loop_step = in_loop(runner, safety, args.steps)
+                inputs = cart_inputs if cartesian else stream
+            hot, cpu, solve, obstacle_rows = hot_latency(safety, inputs, args.repeats, cartesian)
+            if name == "8 obstacles":
+                loop_filter, loop_step = np.array([np.nan]), np.array([np.nan])
+            else:
+                loop_filter, loop_step = in_loop(runner, safety, args.steps, cartesian=cartesian)
+            if solver == "daqp":
+                paths[name] = fast_against_general(safety, inputs, max(1, args.repeats // 2), cartesian)
             hot50, hot99 = percentiles(hot)
+            cpu50, cpu99 = percentiles(cpu)
             loop50, loop99 = percentiles(loop_filter)
             step50 = float(np.median(loop_step) * 1e6)
             share = float(loop_filter.sum() / loop_step.sum())
             goal = GOALS_US.get((solver, name))
-            mark = "" if goal is None else f"p99 <= {goal:.0f}: {'met' if hot99 <= goal else 'NOT met'}"
+            mark = "" if goal is None else (f"p99 <= {goal:.0f}: {'met' if hot99 <= goal else 'NOT met'}"
+                                            f" (cpu: {'met' if cpu99 <= goal else 'NOT met'})")
             if name == "8 obstacles":
                 mark += f" ({obstacle_rows:.1f} obstacle rows per call)"
             elif solver == "daqp":
                 mark += ("  " if mark else "") + f"share <= 5%: {'met' if share <= 0.05 else 'NOT met'}"
-            results[(solver, name)] = (hot50, hot99, loop50, share)
-            print(f"{solver:6s} {name:12s} {hot50:8.1f} {hot99:8.1f} {loop50:9.1f} {loop99:9.1f} "
-                  f"{step50:9.1f} {share:7.1%}  {mark}")
+            results[(solver, name)] = (hot50, hot99, loop50, share, percentiles(solve)[0])
+            print(f"{solver:6s} {name:12s} {hot50:8.1f} {hot99:8.1f} {cpu50:8.1f} {cpu99:8.1f} "
+                  f"{results[(solver, name)][4]:7.1f} {loop50:9.1f} {loop99:9.1f} {step50:9.1f} {share:7.1%}  {mark}")
     print("ratios osqp / daqp (hot p50): " + ", ".join(
         f"{name} {results[('osqp', name)][0] / results[('daqp', name)][0]:.1f}x" for name in VARIANTS))
     print("ratio default / no self (hot p50, daqp): "
@@ -205,6 +262,24 @@ def main() -> None:
     print("ratios in-loop / hot (p50, daqp): " + ", ".join(
         f"{name} {results[('daqp', name)][2] / results[('daqp', name)][0]:.1f}x"
         for name in VARIANTS if name != "8 obstacles"))
+    print("ratios filter call / its QP solve (hot p50, daqp): " + ", ".join(
+        f"{name} {results[('daqp', name)][0] / max(results[('daqp', name)][4], 1e-3):.0f}x" for name in VARIANTS))
+    gc_share = []
+    for name in ("table+ws", "default"):
+        safety = build(runner, cfg.safety, dict(VARIANTS[name], solver="daqp"))
+        cpu_on = hot_latency(safety, stream, args.repeats)[1]
+        gc.disable()
+        try:
+            cpu_off = hot_latency(safety, stream, args.repeats)[1]
+        finally:
+            gc.enable()
+        gc_share.append(f"{name} {percentiles(cpu_on)[1]:.1f} / {percentiles(cpu_off)[1]:.1f} us")
+    print("garbage collector: hot cpu p99 with it on / off (daqp): " + ", ".join(gc_share))
+    print("general / fast path, daqp, CPU time, called alternately (p50, p99; commands differing):")
+    for name, (fast, general, differ) in paths.items():
+        (f50, f99), (g50, g99) = percentiles(fast), percentiles(general)
+        print(f"  {name:12s} fast {f50:6.1f} / {f99:6.1f}  general {g50:6.1f} / {g99:6.1f}  "
+              f"ratio {g50 / f50:.2f}x / {g99 / f99:.2f}x  {differ} of {len(fast)}")
 
 
 if __name__ == "__main__":

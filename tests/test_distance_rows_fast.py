@@ -3,9 +3,12 @@
 ``tests/distance_rows_reference.py`` keeps that routine (one ``signed_distance`` per candidate
 pair, a fresh coal result each, the rows assembled pair by pair). On random configurations of both
 arms, random obstacle poses crowding the arm and every combination of the row switches, both give
-the same matrix, bounds, names and number of queries; the filter gives the same commands with
-either; and when coal fails (raises, answers NaN) the fast path takes the same guarded answer. One
-prepared coal query (functor and result reused) answers what ``signed_distance`` answers, bit for bit.
+the same matrix, bounds, names and number of queries (less the obstacle candidates that could not
+be among the ``max_obstacle_rows`` nearest, which the fast path leaves unmeasured); the filter gives
+the same commands with either; the self-collision pre-test's bound never exceeds the distance; and
+when coal fails (raises, answers NaN) the fast path takes the
+same guarded answer. One prepared coal query (functor and result reused) answers what
+``signed_distance`` answers, bit for bit.
 """
 
 from __future__ import annotations
@@ -22,8 +25,9 @@ from ahrm_stack.env.control_step import make_task_filter
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.task import PushOffTask
 from ahrm_stack.kinematics import scene as scene_module
-from ahrm_stack.kinematics.scene import GUARD, placed_signed_distance, signed_distance
+from ahrm_stack.kinematics.scene import GUARD, capsule_distance, placed_signed_distance, signed_distance
 from ahrm_stack.safety.constraints import ArmSnapshot, DistanceLimit
+from ahrm_stack.safety.constraints.distance import _segment_bound
 
 
 class Pair:
@@ -88,6 +92,28 @@ def _configuration(robot, rng) -> np.ndarray:
                        np.where(robot.limited, robot.position_upper + 0.3, np.pi))
 
 
+def _without_rows_beyond_reach(pair, q, reference, fast):
+    """``reference`` less its self rows missing from ``fast``, each checked (independently of the
+    segment bound) to join two parts whose enclosing capsules are farther apart than the
+    activation distance."""
+    limit = pair.fast
+    pair.reference_snapshot.update(q)
+    centers, rotations = pair.reference_snapshot.placements(pair.reference._part_frames)
+    index = {name: k for k, name in enumerate(limit.part_names)}
+    keep = []
+    for k, name in enumerate(reference.names):
+        if name in fast.names:
+            keep.append(k)
+            continue
+        assert name.startswith("self:"), name
+        a, b = (index[part] for part in name[len("self:"):].split("/"))
+        (half_a, radius_a), (half_b, radius_b) = limit._half_radius[a], limit._half_radius[b]
+        d = capsule_distance(centers[a], rotations[a][:, 2], half_a, radius_a,
+                             centers[b], rotations[b][:, 2], half_b, radius_b)[0]
+        assert d > limit.activation_distance, name
+    return type(reference)(reference.matrix[keep], reference.bound[keep], tuple(reference.names[k] for k in keep))
+
+
 def _assert_same(fast, reference) -> None:
     assert fast.names == reference.names
     assert fast.matrix.shape == reference.matrix.shape
@@ -132,14 +158,54 @@ def test_the_fast_rows_are_the_reference_rows(pair, seed, table, obstacles, self
     pair.place_obstacles(rng, q)
     fast, reference = pair.both(q, table, obstacles, self_collision)
     _assert_same(fast, reference)
-    assert pair.fast.last_queries == pair.reference.last_queries
+    # the same queries, less the obstacle candidates that could not be among the nearest and
+    # the self-collision candidates whose segment bound exceeds the activation distance
+    assert pair.fast.last_queries <= pair.reference.last_queries
+    if not (obstacles or self_collision):
+        assert pair.fast.last_queries == pair.reference.last_queries
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), keep=st.integers(1, 4))
+def test_pruned_obstacle_candidates_could_not_be_among_the_nearest(pair, seed, keep):
+    """With few obstacle rows kept, many candidates are left unmeasured once the nearest are
+    found; the rows stay the reference's (which measures every candidate), bit for bit, and every
+    obstacle pair within the activation distance that got no row is, by ``signed_distance`` on the
+    scene's own objects, no nearer than the farthest obstacle row kept."""
+    rng = np.random.default_rng(seed)
+    q = _configuration(pair.robot, rng)
+    pair.place_obstacles(rng, q)
+    saved = pair.fast.max_obstacle_rows
+    try:
+        pair.fast.max_obstacle_rows = pair.reference.max_obstacle_rows = keep
+        fast, reference = pair.both(q, True, True, False)
+    finally:
+        pair.fast.max_obstacle_rows = pair.reference.max_obstacle_rows = saved
+    _assert_same(fast, reference)
+    assert pair.fast.last_queries <= pair.reference.last_queries
+    kept = [k for k, name in enumerate(fast.names) if name.startswith("obstacle:")]
+    assert len(kept) <= keep
+    if len(kept) == keep:  # independent: every robot-obstacle distance, measured on the scene
+        scene = pair.scene
+        pair.reference_snapshot.update(q)
+        centers, rotations = pair.reference_snapshot.placements(pair.reference._part_frames)
+        farthest = max(fast.bound[kept]) + pair.fast.safe_distance
+        for k, name in enumerate(pair.fast.part_names):
+            if name not in scene.moving_parts:
+                continue
+            scene.robot[name].setRotation(rotations[k])
+            scene.robot[name].setTranslation(centers[k])
+            for obstacle in pair.fast.object_names[1:]:
+                if f"obstacle:{name}/{obstacle}" not in fast.names:
+                    d = signed_distance(scene.robot[name], scene.environment[obstacle])[0]
+                    assert d >= farthest - 1e-9
 
 
 def test_crowded_poses_give_many_rows_of_every_kind(pair):
     """The comparison above is not vacuous: over 40 draws it sees table, obstacle and self rows,
     obstacle rows cut to ``max_obstacle_rows``, and coal's pairs as well as the closed form."""
     rng = np.random.default_rng(7)
-    kinds, most, queries = set(), 0, 0
+    kinds, most, queries, pruned = set(), 0, 0, 0
     for _ in range(40):
         q = _configuration(pair.robot, rng)
         pair.place_obstacles(rng, q)
@@ -148,8 +214,10 @@ def test_crowded_poses_give_many_rows_of_every_kind(pair):
         kinds |= {name.split(":")[0] for name in fast.names}
         most = max(most, sum(name.startswith("obstacle:") for name in fast.names))
         queries += pair.fast.last_queries
+        pruned += pair.reference.last_queries - pair.fast.last_queries
     assert kinds == {"table", "obstacle", "self"}
     assert most == pair.fast.max_obstacle_rows and queries > 40 * most
+    assert pruned > 0  # the pruning of obstacle candidates beyond the nearest was exercised
 
 
 @settings(max_examples=25, deadline=None)
@@ -184,7 +252,11 @@ def test_the_filter_commands_are_the_reference_filters(pair, seed, cartesian):
 def test_a_failing_query_takes_the_guarded_answer(pair, monkeypatch, failure):
     """A prepared query that raises or answers NaN is asked again through ``signed_distance``:
     the rows stay the reference's (coal itself answering there), and when coal fails there too
-    ("both") both routines give the same conservative bound, counted in GUARD."""
+    ("both") both routines give the same conservative bound, counted in GUARD, for every pair they
+    both query. (The reference also queries self pairs that the fast path's segment bound puts
+    beyond the activation distance; with coal failing, the bounding balls' answer it gets can be
+    close enough for a row. Those rows alone may be missing from the fast path's, and each is
+    checked to be beyond reach by the closed-form distance of the parts' enclosing capsules.)"""
     def broken(*args):
         if failure == "nan":
             return float("nan")
@@ -206,11 +278,46 @@ def test_a_failing_query_takes_the_guarded_answer(pair, monkeypatch, failure):
         fast_rows = fast.rows(pair.snapshot, True, True, True)
         middle = GUARD.failures
         reference_rows = pair.reference.rows(pair.reference_snapshot, True, True, True)
+        if failure == "both":
+            reference_rows = _without_rows_beyond_reach(pair, q, reference_rows, fast_rows)
         _assert_same(fast_rows, reference_rows)
-        assert middle - before == GUARD.failures - middle  # the same queries guarded
+        # the same queries guarded, less the obstacle candidates pruned (never among the nearest)
+        assert middle - before <= GUARD.failures - middle
+        assert (middle - before == GUARD.failures - middle) or fast.last_queries < pair.reference.last_queries
         if failure != "both":
             assert middle == before
         seen += len(fast_rows.names)
     assert seen > 0
     assert (GUARD.failures > failures) == (failure == "both")
 
+
+
+@settings(max_examples=200, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), spread=st.sampled_from([0.05, 0.2, 0.6]),
+       cylinder=st.booleans())
+def test_the_segment_bound_never_exceeds_the_distance(seed, spread, cylinder):
+    """``_segment_bound`` of two capsules (or a cylinder and a capsule, as the pusher and a link)
+    is at most their signed distance, by coal on the placed shapes; and it is not vacuous: for
+    separated, long shapes it is often within 5 cm of the distance."""
+    rng = np.random.default_rng(seed)
+    close = 0
+    for _ in range(20):
+        half = rng.uniform(0.0, 0.2, 2)
+        radius = rng.uniform(0.01, 0.06, 2)
+        first = coal.CollisionObject(coal.Cylinder(radius[0], 2 * half[0]) if cylinder
+                                     else coal.Capsule(radius[0], 2 * half[0]))
+        second = coal.CollisionObject(coal.Capsule(radius[1], 2 * half[1]))
+        centers, axes = [], []
+        for obj in (first, second):
+            rotation = _rotation(rng)
+            center = rng.uniform(-spread, spread, 3)
+            obj.setRotation(rotation)
+            obj.setTranslation(center)
+            centers.append(center.tolist())
+            axes.append(rotation[:, 2].tolist())
+        bound = _segment_bound(centers[0], axes[0], half[0], radius[0], centers[1], axes[1], half[1], radius[1])
+        d = signed_distance(first, second)[0]
+        assert bound <= d + 1e-7
+        close += d > 0 and d - bound < 0.05
+    if spread == 0.6:
+        assert close > 0

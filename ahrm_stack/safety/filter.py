@@ -33,7 +33,9 @@ a brake towards zero within the acceleration limit.
 
 from __future__ import annotations
 
+import math
 import time
+from typing import cast
 
 import numpy as np
 
@@ -42,7 +44,7 @@ from ahrm_stack.kinematics.model import ArmKinematics
 from ahrm_stack.kinematics.scene import CollisionScene
 from ahrm_stack.robot import RobotDescription
 from ahrm_stack.safety.constraints import (AccelerationLimit, ArmSnapshot, ControlPoints,
-                                           CoordinateRows, DistanceLimit, PositionLimit, Rows, TableLimit,
+                                           CoordinateRows, DistanceLimit, PositionLimit, TableLimit,
                                            VelocityLimit, WorkspaceLimit)
 from ahrm_stack.safety.constraints.base import JointBounds
 from ahrm_stack.safety.result import (DISABLED, INFEASIBLE, NONFINITE_INPUT, OPTIMAL, SOLVER_FAILED,
@@ -165,6 +167,7 @@ class SafetyFilter:
                                  OsqpSolver(nv, self.max_rows, config.osqp_eps, config.osqp_max_iter))
         self._fallback_solver = DaqpSolver(nv + 1, self.max_rows)
         self._identity = np.eye(nv)
+        self._regularization = config.cartesian_regularization * self._identity
         self._previous = np.zeros(nv)
         self.last_rows: tuple[str, ...] = ()  # names of the coupled rows built by the last call
         self._bound_names = (self.position.names, self.velocity.names, self.acceleration.names)
@@ -181,6 +184,22 @@ class SafetyFilter:
         self._negative_velocity_limit = -self.velocity.limit
         self._rate = 1.0 / self.position.horizon
         self._check = np.empty(3 * nv)
+        # Per-call work space of the coupled rows: the control points' rows first, then the
+        # distance rows, written in place; each call's rows are the first ones.
+        self._point_count = len(self._point_rows.names) if self._point_rows else 0
+        self._matrix = np.zeros((self.max_rows, nv))
+        self._bound = np.zeros(self.max_rows)
+        self._point_matrix, self._point_bound = self._matrix[:self._point_count], self._bound[:self._point_count]
+        self._point_jacobians = np.empty((3 * len(CONTROL_POINTS), nv))  # tip, then wrist (x, y, z)
+        self._tip_jacobian, self._wrist_jacobian = self._point_jacobians[:3], self._point_jacobians[3:]
+        self._point_positions = np.empty((len(CONTROL_POINTS), 3))
+        self._point_positions_flat = self._point_positions.reshape(-1)
+        self._distance_rows = bool(config.table_distance_rows or config.self_collision_rows)
+        # The same bounds as plain floats, for the fast path (six joints are cheaper so than in arrays)
+        self._velocity_lower, self._velocity_upper = self._box[0, 1].tolist(), self._box[1, 1].tolist()
+        self._step_list: list[float] = np.asarray(self.acceleration.step).tolist()
+        self._position_lower, self._position_upper = self.position.lower.tolist(), self.position.upper.tolist()
+        self._commanded_list = self._commanded.tolist()
 
     # ------------------------------------------------------------------ public API
     @property
@@ -213,6 +232,103 @@ class SafetyFilter:
     # ------------------------------------------------------------------ one call
     def _filter(self, q, dq, request, cartesian: bool, obstacles: bool | None,
                 u_prev: np.ndarray | None) -> FilterResult:
+        """One call: the fast path (:meth:`_filter_fast`) when the filter is on and every input is
+        finite and sane, else the general one (:meth:`_filter_general`), which handles every case."""
+        nv = self.num_joints
+        q = _vector(q, nv, "q")
+        dq = _vector(dq, nv, "dq")
+        request = _vector(request, 3 if cartesian else nv, "v_nom" if cartesian else "u_nom")
+        given = u_prev is not None
+        if given:
+            u_prev = _vector(u_prev, nv, "u_prev")
+        q_list, request_list = q.tolist(), request.tolist()
+        previous = u_prev.tolist() if given else self._previous.tolist()
+        # hypot >= every |x| (NaN or inf give NaN or inf), and never overflows below SANE
+        if self.config.enabled and math.hypot(*q_list, *dq.tolist(), *request_list, *previous) < SANE:
+            return self._filter_fast(q, dq, q_list, request, request_list, previous, given, cartesian,
+                                     self.config.obstacle_rows if obstacles is None else obstacles, u_prev)
+        return self._filter_general(q, dq, request, cartesian, obstacles, u_prev)
+
+    def _filter_fast(self, q, dq, q_list, request, request_list, previous, given, cartesian, with_obstacles,
+                     u_prev) -> FilterResult:
+        """:meth:`_filter_general` for a filter that is on and finite, sane inputs, with the per-joint
+        work in plain floats (the same operations, so the same numbers; the tests hold the two paths
+        to the same results): falls back to it when a position bound is out of reach."""
+        if with_obstacles and self.distances is None:
+            raise SafetyFilterError("obstacle rows requested but the filter has no collision scene")
+        velocity_lower, velocity_upper = self._velocity_lower, self._velocity_upper
+        if given:  # as _given_previous: clipped to the velocity limits
+            previous = [min(max(p, lo), hi) for p, lo, hi in zip(previous, velocity_lower, velocity_upper)]
+        # The hard box: position, velocity, acceleration bounds (as _filter_general writes self._box).
+        rate = self._rate
+        position_lower = [(b - x) * rate for b, x in zip(self._position_lower, q_list)]
+        position_upper = [(b - x) * rate for b, x in zip(self._position_upper, q_list)]
+        step = self._step_list
+        acceleration_lower = [p - s for p, s in zip(previous, step)]
+        acceleration_upper = [p + s for p, s in zip(previous, step)]
+        lower = list(map(max, position_lower, velocity_lower, acceleration_lower))
+        upper = list(map(min, position_upper, velocity_upper, acceleration_upper))
+        if True in map(float.__gt__, lower, upper):  # a position bound out of reach: pinned there
+            return self._filter_general(q, dq, request, cartesian, with_obstacles, u_prev)
+
+        # Coupled rows (views of the work space) and the objective.
+        if cartesian or self._point_count or with_obstacles or self._distance_rows:
+            self._snapshot.update(q)
+        matrix, bound, names = self._rows(with_obstacles)
+        self.last_rows = names
+        if cartesian:
+            hessian, linear = self._cartesian_objective(request)
+            lower = [lo if c else min(max(0.0, lo), hi) for c, lo, hi in zip(self._commanded_list, lower, upper)]
+            upper = [hi if c else lo for c, lo, hi in zip(self._commanded_list, lower, upper)]
+            free = np.linalg.solve(hessian, -linear)
+            free_list = free.tolist()
+        else:
+            hessian = self._identity
+            free_list = [min(max(r, lo), hi) for r, lo, hi in zip(request_list, velocity_lower, velocity_upper)]
+            free = np.array(free_list)
+            linear = -free
+
+        # When the unconstrained optimum meets every constraint it is the solution: no solver call.
+        start = time.perf_counter()
+        fallback = False
+        status = OPTIMAL
+        if (False not in map(float.__le__, lower, free_list) and False not in map(float.__le__, free_list, upper)
+                and (not len(names) or False not in map(float.__le__, (matrix @ free).tolist(), bound.tolist()))):
+            command = free_list
+        else:
+            lower_array, upper_array = np.array(lower), np.array(upper)
+            outcome = self.solver.solve(hessian, linear, lower_array, upper_array, matrix, bound)
+            if outcome.x is not None:
+                command = [min(max(x, lo), hi) for x, lo, hi in zip(outcome.x.tolist(), lower, upper)]
+            else:
+                status = INFEASIBLE if outcome.status == INFEASIBLE else SOLVER_FAILED
+                command, fallback = self._safest(lower_array, upper_array, matrix, bound).tolist(), True
+        solve_time = time.perf_counter() - start
+
+        active = self._box_names(command, lower, upper, ((position_lower, position_upper),
+                                                         (velocity_lower, velocity_upper),
+                                                         (acceleration_lower, acceleration_upper)))
+        worst = math.inf
+        violated_rows: tuple[str, ...] = ()
+        result = np.array(command)
+        if names:
+            margins = (bound - matrix @ result).tolist()
+            worst = min(margins)
+            if worst <= ACTIVE_TOLERANCE:
+                active += tuple([n for n, m in zip(names, margins) if m <= ACTIVE_TOLERANCE])
+                if worst < -VIOLATION_TOLERANCE:
+                    violated_rows = tuple([n for n, m in zip(names, margins) if m < -VIOLATION_TOLERANCE])
+        if cartesian:
+            modified = fallback or bool(active)
+        else:
+            modified = not all([abs(c - r) <= ACTIVE_TOLERANCE for c, r in zip(command, request_list)])
+        self._previous = np.array(command)
+        return FilterResult(result, modified, active, status, solve_time, fallback, worst, violated_rows)
+
+    def _filter_general(self, q, dq, request, cartesian: bool, obstacles: bool | None,
+                        u_prev: np.ndarray | None) -> FilterResult:
+        """One call, any input: non-finite or absurd values, the filter switched off, a position
+        bound out of reach."""
         nv = self.num_joints
         q = _vector(q, nv, "q")
         dq = _vector(dq, nv, "dq")
@@ -256,9 +372,9 @@ class SafetyFilter:
         if _any(np.greater(lower, upper)):
             lower, upper, box_violated = self._pin_unreachable(velocity, acceleration, position)
 
-        # Coupled rows and the objective.
+        # Coupled rows (views of the work space) and the objective.
         self._snapshot.update(q)
-        rows = self._rows(with_obstacles)
+        matrix, bound, names = self._rows(with_obstacles)
         if cartesian:
             hessian, linear = self._cartesian_objective(request)
             hold = np.minimum(np.maximum(0.0, lower), upper)
@@ -267,8 +383,7 @@ class SafetyFilter:
         else:
             hessian = self._identity
             linear = -np.minimum(np.maximum(request, velocity.lower), velocity.upper)
-        matrix, bound = rows.matrix, rows.bound
-        self.last_rows = rows.names
+        self.last_rows = names
 
         # When the unconstrained optimum meets every constraint it is the solution: no solver call
         # (this also keeps OSQP from printing its no-active-set notice, osqp/osqp#785).
@@ -296,9 +411,9 @@ class SafetyFilter:
             margins = bound - matrix @ command
             worst = float(np.minimum.reduce(margins))
             if worst <= ACTIVE_TOLERANCE:
-                active += tuple(rows.names[i] for i in (margins <= ACTIVE_TOLERANCE).nonzero()[0])
+                active += tuple([names[i] for i in (margins <= ACTIVE_TOLERANCE).nonzero()[0].tolist()])
                 if worst < -VIOLATION_TOLERANCE:
-                    violated += tuple(rows.names[i] for i in (margins < -VIOLATION_TOLERANCE).nonzero()[0])
+                    violated += tuple([names[i] for i in (margins < -VIOLATION_TOLERANCE).nonzero()[0].tolist()])
         if cartesian:
             modified = fallback or bool(active)
         else:
@@ -327,23 +442,32 @@ class SafetyFilter:
             previous = np.where(np.isfinite(previous), previous, np.where(np.isfinite(dq), dq, 0.0))
         return np.minimum(np.maximum(previous, self._negative_velocity_limit), self.velocity.limit), ok
 
-    def _rows(self, with_obstacles: bool) -> Rows:
-        parts = []
-        if self._point_rows is not None:
-            parts.append(self._point_rows.rows(self._control_points()))
-        if with_obstacles or self.config.table_distance_rows or self.config.self_collision_rows:
+    def _rows(self, with_obstacles: bool) -> tuple[np.ndarray, np.ndarray, tuple[str, ...]]:
+        """This call's coupled rows, written into the work space: (matrix, bound) as views of its
+        first rows, and their names. The table and workspace rows first, then the distance rows."""
+        count, names = self._point_count, cast(tuple[str, ...], ())
+        if count:
+            snap = self._snapshot
+            tip, wrist = self._frames
+            self._tip_jacobian[...] = snap.jacobian(tip)[:3]
+            self._wrist_jacobian[...] = snap.jacobian(wrist)[:3]
+            snap.positions_into(self._frames, self._point_positions)
+            self._point_rows.write(self._point_jacobians, self._point_positions_flat, self._point_matrix,
+                                   self._point_bound)
+            names = self._point_rows.names
+        if with_obstacles or self._distance_rows:
             distance_rows = self.distances.rows(self._snapshot, self.config.table_distance_rows,
                                                 with_obstacles, self.config.self_collision_rows)
-            if len(distance_rows.bound) or not parts:
-                parts.append(distance_rows)
-        if len(parts) == 1:
-            return parts[0]
-        if not parts:
-            return Rows.empty(self.num_joints)
-        return Rows(np.concatenate([p.matrix for p in parts]), np.concatenate([p.bound for p in parts]),
-                    sum((p.names for p in parts), ()))
+            added = len(distance_rows.names)
+            if added:
+                self._matrix[count:count + added] = distance_rows.matrix
+                self._bound[count:count + added] = distance_rows.bound
+                names = names + distance_rows.names if names else distance_rows.names
+                count += added
+        return self._matrix[:count], self._bound[:count], names
 
     def _control_points(self) -> ControlPoints:
+        """The pusher tip and the wrist at the configuration of the last snapshot update."""
         snap = self._snapshot
         tip, wrist = self._frames
         jacobians = np.concatenate((snap.jacobian(tip)[:3], snap.jacobian(wrist)[:3]))
@@ -356,15 +480,15 @@ class SafetyFilter:
         # A request faster than any command could give is scaled down along its direction.
         # (np.linalg.norm(linear_jac, axis=0), without its wrapper: the same sums)
         reach = float(np.sqrt(np.add.reduce(linear_jac * linear_jac, axis=0)) @ self.velocity.limit)
-        largest = float(np.abs(v_nom).max())
+        largest = max(map(abs, v_nom.tolist()))
         if largest > 0:
             unit = v_nom / largest
-            speed = float(np.linalg.norm(unit))
+            speed = math.sqrt(unit @ unit)  # np.linalg.norm's sum (x.dot(x)), without its wrapper
             if largest * speed > reach:
                 v_nom = unit * (reach / speed)
         axis = self._snapshot.placement(tip)[1][:, 2]
-        off_axis = angular_jac - np.outer(axis, axis @ angular_jac)  # P_perp J_w
-        hessian = (linear_jac.T @ linear_jac + self.config.cartesian_regularization * self._identity
+        off_axis = angular_jac - axis[:, None] * (axis @ angular_jac)  # P_perp J_w (np.outer's product)
+        hessian = (linear_jac.T @ linear_jac + self._regularization
                    + self.config.cartesian_orientation_weight * (off_axis.T @ off_axis))
         return hessian, -(linear_jac.T @ v_nom)
 
@@ -415,19 +539,27 @@ class SafetyFilter:
 
     def _active_box(self, command, lower, upper) -> tuple[str, ...]:
         """:meth:`_active_bounds` of the three families in the work space ``self._box`` (as
-        written by this call), in one pass: the same names in the same order (family, joint). In
-        plain floats (the same comparisons as numpy's): six joints are cheaper so than in arrays."""
-        low, high = lower.tolist(), upper.tolist()
-        values = command.tolist()
+        :meth:`_filter_general` writes it), by :meth:`_box_names`: the same names in the same order
+        (family, joint)."""
+        box_low, box_high = self._box.tolist()  # (family, joint) each
+        return self._box_names(command.tolist(), lower.tolist(), upper.tolist(),
+                               tuple(zip(box_low, box_high)))
+
+    def _box_names(self, values: list[float], low: list[float], high: list[float],
+                   families) -> tuple[str, ...]:
+        """Names of the hard bounds the command ``values`` sits on (within ACTIVE_TOLERANCE), in
+        plain floats (the same comparisons as numpy's; six joints are cheaper so than in arrays):
+        ``low``/``high`` the effective box, ``families`` the (lower, upper) lists of the position,
+        velocity and acceleration bounds, whose max (min) the effective bound is, so it equals its
+        owners' exactly."""
         at_lower = [c <= b + ACTIVE_TOLERANCE for c, b in zip(values, low)]
         at_upper = [c >= b - ACTIVE_TOLERANCE for c, b in zip(values, high)]
         if not (True in at_lower or True in at_upper):
             return ()
-        box_low, box_high = self._box.tolist()  # (family, joint) each
         names = self._bound_names
-        joints = range(len(low))
-        return tuple([names[f][i] for f in range(len(names)) for i in joints
-                      if (at_lower[i] and box_low[f][i] == low[i]) or (at_upper[i] and box_high[f][i] == high[i])])
+        joints = [i for i in range(len(low)) if at_lower[i] or at_upper[i]]
+        return tuple([names[f][i] for f, (family_low, family_high) in enumerate(families) for i in joints
+                      if (at_lower[i] and family_low[i] == low[i]) or (at_upper[i] and family_high[i] == high[i])])
 
     def _active_bounds(self, command, lower, upper, families) -> tuple[str, ...]:
         """Names of the hard bounds the command sits on (within ACTIVE_TOLERANCE); ``families``:

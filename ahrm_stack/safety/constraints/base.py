@@ -117,6 +117,14 @@ class CoordinateRows:
         return Rows(self._select_jacobian @ points.jacobians, self._select @ points.positions + self._offset,
                     self.names)
 
+    def write(self, jacobians: np.ndarray, positions: np.ndarray, matrix: np.ndarray, bound: np.ndarray) -> None:
+        """:meth:`rows` into preallocated arrays (the same products, the same numbers):
+        ``jacobians`` (3 k x nv) and ``positions`` (3 k,) stacked as in :class:`ControlPoints`,
+        ``matrix`` (len(names) x nv) and ``bound`` (len(names),) overwritten."""
+        np.matmul(self._select_jacobian, jacobians, out=matrix)
+        np.matmul(self._select, positions, out=bound)
+        np.add(bound, self._offset, out=bound)
+
 
 class ArmSnapshot:
     """Forward kinematics and Jacobians of the arm at one configuration, on a private copy of the
@@ -175,6 +183,36 @@ class ArmSnapshot:
         if self._identity_base:
             return local + self.base_translation
         return local @ self.base_rotation.T + self.base_translation
+
+    def positions_into(self, frames: Sequence[int], out: np.ndarray) -> None:
+        """:meth:`positions` written into ``out`` (len(frames) x 3, m): the same numbers."""
+        model, data = self.model, self.data
+        for k, f in enumerate(frames):
+            out[k] = pin.updateFramePlacement(model, data, f).translation
+        if self._identity_base:
+            np.add(out, self.base_translation, out=out)
+        else:
+            out[...] = out @ self.base_rotation.T + self.base_translation
+
+    def place(self, frames: Sequence[int], out: np.ndarray) -> list[pin.SE3]:
+        """World positions of several frames written into ``out`` (len(frames) x 3, m; the numbers
+        of :meth:`placements`), and their placements in the model's frame, for
+        :meth:`world_rotation` to turn into world rotations where needed."""
+        model, data = self.model, self.data
+        placed = [pin.updateFramePlacement(model, data, f) for f in frames]
+        for k, local in enumerate(placed):
+            out[k] = local.translation
+        if self._identity_base:
+            np.add(out, self.base_translation, out=out)
+        else:
+            out[...] = out @ self.base_rotation.T + self.base_translation
+        return placed
+
+    def world_rotation(self, local: pin.SE3) -> np.ndarray:
+        """The world rotation matrix of a placement from :meth:`place` (that of :meth:`placements`)."""
+        if self._identity_base:
+            return local.rotation
+        return np.einsum("ij,kjl->kil", self.base_rotation, local.rotation[None])[0]
 
     def placements(self, frames: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
         """World positions (k x 3, m) and rotation matrices (k x 3 x 3) of several frames."""
