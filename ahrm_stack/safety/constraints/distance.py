@@ -271,8 +271,8 @@ class DistanceLimit:
         # self rows (last) get -n^T J_b(p_b) as rows of their own, added below.
         count = len(found)
         carriers = [f[2] for f in found]  # the part carrying each witness point
-        points = [f[4][:3] for f in found]
-        directions = [f[4][6:] for f in found]
+        points: list = [f[4][:3] for f in found]
+        directions: list = [f[4][6:] for f in found]
         own = count
         for f in found:
             if f[0] == _SELF:
