@@ -271,7 +271,7 @@ class DistanceLimit:
         # self rows (last) get -n^T J_b(p_b) as rows of their own, added below.
         count = len(found)
         carriers = [f[2] for f in found]  # the part carrying each witness point
-        points: list = [f[4][:3] for f in found]
+        witnesses = [f[4][:3] for f in found]
         directions: list = [f[4][6:] for f in found]
         own = count
         for f in found:
@@ -279,10 +279,10 @@ class DistanceLimit:
                 own -= 1
                 b = self._pair_parts[f[3]][1]
                 carriers.append(b)
-                points.append(f[4][3:6])
+                witnesses.append(f[4][3:6])
                 directions.append(tuple(-x for x in f[4][6:]))
         part_frames = self._part_frames
-        rates = snapshot.point_rows([part_frames[k] for k in carriers], np.array(points),
+        rates = snapshot.point_rows([part_frames[k] for k in carriers], np.array(witnesses),
                                     np.array(directions), centers[carriers])
         matrix = rates[:count]
         if own < count:
