@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import gc
 import logging
 import os
 import time
@@ -56,6 +57,33 @@ class _Timed:
                 self.times.append(time.perf_counter() - start)
 
 
+class _GcTimes:
+    """Python's garbage collections (gc.callbacks) that start while ``active()``: their wall
+    time (s) and generation."""
+
+    def __init__(self, active) -> None:
+        self.active, self.times, self.generations, self._start = active, [], [], None
+
+    def __call__(self, phase: str, info: dict) -> None:
+        if phase == "start":
+            self._start = time.perf_counter() if self.active() else None
+        elif self._start is not None:
+            self.times.append(time.perf_counter() - self._start)
+            self.generations.append(info["generation"])
+            self._start = None
+
+
+def _flagged(call, flag: list):
+    """``call`` with ``flag[0]`` true while it runs."""
+    def flagged():
+        flag[0] = True
+        try:
+            return call()
+        finally:
+            flag[0] = False
+    return flagged
+
+
 def _ms(values) -> tuple[float, float, float]:
     v = np.asarray(values) * 1e3
     return (float(np.percentile(v, 50)), float(np.percentile(v, 99)), float(v.max())) if v.size \
@@ -75,6 +103,9 @@ def bench_rate(rate: float, duration: float, realtime: bool, checkpoint) -> dict
     controller = _Timed(make_controller(world, config, actor), in_tick)
     world.update = _Timed(world.update, in_tick)  # the loop calls self.world.update(...)
     latencies, filter_times = [], []
+    ticking = [False]  # inside a DeployLoop.tick call (the loop collects garbage between ticks)
+    collections = _GcTimes(lambda: ticking[0])
+    gc.callbacks.append(collections)
     misses = ticks = episodes = successes = 0
     stops = []
     arm.connect()
@@ -84,6 +115,7 @@ def bench_rate(rate: float, duration: float, realtime: bool, checkpoint) -> dict
         loop = DeployLoop(arm, world, controller, config.safety, settings)
         # The loop calls self._solve: the filter, or its cartesian entry (differential IK).
         loop._solve = solve = _Timed(loop._solve, in_tick)
+        loop.tick = _flagged(loop.tick, ticking)
         summary = loop.run(left)
         episodes += 1
         successes += summary.success
@@ -96,12 +128,15 @@ def bench_rate(rate: float, duration: float, realtime: bool, checkpoint) -> dict
             stops.append(summary.stop_reason)
             break
     arm.disconnect()
+    gc.callbacks.remove(collections)
     total = float(np.sum(latencies)) or float("nan")
     share = {name: float(np.sum(t)) / total for name, t in
              (("world", world.update.times), ("controller", controller.times), ("filter", filter_times))}
     return dict(rate=rate, ticks=ticks, episodes=episodes, successes=successes, misses=misses,
                 step=_ms(latencies), world=_ms(world.update.times), controller=_ms(controller.times),
-                filter=_ms(filter_times), share=share, stops=stops)
+                filter=_ms(filter_times), share=share, stops=stops,
+                gc=(len(collections.times), float(np.sum(collections.times)) / total,
+                    max(collections.times, default=0.0) * 1e3))
 
 
 def main() -> None:
@@ -137,6 +172,9 @@ def main() -> None:
         print(f"        share of the summed tick time: world model {share['world']:.0%}, controller "
               f"{share['controller']:.0%}, safety filter {share['filter']:.0%}, the rest (adapter, "
               f"checks) {1 - sum(share.values()):.0%}")
+        count, gc_share, gc_worst = r["gc"]
+        print(f"        garbage collections inside ticks: {count} ({gc_share:.1%} of the summed tick "
+              f"time, the longest {gc_worst:.3f} ms)")
         for stop in r["stops"]:
             print(f"        stopped early: {stop}")
         verdict = "met" if step[1] <= GOAL_P99_MS else "NOT met"
