@@ -54,8 +54,8 @@ def test_numpy_policy_gives_the_lean_actors_action(overrides, statistics):
     observations[:10] *= 100.0  # beyond the normaliser's clip
     first = policy(observations[0])
     kept = first.copy()
-    for observation in observations:
-        want = lean.act(torch.as_tensor(observation, dtype=torch.float32)).numpy()
+    wants = lean.act(torch.as_tensor(observations, dtype=torch.float32)).numpy()  # one batch
+    for observation, want in zip(observations, wants):
         got = policy(observation)
         assert got.dtype == np.float32 and got.shape == want.shape
         # float32 sums of 256 terms in another order (BLAS): these weights (N(0, 0.5)) make
@@ -79,12 +79,11 @@ def test_numpy_policy_gives_the_trained_policys_action():
     lean, policy = lean_actor(actor), NumpyPolicy.from_actor(actor)
     assert policy is not None
     rng = np.random.default_rng(6)
-    worst = 0.0
-    for _ in range(300):  # observations around the normaliser's statistics, some far out
-        observation = (lean.normalizer.mean.numpy() + rng.normal(size=policy.observation_dim)
-                       * np.sqrt(lean.normalizer.var.numpy()) * rng.choice([0.5, 1.0, 3.0]))
-        want = lean.act(torch.as_tensor(observation, dtype=torch.float32)).numpy()
-        worst = max(worst, float(np.abs(policy(observation) - want).max()))
+    # observations around the normaliser's statistics, some far out
+    observations = (lean.normalizer.mean.numpy() + rng.normal(size=(300, policy.observation_dim))
+                    * np.sqrt(lean.normalizer.var.numpy()) * rng.choice([0.5, 1.0, 3.0], (300, 1)))
+    wants = lean.act(torch.as_tensor(observations, dtype=torch.float32)).numpy()
+    worst = max(float(np.abs(policy(o) - w).max()) for o, w in zip(observations, wants))
     assert worst <= 1e-5, worst
 
 
@@ -288,7 +287,7 @@ def test_run_collects_garbage_between_ticks_and_restores_the_collector():
     gc.set_threshold(50, *thresholds[1:])  # a collection every few ticks
     gc.callbacks.append(record)
     try:
-        summary = loop.run(2.0)
+        summary = loop.run(1.0)
     finally:
         gc.callbacks.remove(record)
         gc.set_threshold(*thresholds)
