@@ -3,11 +3,19 @@
 The scripted controller (or a policy run's, ``--checkpoint``) drives the sim backend paced to the
 wall clock (``--realtime``, the default) for ``--duration`` s per rate (the issue's figure is
 60 s; 10 s keeps it short); a new seeded episode starts whenever the cube is off the table. The
-watchdog tolerates misses here so that they are counted instead of ending the run. Besides the
-whole tick it times the three costly parts inside it, in the same run: the world model's update
-(the task's measurement: FK, phase geometry, contacts), the controller (mink IK, or the policy's
-forward pass) and the QP safety filter (obstacle rows on; differential IK for a cartesian
-policy), each as p50 / p99 and as its share of the summed tick time.
+watchdog tolerates misses here so that they are counted instead of ending the run.
+
+The "tick" is the loop's latency window, feedback received -> command sent (checks, perception,
+world model, controller, safety filter, the adapter's send), wall clock. The sim backend's physics
+is not in it: the simulated arm applies a command at its stamp on its next call and steps while
+the loop sleeps (hardware/sim.py), as a real arm moves on its own (before 2026-12-02 the send
+stepped the physics up to the send time inside the window). The same window is also given in the
+loop thread's CPU time, which leaves out the time the OS gave other processes. Besides the whole
+tick it times the three costly parts inside it, in the same run: the world model's update (the
+task's measurement: FK, phase geometry, contacts), the controller (mink IK, or the policy's
+observation and forward pass) and the QP safety filter (obstacle rows on; differential IK for a
+cartesian policy), each as p50 / p99 and as its share of the summed tick time; and the garbage
+collections that ran inside a tick (the loop collects between ticks).
 Goals: whole-tick p99 ≤ 1 ms; no missed deadline at 20 Hz.
 
 Usage: python benchmarks/bench_deploy.py [--duration S] [--rates 20 100] [--fast] [--checkpoint RUN]
@@ -73,6 +81,30 @@ class _GcTimes:
             self._start = None
 
 
+class _CpuWindow:
+    """The loop thread's CPU time (``time.thread_time``, s) from each tick's feedback received to
+    its command sent: the latency window's own work, without the time the scheduler gave other
+    processes (on a loaded machine the wall-clock figures are mostly that)."""
+
+    def __init__(self, arm, ticking: list) -> None:
+        self.times, self._start, self._ticking = [], None, ticking
+        refresh, send = arm.refresh_feedback, arm.send_joint_speeds
+
+        def refreshed():
+            frame = refresh()
+            self._start = time.thread_time() if self._ticking[0] else None
+            return frame
+
+        def sent(speeds):
+            command = send(speeds)
+            if self._start is not None and self._ticking[0]:
+                self.times.append(time.thread_time() - self._start)
+            self._start = None
+            return command
+
+        arm.refresh_feedback, arm.send_joint_speeds = refreshed, sent
+
+
 def _flagged(call, flag: list):
     """``call`` with ``flag[0]`` true while it runs."""
     def flagged():
@@ -109,6 +141,7 @@ def bench_rate(rate: float, duration: float, realtime: bool, checkpoint) -> dict
     misses = ticks = episodes = successes = 0
     stops = []
     arm.connect()
+    cpu = _CpuWindow(arm, ticking)
     left = duration
     while left > 1e-9:
         arm.reset_scene(seed=episodes)
@@ -134,7 +167,7 @@ def bench_rate(rate: float, duration: float, realtime: bool, checkpoint) -> dict
              (("world", world.update.times), ("controller", controller.times), ("filter", filter_times))}
     return dict(rate=rate, ticks=ticks, episodes=episodes, successes=successes, misses=misses,
                 step=_ms(latencies), world=_ms(world.update.times), controller=_ms(controller.times),
-                filter=_ms(filter_times), share=share, stops=stops,
+                filter=_ms(filter_times), share=share, stops=stops, cpu=_ms(cpu.times),
                 gc=(len(collections.times), float(np.sum(collections.times)) / total,
                     max(collections.times, default=0.0) * 1e3))
 
@@ -169,6 +202,9 @@ def main() -> None:
               f"{world[0]:6.3f} / {world[1]:6.3f} | {ctrl[0]:7.3f} / {ctrl[1]:7.3f} | "
               f"{filt[0]:6.3f} / {filt[1]:6.3f}")
         share = r["share"]
+        print(f"        the same window in the loop thread's CPU time: p50 {r['cpu'][0]:.3f} / p99 "
+              f"{r['cpu'][1]:.3f} / max {r['cpu'][2]:.3f} ms (the rest of the wall time: waiting for "
+              f"the CPU)")
         print(f"        share of the summed tick time: world model {share['world']:.0%}, controller "
               f"{share['controller']:.0%}, safety filter {share['filter']:.0%}, the rest (adapter, "
               f"checks) {1 - sum(share.values()):.0%}")
