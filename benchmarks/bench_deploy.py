@@ -66,18 +66,17 @@ class _Timed:
 
 
 class _GcTimes:
-    """Python's garbage collections (gc.callbacks) that start while ``active()``: their wall
-    time (s) and generation."""
+    """Python's garbage collections (gc.callbacks): the wall time (s) of those that start while
+    ``active()`` (inside a tick) in ``times``, of the others (between ticks, set-up) in ``outside``."""
 
     def __init__(self, active) -> None:
-        self.active, self.times, self.generations, self._start = active, [], [], None
+        self.active, self.times, self.outside, self._start, self._inside = active, [], [], None, False
 
     def __call__(self, phase: str, info: dict) -> None:
         if phase == "start":
-            self._start = time.perf_counter() if self.active() else None
+            self._start, self._inside = time.perf_counter(), self.active()
         elif self._start is not None:
-            self.times.append(time.perf_counter() - self._start)
-            self.generations.append(info["generation"])
+            (self.times if self._inside else self.outside).append(time.perf_counter() - self._start)
             self._start = None
 
 
@@ -169,7 +168,8 @@ def bench_rate(rate: float, duration: float, realtime: bool, checkpoint) -> dict
                 step=_ms(latencies), world=_ms(world.update.times), controller=_ms(controller.times),
                 filter=_ms(filter_times), share=share, stops=stops, cpu=_ms(cpu.times),
                 gc=(len(collections.times), float(np.sum(collections.times)) / total,
-                    max(collections.times, default=0.0) * 1e3))
+                    max(collections.times, default=0.0) * 1e3, len(collections.outside),
+                    max(collections.outside, default=0.0) * 1e3))
 
 
 def main() -> None:
@@ -208,9 +208,10 @@ def main() -> None:
         print(f"        share of the summed tick time: world model {share['world']:.0%}, controller "
               f"{share['controller']:.0%}, safety filter {share['filter']:.0%}, the rest (adapter, "
               f"checks) {1 - sum(share.values()):.0%}")
-        count, gc_share, gc_worst = r["gc"]
+        count, gc_share, gc_worst, between, between_worst = r["gc"]
         print(f"        garbage collections inside ticks: {count} ({gc_share:.1%} of the summed tick "
-              f"time, the longest {gc_worst:.3f} ms)")
+              f"time, the longest {gc_worst:.3f} ms); outside them (between ticks, set-up): "
+              f"{between}, the longest {between_worst:.3f} ms")
         for stop in r["stops"]:
             print(f"        stopped early: {stop}")
         verdict = "met" if step[1] <= GOAL_P99_MS else "NOT met"

@@ -367,10 +367,10 @@ class DeployLoop:
         exception escaping the loop (e.g. SystemExit) stops the arm, is recorded, and propagates.
 
         Python's garbage collector, a realtime loop's usual outlier, runs between ticks here: the
-        set-up's objects are collected and frozen (``gc.freeze``: never scanned again), automatic
-        collection is off, and after each tick's command the generation the interpreter would
-        have collected is (:meth:`_collect_garbage`); both are restored when the run ends. Not
-        when automatic collection was already off."""
+        set-up's objects are frozen (``gc.freeze``: not scanned by the run's collections),
+        automatic collection is off, and after each tick's command the generation the interpreter
+        would have collected is (:meth:`_collect_garbage`); both are restored when the run ends.
+        Not when automatic collection was already off."""
         ticks = control_periods(duration, self.period)
         collecting = gc.isenabled()
         thaw = collecting and gc.get_freeze_count() == 0  # else another freeze is not ours to undo
@@ -395,7 +395,8 @@ class DeployLoop:
     def _run(self, ticks: int, duration: float, collecting: bool) -> DeploySummary:
         try:
             if collecting:  # inside the try: Ctrl-C here stops the arm too
-                gc.collect()
+                # No collection first: a full one takes ~0.5-2 s with torch and MuJoCo loaded;
+                # what is garbage now is collectable again after the run (unfreeze).
                 gc.freeze()
                 gc.disable()
             if not self._started:
