@@ -9,14 +9,17 @@ single observations as in collection, evaluation and deploy:
   collected frame: the action is sampled and its log-probability computed);
 * lean, TensorDict: :class:`~ahrm_stack.learning.ppo.LeanActor` called with a TensorDict (what
   ``load_policy`` / ``run_episodes`` now use);
-* lean, tensor: ``LeanActor.act`` on the observation tensor (no TensorDict at all).
+* lean, tensor: ``LeanActor.act`` on the observation tensor (no TensorDict at all);
+* deploy: :class:`~ahrm_stack.deploy.policy.NumpyPolicy` on the float64 observation array (what the
+  deploy loop's policy controller runs: frozen float32 weights, preallocated buffers, no torch).
 
 Then collection as training runs it: a TorchRL ``Collector`` over the environment with the TorchRL
 actor against one with :class:`~ahrm_stack.learning.ppo.LeanCollectionActor` (same keys, same
 sampled actions for the same seed), frames per second, interleaved batches.
 
 Prints per-call median (us), the ratios to the deterministic TorchRL actor, and the largest action
-difference between the lean and the TorchRL deterministic action (goal: <= 1e-6).
+difference between the lean and the TorchRL deterministic action (goal: <= 1e-6) and between
+NumpyPolicy and the lean action (goal: <= 1e-5, float32 rounding in another summation order).
 Usage: python benchmarks/bench_policy.py [--calls N] [--checkpoint RUN] [--quick]
 """
 
@@ -36,6 +39,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type  # noqa: E4
 
 from _scripted import quick_parser  # noqa: E402
 from ahrm_stack.config import load_config  # noqa: E402
+from ahrm_stack.deploy.policy import NumpyPolicy  # noqa: E402
 from ahrm_stack.learning.ppo import lean_actor, lean_collection_actor, make_modules  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -121,18 +125,22 @@ def main() -> None:
                 return actor(TensorDict({"observation": obs}, batch_size=[]))["action"]
         return call
 
+    numpy_policy = NumpyPolicy.from_actor(actor)
+    arrays = observations.double().numpy()  # what deploy's world model gives (float64)
     variants = {
-        "TorchRL actor, deterministic": torchrl(ExplorationType.DETERMINISTIC),
-        "TorchRL actor, random (Collector)": torchrl(ExplorationType.RANDOM),
-        "lean, TensorDict": lambda obs: lean(TensorDict({"observation": obs}, batch_size=[]))["action"],
-        "lean, tensor (.act)": lean.act,
+        "TorchRL actor, deterministic": (torchrl(ExplorationType.DETERMINISTIC), observations),
+        "TorchRL actor, random (Collector)": (torchrl(ExplorationType.RANDOM), observations),
+        "lean, TensorDict": (lambda obs: lean(TensorDict({"observation": obs}, batch_size=[]))["action"],
+                             observations),
+        "lean, tensor (.act)": (lean.act, observations),
+        "deploy, NumpyPolicy (numpy array)": (numpy_policy, arrays),
     }
-    for fn in variants.values():  # warm-up
-        per_call(fn, observations[:20])
+    for fn, inputs in variants.values():  # warm-up
+        per_call(fn, inputs[:20])
     medians = {}
     for _ in range(3):  # interleaved rounds: machine noise hits all alike
-        for name, fn in variants.items():
-            t = np.median(per_call(fn, observations)) * 1e6
+        for name, (fn, inputs) in variants.items():
+            t = np.median(per_call(fn, inputs)) * 1e6
             medians[name] = min(medians.get(name, np.inf), t)
     base = medians["TorchRL actor, deterministic"]
     print(f"policy forward pass per call, {source}, {args.calls} single observations, 1 thread")
@@ -146,6 +154,12 @@ def main() -> None:
           f"(goal <= 1e-6: {'met' if diff <= 1e-6 else 'NOT met'})")
     if diff > 1e-6:
         raise SystemExit("the lean path's action differs")
+    numpy_diff = max(float(np.abs(numpy_policy(row) - lean.act(torch.as_tensor(row, dtype=torch.float32))
+                                  .numpy()).max()) for row in arrays)
+    print(f"  max |NumpyPolicy - lean action| (single observations): {numpy_diff:.2g} (goal <= 1e-5, "
+          f"float32 rounding: {'met' if numpy_diff <= 1e-5 else 'NOT met'})")
+    if numpy_diff > 1e-5:
+        raise SystemExit("deploy's NumPy policy's action differs")
     slow, fast = collection_rates(config, actor, args.frames, args.batches)
     print(f"collection (Collector, {args.batches} x {args.frames} frames): TorchRL actor {slow:6.0f} frames/s "
           f"({1e6 / slow:6.0f} us/frame), lean collection actor {fast:6.0f} frames/s ({1e6 / fast:6.0f} us/frame); "

@@ -7,6 +7,13 @@ call first advances the physics (``physics_timestep`` steps, the last command he
 ``clock.now()``. With a :class:`~hardware.protocol.WallClock` the simulation is paced to the wall
 clock; with a :class:`~hardware.protocol.FastClock` it runs as fast as the caller does.
 
+The simulated arm moves on the caller's CPU, but not inside the deploy loop's latency window
+(feedback received -> command sent), as a real arm moves on its own: a command is stamped with the
+clock's time and applied by the next call's advance (the physics stepped to that time with the
+previous command held, then on with the new one: the same trajectory as applying it at once), and
+:attr:`SimArm.clock`'s ``sleep_until(t)`` first steps the physics up to ``t`` (nothing can command
+the arm while its caller sleeps), so the loop's next ``refresh_feedback`` finds it there.
+
 The deploy loop sees only what a real arm gives (:meth:`SimArm.refresh_feedback`) plus what a
 perception module would give (:meth:`SimArm.perception`: cube and obstacle poses).
 
@@ -79,6 +86,8 @@ class SimArm(DescribedArm):
         self._frame = 0
         self._start = 0.0  # clock time of physics time 0
         self._command = np.zeros(self._robot.num_joints)
+        self._queued: tuple[float, np.ndarray] | None = None  # (clock s, rad/s) not yet applied
+        self._sleeper = _SimClock(self._clock, self)
         self.violations = 0
         self.commands_sent = 0
         self.runner.reset()
@@ -111,6 +120,7 @@ class SimArm(DescribedArm):
         Sim only; the physics clock restarts at the adapter clock's now."""
         if seed is not None:
             self.runner.seed(seed)
+        self._queued = None  # a command of the last episode never reaches the new one
         self.runner.reset()
         self._set_command(np.zeros(self._robot.num_joints))
         self._start = self._clock.now() - self.physics.data.time
@@ -193,8 +203,11 @@ class SimArm(DescribedArm):
             raise
         if self._take(InjectedFault.DELAYED_COMMAND):
             self._clock.sleep(self.command_delay)
-        self._advance()
-        self._set_command(command)
+        # Applied by the next advance, at this time (the physics is not stepped here: see the
+        # module docstring); a command still queued is applied first, at its own time.
+        if self._queued is not None:
+            self._advance(self._queued[0])
+        self._queued = (self._clock.now(), command)
         self.commands_sent += 1
         return command.copy()
 
@@ -222,8 +235,14 @@ class SimArm(DescribedArm):
 
     # ------------------------------------------------------------------ physics
     @property
+    def clock(self) -> WallClock:
+        """The adapter's clock; its ``sleep_until(t)`` steps the physics up to ``t`` first."""
+        return self._sleeper
+
+    @property
     def command(self) -> np.ndarray:
         """The joint velocities the simulated actuators hold now, rad/s."""
+        self._advance()
         return self._command.copy()
 
     def _bind(self) -> None:
@@ -237,6 +256,9 @@ class SimArm(DescribedArm):
         self._upper = np.where(self._robot.limited, self._robot.position_upper, np.inf)
 
     def _set_command(self, command: np.ndarray) -> None:
+        """Apply ``command`` (rad/s) now; a command still queued is applied first, at its time."""
+        if self._queued is not None:
+            self._advance()
         if not (np.isfinite(command).all()
                 and (np.abs(command) <= self._robot.velocity_limit).all()):
             self.violations += 1  # never reached: check_joint_speeds guards every path here
@@ -245,10 +267,22 @@ class SimArm(DescribedArm):
         self._command = np.asarray(command, dtype=float).copy()
         self.task.before_step(self.physics, self._command, self.runner.random_state)
 
-    def _advance(self) -> None:
-        """Step the physics, the last command held, up to the clock's now."""
+    def _advance(self, until: float | None = None) -> None:
+        """Step the physics up to clock time ``until`` (default: the clock's now): the queued
+        command applied at its own time, the last command held between commands."""
+        now = self._clock.now()
+        until = now if until is None else until
+        if self._queued is not None and self._queued[0] <= until:
+            stamp, command = self._queued
+            self._queued = None
+            self._step_to(stamp)
+            self._set_command(command)
+        self._step_to(until)
+
+    def _step_to(self, until: float) -> None:
+        """Step the physics, the current command held, up to clock time ``until``."""
         data = self.physics.data
-        target = int((self._clock.now() - self._start) / self._timestep + 1e-9)
+        target = int((until - self._start) / self._timestep + 1e-9)
         steps = target - int(round(data.time / self._timestep))
         if steps <= 0:
             return
@@ -265,3 +299,23 @@ class SimArm(DescribedArm):
             self._pending.discard(fault)
             return True
         return False
+
+
+class _SimClock(WallClock):
+    """The sim's clock as the deploy loop sees it: ``inner``'s time; ``sleep_until(t)`` steps the
+    arm's physics up to ``t`` (the command held) before sleeping, so that the simulation runs while
+    the loop waits for its next tick, as a real arm moves while its controller waits."""
+
+    def __init__(self, inner: WallClock, arm: SimArm) -> None:
+        self._inner, self._arm = inner, arm
+
+    def now(self) -> float:
+        return self._inner.now()
+
+    def sleep(self, seconds: float) -> None:
+        self._inner.sleep(seconds)
+
+    def sleep_until(self, deadline: float) -> None:
+        if self._arm._connected and deadline > self._inner.now():
+            self._arm._advance(deadline)
+        self._inner.sleep_until(deadline)

@@ -139,10 +139,12 @@ def test_observation_is_built_exactly_like_training():
         assert loop.tick(), loop.stop_reason
         if step % 10 != 9:
             continue
-        # The simulator's own task measures its true state, as in training.
+        # The simulator's own task measures its true state, as in training (after a call that
+        # brings the sim up to date: it applies the last command at the next call).
+        feedback = arm.refresh_feedback()
         sim_task.after_step(arm.physics, arm.runner.random_state)
         expected = sim_task.flat_observation(arm.physics)
-        info = world.update(arm.refresh_feedback(), arm.perception(), 0.0)
+        info = world.update(feedback, arm.perception(), 0.0)
         assert sim_task.observation_order == world.task.observation_order
         np.testing.assert_allclose(world.observation(), expected, atol=1e-9)
         assert info.phase == sim_task.step_info.phase

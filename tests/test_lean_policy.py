@@ -78,8 +78,10 @@ def test_lean_collection_actor_matches_torchrl_actor(mode):
 
 @pytest.mark.parametrize("mode", ["cartesian", "joint"])
 def test_deploy_policy_controller_takes_the_lean_path_with_the_same_request(mode):
-    """deploy's PolicyController runs ``LeanActor.act`` on the observation tensor (no TensorDict)
-    and requests what the TensorDict call of the TorchRL actor gives for the same observation."""
+    """deploy's PolicyController runs the actor without TensorDict (NumpyPolicy for a
+    make_modules actor, LeanActor.act for another LeanActor) and requests what the TensorDict call
+    of the TorchRL actor gives for the same observation (1e-5: NumPy's float32 BLAS sums in
+    another order than torch's)."""
     from types import SimpleNamespace
 
     from ahrm_stack.deploy import PolicyController
@@ -89,10 +91,15 @@ def test_deploy_policy_controller_takes_the_lean_path_with_the_same_request(mode
     robot = SimpleNamespace(velocity_limit=np.linspace(0.5, 1.0, 6), commanded_joints=(0, 1, 2, 3, 4),
                             num_joints=6)
     world = SimpleNamespace(robot=robot, current=None)
-    world.observation = lambda: world.current
-    lean = PolicyController(world, lean_actor(modules.actor), config)
+    world.observation = lambda copy=True: world.current
+    fast = PolicyController(world, lean_actor(modules.actor), config)
     reference = PolicyController(world, lambda td: modules.actor(td), config)  # not lean-able
-    assert lean._act is not None and reference._act is None
+    assert fast.path == "numpy" and reference.path == "tensordict"
+    lean = PolicyController(world, lean_actor(modules.actor), config)
+    lean._numpy = None  # the LeanActor.act path
+    lean._act = lean_actor(modules.actor).act
     for observation in torch.randn(20, 40).numpy() * 3.0:
         world.current = observation
-        np.testing.assert_allclose(lean(), reference(), atol=1e-6, rtol=0)
+        want = reference()
+        np.testing.assert_allclose(fast(), want, atol=1e-5, rtol=0)
+        np.testing.assert_allclose(lean(), want, atol=1e-6, rtol=0)

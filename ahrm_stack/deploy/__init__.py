@@ -29,7 +29,8 @@ Every control period (``1 / rate_hz`` s) :class:`DeployLoop` does, in this order
    flag, a joint past its position limit or a joint speed beyond ``(1 + velocity_tolerance)`` times
    its limit e-stops it;
 2. perception (cube and obstacle poses) into :class:`WorldModel`, which computes the phase k, the
-   boundary distance x and the training observation with the task's own code;
+   boundary distance x and the training observation with the task's own code (the observation
+   written into one preallocated vector, bit for bit the task's ``flat_observation``);
 3. the controller's nominal joint velocities (rad/s);
 4. the QP safety filter with the obstacle rows on (a reported violation e-stops);
 5. ``send_joint_speeds`` — the adapter re-checks the limits and e-stops on a bad command; a command
@@ -55,6 +56,8 @@ The package, one idea per module:
 * :mod:`~ahrm_stack.deploy.safety_settings` — the filter's settings, a checkpoint may only tighten;
 * :mod:`~ahrm_stack.deploy.world` — :class:`WorldModel`, the mirror of the scene;
 * :mod:`~ahrm_stack.deploy.controllers` — the scripted and the policy controller;
+* :mod:`~ahrm_stack.deploy.policy` — :class:`~ahrm_stack.deploy.policy.NumpyPolicy`, the policy's
+  forward pass in NumPy on preallocated arrays (the policy controller's fast path);
 * :mod:`~ahrm_stack.deploy.loop` — :class:`DeployLoop`, its summary and faults;
 * :mod:`~ahrm_stack.deploy.run` — building one run (config, telemetry, adapter, loop);
 * :mod:`~ahrm_stack.deploy.cli` — the command line (:func:`main`; the backend is chosen in

@@ -38,16 +38,19 @@ class PolicyController:
     """A trained policy (deterministic action) on the training observation vector. Its request is
     what training's environment makes of the action (the same
     :class:`~ahrm_stack.env.control_step.ControlStep`): joint velocities (rad/s, ``action.mode:
-    joint``) or a pusher-tip velocity (m/s, world frame, ``cartesian``: :attr:`cartesian` is then true and the
-    loop hands it to the filter's differential IK)."""
+    joint``) or a pusher-tip velocity (m/s, world frame, ``cartesian``: :attr:`cartesian` is then
+    true and the loop hands it to the filter's differential IK).
+
+    The forward pass, fastest first: an actor of :func:`~ahrm_stack.learning.ppo.make_modules`
+    (or its ``LeanActor``, what ``load_policy`` gives) runs as :class:`~ahrm_stack.deploy.policy.
+    NumpyPolicy` on the world model's preallocated observation (float32, no torch call per tick);
+    a ``LeanActor`` of another network as ``LeanActor.act`` on the observation tensor; any other
+    actor through its TensorDict call. :attr:`path` names the one in use."""
 
     name = "policy"
 
     def __init__(self, world: WorldModel, actor, config: Config) -> None:
-        import torch
-        from tensordict import TensorDict
-        from torchrl.envs.utils import ExplorationType, set_exploration_type
-
+        from ahrm_stack.deploy.policy import NumpyPolicy
         from ahrm_stack.env.control_step import ControlStep
         from ahrm_stack.learning.ppo import lean_actor
 
@@ -55,28 +58,52 @@ class PolicyController:
         self.cartesian = self.control.cartesian
         self.world = world
         self.actor = actor
-        # An actor of make_modules (or its LeanActor, what load_policy gives) runs as one plain
-        # torch forward on the observation tensor: the same deterministic action, no TensorDict.
-        lean = lean_actor(actor)
+        self._numpy = NumpyPolicy.from_actor(actor)
+        lean = lean_actor(actor) if self._numpy is None else None
         self._act = None if lean is None else lean.act
-        self._torch, self._tensordict = torch, TensorDict
-        self._deterministic, self._exploration = set_exploration_type, ExplorationType
+        self.path = "numpy" if self._numpy is not None else "lean" if lean is not None else "tensordict"
+        # The request of a finite action without ControlStep's per-call checks (the same
+        # arithmetic: clip to [-1, 1], scale); anything else goes through ControlStep.
+        self._scale = self.control.max_tip_speed
+        self._commanded = np.asarray(self.control.commanded, dtype=int)
+        self._commanded_limit = self.control.velocity_limit[self._commanded]
+        self._num_joints = len(self.control.velocity_limit)
 
     def reset(self) -> None:
         pass
 
     def __call__(self) -> np.ndarray:
         """The request for this tick: joint velocities (rad/s) or the tip velocity (m/s, world
-        frame); an entry whose action was NaN or infinite is NaN (the loop stops on it)."""
-        torch = self._torch
-        observation = torch.as_tensor(self.world.observation(), dtype=torch.float32)
+        frame), a new array; an entry whose action was NaN or infinite is NaN (the loop stops
+        on it)."""
+        if self._numpy is not None:
+            return self._request(self._numpy(self.world.observation(copy=False)))
+        import torch
+
+        observation = torch.as_tensor(self.world.observation(copy=False), dtype=torch.float32)
         if self._act is not None:
             action = self._act(observation)
         else:  # any other policy: the TensorDict call
-            with torch.no_grad(), self._deterministic(self._exploration.DETERMINISTIC):
-                action = self.actor(self._tensordict({"observation": observation}, batch_size=[]))["action"]
-        # a non-finite action is a fault, not a zero: it stays NaN for the loop to flag
-        return self.control.request_keeping_faults(np.asarray(action.numpy(), dtype=float).reshape(-1))
+            from tensordict import TensorDict
+            from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+            with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+                action = self.actor(TensorDict({"observation": observation}, batch_size=[]))["action"]
+        return self._request(action.numpy())
+
+    def _request(self, action) -> np.ndarray:
+        """:meth:`ControlStep.request_keeping_faults` of ``action`` (a new float64 array)."""
+        action = np.array(action, dtype=float).reshape(-1)  # a copy: written in place below
+        if action.shape != (self.control.action_size,) or not np.isfinite(action).all():
+            # a non-finite action is a fault, not a zero: it stays NaN for the loop to flag
+            return self.control.request_keeping_faults(action)
+        np.clip(action, -1.0, 1.0, out=action)
+        if self.cartesian:
+            action *= self._scale
+            return action
+        command = np.zeros(self._num_joints)
+        command[self._commanded] = action * self._commanded_limit
+        return command
 
     @property
     def stage(self) -> str:

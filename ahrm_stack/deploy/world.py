@@ -3,9 +3,12 @@ perception (:class:`WorldModel`)."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ahrm_stack.config import TaskConfig
+from ahrm_stack.env.rewards import NUM_PHASES
 
 
 class WorldModel:
@@ -26,13 +29,25 @@ class WorldModel:
 
         from ahrm_stack.env.task import PushOffTask
 
-        self._mujoco = mujoco
         self.task = PushOffTask(task_config)
         self.physics = mjcf.Physics.from_mjcf_model(self.task.root_entity.mjcf_model)
         self.random_state = np.random.RandomState(seed)
         self.task.initialize_episode(self.physics, self.random_state)  # binds the task's indices
         self._addresses = self.task.addresses  # where the joints sit in this physics
         self._start = float(self.physics.data.time)
+        self._kinematics = mujoco.mj_kinematics
+        self._model_ptr, self._data_ptr = self.physics.model.ptr, self.physics.data.ptr
+        # The task's observation written into one preallocated vector; None (the task's own
+        # flat_observation) for a layout the builder does not reproduce exactly.
+        self._builder = ObservationBuilder.checked(self.task, self.physics)
+        # place_objects' memory: the scene it last placed and the poses it placed there (rows:
+        # cube, obstacles; position m then rotation matrix, world frame)
+        raw = self.physics.data.ptr
+        self._xpos, self._xmat = raw.xpos, raw.xmat
+        self._object_bodies = np.array([self.task._cube_body, *self.task._obstacle_bodies], dtype=int)
+        self._object_poses = np.zeros((len(self._object_bodies), 12))
+        self._placed_poses = np.full_like(self._object_poses, np.nan)
+        self._placed_scene = None
 
     @property
     def robot(self):
@@ -55,13 +70,18 @@ class WorldModel:
         data.qpos[at.obstacle_qpos[:, 3:]] = poses.obstacle_quaternions
         data.qvel[at.obstacle_dof] = poses.obstacle_velocities
         data.time = self._start + elapsed
-        self._mujoco.mj_kinematics(self.physics.model.ptr, data.ptr)
+        self._kinematics(self._model_ptr, self._data_ptr)
         self.task.after_step(self.physics, self.random_state)
         return self.task.step_info
 
-    def observation(self) -> np.ndarray:
-        """The training observation vector (layout: ``task.observation_order``)."""
-        return self.task.flat_observation(self.physics)
+    def observation(self, copy: bool = True) -> np.ndarray:
+        """The training observation vector (layout: ``task.observation_order``) of the last
+        :meth:`update`; ``copy=False``: the model's own buffer, overwritten by the next call (for a
+        caller that uses it at once, e.g. the policy controller)."""
+        if self._builder is None:
+            return self.task.flat_observation(self.physics)
+        out = self._builder.fill()
+        return out.copy() if copy else out
 
     def record_command(self, command: np.ndarray) -> None:
         """The command actually sent (rad/s): the next observation's previous action."""
@@ -71,4 +91,147 @@ class WorldModel:
         return self.task.make_collision_scene(self.physics)
 
     def place_objects(self, scene) -> None:
-        self.task.place_objects(scene, self.physics)
+        """Move ``scene``'s cube and obstacles to their poses in the mirror (what
+        :meth:`PushOffTask.place_objects` does), skipped when they are where this method last put
+        them in this same scene (the same transforms: nothing would change)."""
+        poses = self._object_poses
+        np.take(self._xpos, self._object_bodies, axis=0, out=poses[:, :3], mode="clip")
+        np.take(self._xmat, self._object_bodies, axis=0, out=poses[:, 3:], mode="clip")
+        if scene is self._placed_scene and np.array_equal(poses, self._placed_poses):
+            return
+        self.task.place_objects(scene, self.physics)  # raises on a non-finite pose: nothing cached
+        self._placed_scene = scene
+        self._placed_poses[:] = poses
+
+
+class ObservationBuilder:
+    """:meth:`PushOffTask.flat_observation` written into one preallocated vector: the same values
+    (copies of the same floats, the same ufuncs: a test checks bit equality) without its per-call
+    concatenations, and with the lane clearances of all lanes computed at once.
+
+    It reads the task's physics bindings and ``step_info`` as ``flat_observation`` does, so it is
+    valid for one physics (the :class:`WorldModel`'s, which is never rebuilt). Build it with
+    :meth:`checked`, which compares it with the task's own vector once."""
+
+    def __init__(self, task, physics) -> None:
+        cfg = task.config
+        self._task, self._physics = task, physics
+        raw = physics.data.ptr  # MuJoCo's arrays, views that live as long as the physics
+        self._qpos, self._qvel, self._xpos = raw.qpos, raw.qvel, raw.xpos
+        n = task.robot.num_joints
+        self._arm_qpos, self._arm_dof = task.addresses.arm_qpos, task.addresses.arm_dof
+        self._cube, self._obstacles = int(task._cube_body), np.asarray(task._obstacle_bodies)
+        self._props = np.asarray(task._prop_bodies)
+        self._prop_dofs = np.asarray(task._prop_linear_dofs)
+        k = len(self._props)  # the cube and the obstacles
+        sizes = [("trig", 2 * n), ("dq", n), ("tip", 3), ("props", 6 * k),
+                 ("previous_action", len(task.previous_action)), ("phase", NUM_PHASES), ("x", 1)]
+        observation = cfg.observation
+        if observation.relative:
+            sizes.append(("relative", 3 + 2 * (k - 1)))
+        if observation.lanes:
+            sizes.append(("lanes", len(cfg.layout.lane_directions)))
+        if observation.lane_choice:
+            sizes.append(("lane_choice", len(cfg.layout.lane_directions)))
+        self._out = np.zeros(sum(size for _, size in sizes))
+        at, self._slices = 0, {}
+        for name, size in sizes:
+            self._slices[name] = slice(at, at + size)
+            at += size
+        out, sl = self._out, self._slices
+        self._sin, self._cos = out[sl["trig"]][0::2], out[sl["trig"]][1::2]
+        self._dq, self._tip = out[sl["dq"]], out[sl["tip"]]
+        props = out[sl["props"]].reshape(k, 6)
+        self._prop_position, self._prop_velocity = props[:, :3], props[:, 3:]
+        self._previous, self._phase = out[sl["previous_action"]], out[sl["phase"]]
+        self._x = sl["x"].start
+        self._q = np.empty(n)
+        self._obstacle_xy = np.empty((k - 1, 2))
+        self._relative_tip = self._relative_obstacles = self._lanes = None
+        if observation.relative:
+            relative = out[sl["relative"]]
+            self._relative_tip, self._relative_obstacles = relative[:3], relative[3:].reshape(k - 1, 2)
+        if observation.lanes:
+            # lane_clearance's strip per lane, from constants: sign, cube half size, approach room
+            # per lane: the strip's back end's offset from the cube centre and its table edge
+            # (lane_clearance's sign * (cube_half + approach_room) and sign * half_extent[0])
+            cube_half, room = cfg.cube.size / 2, cfg.layout.approach_room
+            signs = [1.0 if d == "+x" else -1.0 for d in cfg.layout.lane_directions]
+            self._lane_strips = [(sign * (cube_half + room), sign * cfg.table.half_extent[0])
+                                 for sign in signs]
+            low, high = cfg.observation.lane_clip
+            self._lane_clip = (float(low), float(high))
+            obstacle_half = task._obstacle_half_sizes[0, :2].tolist()
+            self._lane_half_x = obstacle_half[0]
+            self._lane_half_y = cube_half + obstacle_half[1]
+            self._lanes = out[sl["lanes"]]
+        self._lane_choice = out[sl["lane_choice"]] if observation.lane_choice else None
+
+    @classmethod
+    def checked(cls, task, physics) -> "ObservationBuilder | None":
+        """A builder whose vector equals ``task.flat_observation(physics)`` now, bit for bit (and
+        in size); None when it does not (a layout it does not know: the task's own is used)."""
+        try:
+            builder = cls(task, physics)
+            built = builder.fill().copy()
+        except (AttributeError, IndexError, KeyError, TypeError, ValueError):
+            return None
+        expected = task.flat_observation(physics)
+        task._lane_plan = None  # the check must not plan the episode's lane from this state
+        if built.shape != expected.shape or not np.array_equal(built, expected):
+            return None
+        return builder
+
+    def lane_clearance(self, cube_xy, obstacle_xy) -> list[float]:
+        """:func:`~ahrm_stack.env.layout.lane_clearance` of this task's lanes, clipped to
+        ``task.observation.lane_clip`` (m): the same IEEE arithmetic per element on Python floats
+        (a few lanes and obstacles: cheaper than NumPy's per-call overhead; a test checks bit
+        equality). Positions (x, y), m, world frame."""
+        cx, cy = float(cube_xy[0]), float(cube_xy[1])
+        obstacles = obstacle_xy.tolist()
+        half_x_extra, half_y, (low, high) = self._lane_half_x, self._lane_half_y, self._lane_clip
+        sqrt, inf = math.sqrt, math.inf
+        clearances = []
+        for back, edge in self._lane_strips:
+            near = cx - back
+            lo, hi = (near, edge) if near <= edge else (edge, near)  # sorted((near, edge))
+            center, half = (lo + hi) / 2, (hi - lo) / 2 + half_x_extra
+            gap = inf if obstacles else high
+            for ox, oy in obstacles:
+                sx, sy = abs(ox - center) - half, abs(oy - cy) - half_y
+                if sx < 0 and sy < 0:
+                    g = sx if sx >= sy else sy
+                else:
+                    mx, my = (sx if sx > 0.0 else 0.0), (sy if sy > 0.0 else 0.0)
+                    g = sqrt(mx * mx + my * my)
+                if g < gap:
+                    gap = g
+            clearances.append(min(max(gap, low), high))
+        return clearances
+
+    def fill(self) -> np.ndarray:
+        """The observation of the physics' current state and the task's ``step_info`` (the
+        builder's own buffer, overwritten by the next call)."""
+        task, info, xpos = self._task, self._task.step_info, self._xpos
+        q = np.take(self._qpos, self._arm_qpos, out=self._q, mode="clip")
+        np.sin(q, out=self._sin)
+        np.cos(q, out=self._cos)
+        np.take(self._qvel, self._arm_dof, out=self._dq, mode="clip")
+        self._tip[:] = info.tip
+        np.take(xpos, self._props, axis=0, out=self._prop_position, mode="clip")
+        np.take(self._qvel, self._prop_dofs, out=self._prop_velocity, mode="clip")
+        self._previous[:] = task.previous_action
+        self._phase[:] = 0.0
+        self._phase[info.phase - 1] = 1.0
+        self._out[self._x] = info.x
+        cube = xpos[self._cube]
+        if self._lanes is not None or self._relative_tip is not None:
+            self._obstacle_xy[:] = self._prop_position[1:, :2]
+        if self._relative_tip is not None:
+            np.subtract(info.tip, cube, out=self._relative_tip)
+            np.subtract(self._obstacle_xy, cube[:2], out=self._relative_obstacles)
+        if self._lanes is not None:
+            self._lanes[:] = self.lane_clearance(cube[:2], self._obstacle_xy)
+        if self._lane_choice is not None:
+            self._lane_choice[:] = task._lane_choice(self._physics)
+        return self._out
