@@ -122,4 +122,4 @@ def test_the_anchor_weight_follows_its_schedule():
 
     ppo = load_config(["ppo.bc_coeff=10", "ppo.bc_coeff_final=2", "ppo.bc_decay_frames=1000"]).ppo
     assert anchor_coeff(ppo, 0) == 10 and anchor_coeff(ppo, 250) == 8 and anchor_coeff(ppo, 5000) == 2
-    assert anchor_coeff(load_config(["ppo.bc_coeff=3"]).ppo, 10**6) == 3
+    assert anchor_coeff(load_config(["ppo.bc_coeff=3", "ppo.bc_decay_frames=0"]).ppo, 10**6) == 3  # 0: constant

@@ -13,6 +13,8 @@ on it).
 
 from __future__ import annotations
 
+import typing
+
 import numpy as np
 
 class NumpyPolicy:
@@ -72,8 +74,10 @@ class NumpyPolicy:
         with torch.no_grad():
             if norm.enabled and float(norm.count) != 0.0:
                 # exactly RunningNorm.forward's constants for float32 observations
-                mean = norm.mean.to(torch.float32).cpu().numpy().copy()
-                std = torch.sqrt(norm.var + 1e-8).to(torch.float32).cpu().numpy().copy()
+                norm_mean = typing.cast(torch.Tensor, norm.mean)
+                norm_var = typing.cast(torch.Tensor, norm.var)
+                mean = norm_mean.to(torch.float32).cpu().numpy().copy()
+                std = torch.sqrt(norm_var + 1e-8).to(torch.float32).cpu().numpy().copy()
             limit = 1.0 - torch.finfo(torch.float32).resolution  # torchrl's safetanh_noeps
         return cls(mean, std, float(norm.clip), weights, biases, activations, limit)
 
