@@ -3,11 +3,10 @@ perception (:class:`WorldModel`)."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from ahrm_stack.config import TaskConfig
+from ahrm_stack.env.layout import lane_clearance
 from ahrm_stack.env.rewards import NUM_PHASES
 
 
@@ -152,18 +151,8 @@ class ObservationBuilder:
             relative = out[sl["relative"]]
             self._relative_tip, self._relative_obstacles = relative[:3], relative[3:].reshape(k - 1, 2)
         if observation.lanes:
-            # lane_clearance's strip per lane, from constants: sign, cube half size, approach room
-            # per lane: the strip's back end's offset from the cube centre and its table edge
-            # (lane_clearance's sign * (cube_half + approach_room) and sign * half_extent[0])
-            cube_half, room = cfg.cube.size / 2, cfg.layout.approach_room
-            signs = [1.0 if d == "+x" else -1.0 for d in cfg.layout.lane_directions]
-            self._lane_strips = [(sign * (cube_half + room), sign * cfg.table.half_extent[0])
-                                 for sign in signs]
-            low, high = cfg.observation.lane_clip
-            self._lane_clip = (float(low), float(high))
-            obstacle_half = task._obstacle_half_sizes[0, :2].tolist()
-            self._lane_half_x = obstacle_half[0]
-            self._lane_half_y = cube_half + obstacle_half[1]
+            self._lane_args = (cfg.cube.size / 2, task._obstacle_half_sizes[0, :2], cfg.table, cfg.layout,
+                               tuple(float(v) for v in cfg.observation.lane_clip))
             self._lanes = out[sl["lanes"]]
         self._lane_choice = out[sl["lane_choice"]] if observation.lane_choice else None
 
@@ -182,32 +171,10 @@ class ObservationBuilder:
             return None
         return builder
 
-    def lane_clearance(self, cube_xy, obstacle_xy) -> list[float]:
+    def lane_clearance(self, cube_xy, obstacle_xy) -> np.ndarray:
         """:func:`~ahrm_stack.env.layout.lane_clearance` of this task's lanes, clipped to
-        ``task.observation.lane_clip`` (m): the same IEEE arithmetic per element on Python floats
-        (a few lanes and obstacles: cheaper than NumPy's per-call overhead; a test checks bit
-        equality). Positions (x, y), m, world frame."""
-        cx, cy = float(cube_xy[0]), float(cube_xy[1])
-        obstacles = obstacle_xy.tolist()
-        half_x_extra, half_y, (low, high) = self._lane_half_x, self._lane_half_y, self._lane_clip
-        sqrt, inf = math.sqrt, math.inf
-        clearances = []
-        for back, edge in self._lane_strips:
-            near = cx - back
-            lo, hi = (near, edge) if near <= edge else (edge, near)  # sorted((near, edge))
-            center, half = (lo + hi) / 2, (hi - lo) / 2 + half_x_extra
-            gap = inf if obstacles else high
-            for ox, oy in obstacles:
-                sx, sy = abs(ox - center) - half, abs(oy - cy) - half_y
-                if sx < 0 and sy < 0:
-                    g = sx if sx >= sy else sy
-                else:
-                    mx, my = (sx if sx > 0.0 else 0.0), (sy if sy > 0.0 else 0.0)
-                    g = sqrt(mx * mx + my * my)
-                if g < gap:
-                    gap = g
-            clearances.append(min(max(gap, low), high))
-        return clearances
+        ``task.observation.lane_clip`` (m). Positions (x, y), m, world frame."""
+        return lane_clearance(cube_xy, obstacle_xy, *self._lane_args)
 
     def fill(self) -> np.ndarray:
         """The observation of the physics' current state and the task's ``step_info`` (the

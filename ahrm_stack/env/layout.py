@@ -8,6 +8,7 @@ lane at least ``lane_width`` wide runs from behind the cube to a reachable table
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
@@ -68,18 +69,29 @@ def lane_clearance(cube_xy: np.ndarray, obstacle_xy: np.ndarray, cube_half: floa
 
     Positions (x, y) in m, world frame. An observation feature: the same geometry as
     :func:`free_lanes`, measured instead of thresholded."""
-    cx, cy = cube_xy
+    # Per element on Python floats, the same IEEE operations as the vectorised form (a few lanes
+    # and obstacles: cheaper than NumPy's per-call overhead; the observation computes it per step).
+    cx, cy = float(cube_xy[0]), float(cube_xy[1])
+    obstacles = np.asarray(obstacle_xy, dtype=float).reshape(-1, 2).tolist()
+    halves = np.broadcast_to(np.asarray(obstacle_half, dtype=float), (len(obstacles), 2)).tolist()
+    low, high = clip
     out = np.empty(len(rules.lane_directions))
     for i, direction in enumerate(rules.lane_directions):
         sign = 1.0 if direction == "+x" else -1.0
-        lo, hi = sorted((cx - sign * (cube_half + rules.approach_room), sign * table.half_extent[0]))
-        center = np.array([(lo + hi) / 2, cy])
-        half = np.array([(hi - lo) / 2, cube_half])
-        sep = np.abs(obstacle_xy - center) - (half + obstacle_half)
-        gaps = np.where(np.all(sep < 0, axis=1), sep.max(axis=1),
-                        np.linalg.norm(np.maximum(sep, 0.0), axis=1))
-        out[i] = gaps.min() if len(gaps) else clip[1]
-    return np.clip(out, *clip)
+        near, edge = cx - sign * (cube_half + rules.approach_room), sign * table.half_extent[0]
+        lo, hi = (near, edge) if near <= edge else (edge, near)
+        center, half = (lo + hi) / 2, (hi - lo) / 2
+        gap = math.inf if obstacles else high
+        for (ox, oy), (hx, hy) in zip(obstacles, halves):
+            sx, sy = abs(ox - center) - (half + hx), abs(oy - cy) - (cube_half + hy)
+            if sx < 0 and sy < 0:  # overlapping: the negative penetration
+                g = sx if sx >= sy else sy
+            else:
+                mx, my = (sx if sx > 0.0 else 0.0), (sy if sy > 0.0 else 0.0)
+                g = math.sqrt(mx * mx + my * my)
+            gap = g if g < gap else gap
+        out[i] = min(max(gap, low), high)
+    return out
 
 
 def choose_lane(layout: Layout, tip_xy: np.ndarray, cube_half: float, obstacle_half: np.ndarray,
