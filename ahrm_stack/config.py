@@ -153,6 +153,8 @@ class NearCubeStartConfig(Section):
 
     distance: Pair  # (lo, hi) of the tip's horizontal distance from the cube centre, m
     height: Pair  # (lo, hi) of the tip's height above the table top, m
+    bearing: Literal["any", "behind"]  # any: uniform | behind: opposite the episode's lane
+    behind_spread_deg: NonNeg  # deg, half-width of the behind bearings
 
     def check(self, key: str) -> None:
         for name in ("distance", "height"):
@@ -273,6 +275,7 @@ class EpisodeConfig(Section):
 class RewardConfig(Section):
     obstacle_speed_threshold: Pos  # m/s; a faster obstacle counts as touched
     progress_eps: Pos  # m; f2 needs progress above the best so far by more than this
+    time_reference: Literal["previous", "success"]  # the episode that sets f3's phase budgets
 
 
 @Frozen
@@ -721,7 +724,9 @@ def _legacy_fill(data: dict) -> dict:
             (arm, ("start", "start_ik")), (layout, ("cube_region", "obstacle_draws_per_cube")),
             (train, ("dagger_rounds", "expert", *NEUTRAL_TRAIN_KEYS)), (arm, ("near_cube",)),
             (ppo, ("bc_coeff_final", *LEGACY_PPO)), (section("task"), ("observation",)),
-            (observation, ("lane_clip", "lane_choice")), (section("scripted"), ("descend_radius",)))):
+            (observation, ("lane_clip", "lane_choice")), (section("scripted"), ("descend_radius",)),
+            (section("task", "rewards"), ("time_reference",)),
+            (section("task", "arm", "near_cube"), ("bearing", "behind_spread_deg")))):
         return data
     data = copy.deepcopy(data)
     defaults = {name: read_yaml(CONFIG_DIR / file) for name, file in SECTIONS.items()}
@@ -741,6 +746,12 @@ def _legacy_fill(data: dict) -> dict:
             pass  # the schema check names what is wrong
     if arm is not None:
         data["task"]["arm"].setdefault("near_cube", defaults["task"]["arm"]["near_cube"])
+        if isinstance(data["task"]["arm"]["near_cube"], dict):  # before 2026-12-02: any bearing
+            data["task"]["arm"]["near_cube"].setdefault("bearing", "any")
+            data["task"]["arm"]["near_cube"].setdefault(
+                "behind_spread_deg", defaults["task"]["arm"]["near_cube"]["behind_spread_deg"])
+    if section("task", "rewards") is not None:  # before 2026-12-02: the spec's previous episode
+        data["task"]["rewards"].setdefault("time_reference", "previous")
     if train is not None:  # keys whose default leaves training as it was before they existed
         for key in NEUTRAL_TRAIN_KEYS:
             data["train"].setdefault(key, defaults["train"][key])

@@ -37,6 +37,18 @@ ROWS: dict[str, list[str]] = {
                      "train.start_curriculum=scripted_states", "train.curriculum_step=0.1"],
     "reverse-ls": ["profile=scratch", "mechanism.method=ls", "train.start_curriculum=scripted_states",
                    "train.curriculum_step=0.1"],
+    # second round (2026-12-02): f3's budgets from the latest success (the spec's previous-episode
+    # budget made fleeing to phase 1 pay: both runs above ended hovering there), and near-cube
+    # starts behind the cube for the episode's lane; 5 s training episodes (at 10 s the policies
+    # spent 3/4 of each episode hovering in phase 1 after a push; successes took 0.75-3.5 s)
+    "behind-success-ahrm": ["profile=scratch", "mechanism.method=ahrm", "task.rewards.time_reference=success",
+                            "task.arm.near_cube.bearing=behind", "train.time_limit=5"],
+    "behind-success-ls": ["profile=scratch", "mechanism.method=ls", "task.rewards.time_reference=success",
+                          "task.arm.near_cube.bearing=behind", "train.time_limit=5"],
+    "behind-success-mhrm": ["profile=scratch", "mechanism.method=mhrm", "task.rewards.time_reference=success",
+                            "task.arm.near_cube.bearing=behind", "train.time_limit=5"],
+    "behind-success-fhrm": ["profile=scratch", "mechanism.method=fhrm", "task.rewards.time_reference=success",
+                            "task.arm.near_cube.bearing=behind", "train.time_limit=5"],
     "full-episodes-ahrm": ["profile=scratch", "mechanism.method=ahrm", "train.time_limit=0"],
     "joint-ahrm": ["profile=scratch", "mechanism.method=ahrm", "task.action.mode=joint"],
 }

@@ -60,3 +60,31 @@ def test_time_objective_budgets_by_hand():
     restored = TimeObjective(episode_duration=1.0)
     restored.load_state_dict(state)
     np.testing.assert_array_equal(restored.budget, f3.budget)
+
+
+def test_time_objective_success_reference_by_hand():
+    """time_reference: success — only a successful episode sets Gamma_k, every phase at once (0
+    where it did not go); until then the budget is the remaining episode time."""
+    f3 = TimeObjective(episode_duration=1.0, reference="success")
+    f3.reset()
+    assert f3.step(1, 0.25, elapsed=0.25) == 1     # 0.25 < 1 - 0.25
+    assert f3.step(3, 0.25, elapsed=0.5) == 1      # 0.25 < 0.5
+    f3.end_episode(success=False)                  # a failure sets nothing
+    assert np.isnan(f3.budget).all()
+    f3.reset()
+    assert f3.step(3, 0.25, elapsed=0.25) == 1
+    f3.end_episode(success=True)                   # phase 3 took 0.25 s; 1 and 2 were skipped
+    np.testing.assert_allclose(f3.budget, [0.0, 0.0, 0.25])
+    f3.reset()
+    assert f3.step(1, 0.25, elapsed=0.25) == -1    # 0.25 < 0 is false: phase 1 costs at once
+    assert f3.step(3, 0.25, elapsed=0.5) == -1     # 0.25 < 0.25 is false
+    f3.end_episode(success=False)
+    np.testing.assert_allclose(f3.budget, [0.0, 0.0, 0.25])
+    restored = TimeObjective(episode_duration=1.0, reference="success")
+    restored.load_state_dict(f3.state_dict())
+    np.testing.assert_array_equal(restored.budget, f3.budget)
+
+
+def test_time_objective_rejects_an_unknown_reference():
+    with pytest.raises(ValueError, match="time reference"):
+        TimeObjective(episode_duration=1.0, reference="best")

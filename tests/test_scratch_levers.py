@@ -2,6 +2,7 @@
 the frame budget, the training time limit, near-cube starts and the start curriculum."""
 
 import csv
+import dataclasses
 
 import numpy as np
 import pytest
@@ -129,6 +130,9 @@ def test_start_curriculum_widens_when_the_success_rate_reaches_the_threshold():
     ("train.curriculum_step=0", "train.curriculum_step"),
     ("train.start_curriculum=maybe", "train.start_curriculum"),
     ("task.arm.near_cube.distance=[0.2,0.1]", "task.arm.near_cube.distance"),
+    ("task.arm.near_cube.bearing=front", "task.arm.near_cube.bearing"),
+    ("task.arm.near_cube.behind_spread_deg=-5", "task.arm.near_cube.behind_spread_deg"),
+    ("task.rewards.time_reference=best", "task.rewards.time_reference"),
 ])
 def test_bad_scratch_values_name_the_key(override, key):
     with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
@@ -148,9 +152,12 @@ def test_old_run_configs_get_the_neutral_values():
                 "curriculum_threshold", "curriculum_step"):
         raw["train"].pop(key)
     raw["task"]["arm"].pop("near_cube")
+    raw["task"]["rewards"].pop("time_reference")
     config = config_from_dict(raw)
     assert config.train.frames == 0 and config.train.time_limit == 0
     assert config.train.start_curriculum == "none"
+    assert config.task.rewards.time_reference == "previous"  # the spec's, as before the key
+    assert config.task.arm.near_cube.bearing == "any"
 
 
 def test_a_resumed_log_keeps_its_columns(tmp_path):
@@ -231,3 +238,49 @@ def test_reward_scale_scales_the_rewards_the_advantage_sees():
         trainer.close()
     torch.testing.assert_close(seen[1], seen[0] * 0.05)
     assert seen[0].abs().sum() > 0
+
+
+def test_behind_starts_put_the_tip_opposite_the_episodes_lane():
+    """bearing: behind — the tip (Pinocchio forward kinematics) lies within behind_spread_deg of
+    the side of the cube opposite the lane the observation announces (lane_choice)."""
+    config = load_config(["task.arm.near_cube.bearing=behind", "task.arm.near_cube.behind_spread_deg=20"])
+    task = PushOffTask(config.task)
+    task.near_cube_share = 1.0
+    runner = TaskRunner(task, seed=3, safety=config.safety)
+    directions = config.task.layout.lane_directions
+    lanes = set()
+    for seed in range(12):
+        runner.seed(seed)
+        runner.reset()
+        assert task.start_target is not None, "fell back to the home posture"
+        q, _ = task.arm_state(runner.physics)
+        task.kinematics.update(q)
+        tip, _ = task.kinematics.frame_pose(task._tip_frame)
+        cube = runner.physics.bind(task._cube.geom).xpos
+        lane = directions[int(np.argmax(task._lane_choice(runner.physics)))]
+        lanes.add(lane)
+        push = np.array([1.0, 0.0]) if lane == "+x" else np.array([-1.0, 0.0])
+        offset = tip[:2] - cube[:2]
+        # the tip behind the cube: the angle between (cube - tip) and the push direction
+        angle = np.degrees(np.arccos(np.clip(-offset @ push / np.linalg.norm(offset), -1, 1)))
+        assert angle <= 20 + 3, (seed, lane, angle)  # + IK tolerance (3 mm at >= 6 cm) and settling
+    assert lanes == {"+x", "-x"}  # both lanes occur over these seeds, so the side follows the lane
+
+
+@pytest.mark.parametrize("reference, set_after_failure", [("previous", True), ("success", False)])
+def test_time_reference_decides_which_episodes_set_the_phase_budgets(reference, set_after_failure):
+    config = load_config([f"task.rewards.time_reference={reference}", "task.episode.duration=0.5"])
+    task = PushOffTask(config.task)
+    runner = TaskRunner(task, seed=0, safety=config.safety)
+    runner.reset()
+    done = False
+    while not done:  # still: no success in 0.5 s, the episode ends at its time limit
+        _, terminated, truncated = runner.step_only(np.zeros(task.robot.num_joints))
+        done = terminated or truncated
+    assert not task.step_info.success
+    assert (not np.isnan(task.time_objective.budget).all()) == set_after_failure
+    spent = task.time_objective.spent.copy()
+    task.step_info = dataclasses.replace(task.step_info, success=True)  # as if it had succeeded
+    runner.end_episode()
+    expected = spent if reference == "success" else np.where(spent > 0, spent, task.time_objective.budget)
+    np.testing.assert_allclose(task.time_objective.budget, expected)

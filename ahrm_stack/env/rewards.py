@@ -71,13 +71,22 @@ def progress(target: np.ndarray, table_center: np.ndarray, tip: np.ndarray) -> f
 class TimeObjective:
     """f3: +1 while the time spent in the current phase is below that phase's budget Gamma_k.
 
-    Gamma_k is the time spent in phase k in the previous episode that visited it; before phase k
-    was ever visited it is the remaining episode time. Times in seconds. This state spans episodes
-    and belongs in checkpoints (``state_dict`` / ``load_state_dict``).
+    ``reference`` says which episode sets Gamma_k:
+
+    - ``"previous"`` (spec §3): the time spent in phase k in the previous episode that visited it;
+    - ``"success"``: the time spent in phase k in the latest *successful* episode, 0 for a phase
+      that episode did not visit (so that a phase a success never needed costs time at once).
+
+    Before any episode has set it, Gamma_k is the remaining episode time. Times in seconds. This
+    state spans episodes and belongs in checkpoints (``state_dict`` / ``load_state_dict``).
     """
 
-    def __init__(self, episode_duration: float, num_phases: int = NUM_PHASES) -> None:
+    def __init__(self, episode_duration: float, num_phases: int = NUM_PHASES,
+                 reference: str = "previous") -> None:
+        if reference not in ("previous", "success"):
+            raise ValueError(f"time reference must be 'previous' or 'success', got {reference!r}")
         self.episode_duration = episode_duration
+        self.reference = reference
         self.budget = np.full(num_phases, np.nan)  # nan: never visited
         self.spent = np.zeros(num_phases)
 
@@ -93,8 +102,14 @@ class TimeObjective:
             budget = self.episode_duration - elapsed
         return 1.0 if self.spent[k] < budget else -1.0
 
-    def end_episode(self) -> None:
-        """Visited phases take this episode's time as their new budget."""
+    def end_episode(self, success: bool = False) -> None:
+        """``"previous"``: visited phases take this episode's time as their new budget.
+        ``"success"``: a successful episode sets every phase's budget to its time there (0 where
+        it did not go); a failed one changes nothing."""
+        if self.reference == "success":
+            if success:
+                self.budget[:] = self.spent
+            return
         visited = self.spent > 0
         self.budget[visited] = self.spent[visited]
 

@@ -147,7 +147,7 @@ class TaskRunner:
     def end_episode(self) -> None:
         """Close the episode's cross-episode bookkeeping (f3's phase budgets). Called on success
         and time limit here; a caller that ends an episode early for its own reason calls it."""
-        self.task.time_objective.end_episode()
+        self.task.time_objective.end_episode(success=self.task.step_info.success)
 
     def _count_limit_violations(self) -> int:
         """1 when a limited joint of the simulated arm is outside its position range, else 0."""

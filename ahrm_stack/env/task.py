@@ -116,7 +116,8 @@ class PushOffTask(composer.Task):
         self._obstacle_half_sizes = np.tile(obstacle_half, (len(self._obstacles), 1))
         self._table_center = np.zeros(2)
         self.progress_objective = ProgressObjective(config.rewards.progress_eps)
-        self.time_objective = TimeObjective(config.episode.duration)
+        self.time_objective = TimeObjective(config.episode.duration,
+                                            reference=config.rewards.time_reference)
         self.layout: Layout | None = None
         self._lane_plan: np.ndarray | None = None  # the episode's lane, one-hot (lane_choice)
         self.start_target: np.ndarray | None = None  # the random start's tip target, m (world)
@@ -361,14 +362,24 @@ class PushOffTask(composer.Task):
                               lambda rs: rs.uniform(region[:, 0], region[:, 1]))
 
     def _near_cube_target(self, random_state: np.random.RandomState) -> np.ndarray:
-        """A tip target (m, world) at a uniform bearing around the cube centre, at a uniform
-        horizontal distance in ``task.arm.near_cube.distance`` and height above the table top in
-        ``task.arm.near_cube.height``."""
+        """A tip target (m, world) around the cube centre, at a uniform horizontal distance in
+        ``task.arm.near_cube.distance`` and height above the table top in
+        ``task.arm.near_cube.height``; its bearing uniform (``bearing: any``) or within
+        ``behind_spread_deg`` of the side opposite the episode's lane (``bearing: behind``; the
+        lane as :func:`~ahrm_stack.env.layout.choose_lane` plans it, ties as from the cube)."""
         near = self.config.arm.near_cube
-        bearing = random_state.uniform(0.0, 2 * np.pi)
+        assert self.layout is not None, "drawn after the episode's layout"
+        if near.bearing == "behind":
+            cfg = self.config
+            lane = choose_lane(self.layout, np.asarray(self.layout.cube_xy, dtype=float), cfg.cube.size / 2,
+                               self._obstacle_half_sizes[0, :2], cfg.table, cfg.layout)
+            back = np.pi if cfg.layout.lane_directions[lane] == "+x" else 0.0  # push toward the lane
+            spread = np.deg2rad(near.behind_spread_deg)
+            bearing = back + random_state.uniform(-spread, spread)
+        else:
+            bearing = random_state.uniform(0.0, 2 * np.pi)
         distance = random_state.uniform(*near.distance)
         height = random_state.uniform(*near.height)
-        assert self.layout is not None, "drawn after the episode's layout"
         x, y = self.layout.cube_xy
         return np.array([x + distance * np.cos(bearing), y + distance * np.sin(bearing),
                          self.config.table.height + height])
