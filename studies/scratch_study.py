@@ -16,6 +16,7 @@ and ``curves.png``: the training success rate and the evaluations against frames
 from __future__ import annotations
 
 import argparse
+import ast
 import csv
 import subprocess
 import sys
@@ -112,6 +113,30 @@ def summarize(run_dir: Path) -> dict:
     }
 
 
+def behaviour_by_part(run_dir: Path, parts: int = 5) -> list[dict]:
+    """What the training episodes did, per consecutive part (a fifth by default) of a run's
+    episodes: successes, mean cube displacement (mm), episodes touching an obstacle, episodes
+    ended by the priority constraint, and the mean share of steps in each phase."""
+    episodes = _rows(run_dir / "episodes.csv")
+    out = []
+    for chunk in np.array_split(np.arange(len(episodes)), parts):
+        if not len(chunk):
+            continue
+        rows = [episodes[i] for i in chunk]
+        steps = np.array([ast.literal_eval(r["phase_steps"]) for r in rows], dtype=float)
+        share = steps.sum(axis=0) / max(1.0, steps.sum())
+        out.append({
+            "episodes": (int(chunk[0]) + 1, int(chunk[-1]) + 1),
+            "frames": int(float(rows[-1]["frames"])),
+            "successes": sum(r["success"] == "True" for r in rows),
+            "displacement_mm": 1000 * float(np.mean([float(r["cube_displacement"]) for r in rows])),
+            "touching": sum(int(float(r["touched_steps"])) > 0 for r in rows),
+            "constraint": sum(r["constraint_terminated"] == "True" for r in rows),
+            "phase_share": share.tolist(),
+        })
+    return out
+
+
 def _at(value) -> str:
     return "–" if value is None else f"{value[0]:,} ({value[1]})"
 
@@ -136,6 +161,16 @@ def report(runs_dir: Path, out: Path) -> None:
                      f"{_at(s['first_eval_success'])} | {_at(s['eval_50'])} | {_at(s['eval_90'])} | "
                      f"{s['best_eval'] if s['best_eval'] is not None else '–'} | {last_text} | {share} | "
                      f"{s['wall_minutes']:.0f} |")
+    lines += ["", "Per fifth of each run's training episodes:", "",
+              "| run | episodes | frames up to | training successes | mean cube displacement (mm) | "
+              "episodes touching | ended by the priority constraint | steps in phase 1 / 2 / 3 |",
+              "|" + "---|" * 8]
+    for path in runs:
+        for i, part in enumerate(behaviour_by_part(path)):
+            shares = " / ".join(f"{100 * v:.0f} %" for v in part["phase_share"])
+            lines.append(f"| {path.name if i == 0 else ''} | {part['episodes'][0]}–{part['episodes'][1]} | "
+                         f"{part['frames']:,} | {part['successes']} | {part['displacement_mm']:.1f} | "
+                         f"{part['touching']} | {part['constraint']} | {shares} |")
     (out / "table.md").write_text("\n".join(lines) + "\n")
     import matplotlib
     matplotlib.use("Agg")

@@ -1,0 +1,39 @@
+"""studies/scratch_study.py's report: the per-part behaviour table, computed by hand."""
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def study():
+    spec = importlib.util.spec_from_file_location("scratch_study", ROOT / "studies" / "scratch_study.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+HEADER = "episode,frames,success,cube_displacement,touched_steps,constraint_terminated,phase_steps\n"
+
+
+def test_behaviour_by_part_by_hand(study, tmp_path):
+    rows = [
+        '1,100,False,0.002,0,False,"[10, 0, 0]"',
+        '2,200,True,0.300,3,False,"[0, 5, 5]"',
+        '3,300,False,0.010,0,True,"[0, 20, 0]"',
+        '4,400,False,0.000,1,False,"[4, 4, 12]"',
+    ]
+    (tmp_path / "episodes.csv").write_text(HEADER + "\n".join(rows) + "\n")
+    parts = study.behaviour_by_part(tmp_path, parts=2)
+    assert [p["episodes"] for p in parts] == [(1, 2), (3, 4)]
+    assert [p["frames"] for p in parts] == [200, 400]
+    assert [p["successes"] for p in parts] == [1, 0]
+    assert parts[0]["displacement_mm"] == pytest.approx(151.0)  # (2 + 300) / 2 mm
+    assert parts[1]["displacement_mm"] == pytest.approx(5.0)
+    assert [p["touching"] for p in parts] == [1, 1]
+    assert [p["constraint"] for p in parts] == [0, 1]
+    assert parts[0]["phase_share"] == pytest.approx([0.5, 0.25, 0.25])  # 10, 5, 5 of 20 steps
+    assert parts[1]["phase_share"] == pytest.approx([0.1, 0.6, 0.3])   # 4, 24, 12 of 40
