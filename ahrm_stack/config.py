@@ -282,6 +282,11 @@ class RewardConfig(Section):
 class ActionConfig(Section):
     mode: Literal["joint", "cartesian"]
     cartesian_max_speed: Pos  # m/s, scale of a normalised Cartesian action
+    smoothing: NonNeg  # in [0, 1): request = smoothing * previous request + (1 - smoothing) * new
+
+    def check(self, key: str) -> None:
+        if not self.smoothing < 1:
+            raise ConfigError(f"{key}.smoothing must be in [0, 1), got {self.smoothing}")
 
 
 @Frozen
@@ -725,7 +730,7 @@ def _legacy_fill(data: dict) -> dict:
             (train, ("dagger_rounds", "expert", *NEUTRAL_TRAIN_KEYS)), (arm, ("near_cube",)),
             (ppo, ("bc_coeff_final", *LEGACY_PPO)), (section("task"), ("observation",)),
             (observation, ("lane_clip", "lane_choice")), (section("scripted"), ("descend_radius",)),
-            (section("task", "rewards"), ("time_reference",)),
+            (section("task", "rewards"), ("time_reference",)), (section("task", "action"), ("smoothing",)),
             (section("task", "arm", "near_cube"), ("bearing", "behind_spread_deg")))):
         return data
     data = copy.deepcopy(data)
@@ -750,6 +755,8 @@ def _legacy_fill(data: dict) -> dict:
             data["task"]["arm"]["near_cube"].setdefault("bearing", "any")
             data["task"]["arm"]["near_cube"].setdefault(
                 "behind_spread_deg", defaults["task"]["arm"]["near_cube"]["behind_spread_deg"])
+    if section("task", "action") is not None:  # before 2026-12-02: no smoothing
+        data["task"]["action"].setdefault("smoothing", 0.0)
     if section("task", "rewards") is not None:  # before 2026-12-02: the spec's previous episode
         data["task"]["rewards"].setdefault("time_reference", "previous")
     if train is not None:  # keys whose default leaves training as it was before they existed
@@ -794,6 +801,11 @@ def config_from_dict(data: dict, runnable: bool = True, source: Source | None = 
                 defaults = read_yaml(CONFIG_DIR / SECTIONS[section])
                 data[section] = {**{k: defaults[k] for k in keys}, **data[section]}
     config = validate(Config, data, "", source)
+    if runnable and config.task.action.smoothing > 0 and (
+            config.train.warm_start != "none" or config.ppo.bc_coeff > 0 or config.train.dagger_rounds > 0):
+        raise ConfigError(f"task.action.smoothing: {config.task.action.smoothing} needs train.warm_start: "
+                          "none, ppo.bc_coeff: 0 and train.dagger_rounds: 0 (the scripted "
+                          "demonstrations' labels are unsmoothed actions)")
     if runnable and config.task.action.mode == "cartesian" and not config.safety.enabled:
         # a rule for running the task, not for reading a run's file: deploy reads a checkpoint's
         # config (and replaces its safety settings with its own) with runnable=False

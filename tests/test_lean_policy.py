@@ -103,3 +103,30 @@ def test_deploy_policy_controller_takes_the_lean_path_with_the_same_request(mode
         want = reference()
         np.testing.assert_allclose(fast(), want, atol=1e-5, rtol=0)
         np.testing.assert_allclose(lean(), want, atol=1e-6, rtol=0)
+
+
+def test_deploy_policy_controller_smooths_as_in_training():
+    """task.action.smoothing acts in deploy as in the environment: each tick's request is
+    s * previous + (1 - s) * the policy's, and reset() starts afresh."""
+    from types import SimpleNamespace
+
+    from ahrm_stack.deploy import PolicyController
+
+    s = 0.6
+    config = load_config([f"task.action.smoothing={s}", "train.warm_start=none", "ppo.bc_coeff=0"])
+    modules = _modules(act_dim=3)
+    robot = SimpleNamespace(velocity_limit=np.linspace(0.5, 1.0, 6), commanded_joints=(0, 1, 2, 3, 4),
+                            num_joints=6)
+    world = SimpleNamespace(robot=robot, current=None)
+    world.observation = lambda copy=True: world.current
+    smoothed = PolicyController(world, lean_actor(modules.actor), config)
+    raw = PolicyController(world, lean_actor(modules.actor), load_config([]))  # the same actor, s = 0
+    smoothed.reset()
+    expected = None
+    for observation in torch.randn(6, 40).numpy() * 3.0:
+        world.current = observation
+        plain = raw()
+        expected = plain if expected is None else s * expected + (1 - s) * plain
+        np.testing.assert_allclose(smoothed(), expected, atol=1e-12)
+    smoothed.reset()
+    np.testing.assert_allclose(smoothed(), raw(), atol=1e-12)

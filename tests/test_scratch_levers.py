@@ -284,3 +284,54 @@ def test_time_reference_decides_which_episodes_set_the_phase_budgets(reference, 
     runner.end_episode()
     expected = spent if reference == "success" else np.where(spent > 0, spent, task.time_objective.budget)
     np.testing.assert_allclose(task.time_objective.budget, expected)
+
+
+NO_DEMOS = ["train.warm_start=none", "ppo.bc_coeff=0"]
+
+
+def test_action_smoothing_by_hand():
+    """request_t = s * request_{t-1} + (1 - s) * new_t, the first of an episode unchanged."""
+    from ahrm_stack.env.control_step import ControlStep
+    config = load_config(["task.action.smoothing=0.75", "task.action.cartesian_max_speed=0.5", *NO_DEMOS])
+    task = PushOffTask(config.task)
+    control = ControlStep(task.robot, config.task.action)
+    control.reset()
+    first = control.smooth(control.request(np.array([1.0, 0.0, -1.0])))
+    np.testing.assert_allclose(first, [0.5, 0.0, -0.5])            # m/s, unchanged
+    second = control.smooth(control.request(np.array([-1.0, 1.0, 0.0])))
+    np.testing.assert_allclose(second, [0.25, 0.125, -0.375])      # 0.75 * first + 0.25 * (-0.5, 0.5, 0)
+    third = control.smooth(control.request(np.array([0.0, 0.0, 0.0])))
+    np.testing.assert_allclose(third, 0.75 * second)
+    fault = control.smooth(np.array([np.nan, 0.0, 0.0]))            # passes, not remembered
+    assert np.isnan(fault[0])
+    np.testing.assert_allclose(control.smooth(np.zeros(3)), 0.75 * third)
+    control.reset()                                                 # a new episode starts fresh
+    np.testing.assert_allclose(control.smooth(control.request(np.array([0.2, 0.2, 0.2]))), [0.1] * 3)
+
+
+def test_action_smoothing_takes_effect_in_the_environment():
+    """The same actions with and without smoothing: the filter sees the smoothed request."""
+    requests = {}
+    for smoothing in (0.0, 0.8):
+        config = load_config([f"task.action.smoothing={smoothing}", *NO_DEMOS])
+        task = PushOffTask(config.task)
+        runner = TaskRunner(task, seed=0, safety=config.safety)
+        runner.reset()
+        seen = []
+        call = runner.filter.cartesian
+        runner.filter.cartesian = lambda q, dq, request, *a, **k: (seen.append(np.array(request)),
+                                                                    call(q, dq, request, *a, **k))[1]
+        for action in ([1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]):
+            runner.step_action(np.array(action))
+        requests[smoothing] = np.array(seen)
+    speed = load_config([]).task.action.cartesian_max_speed
+    np.testing.assert_allclose(requests[0.0][:, 0], [speed, 0.0, 0.0])
+    np.testing.assert_allclose(requests[0.8][:, 0], [speed, 0.8 * speed, 0.64 * speed])
+
+
+@pytest.mark.parametrize("overrides", [["task.action.smoothing=1.0", *NO_DEMOS],
+                                       ["task.action.smoothing=-0.1", *NO_DEMOS],
+                                       ["task.action.smoothing=0.5", "train.warm_start=bc"]])
+def test_bad_smoothing_names_the_key(overrides):
+    with pytest.raises(ConfigError, match=r"task\.action\.smoothing"):
+        load_config(overrides)

@@ -37,3 +37,10 @@ def test_behaviour_by_part_by_hand(study, tmp_path):
     assert [p["constraint"] for p in parts] == [0, 1]
     assert parts[0]["phase_share"] == pytest.approx([0.5, 0.25, 0.25])  # 10, 5, 5 of 20 steps
     assert parts[1]["phase_share"] == pytest.approx([0.1, 0.6, 0.3])   # 4, 24, 12 of 40
+
+
+def test_probe_runs_the_task_and_counts(study):
+    """Two episodes of the steering probe without noise: the counts are consistent."""
+    (cell,) = study.probe([0.0], [0.0], episodes=2, speed=0.4, gain=20.0, overrides=[])
+    assert cell["episodes"] == 2 and 0 <= cell["wins"] <= 2 and 0 <= cell["touching"] <= 2
+    assert 0.0 < cell["f2_share"] <= 1.0  # the probe approaches the cube: some steps make progress

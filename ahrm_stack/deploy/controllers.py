@@ -70,12 +70,15 @@ class PolicyController:
         self._num_joints = len(self.control.velocity_limit)
 
     def reset(self) -> None:
-        pass
+        self.control.reset()
 
     def __call__(self) -> np.ndarray:
         """The request for this tick: joint velocities (rad/s) or the tip velocity (m/s, world
-        frame), a new array; an entry whose action was NaN or infinite is NaN (the loop stops
-        on it)."""
+        frame), a new array, smoothed as in training (``task.action.smoothing``); an entry whose
+        action was NaN or infinite is NaN (the loop stops on it)."""
+        return self.control.smooth(self._policy_request())
+
+    def _policy_request(self) -> np.ndarray:
         if self._numpy is not None:
             return self._request(self._numpy(self.world.observation(copy=False)))
         import torch

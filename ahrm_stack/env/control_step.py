@@ -115,6 +115,29 @@ class ControlStep:
         self.commanded = tuple(robot.commanded_joints)
         self.action_size = TIP_DIM if self.cartesian else len(self.commanded)
         self.request_size = request_size(robot, self.cartesian)
+        self.smoothing = float(action.smoothing)  # in [0, 1); 0: requests pass unchanged
+        self._previous: np.ndarray | None = None  # the last smoothed request of this episode
+
+    def reset(self) -> None:
+        """Start an episode: the next request is not blended with any earlier one."""
+        self._previous = None
+
+    def smooth(self, request: np.ndarray) -> np.ndarray:
+        """Exponential smoothing of a policy's requests (``task.action.smoothing`` = s): the first
+        request of an episode passes unchanged, each later one becomes
+        ``s * previous + (1 - s) * request`` (the previous *smoothed* request; same units as the
+        request). A non-finite request passes unchanged and is not remembered (the deploy loop
+        stops on it). With s = 0 this returns ``request`` itself. It acts before the safety
+        filter, which still sees every request that reaches the arm."""
+        if self.smoothing == 0.0:
+            return request
+        if self._previous is None or not np.isfinite(request).all():
+            if np.isfinite(request).all():
+                self._previous = np.array(request, dtype=float)
+            return request
+        blended = self.smoothing * self._previous + (1.0 - self.smoothing) * np.asarray(request, dtype=float)
+        self._previous = blended
+        return blended.copy()
 
     def request(self, action: np.ndarray) -> np.ndarray:
         """The filter request for a normalised ``action`` of shape ``(action_size,)`` (a wrong

@@ -95,6 +95,7 @@ class TaskRunner:
         self.safety_stats.reset()
         self.last_filter_result = None
         self.limit_violations = 0
+        self.control.reset()
         return Transition(self.observe(), self.task.step_info, False, False)
 
     def _filtered(self, request: np.ndarray, cartesian: bool) -> np.ndarray:
@@ -114,8 +115,9 @@ class TaskRunner:
         """Advance one control step on a policy's normalised ``action`` (shape
         ``(control.action_size,)``, a wrong shape is a ``ValueError``): :attr:`control` maps it to
         the request of ``task.action.mode`` — joint velocities (rad/s) or the tip velocity (m/s,
-        world frame) — and the safety filter makes the joint command from it."""
-        request = self.control.request(action)
+        world frame) — smoothed over the episode (``task.action.smoothing``), and the safety filter
+        makes the joint command from it."""
+        request = self.control.smooth(self.control.request(action))
         return self._advance(self._filtered(request, cartesian=self.control.cartesian))
 
     def step_only(self, request: np.ndarray) -> tuple[StepInfo, bool, bool]:
