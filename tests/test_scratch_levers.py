@@ -319,8 +319,10 @@ def test_action_smoothing_takes_effect_in_the_environment():
         runner.reset()
         seen = []
         call = runner.filter.cartesian
-        runner.filter.cartesian = lambda q, dq, request, *a, **k: (seen.append(np.array(request)),
-                                                                    call(q, dq, request, *a, **k))[1]
+        def spy(q, dq, request, *args, seen=seen, call=call, **kwargs):
+            seen.append(np.array(request))
+            return call(q, dq, request, *args, **kwargs)
+        runner.filter.cartesian = spy
         for action in ([1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]):
             runner.step_action(np.array(action))
         requests[smoothing] = np.array(seen)
