@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import dataclasses
 import csv
 import subprocess
 import sys
@@ -198,6 +199,29 @@ def probe(noises: list[float], smoothings: list[float], episodes: int, speed: fl
     return cells
 
 
+def easy_eval(run_dir: Path, policy_file: Path | None, episodes: int) -> dict:
+    """The run's deterministic policy at the easy end of its start curriculum: every episode
+    starts near the cube as the run's ``task.arm.near_cube`` says (level 0), truncated at its
+    ``train.time_limit``, on the evaluation seeds (never trained on). ``policy_file``: default
+    the newest of ``policy.pt`` and ``policies/episode-*.pt``. Returns the evaluation table's
+    figures and the policy file used."""
+    from ahrm_stack.env.torchrl_env import PushOffEnv
+    from ahrm_stack.learning.rollouts import EVAL_SEED_OFFSET, EvaluationTable, load_policy, run_episodes
+
+    if policy_file is None:
+        candidates = sorted(run_dir.glob("policies/episode-*.pt")) + sorted(run_dir.glob("policy.pt"))
+        if not candidates:
+            raise SystemExit(f"error: no policy file in {run_dir} (policy.pt or policies/episode-*.pt)")
+        policy_file = candidates[-1]
+    config, policy = load_policy(run_dir, policy_file)
+    env = PushOffEnv(config.task, config.safety, seed=EVAL_SEED_OFFSET, time_limit=config.train.time_limit)
+    env.task.near_cube_share = 1.0
+    table = EvaluationTable.from_summaries(run_episodes(env, policy, episodes))
+    print(f"{run_dir.name} {policy_file.name}: near-cube starts ({config.task.arm.near_cube.bearing}), "
+          f"{config.train.time_limit or config.task.episode.duration:g} s: {table}")
+    return {"policy": policy_file.name, **dataclasses.asdict(table)}
+
+
 def _at(value) -> str:
     return "–" if value is None else f"{value[0]:,} ({value[1]})"
 
@@ -276,6 +300,10 @@ def main(argv: list[str] | None = None) -> int:
     p_probe.add_argument("--speed", type=float, default=0.4, help="normalised push speed along the lane")
     p_probe.add_argument("--gain", type=float, default=20.0, help="steering gain, 1/m")
     p_probe.add_argument("overrides", nargs="*", help="config overrides (key=value)")
+    p_easy = sub.add_parser("easy-eval", help="the policy from the curriculum's easy starts")
+    p_easy.add_argument("run_dir", type=Path)
+    p_easy.add_argument("--policy", type=Path, default=None)
+    p_easy.add_argument("--episodes", type=int, default=40)
     p_report = sub.add_parser("report")
     p_report.add_argument("runs_dir", type=Path)
     p_report.add_argument("--out", type=Path, default=Path("docs/scratch-study"))
@@ -286,6 +314,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.command == "run":
         return run(args.row, args.seed, args.frames, args.runs_dir, args.eval_every, args.resume)
+    if args.command == "easy-eval":
+        easy_eval(args.run_dir, args.policy, args.episodes)
+        return 0
     if args.command == "probe":
         probe(args.noise, args.smoothing, args.episodes, args.speed, args.gain, args.overrides)
         return 0

@@ -44,3 +44,18 @@ def test_probe_runs_the_task_and_counts(study):
     (cell,) = study.probe([0.0], [0.0], episodes=2, speed=0.4, gain=20.0, overrides=[])
     assert cell["episodes"] == 2 and 0 <= cell["wins"] <= 2 and 0 <= cell["touching"] <= 2
     assert 0.0 < cell["f2_share"] <= 1.0  # the probe approaches the cube: some steps make progress
+
+
+def test_easy_eval_starts_every_episode_near_the_cube(study, tmp_path):
+    """A tiny run with behind starts and 1 s training episodes: easy-eval runs its policy from
+    those starts, on the evaluation seeds."""
+    from ahrm_stack.train import main as train
+
+    run = tmp_path / "run"
+    assert train(["ppo.hidden_sizes=[16]", "ppo.frames_per_batch=64", "train.warm_start=none", "ppo.bc_coeff=0",
+                  "train.time_limit=1", "train.start_curriculum=near_cube", "task.arm.near_cube.bearing=behind",
+                  "train.episodes=2", "train.eval_episodes=0", "--run-dir", str(run), "--no-progress"]) == 0
+    result = study.easy_eval(run, None, episodes=2)
+    assert result["policy"] == "policy.pt" and result["episodes"] == 2
+    assert result["successes"] <= 2
+    assert study.behaviour_by_part(run, parts=1)[0]["episodes"][1] >= 2  # a batch may end more
