@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import ast
 import dataclasses
+import gzip
 import csv
 import subprocess
 import sys
@@ -73,8 +74,14 @@ def run(row: str, seed: int, frames: int, runs_dir: Path, eval_every: int, resum
 
 
 def _rows(path: Path) -> list[dict]:
+    """A CSV file's rows, read from ``path`` or, where only that exists, ``path.gz`` (the run
+    folders copied into docs/ keep their large episode logs compressed)."""
     if not path.exists():
-        return []
+        packed = path.with_name(path.name + ".gz")
+        if not packed.exists():
+            return []
+        with gzip.open(packed, "rt", newline="") as handle:
+            return list(csv.DictReader(handle))
     with open(path, newline="") as handle:
         return list(csv.DictReader(handle))
 
@@ -223,7 +230,8 @@ def _at(value) -> str:
 
 
 def report(runs_dir: Path, out: Path) -> None:
-    runs = sorted(p for p in runs_dir.iterdir() if (p / "episodes.csv").exists())
+    runs = sorted(p for p in runs_dir.iterdir()
+                  if (p / "episodes.csv").exists() or (p / "episodes.csv.gz").exists())
     if not runs:
         raise SystemExit(f"error: no run folders with episodes.csv under {runs_dir}")
     summaries = [summarize(p) for p in runs]

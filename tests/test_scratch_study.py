@@ -59,3 +59,15 @@ def test_easy_eval_starts_every_episode_near_the_cube(study, tmp_path):
     assert result["policy"] == "policy.pt" and result["episodes"] == 2
     assert result["successes"] <= 2
     assert study.behaviour_by_part(run, parts=1)[0]["episodes"][1] >= 2  # a batch may end more
+
+
+def test_a_compressed_episode_log_reads_the_same(study, tmp_path):
+    import gzip
+    text = HEADER + '1,100,True,0.3,0,False,"[0, 5, 5]"\n'
+    plain, packed = tmp_path / "plain", tmp_path / "packed"
+    plain.mkdir(), packed.mkdir()
+    (plain / "episodes.csv").write_text(text)
+    with gzip.open(packed / "episodes.csv.gz", "wt") as handle:
+        handle.write(text)
+    assert study.behaviour_by_part(plain, 1) == study.behaviour_by_part(packed, 1)
+    assert study.behaviour_by_part(packed, 1)[0]["successes"] == 1
