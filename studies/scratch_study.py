@@ -87,11 +87,25 @@ def _rows(path: Path) -> list[dict]:
 
 
 def _first(rows: list[dict], test) -> tuple[int, int] | None:
-    """(frames, episodes) of the first row passing ``test``."""
+    """(frames, training episodes) of the first row passing ``test`` (in evaluations.csv
+    ``episode`` is the training episode, ``episodes`` the evaluation's own count)."""
     for row in rows:
         if test(row):
-            return int(float(row["frames"])), int(float(row["episodes"] if "episodes" in row else row["episode"]))
+            return int(float(row["frames"])), int(float(row["episode"] if "episode" in row else row["episodes"]))
     return None
+
+
+def _rate_reached(success: np.ndarray, frames: np.ndarray, rate: float, window: int = 200) -> tuple[int, int] | None:
+    """(frames, episodes) at the end of the first ``window`` consecutive training episodes of
+    which a share >= ``rate`` succeeded; None if none."""
+    if len(success) < window:
+        return None
+    rates = np.convolve(success.astype(float), np.ones(window) / window, mode="valid")
+    hits = np.flatnonzero(rates >= rate - 1e-12)
+    if not len(hits):
+        return None
+    end = int(hits[0]) + window - 1
+    return int(frames[end]), end + 1
 
 
 def summarize(run_dir: Path) -> dict:
@@ -112,6 +126,8 @@ def summarize(run_dir: Path) -> dict:
         "train_successes": int(success.sum()),
         "train_success_last_500": float(success[-500:].mean()) if len(success) else 0.0,
         "first_train_success": None if first_train is None else (int(frames[first_train]), first_train + 1),
+        "train_10": _rate_reached(success, frames, 0.1),
+        "train_50": _rate_reached(success, frames, 0.5),
         "first_eval_success": _first(evaluations, lambda r: count(r) >= 1),
         "eval_50": _first(evaluations, lambda r: count(r) >= 0.5 * episodes_per_eval),
         "eval_90": _first(evaluations, lambda r: count(r) >= 0.9 * episodes_per_eval),
@@ -237,9 +253,10 @@ def report(runs_dir: Path, out: Path) -> None:
     summaries = [summarize(p) for p in runs]
     out.mkdir(parents=True, exist_ok=True)
     lines = ["| run | frames | episodes | training successes (last 500 episodes) | first training success: "
-             "frames (episode) | first evaluation success | evaluation >= 50 % | evaluation >= 90 % | "
+             "frames (episode) | training success rate >= 10 % / >= 50 % (200 episodes) | "
+             "first evaluation success | evaluation >= 50 % | evaluation >= 90 % | "
              "best evaluation | last evaluation (touching, s to success, at frames) | curriculum "
-             "level | wall minutes |", "|" + "---|" * 12]
+             "level | wall minutes |", "|" + "---|" * 13]
     for s in summaries:
         last = s["last_eval"]
         last_text = "–" if last is None else (f"{last[0]}/{last[1]} ({last[2]} touching, "
@@ -247,6 +264,7 @@ def report(runs_dir: Path, out: Path) -> None:
         share = "–" if s["curriculum_level"] is None else f"{s['curriculum_level']:.2f}"
         lines.append(f"| {s['run']} | {s['frames']:,} | {s['episodes']} | {s['train_successes']} "
                      f"({100 * s['train_success_last_500']:.0f} %) | {_at(s['first_train_success'])} | "
+                     f"{_at(s['train_10'])} / {_at(s['train_50'])} | "
                      f"{_at(s['first_eval_success'])} | {_at(s['eval_50'])} | {_at(s['eval_90'])} | "
                      f"{s['best_eval'] if s['best_eval'] is not None else '–'} | {last_text} | {share} | "
                      f"{s['wall_minutes']:.0f} |")

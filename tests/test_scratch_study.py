@@ -71,3 +71,20 @@ def test_a_compressed_episode_log_reads_the_same(study, tmp_path):
         handle.write(text)
     assert study.behaviour_by_part(plain, 1) == study.behaviour_by_part(packed, 1)
     assert study.behaviour_by_part(packed, 1)[0]["successes"] == 1
+
+
+def test_rate_reached_by_hand(study):
+    import numpy as np
+    success = np.array([0, 0, 1, 1, 0, 1, 1, 1], dtype=bool)
+    frames = np.arange(1, 9) * 10
+    # windows of 4: rates 0.5 (episodes 1-4), 0.5, 0.75 (3-6), 0.75, 0.75
+    assert study._rate_reached(success, frames, 0.5, window=4) == (40, 4)
+    assert study._rate_reached(success, frames, 0.75, window=4) == (60, 6)
+    assert study._rate_reached(success, frames, 0.9, window=4) is None
+    assert study._rate_reached(success[:3], frames[:3], 0.1, window=4) is None
+
+
+def test_first_evaluation_names_the_training_episode(study):
+    rows = [{"episode": "2008", "frames": "200704", "episodes": "40", "successes": "0"},
+            {"episode": "6012", "frames": "600064", "episodes": "40", "successes": "3"}]
+    assert study._first(rows, lambda r: int(r["successes"]) >= 1) == (600064, 6012)
