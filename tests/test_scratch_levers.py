@@ -58,6 +58,18 @@ def test_frame_budget_ends_training_by_frames_not_episodes():
     by_episodes.close()
 
 
+def _near_cube_start(task, runner, seed):
+    """Reset with ``seed`` (a near-cube start, not the home fallback): the tip by Pinocchio's
+    forward kinematics and the cube centre, world frame, m."""
+    runner.seed(seed)
+    runner.reset()
+    assert task.start_target is not None, "fell back to the home posture"
+    q, _ = task.arm_state(runner.physics)
+    task.kinematics.update(q)
+    tip, _ = task.kinematics.frame_pose(task._tip_frame)
+    return tip, runner.physics.bind(task._cube.geom).xpos
+
+
 def test_near_cube_starts_put_the_tip_around_the_cube_pointing_down():
     """The tip measured with Pinocchio's forward kinematics (the IK ran on MuJoCo's model)."""
     config = load_config([])
@@ -67,13 +79,7 @@ def test_near_cube_starts_put_the_tip_around_the_cube_pointing_down():
     near = config.task.arm.near_cube
     bearings = []
     for seed in range(10):
-        runner.seed(seed)
-        runner.reset()
-        assert task.start_target is not None, "fell back to the home posture"
-        q, _ = task.arm_state(runner.physics)
-        task.kinematics.update(q)
-        tip, _ = task.kinematics.frame_pose(task._tip_frame)
-        cube = runner.physics.bind(task._cube.geom).xpos
+        tip, cube = _near_cube_start(task, runner, seed)
         offset = tip[:2] - cube[:2]
         assert near.distance[0] - 3e-3 <= np.hypot(*offset) <= near.distance[1] + 3e-3
         height = tip[2] - config.task.table.height
@@ -250,13 +256,7 @@ def test_behind_starts_put_the_tip_opposite_the_episodes_lane():
     directions = config.task.layout.lane_directions
     lanes = set()
     for seed in range(12):
-        runner.seed(seed)
-        runner.reset()
-        assert task.start_target is not None, "fell back to the home posture"
-        q, _ = task.arm_state(runner.physics)
-        task.kinematics.update(q)
-        tip, _ = task.kinematics.frame_pose(task._tip_frame)
-        cube = runner.physics.bind(task._cube.geom).xpos
+        tip, cube = _near_cube_start(task, runner, seed)
         lane = directions[int(np.argmax(task._lane_choice(runner.physics)))]
         lanes.add(lane)
         push = np.array([1.0, 0.0]) if lane == "+x" else np.array([-1.0, 0.0])
