@@ -173,7 +173,7 @@ def probe(noises: list[float], smoothings: list[float], episodes: int, speed: fl
     (tip velocity along the episode's lane at ``speed``, the lateral and vertical offsets from the
     cube centre times ``gain`` 1/m, all in normalised action units), with the noise a
     TanhNormal actor of that std adds (tanh(atanh(mean) + N(0, std))), from near-cube starts
-    behind the cube (5 s episodes, 0.5 m/s cap, the scratch profile's settings), for each noise
+    behind the cube (episodes of the profile's train.time_limit, its speed cap), for each noise
     and smoothing. Returns per cell: wins, episodes touching an obstacle, and the share of steps
     on which f2 (manipulate) is satisfied. Uses the task and the safety filter, no learning."""
     from ahrm_stack.config import load_config
@@ -182,8 +182,10 @@ def probe(noises: list[float], smoothings: list[float], episodes: int, speed: fl
 
     cells = []
     for smoothing in smoothings:
-        config = load_config(["profile=scratch", "task.arm.near_cube.bearing=behind", "task.episode.duration=5",
-                              f"task.action.smoothing={smoothing}", *overrides])
+        base = ["profile=scratch", "task.arm.near_cube.bearing=behind", f"task.action.smoothing={smoothing}",
+                *overrides]
+        # episodes as long as the profile's training episodes (train.time_limit)
+        config = load_config([*base, f"task.episode.duration={load_config(base).train.time_limit}"])
         task = PushOffTask(config.task)
         task.near_cube_share = 1.0
         runner = TaskRunner(task, seed=0, safety=config.safety)

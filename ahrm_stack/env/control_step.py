@@ -131,9 +131,10 @@ class ControlStep:
         filter, which still sees every request that reaches the arm."""
         if self.smoothing == 0.0:
             return request
-        if self._previous is None or not np.isfinite(request).all():
-            if np.isfinite(request).all():
-                self._previous = np.array(request, dtype=float)
+        if not np.isfinite(request).all():
+            return request
+        if self._previous is None:
+            self._previous = np.array(request, dtype=float)
             return request
         blended = self.smoothing * self._previous + (1.0 - self.smoothing) * np.asarray(request, dtype=float)
         self._previous = blended
