@@ -481,6 +481,9 @@ class MechanismConfig(Section):
     constraint_min_steps: Window  # steps in a phase before the constraint is checked
     constraint_margin: NonNeg  # a per-step average below tau - margin ends the episode
     priority_period: Window  # P: visiting episodes between priority determinations
+    # magnitude (spec Eqs. 3-5): |mean episode sum of f_i| high to low | violation: the per-step
+    # average of f_i low to high (the most often violated objective first)
+    priority_rule: Literal["magnitude", "violation"]
     blend_band: Pos  # delta, m
     blend_slope: Pos  # alpha, 1/m
 
@@ -731,7 +734,8 @@ def _legacy_fill(data: dict) -> dict:
             (ppo, ("bc_coeff_final", *LEGACY_PPO)), (section("task"), ("observation",)),
             (observation, ("lane_clip", "lane_choice")), (section("scripted"), ("descend_radius",)),
             (section("task", "rewards"), ("time_reference",)), (section("task", "action"), ("smoothing",)),
-            (section("task", "arm", "near_cube"), ("bearing", "behind_spread_deg")))):
+            (section("task", "arm", "near_cube"), ("bearing", "behind_spread_deg")),
+            (section("mechanism"), ("priority_rule",)))):
         return data
     data = copy.deepcopy(data)
     defaults = {name: read_yaml(CONFIG_DIR / file) for name, file in SECTIONS.items()}
@@ -759,6 +763,8 @@ def _legacy_fill(data: dict) -> dict:
         data["task"]["action"].setdefault("smoothing", 0.0)
     if section("task", "rewards") is not None:  # before 2026-12-02: the spec's previous episode
         data["task"]["rewards"].setdefault("time_reference", "previous")
+    if section("mechanism") is not None:  # before 2026-12-02: the spec's ranking
+        data["mechanism"].setdefault("priority_rule", "magnitude")
     if train is not None:  # keys whose default leaves training as it was before they existed
         for key in NEUTRAL_TRAIN_KEYS:
             data["train"].setdefault(key, defaults["train"][key])

@@ -60,6 +60,10 @@ ROWS: dict[str, list[str]] = {
     # + exponential smoothing of the requests (task.action.smoothing 0.8: exploration noise
     # correlated over ~5 steps, a third of its per-step size): measured by `probe` only so far
     **{f"smooth-{m}": ["profile=scratch", f"mechanism.method={m}", "task.action.smoothing=0.8"] for m in METHODS},
+    # round 3: AHRM ranks objectives by how often they are violated (the per-step average of f_i, low
+    # first) instead of the spec's |mean episode sum| (high first), which ranked time first in phases
+    # 2-3 of a policy that had never succeeded (time holds in every short visit) and locked it
+    "violation-ahrm": ["profile=scratch", "mechanism.method=ahrm", "mechanism.priority_rule=violation"],
 }
 
 

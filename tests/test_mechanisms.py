@@ -16,7 +16,7 @@ BASE = MechanismConfig(
     initial_orders=(("avoid", "manipulate", "time"),) * 3,
     convergence_window=10, convergence_tolerance=0.05, constraint_window=10,
     constraint_min_steps=20, constraint_margin=0.1, priority_period=30,
-    blend_band=0.05, blend_slope=40.0)
+    priority_rule="magnitude", blend_band=0.05, blend_slope=40.0)
 
 FAR = np.array([1.0, 1.0])  # far from both regions: phase 1, no blending
 PHASE2 = np.array([-1.0, 1.0])  # deep in B_obstacles, far from B_target
@@ -108,6 +108,42 @@ def test_priority_order_from_average_episode_rewards_with_ties():
     assert ahrm.orders[0] == (0, 2, 1)
     assert [e.kind for e in events] == ["order_changed"] and events[0].episode == 30
     assert ahrm.levels[0] == 1
+
+
+def _phase3_episode(avoid_violated: int, manipulate_violated: int, steps: int):
+    """``steps`` steps in phase 3; the first n steps violate avoid / manipulate; time always holds."""
+    f = np.ones((steps, 3))
+    f[:avoid_violated, 0] = -1
+    f[:manipulate_violated, 1] = -1
+    return f, np.full(steps, 3)
+
+
+def test_violation_rule_ranks_by_the_per_step_average_low_first():
+    # two kinds of phase-3 episode, alternating (15 of each in P = 30):
+    #   A: 10 steps, avoid violated 1, manipulate 7: sums (8, -4, 10), per-step (0.8, -0.4, 1)
+    #   B: 30 steps, avoid violated 20, manipulate 0: sums (-10, 30, 30), per-step (-1/3, 1, 1)
+    # mean sums (-1, 13, 20): magnitude ranks time > manipulate > avoid
+    # mean per-step averages (0.2333, 0.3, 1): violation ranks avoid > manipulate > time
+    a, b = _phase3_episode(1, 7, 10), _phase3_episode(20, 0, 30)
+    orders = {}
+    for rule in ("magnitude", "violation"):
+        ahrm = make("ahrm", priority_rule=rule)
+        events = []
+        for i in range(30):
+            events += ahrm.end_episode(*(a if i % 2 == 0 else b))
+        orders[rule] = ahrm.orders[2]
+        assert [e.kind for e in events if e.kind != "level_advanced"] == (
+            ["order_changed"] if rule == "magnitude" else [])
+    assert orders["magnitude"] == (2, 1, 0)
+    assert orders["violation"] == (0, 1, 2)  # the initial order: no change event for it
+    ahrm = make("ahrm", priority_rule="violation", initial_orders=(("time", "avoid", "manipulate"),) * 3)
+    events = []
+    for i in range(30):
+        events += ahrm.end_episode(*(a if i % 2 == 0 else b))
+    assert ahrm.orders[2] == (0, 1, 2)
+    [changed] = [e for e in events if e.kind == "order_changed"]
+    assert changed.phase == 3 and changed.episode == 30
+    assert "per-step mean [0.233, 0.3, 1.0]" in changed.detail
 
 
 def test_locking_after_two_equal_orders():

@@ -139,6 +139,7 @@ def test_start_curriculum_widens_when_the_success_rate_reaches_the_threshold():
     ("task.arm.near_cube.bearing=front", "task.arm.near_cube.bearing"),
     ("task.arm.near_cube.behind_spread_deg=-5", "task.arm.near_cube.behind_spread_deg"),
     ("task.rewards.time_reference=best", "task.rewards.time_reference"),
+    ("mechanism.priority_rule=loudest", "mechanism.priority_rule"),
 ])
 def test_bad_scratch_values_name_the_key(override, key):
     with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
@@ -159,11 +160,15 @@ def test_old_run_configs_get_the_neutral_values():
         raw["train"].pop(key)
     raw["task"]["arm"].pop("near_cube")
     raw["task"]["rewards"].pop("time_reference")
+    raw["mechanism"]["priority_rule"] = "violation"
+    assert config_from_dict(raw).mechanism.priority_rule == "violation"
+    raw["mechanism"].pop("priority_rule")
     config = config_from_dict(raw)
     assert config.train.frames == 0 and config.train.time_limit == 0
     assert config.train.start_curriculum == "none"
     assert config.task.rewards.time_reference == "previous"  # the spec's, as before the key
     assert config.task.arm.near_cube.bearing == "any"
+    assert config.mechanism.priority_rule == "magnitude"  # the spec's ranking, as before the key
 
 
 def test_a_resumed_log_keeps_its_columns(tmp_path):

@@ -198,14 +198,22 @@ class RewardMechanism:
     def _determine_priority(self, k: int) -> list[Event]:
         period = self.config.priority_period
         history = list(self._history[k])[-period:]
-        means = np.mean([sums for _, sums in history], axis=0)
-        # |mean| high to low; ties by objective index (a stable sort on -|mean|)
-        order = tuple(int(i) for i in np.argsort(-np.abs(means), kind="stable"))
+        if self.config.priority_rule == "violation":
+            # the per-step average of f_i, low to high: the objective violated on the largest share
+            # of the phase's steps comes first (with ±1 components, average = 1 - 2 x violated share)
+            means = np.mean([sums / steps for steps, sums in history], axis=0)
+            key, label, shown = means, "per-step mean", means
+        else:
+            # spec Eqs. 3-5: the per-episode sum's |mean|, high to low
+            means = np.mean([sums for _, sums in history], axis=0)
+            key, label, shown = -np.abs(means), "|mean|", np.abs(means)
+        # ties by objective index (a stable sort)
+        order = tuple(int(i) for i in np.argsort(key, kind="stable"))
         events = []
         if order != self.orders[k]:
             events.append(Event(self.episodes, "order_changed", k + 1,
-                                f"{_names(self.orders[k])} -> {_names(order)} (|mean| "
-                                f"{np.round(np.abs(means), 3).tolist()})"))
+                                f"{_names(self.orders[k])} -> {_names(order)} ({label} "
+                                f"{np.round(shown, 3).tolist()})"))
             self.orders[k] = order
             self.levels[k] = 1
             self._level_sums[k] = []
