@@ -2,6 +2,7 @@
 first touch and the lane.
 
     python studies/touch_diagnosis.py RUN_DIR [--policy-file policies/clone.pt] [--suite RUN_DIR/suite]
+    python studies/touch_diagnosis.py RUN_DIR --own 40   # the run's own evaluation episodes
 
 For every family folder of a suite evaluation (``python -m ahrm_stack.evaluate RUN_DIR --suite``),
 the episodes whose ``touched_steps`` > 0 are replayed with the same seeds and the run's
@@ -9,7 +10,9 @@ deterministic policy. At the first touching step it prints what is in contact wi
 (``cube``, ``pusher``, ``arm`` or ``none``: the obstacle only moving), how far the cube has moved,
 the lane the policy is pushing along (the sign of the cube's x displacement) and the lane the
 scripted controller plans for that episode (:func:`ahrm_stack.env.layout.choose_lane`). It ends
-with the counts. Replays only; nothing is written.
+with the counts. ``--own N`` replays instead the first N episodes of the run's own deterministic
+evaluation (its distribution, the evaluation seeds) and names the first touch of those that touch.
+Replays only; nothing is written.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ from ahrm_stack.env.layout_catalog import apply_layout
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.scripted import ScriptedPusher
 from ahrm_stack.env.task import PushOffTask
-from ahrm_stack.learning.rollouts import load_policy
+from ahrm_stack.learning.rollouts import EVAL_SEED_OFFSET, load_policy
 
 
 def _first_touch(runner: TaskRunner, policy, task: PushOffTask) -> dict | None:
@@ -67,12 +70,36 @@ def _first_touch(runner: TaskRunner, policy, task: PushOffTask) -> dict | None:
             return None
 
 
+def _replay(name: str, config, offset: int, episodes, policy, counts: Counter, lanes: Counter,
+            quiet_clean: bool = False) -> None:
+    """Replay ``episodes`` (indices from ``offset``) and count each one's first touch."""
+    task = PushOffTask(config.task)
+    runner = TaskRunner(task, seed=offset, safety=config.safety)
+    planner = ScriptedPusher(task, config.scripted)
+    for i in episodes:
+        runner.seed(offset + i)
+        runner.reset()
+        planner.reset(runner.physics)
+        touch = _first_touch(runner, policy, task)
+        if touch is None:
+            if not quiet_clean:
+                print(f"{name} episode {i}: no touch on replay")
+            continue
+        counts[touch["kinds"]] += 1
+        lanes["same lane" if touch["lane"] == planner.lane else "other lane"] += 1
+        print(f"{name} episode {i}: t={touch['time']:.2f} s, touch {touch['kinds']}, "
+              f"cube moved {np.round(touch['moved'], 3).tolist()} m, policy's lane "
+              f"{touch['lane']}, planned {planner.lane}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run_dir", type=Path)
     parser.add_argument("--policy-file", type=Path, default=None,
                         help="relative to RUN_DIR (default: policy.pt)")
     parser.add_argument("--suite", type=Path, default=None, help="default: RUN_DIR/suite")
+    parser.add_argument("--own", type=int, default=0, metavar="N",
+                        help="replay the run's own first N evaluation episodes instead of a suite")
     args = parser.parse_args(argv)
     run = args.run_dir
     policy_file = run / args.policy_file if args.policy_file else None
@@ -80,31 +107,20 @@ def main(argv: list[str] | None = None) -> int:
     _, policy = load_policy(run, policy_file)
     counts: Counter = Counter()
     lanes: Counter = Counter()
-    for family_dir in sorted(p for p in suite.iterdir() if p.is_dir()):
-        with open(family_dir / "evaluation.csv") as handle:
-            rows = list(csv.DictReader(handle))
-        touching = [i for i, row in enumerate(rows) if int(row["touched_steps"]) > 0]
-        if not touching:
-            continue
-        raw = yaml.safe_load((run / "config.yaml").read_text())
-        offset = apply_layout(raw, family_dir.name).seed_offset
-        config = config_from_dict(raw)
-        task = PushOffTask(config.task)
-        runner = TaskRunner(task, seed=offset, safety=config.safety)
-        planner = ScriptedPusher(task, config.scripted)
-        for i in touching:
-            runner.seed(offset + i)
-            runner.reset()
-            planner.reset(runner.physics)
-            touch = _first_touch(runner, policy, task)
-            if touch is None:
-                print(f"{family_dir.name} episode {i}: no touch on replay")
+    raw_run = yaml.safe_load((run / "config.yaml").read_text())
+    if args.own:
+        _replay("own", config_from_dict(raw_run), EVAL_SEED_OFFSET, range(args.own), policy, counts, lanes,
+                quiet_clean=True)
+    else:
+        for family_dir in sorted(p for p in suite.iterdir() if p.is_dir()):
+            with open(family_dir / "evaluation.csv") as handle:
+                rows = list(csv.DictReader(handle))
+            touching = [i for i, row in enumerate(rows) if int(row["touched_steps"]) > 0]
+            if not touching:
                 continue
-            counts[touch["kinds"]] += 1
-            lanes["same lane" if touch["lane"] == planner.lane else "other lane"] += 1
-            print(f"{family_dir.name} episode {i}: t={touch['time']:.2f} s, touch {touch['kinds']}, "
-                  f"cube moved {np.round(touch['moved'], 3).tolist()} m, policy's lane "
-                  f"{touch['lane']}, planned {planner.lane}")
+            raw = yaml.safe_load((run / "config.yaml").read_text())
+            offset = apply_layout(raw, family_dir.name).seed_offset
+            _replay(family_dir.name, config_from_dict(raw), offset, touching, policy, counts, lanes)
     print(f"first touches: {dict(counts)}; lanes: {dict(lanes)}")
     return 0
 
