@@ -3,14 +3,21 @@
     python studies/scratch_study.py list
     python studies/scratch_study.py run ROW --seed 0 [--frames 1000000] [--runs-dir runs/scratch]
     python studies/scratch_study.py run ROW --seed 0 --resume      # continue an interrupted run
-    python studies/scratch_study.py report runs/scratch --out docs/scratch-study
+    python studies/scratch_study.py report runs/scratch --out docs/scratch-study [--scripted DIR]
+    python -m ahrm_stack.evaluate RUNS_DIR/ROW-seedN --episodes 40 --out RUNS_DIR/ROW-seedN/final/own
+    python -m ahrm_stack.evaluate --policy scripted --config profile=scratch --episodes 40 --out DIR/own
 
 A row is a list of config overrides on top of ``configs/`` (every row starts from
 ``profile=scratch``: no demonstrations, no BC anchor, no scripted actions). ``run`` trains one row
 and seed into ``RUNS_DIR/ROW-seedN`` with interim deterministic evaluations on the run's own
 evaluation seeds (the default family's distribution, 60 s episodes, the task's random starts).
 ``report`` reads the run folders' CSV files (nothing typed in by hand) and writes ``table.md``
-and ``curves.png``: the training success rate and the evaluations against frames.
+and ``curves.png``: the training success rate and the evaluations against frames. Where run
+folders hold a final per-episode evaluation (``final/own/evaluation.csv``, from the evaluate
+command above: the run's own evaluation seeds, the same episodes as its interim evaluations),
+``table.md`` also compares the rows' final policies with intervals: Wilson 95 % intervals of the
+success and touching shares (pooled over a row's seeds), and paired bootstrap differences against
+the scripted controller on the same episodes (``--scripted DIR``) and against the LS row.
 """
 
 from __future__ import annotations
@@ -251,7 +258,79 @@ def _at(value) -> str:
     return "–" if value is None else f"{value[0]:,} ({value[1]})"
 
 
-def report(runs_dir: Path, out: Path) -> None:
+def wilson(k: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+    """Wilson score interval of a binomial share k/n (95 % by default)."""
+    if n <= 0:
+        return float("nan"), float("nan")
+    p = k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def _row_name(run_name: str) -> str:
+    head, _, tail = run_name.rpartition("-seed")
+    return head if head and tail.isdigit() else run_name
+
+
+def final_section(runs: list[Path], scripted_dir: Path | None, samples: int = 10_000) -> list[str]:
+    """The final policies compared on their own evaluation episodes (``final/own/evaluation.csv``),
+    per row (seeds pooled): successes and touching with Wilson 95 % intervals, seconds to success,
+    and paired differences (row - scripted controller, row - LS) in success and touching shares
+    with bootstrap 95 % intervals over seeds, then episodes (``suite_report.paired_difference``).
+    Empty when no run has a final evaluation."""
+    from ahrm_stack.suite_report import paired_difference, read_suite
+
+    rows: dict[str, list] = {}
+    for path in runs:
+        episodes = read_suite(path / "final")
+        if episodes and "own" in episodes:
+            rows.setdefault(_row_name(path.name), []).append(episodes)
+    if not rows:
+        return []
+    scripted = read_suite(scripted_dir) if scripted_dir else None
+    references = {}
+    if scripted and "own" in scripted:
+        references["scripted"] = scripted
+        rows_shown = {"scripted controller": [scripted], **rows}
+    else:
+        rows_shown = dict(rows)
+    ls_row = next((name for name in rows if name.endswith("-ls")), None)
+    rng = np.random.default_rng(0)
+    lines = ["", "Final policies on their own evaluation episodes (60 s, the task's starts; seeds pooled; "
+             "intervals 95 %: Wilson for shares, paired bootstrap over seeds then episodes for "
+             "differences):", "",
+             "| row | seeds | successes | touching | s to success | success − scripted | touching − scripted "
+             "| success − LS | touching − LS |", "|" + "---|" * 9]
+
+    def diff(a, b, column):
+        if b is None:
+            return "–"
+        point, low, high = paired_difference(a, b * len(a) if len(b) == 1 else b, ["own"], column, samples, rng)
+        return f"{point:+.2f} [{low:+.2f}, {high:+.2f}]"
+
+    for name, seeds in rows_shown.items():
+        success = np.concatenate([e["own"]["success"] for e in seeds])
+        touched = np.concatenate([e["own"]["touched"] for e in seeds])
+        times = np.concatenate([e["own"]["time"] for e in seeds])
+        n, k, t = len(success), int(success.sum()), int(touched.sum())
+        s_low, s_high = wilson(k, n)
+        t_low, t_high = wilson(t, n)
+        finite = times[np.isfinite(times)]
+        time_text = f"{finite.mean():.2f} ± {finite.std():.2f}" if len(finite) else "–"
+        is_scripted = name == "scripted controller"
+        scripted_ref = None if is_scripted else ([references["scripted"]] if "scripted" in references else None)
+        ls_ref = None if is_scripted or ls_row is None or name == ls_row else rows[ls_row]
+        if ls_ref is not None and len(ls_ref) not in (1, len(seeds)):
+            ls_ref = None
+        lines.append(f"| {name} | {len(seeds)} | {k}/{n} [{s_low:.2f}, {s_high:.2f}] | {t}/{n} "
+                     f"[{t_low:.2f}, {t_high:.2f}] | {time_text} | {diff(seeds, scripted_ref, 'success')} | "
+                     f"{diff(seeds, scripted_ref, 'touched')} | {diff(seeds, ls_ref, 'success')} | "
+                     f"{diff(seeds, ls_ref, 'touched')} |")
+    return lines
+
+
+def report(runs_dir: Path, out: Path, scripted_dir: Path | None = None) -> None:
     runs = sorted(p for p in runs_dir.iterdir()
                   if (p / "episodes.csv").exists() or (p / "episodes.csv.gz").exists())
     if not runs:
@@ -284,6 +363,7 @@ def report(runs_dir: Path, out: Path) -> None:
             lines.append(f"| {path.name if i == 0 else ''} | {part['episodes'][0]}–{part['episodes'][1]} | "
                          f"{part['frames']:,} | {part['successes']} | {part['displacement_mm']:.1f} | "
                          f"{part['touching']} | {part['constraint']} | {shares} |")
+    lines += final_section(runs, scripted_dir)
     (out / "table.md").write_text("\n".join(lines) + "\n")
     import matplotlib
     matplotlib.use("Agg")
@@ -335,6 +415,8 @@ def main(argv: list[str] | None = None) -> int:
     p_report = sub.add_parser("report")
     p_report.add_argument("runs_dir", type=Path)
     p_report.add_argument("--out", type=Path, default=Path("docs/scratch-study"))
+    p_report.add_argument("--scripted", type=Path, default=None,
+                          help="a folder holding own/evaluation.csv of the scripted controller")
     args = parser.parse_args(argv)
     if args.command == "list":
         for name, overrides in ROWS.items():
@@ -348,7 +430,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "probe":
         probe(args.noise, args.smoothing, args.episodes, args.speed, args.gain, args.overrides)
         return 0
-    report(args.runs_dir, args.out)
+    report(args.runs_dir, args.out, args.scripted)
     return 0
 
 

@@ -88,3 +88,38 @@ def test_first_evaluation_names_the_training_episode(study):
     rows = [{"episode": "2008", "frames": "200704", "episodes": "40", "successes": "0"},
             {"episode": "6012", "frames": "600064", "episodes": "40", "successes": "3"}]
     assert study._first(rows, lambda r: int(r["successes"]) >= 1) == (600064, 6012)
+
+
+def test_wilson_interval_by_hand(study):
+    # k = 0: the upper end is z^2 / (n + z^2)
+    z = 1.959964
+    low, high = study.wilson(0, 40)
+    assert low == 0.0 and high == pytest.approx(z * z / (40 + z * z))
+    # symmetric: the interval of n - k is the mirror of that of k
+    assert study.wilson(30, 40) == pytest.approx(tuple(1 - v for v in reversed(study.wilson(10, 40))))
+    # 20/40 is centred on 0.5 with half-width z sqrt(1/160 + z^2/6400) / (1 + z^2/40)
+    half = z * (1 / 160 + z * z / 6400) ** 0.5 / (1 + z * z / 40)
+    assert study.wilson(20, 40) == pytest.approx((0.5 - half, 0.5 + half))
+
+
+def _final(folder, successes, touched, times):
+    (folder / "own").mkdir(parents=True)
+    lines = ["episode,success,touched_steps,time_to_success"]
+    lines += [f"{i},{s},{t},{x}" for i, (s, t, x) in enumerate(zip(successes, touched, times))]
+    (folder / "own" / "evaluation.csv").write_text("\n".join(lines) + "\n")
+
+
+def test_final_section_pairs_rows_with_the_scripted_controller_and_ls(study, tmp_path):
+    runs = [tmp_path / "a-ls-seed0", tmp_path / "a-mhrm-seed0"]
+    _final(runs[0] / "final", [True, True, False, False], [0, 3, 0, 0], [2.0, 4.0, "", ""])
+    _final(runs[1] / "final", [True, True, True, False], [0, 0, 0, 1], [1.0, 1.0, 4.0, ""])
+    _final(tmp_path / "scripted", [True] * 4, [0] * 4, [3.0] * 4)
+    lines = study.final_section(runs, tmp_path / "scripted", samples=200)
+    table = {line.split(" | ")[0].strip("| "): line.split(" | ") for line in lines if line.startswith("| ")}
+    assert table["scripted controller"][2].startswith("4/4") and table["scripted controller"][5] == "–"
+    ls, mhrm = table["a-ls"], table["a-mhrm"]
+    assert ls[2].startswith("2/4") and ls[3].startswith("1/4") and ls[4] == "3.00 ± 1.00"
+    assert ls[5].startswith("-0.50 [") and ls[6].startswith("+0.25 [") and ls[7] == "–"
+    assert mhrm[2].startswith("3/4") and mhrm[4] == "2.00 ± 1.41"
+    assert mhrm[7].startswith("+0.25 [") and mhrm[8].startswith("+0.00 [")  # 3/4 - 2/4; 1/4 - 1/4
+    assert study.final_section([tmp_path / "nothing"], None) == []
