@@ -368,7 +368,7 @@ def report(runs_dir: Path, out: Path, scripted_dir: Path | None = None) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(1, 3, figsize=(16, 4.5))
+    fig, axes = plt.subplots(1, 4, figsize=(21, 4.5))
     for s in summaries:
         frames, success, evaluations, batches = s["_curve"]
         if len(success):
@@ -378,12 +378,21 @@ def report(runs_dir: Path, out: Path, scripted_dir: Path | None = None) -> None:
         if evaluations:
             axes[1].plot([int(r["frames"]) for r in evaluations],
                          [float(r["success_rate"]) for r in evaluations], "o-", label=s["run"])
+        if evaluations and batches:
+            # wall minutes at each evaluation: the batches' seconds summed up to its frame count
+            batch_frames = np.array([int(r["frames"]) for r in batches])
+            minutes = np.cumsum([float(r["seconds"]) for r in batches]) / 60
+            at = [float(np.interp(int(r["frames"]), np.r_[0, batch_frames], np.r_[0.0, minutes]))
+                  for r in evaluations]
+            axes[3].plot(at, [float(r["success_rate"]) for r in evaluations], "o-", label=s["run"])
         if batches and batches[0].get("curriculum_level") not in (None, ""):
             axes[2].plot([int(r["frames"]) for r in batches],
                          [float(r["curriculum_level"]) for r in batches], label=s["run"])
     axes[0].set(title="training success rate (200 episodes)", xlabel="frames", ylim=(0, 1))
     axes[1].set(title="deterministic evaluation (60 s, task starts)", xlabel="frames", ylim=(0, 1))
     axes[2].set(title="start curriculum level", xlabel="frames", ylim=(0, 1.05))
+    axes[3].set(title="deterministic evaluation against wall time",
+                xlabel="training minutes (evaluations excluded; 2 runs on 2 cores)", ylim=(0, 1))
     axes[1].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out / "curves.png", dpi=110)
