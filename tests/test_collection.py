@@ -2,6 +2,9 @@
 
 * The trainer collects with :class:`~ahrm_stack.learning.ppo.LeanCollectionActor`; the batch it
   collects equals, key for key, the batch the TorchRL actor collects from the same seeds.
+* :class:`~ahrm_stack.learning.collection.LeanCollector` (the trainer's for in-process
+  environments) gives, batch after batch, TorchRL's Collector's TensorDict: every key, value,
+  dtype and shape, trajectory ids, episode ends and the mechanism's state.
 * ``train.env_workers: 2`` puts the environments in two worker processes (other process ids than
   the trainer's) and gives the same first batch (observations, actions, rewards) as the same
   environments stepped in the trainer's process; the episodes' ends reach the trainer's mechanism
@@ -10,6 +13,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 
 import numpy as np
@@ -19,6 +23,7 @@ import torch
 from ahrm_stack.config import ConfigError, load_config
 from ahrm_stack.learning import trainer as trainer_module
 from ahrm_stack.learning.ppo import LeanCollectionActor
+from ahrm_stack.learning.collection import LeanCollector
 from ahrm_stack.learning.trainer import Trainer
 
 TINY = ["ppo.hidden_sizes=[16,16]", "ppo.frames_per_batch=80", "ppo.mini_batch_size=40",
@@ -39,6 +44,7 @@ def _assert_same(got, want):
 
 
 def test_collector_runs_the_lean_actor_and_collects_what_the_torchrl_actor_does(monkeypatch):
+    monkeypatch.setattr(trainer_module, "LEAN_COLLECTION", False)  # TorchRL's Collector, both actors
     lean = Trainer(load_config(TINY))
     batch = _first_batch(lean)
     assert isinstance(lean._collector.policy, LeanCollectionActor) or any(
@@ -86,3 +92,37 @@ def test_env_workers_must_divide_num_envs():
         load_config([*TINY, "train.num_envs=3", "train.env_workers=2"])
     with pytest.raises(ConfigError, match="train.env_workers"):
         load_config([*TINY, "train.env_workers=0"])
+
+
+def _batches(trainer: Trainer, count: int) -> tuple[list, list]:
+    trainer.warm_start()
+    batches = [trainer._collect().clone() for _ in range(count)]
+    return batches, [dataclasses.asdict(s) for s in trainer._completed()]
+
+
+@pytest.mark.parametrize("envs", [1, 2])
+def test_lean_collector_gives_the_torchrl_collectors_batches(monkeypatch, envs):
+    # 1 s episodes (20 steps) and 40-step batches per environment: episodes end inside batches,
+    # the mechanism's adaptive state changes between them (AHRM levels and orders, P = 2)
+    config = load_config([*TINY, f"train.num_envs={envs}", "mechanism.priority_period=2",
+                          "mechanism.convergence_window=1", "mechanism.constraint_window=1"])
+    lean = Trainer(config)
+    got, got_episodes = _batches(lean, 3)
+    assert isinstance(lean._collector, LeanCollector)
+    lean_mechanism = lean.mechanism.state_dict()
+    lean.close()
+    monkeypatch.setattr(trainer_module, "LEAN_COLLECTION", False)
+    reference = Trainer(config)
+    want, want_episodes = _batches(reference, 3)
+    assert not isinstance(reference._collector, LeanCollector)
+    reference_mechanism = reference.mechanism.state_dict()
+    reference.close()
+    for a, b in zip(got, want):
+        assert a.batch_size == b.batch_size
+        assert set(a.keys(True, True)) == set(b.keys(True, True))
+        for key in b.keys(True, True):
+            assert a[key].dtype == b[key].dtype and a[key].shape == b[key].shape, key
+            np.testing.assert_array_equal(a[key].numpy(), b[key].numpy(), err_msg=str(key))
+    assert sum(int(b["next", "done"].sum()) for b in want) >= 2 * envs  # episodes did end
+    np.testing.assert_equal(got_episodes, want_episodes)
+    np.testing.assert_equal(lean_mechanism, reference_mechanism)

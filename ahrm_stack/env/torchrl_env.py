@@ -87,17 +87,31 @@ class PushOffEnv(EnvBase):
             "touched": torch.tensor([info.touched]),
         }
 
-    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+    def begin(self) -> StepInfo:
+        """Start a new episode (the reset's work, without the TensorDict): its first step info."""
         transition = self.runner.reset()
         self._monitor = self.mechanism.constraint_monitor() if self.mechanism is not None else None
         self._recorder = EpisodeRecorder(transition.info)
-        out = self._observation(transition.info)
+        return transition.info
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        out = self._observation(self.begin())
         out.update(done=torch.tensor([False]), terminated=torch.tensor([False]),
                    truncated=torch.tensor([False]))
         return TensorDict(out, batch_size=[])
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        action = tensordict["action"].detach().cpu().numpy()
+        info, reward, terminated, truncated = self.advance(tensordict["action"].detach().cpu().numpy())
+        out = self._observation(info)
+        out.update(reward=torch.tensor([reward], dtype=torch.float32),
+                   done=torch.tensor([terminated or truncated]),
+                   terminated=torch.tensor([terminated]), truncated=torch.tensor([truncated]))
+        return TensorDict(out, batch_size=[])
+
+    def advance(self, action) -> tuple[StepInfo, float, bool, bool]:
+        """One step's work without the TensorDict: the action (normalised, numpy) through the task,
+        the reward, the priority constraint, the episode's bookkeeping. Returns (step info,
+        reward, terminated, truncated); an ended episode is summarised in :attr:`completed`."""
         info, terminated, truncated = self.runner.step_action(action)
         if self.mechanism is None:
             reward = float(info.g.sum())
@@ -112,11 +126,7 @@ class PushOffEnv(EnvBase):
         self._recorder.step(info, reward, intervened=filtered is not None and filtered.modified)
         if terminated or truncated:
             self._finish_episode(constrained)
-        out = self._observation(info)
-        out.update(reward=torch.tensor([reward], dtype=torch.float32),
-                   done=torch.tensor([terminated or truncated]),
-                   terminated=torch.tensor([terminated]), truncated=torch.tensor([truncated]))
-        return TensorDict(out, batch_size=[])
+        return info, reward, bool(terminated), bool(truncated)
 
     def _finish_episode(self, constrained: bool) -> None:
         phase = self._monitor.violated_phase if constrained else None

@@ -168,11 +168,13 @@ class LeanCollectionActor(TensorDictModuleBase):
         super().__init__()
         self.normalizer, self.net = normalizer, net
 
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+    def sample(self, observation: torch.Tensor, random: bool = True) -> tuple[torch.Tensor, ...]:
+        """(observation_norm, loc, scale, action, action_log_prob) for observations (..., obs_dim):
+        ``random`` a TanhNormal sample (torch's global random stream), else the deterministic action."""
         with torch.no_grad():
-            norm = self.normalizer(tensordict.get("observation"))
+            norm = self.normalizer(observation)
             loc, scale = self.net(norm)
-            if exploration_type() == ExplorationType.RANDOM:
+            if random:
                 x = loc + torch.empty_like(loc).normal_() * scale  # Normal.rsample's draw
                 action = safetanh_noeps(x)
             else:  # TorchRL evaluates this one's log-probability at atanh(action), not at loc
@@ -182,7 +184,11 @@ class LeanCollectionActor(TensorDictModuleBase):
             base = -((x - loc) ** 2) / (2 * scale**2) - scale.log() - self._LOG_SQRT_2PI
             jacobian = 2.0 * (self._LOG2 - x - softplus(-2.0 * x))
             log_prob = (0.0 - jacobian.sum(-1)) + base.sum(-1)
-        for key, value in zip(self.out_keys, (norm, loc, scale, action, log_prob)):
+        return norm, loc, scale, action, log_prob
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        values = self.sample(tensordict.get("observation"), exploration_type() == ExplorationType.RANDOM)
+        for key, value in zip(self.out_keys, values):
             tensordict.set(key, value)
         return tensordict
 

@@ -15,7 +15,9 @@ and the mechanism's state reaches the workers at the end of each batch.
 
 Collection runs the actor's lean path (:class:`~ahrm_stack.learning.ppo.LeanCollectionActor`:
 the same keys, values and random draws as the TorchRL actor, as plain torch ops); the PPO loss
-evaluates the TorchRL actor.
+evaluates the TorchRL actor. In-process environments are collected by
+:class:`~ahrm_stack.learning.collection.LeanCollector` (TorchRL's Collector's batches, built once per
+batch instead of through per-step TensorDicts); worker processes by TorchRL's Collector.
 """
 
 from __future__ import annotations
@@ -39,11 +41,17 @@ from ahrm_stack.learning.demonstrations import (bc_loss, collect_corrections, co
                                                 warm_start)
 from ahrm_stack.learning.mechanisms import OBJECTIVES, RewardMechanism
 from ahrm_stack.learning import workers
+from ahrm_stack.learning.collection import LeanCollector
 from ahrm_stack.learning.ppo import (anchor_coeff, lean_collection_actor, make_buffer, make_loss,
                                      make_modules, scheduled_std)
 from ahrm_stack.learning.start_states import ScriptedStartStates, record_trajectories
 from ahrm_stack.seeds import training_seeds
 
+
+
+# in-process environments collect with LeanCollector (the Collector's batches, without its per-step
+# TensorDicts); False: TorchRL's Collector (the reference it is tested against)
+LEAN_COLLECTION = True
 
 
 class TrainingDiverged(RuntimeError):
@@ -110,7 +118,7 @@ class Trainer:
         self.episodes = 0
         self.frames = 0
         self.batches = 0
-        self._collector: Collector | None = None
+        self._collector: Collector | LeanCollector | None = None
         self._iterator = None
         self.warm_start_report: dict[str, float] | None = None
         self.demos = None
@@ -157,12 +165,17 @@ class Trainer:
         if self._collector is None:
             if self.workers:
                 self.env.load_mechanism(self.mechanism.state_dict())
-            policy = lean_collection_actor(self.modules.actor) or self.modules.actor
-            self._collector = Collector(self.env, policy,
-                                        frames_per_batch=self.config.ppo.frames_per_batch,
-                                        total_frames=-1, exploration_type=ExplorationType.RANDOM,
-                                        auto_register_policy_transforms=False)
-            self._iterator = iter(self._collector)
+            lean = lean_collection_actor(self.modules.actor)
+            if lean is not None and not self.workers and LEAN_COLLECTION:
+                self._collector = LeanCollector(self.envs, lean, self.config.ppo.frames_per_batch)
+            else:
+                self._collector = Collector(self.env, lean or self.modules.actor,
+                                            frames_per_batch=self.config.ppo.frames_per_batch,
+                                            total_frames=-1, exploration_type=ExplorationType.RANDOM,
+                                            auto_register_policy_transforms=False)
+                self._iterator = iter(self._collector)
+        if isinstance(self._collector, LeanCollector):
+            return self._collector.next()
         return next(self._iterator)
 
     def iteration(self) -> IterationResult:
@@ -358,7 +371,7 @@ class Trainer:
 
     def close(self) -> None:
         threads = torch.get_num_threads()  # closing a ParallelEnv raises this process's count
-        if self._collector is not None:
+        if isinstance(self._collector, Collector):
             self._collector.shutdown()
         if self.workers and not self.env.is_closed:
             self.env.close()
