@@ -38,7 +38,8 @@ METHODS = ("ahrm", "ls", "mhrm", "fhrm")
 # (and the observation without lane_choice, added after it; the other keys that changed since do
 # not act without demonstrations or with a frame budget)
 ROUND1 = ["profile=scratch", "task.rewards.time_reference=previous", "task.arm.near_cube.bearing=any",
-          "train.time_limit=10", "ppo.init_std=0.5", "task.observation.lane_choice=false"]
+          "train.time_limit=10", "ppo.init_std=0.5", "task.observation.lane_choice=false",
+          "mechanism.priority_rule=magnitude"]
 
 ROWS: dict[str, list[str]] = {
     # round 1: 10 s training episodes, near-cube starts at any bearing widening with success
@@ -59,18 +60,25 @@ ROWS: dict[str, list[str]] = {
     # 10 s the policies spent 3/4 of each episode in phase 1 after a push; successes took
     # 0.75-3.5 s), and a quarter of round 1's exploration noise (ppo.init_std 0.25: `probe` shows
     # a linear steering policy winning 31/40 behind starts with noise 0.25, 13/40 with 0.5)
-    **{f"lownoise-{m}": ["profile=scratch", f"mechanism.method={m}"] for m in METHODS},
+    # (round 2 ran before profile=scratch took round 3's priority rule: pinned to the spec's)
+    **{f"lownoise-{m}": ["profile=scratch", f"mechanism.method={m}", "mechanism.priority_rule=magnitude"]
+       for m in METHODS},
     # the same with round 1's noise, at 5 s and at 10 s
-    **{f"behind-success-{m}": ["profile=scratch", f"mechanism.method={m}", "ppo.init_std=0.5"] for m in METHODS},
+    **{f"behind-success-{m}": ["profile=scratch", f"mechanism.method={m}", "ppo.init_std=0.5",
+                               "mechanism.priority_rule=magnitude"] for m in METHODS},
     **{f"behind-success-10s-{m}": ["profile=scratch", f"mechanism.method={m}", "ppo.init_std=0.5",
-                                   "train.time_limit=10"] for m in METHODS},
+                                   "train.time_limit=10", "mechanism.priority_rule=magnitude"] for m in METHODS},
     # + exponential smoothing of the requests (task.action.smoothing 0.8: exploration noise
     # correlated over ~5 steps, a third of its per-step size): measured by `probe` only so far
     **{f"smooth-{m}": ["profile=scratch", f"mechanism.method={m}", "task.action.smoothing=0.8"] for m in METHODS},
     # round 3: AHRM ranks objectives by how often they are violated (the per-step average of f_i, low
     # first) instead of the spec's |mean episode sum| (high first), which ranked time first in phases
     # 2-3 of a policy that had never succeeded (time holds in every short visit) and locked it
+    # (profile=scratch holds it since)
     "violation-ahrm": ["profile=scratch", "mechanism.method=ahrm", "mechanism.priority_rule=violation"],
+    # the other methods on round 3's profile (the rule acts only in AHRM: LS, MHRM and FHRM run as
+    # lownoise-* would)
+    **{f"round3-{m}": ["profile=scratch", f"mechanism.method={m}"] for m in METHODS if m != "ahrm"},
 }
 
 

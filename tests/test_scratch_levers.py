@@ -151,6 +151,7 @@ def test_the_scratch_profile_has_no_demonstrations():
     assert config.train.warm_start == "none" and config.ppo.bc_coeff == 0 == config.ppo.bc_coeff_final
     assert config.train.time_limit < config.task.episode.duration
     assert config.train.start_curriculum == "near_cube"
+    assert config.mechanism.priority_rule == "violation"  # round 3 (docs/scratch-study.md)
 
 
 def test_old_run_configs_get_the_neutral_values():
