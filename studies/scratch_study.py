@@ -3,7 +3,8 @@
     python studies/scratch_study.py list
     python studies/scratch_study.py run ROW --seed 0 [--frames 1000000] [--runs-dir runs/scratch]
     python studies/scratch_study.py run ROW --seed 0 --resume      # continue an interrupted run
-    python studies/scratch_study.py report runs/scratch --out docs/scratch-study [--scripted DIR]
+    python studies/scratch_study.py report RUNS [RUNS ...] --out docs/scratch-study [--scripted DIR]
+                                  (RUNS: a folder of run folders, or one run folder)
     python -m ahrm_stack.evaluate RUNS_DIR/ROW-seedN --episodes 40 --out RUNS_DIR/ROW-seedN/final/own
     python -m ahrm_stack.evaluate --policy scripted --config profile=scratch --episodes 40 --out DIR/own
 
@@ -338,11 +339,21 @@ def final_section(runs: list[Path], scripted_dir: Path | None, samples: int = 10
     return lines
 
 
-def report(runs_dir: Path, out: Path, scripted_dir: Path | None = None) -> None:
-    runs = sorted(p for p in runs_dir.iterdir()
-                  if (p / "episodes.csv").exists() or (p / "episodes.csv.gz").exists())
+def _is_run(path: Path) -> bool:
+    return (path / "episodes.csv").exists() or (path / "episodes.csv.gz").exists()
+
+
+def report(runs_dirs: list[Path], out: Path, scripted_dir: Path | None = None) -> None:
+    """``runs_dirs``: run folders, or folders of run folders (a round's runs and runs of another
+    round it compares with)."""
+    runs = []
+    for path in runs_dirs:
+        if not path.is_dir():
+            raise SystemExit(f"error: {path} is not a folder")
+        runs += [path] if _is_run(path) else [p for p in path.iterdir() if _is_run(p)]
+    runs = sorted(runs, key=lambda p: p.name)
     if not runs:
-        raise SystemExit(f"error: no run folders with episodes.csv under {runs_dir}")
+        raise SystemExit(f"error: no run folders with episodes.csv in {', '.join(map(str, runs_dirs))}")
     summaries = [summarize(p) for p in runs]
     out.mkdir(parents=True, exist_ok=True)
     lines = ["| run | frames | episodes | training successes (last 500 episodes) | first training success: "
@@ -430,7 +441,7 @@ def main(argv: list[str] | None = None) -> int:
     p_easy.add_argument("--policy", type=Path, default=None)
     p_easy.add_argument("--episodes", type=int, default=40)
     p_report = sub.add_parser("report")
-    p_report.add_argument("runs_dir", type=Path)
+    p_report.add_argument("runs_dir", type=Path, nargs="+", help="run folders, or folders of them")
     p_report.add_argument("--out", type=Path, default=Path("docs/scratch-study"))
     p_report.add_argument("--scripted", type=Path, default=None,
                           help="a folder holding own/evaluation.csv of the scripted controller")

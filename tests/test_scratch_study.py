@@ -123,3 +123,27 @@ def test_final_section_pairs_rows_with_the_scripted_controller_and_ls(study, tmp
     assert mhrm[2].startswith("3/4") and mhrm[4] == "2.00 ± 1.41"
     assert mhrm[7].startswith("+0.25 [") and mhrm[8].startswith("+0.00 [")  # 3/4 - 2/4; 1/4 - 1/4
     assert study.final_section([tmp_path / "nothing"], None) == []
+
+
+def test_report_takes_run_folders_and_folders_of_them(study, tmp_path):
+    def fake_run(path, successes):
+        path.mkdir(parents=True)
+        (path / "episodes.csv").write_text(HEADER + "".join(
+            f'{i},{100 * i},{s},0.1,0,False,"[1, 1, 1]"\n' for i, s in enumerate(successes, 1)))
+        (path / "batches.csv").write_text("batch,frames,episodes,seconds,curriculum_level\n1,400,4,60,0.0\n")
+        (path / "evaluations.csv").write_text(
+            "episode,frames,episodes,successes,success_rate,touched_episodes,time_mean\n"
+            "0,0,40,0,0.0,0,nan\n4,400,40,20,0.5,3,4.0\n")
+
+    fake_run(tmp_path / "round" / "a-ahrm-seed0", [False, True, True, True])
+    fake_run(tmp_path / "other" / "b-ls-seed0", [False, False, False, True])
+    _final(tmp_path / "round" / "a-ahrm-seed0" / "final", [True, False], [0, 0], [2.0, ""])
+    out = tmp_path / "out"
+    study.report([tmp_path / "round", tmp_path / "other" / "b-ls-seed0"], out)
+    table = (out / "table.md").read_text()
+    assert "| a-ahrm-seed0 | 400 | 4 | 3 (75 %) | 200 (2) |" in table
+    assert "| b-ls-seed0 | 400 | 4 | 1 (25 %) | 400 (4) |" in table
+    assert "20/40 (3 touching, 4.00 s, 400)" in table and "| a-ahrm | 1 | 1/2 [" in table
+    assert (out / "curves.png").stat().st_size > 0
+    with pytest.raises(SystemExit, match="no run folders"):
+        study.report([tmp_path / "out"], tmp_path / "out2")
