@@ -21,7 +21,6 @@ only reads the simulation, so the episodes are the same with or without it.
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import json
 import sys
@@ -177,14 +176,10 @@ def policy_summaries(config: Config, run_dir: Path, episodes: int, seed_offset: 
 
 
 def _write_outputs(out: Path, summaries, table, header: dict) -> None:
+    from ahrm_stack.learning.rollouts import write_episodes_csv
+
     out.mkdir(parents=True, exist_ok=True)
-    rows = [dataclasses.asdict(s) | {"failure_mode": s.failure_mode()} for s in summaries]
-    for row in rows:
-        row.pop("events", None)
-    with open(out / "evaluation.csv", "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_episodes_csv(out / "evaluation.csv", summaries)
     (out / "evaluation.json").write_text(json.dumps(
         {**header, **dataclasses.asdict(table), "success_rate": table.success_rate}, indent=2))
 

@@ -25,17 +25,21 @@ def read_suite(suite_dir: Path) -> Episodes | None:
     suite_dir = Path(suite_dir)
     if not suite_dir.is_dir():
         return None
-    families = {}
-    for path in sorted(suite_dir.glob("*/evaluation.csv")):
-        with open(path, newline="") as handle:
-            rows = list(csv.DictReader(handle))
-        families[path.parent.name] = {
-            "success": np.array([r["success"] == "True" for r in rows], dtype=float),
-            "touched": np.array([int(r["touched_steps"]) > 0 for r in rows], dtype=float),
-            "time": np.array([float(r["time_to_success"]) if r["time_to_success"] not in ("", "None")
-                              else np.nan for r in rows]),
-        }
+    families = {path.parent.name: read_episodes(path) for path in sorted(suite_dir.glob("*/evaluation.csv"))}
     return families or None
+
+
+def read_episodes(path: Path) -> dict[str, np.ndarray]:
+    """Per-episode ``success``, ``touched`` and ``time`` (to success, nan without) of one
+    ``evaluation.csv``."""
+    with open(path, newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    return {
+        "success": np.array([r["success"] == "True" for r in rows], dtype=float),
+        "touched": np.array([int(r["touched_steps"]) > 0 for r in rows], dtype=float),
+        "time": np.array([float(r["time_to_success"]) if r["time_to_success"] not in ("", "None")
+                          else np.nan for r in rows]),
+    }
 
 
 def _paired_units(a: Episodes, b: Episodes, families: Sequence[str], column: str) -> np.ndarray:

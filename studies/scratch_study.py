@@ -15,7 +15,8 @@ evaluation seeds (the default family's distribution, 60 s episodes, the task's r
 ``report`` reads the run folders' CSV files (nothing typed in by hand) and writes ``table.md``
 and ``curves.png``: the training success rate and the evaluations against frames. Where run
 folders hold a final per-episode evaluation (``final/own/evaluation.csv``, from the evaluate
-command above: the run's own evaluation seeds, the same episodes as its interim evaluations),
+command above, or the ``evaluation.csv`` training writes at its end: the run's own evaluation
+seeds, the same episodes as its interim evaluations),
 ``table.md`` also compares the rows' final policies with intervals: Wilson 95 % intervals of the
 success and touching shares (pooled over a row's seeds), and paired bootstrap differences against
 the scripted controller on the same episodes (``--scripted DIR``) and against the LS row.
@@ -288,11 +289,13 @@ def final_section(runs: list[Path], scripted_dir: Path | None, samples: int = 10
     and paired differences (row - scripted controller, row - LS) in success and touching shares
     with bootstrap 95 % intervals over seeds, then episodes (``suite_report.paired_difference``).
     Empty when no run has a final evaluation."""
-    from ahrm_stack.suite_report import paired_difference, read_suite
+    from ahrm_stack.suite_report import paired_difference, read_episodes, read_suite
 
     rows: dict[str, list] = {}
     for path in runs:
         episodes = read_suite(path / "final")
+        if not (episodes and "own" in episodes) and (path / "evaluation.csv").exists():
+            episodes = {"own": read_episodes(path / "evaluation.csv")}  # training's final evaluation
         if episodes and "own" in episodes:
             rows.setdefault(_row_name(path.name), []).append(episodes)
     if not rows:

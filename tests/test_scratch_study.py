@@ -123,6 +123,12 @@ def test_final_section_pairs_rows_with_the_scripted_controller_and_ls(study, tmp
     assert mhrm[2].startswith("3/4") and mhrm[4] == "2.00 ± 1.41"
     assert mhrm[7].startswith("+0.25 [") and mhrm[8].startswith("+0.00 [")  # 3/4 - 2/4; 1/4 - 1/4
     assert study.final_section([tmp_path / "nothing"], None) == []
+    # a run's own evaluation.csv (training's final evaluation) counts as its final evaluation
+    (tmp_path / "b-ls-seed1").mkdir()
+    (tmp_path / "b-ls-seed1" / "evaluation.csv").write_text(
+        (runs[0] / "final" / "own" / "evaluation.csv").read_text())
+    [line] = [x for x in study.final_section([tmp_path / "b-ls-seed1"], None) if x.startswith("| b-ls |")]
+    assert line.split(" | ")[2].startswith("2/4")
 
 
 def test_report_takes_run_folders_and_folders_of_them(study, tmp_path):

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import yaml
 import torch
 
 from ahrm_stack.learning.checkpoint import CheckpointManager, load
@@ -25,9 +26,13 @@ def test_training_writes_the_run_folder_and_resumes(tmp_path):
     run = tmp_path / "run"
     assert main(SMALL + ["train.episodes=30", "--run-dir", str(run), "--no-progress"]) == 0
     for name in ("config.yaml", "episodes.csv", "batches.csv", "events.jsonl", "policy.pt",
-                 "evaluation.yaml", "diagnostics.png"):
+                 "evaluation.yaml", "evaluation.csv", "diagnostics.png"):
         assert (run / name).is_file(), name
     assert list((run / "tb").iterdir())
+    final = yaml.safe_load((run / "evaluation.yaml").read_text())  # the table is the episodes' sum
+    per_episode = _rows(run / "evaluation.csv")
+    assert len(per_episode) == final["episodes"]
+    assert sum(r["success"] == "True" for r in per_episode) == final["successes"]
     episodes = _rows(run / "episodes.csv")
     assert len(episodes) >= 30 and int(episodes[-1]["frames"]) >= 2000
     assert [int(r["episode"]) for r in episodes] == list(range(1, len(episodes) + 1))

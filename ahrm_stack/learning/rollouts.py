@@ -8,6 +8,7 @@ per episode and joint-limit violations.
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 from pathlib import Path
 from typing import Callable
@@ -95,10 +96,26 @@ def run_episodes(env: PushOffEnv, policy, episodes: int, seed_offset: int = EVAL
     return summaries
 
 
+def write_episodes_csv(path: Path, summaries: list[EpisodeSummary]) -> None:
+    """One row per episode: the summary's fields and its failure mode."""
+    rows = [dataclasses.asdict(s) | {"failure_mode": s.failure_mode()} for s in summaries]
+    for row in rows:
+        row.pop("events", None)
+    with open(path, "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+
+
 def evaluate_run(run_dir: Path, episodes: int) -> EvaluationTable:
+    """The run's final deterministic evaluation on its own distribution: ``evaluation.yaml`` (the
+    table) and ``evaluation.csv`` (per episode, as ``python -m ahrm_stack.evaluate RUN_DIR`` writes)."""
     config, policy = load_policy(run_dir)
     env = PushOffEnv(config.task, config.safety, seed=EVAL_SEED_OFFSET)
-    table = EvaluationTable.from_summaries(run_episodes(env, policy, episodes))
+    summaries = run_episodes(env, policy, episodes)
+    table = EvaluationTable.from_summaries(summaries)
+    if summaries:
+        write_episodes_csv(Path(run_dir) / "evaluation.csv", summaries)
     (Path(run_dir) / "evaluation.yaml").write_text(yaml.safe_dump(
         {**dataclasses.asdict(table), "success_rate": table.success_rate}, sort_keys=False))
     return table
