@@ -24,7 +24,7 @@ from ahrm_stack.env.task import StepInfo
 from ahrm_stack.env.torchrl_env import PushOffEnv
 from ahrm_stack.learning.ppo import LeanCollectionActor
 
-# the per-step entries of the environment (root and "next") and their (width, dtype)
+# the per-step entries of the environment (root and "next")
 _STEP_KEYS = ("observation", "f", "g", "phase", "x", "distances", "success", "touched")
 
 
@@ -43,7 +43,6 @@ class LeanCollector:
         first = envs[0]
         self._widths = {key: int(np.prod(spec.shape)) for key, spec in first.observation_spec.items()}
         self._dtypes = {key: spec.dtype for key, spec in first.observation_spec.items()}
-        self.action_dim = int(first.action_spec.shape[-1])
 
     @staticmethod
     def _values(env: PushOffEnv, info: StepInfo) -> dict[str, np.ndarray | float | bool | int]:
