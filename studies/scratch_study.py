@@ -301,12 +301,9 @@ def final_section(runs: list[Path], scripted_dir: Path | None, samples: int = 10
     if not rows:
         return []
     scripted = read_suite(scripted_dir) if scripted_dir else None
-    references = {}
-    if scripted and "own" in scripted:
-        references["scripted"] = scripted
-        rows_shown = {"scripted controller": [scripted], **rows}
-    else:
-        rows_shown = dict(rows)
+    if not (scripted and "own" in scripted):
+        scripted = None
+    rows_shown = ({"scripted controller": [scripted]} if scripted else {}) | rows
     ls_row = next((name for name in rows if name.endswith("-ls")), None)
     rng = np.random.default_rng(0)
     lines = ["", "Final policies on their own evaluation episodes (60 s, the task's starts; seeds pooled; "
@@ -331,7 +328,7 @@ def final_section(runs: list[Path], scripted_dir: Path | None, samples: int = 10
         finite = times[np.isfinite(times)]
         time_text = f"{finite.mean():.2f} ± {finite.std():.2f}" if len(finite) else "–"
         is_scripted = name == "scripted controller"
-        scripted_ref = None if is_scripted else ([references["scripted"]] if "scripted" in references else None)
+        scripted_ref = None if is_scripted or scripted is None else [scripted]
         ls_ref = None if is_scripted or ls_row is None or name == ls_row else rows[ls_row]
         if ls_ref is not None and len(ls_ref) not in (1, len(seeds)):
             ls_ref = None

@@ -107,9 +107,9 @@ def main(argv: list[str] | None = None) -> int:
     _, policy = load_policy(run, policy_file)
     counts: Counter = Counter()
     lanes: Counter = Counter()
-    raw_run = yaml.safe_load((run / "config.yaml").read_text())
     if args.own:
-        _replay("own", config_from_dict(raw_run), EVAL_SEED_OFFSET, range(args.own), policy, counts, lanes,
+        raw = yaml.safe_load((run / "config.yaml").read_text())
+        _replay("own", config_from_dict(raw), EVAL_SEED_OFFSET, range(args.own), policy, counts, lanes,
                 quiet_clean=True)
     else:
         for family_dir in sorted(p for p in suite.iterdir() if p.is_dir()):

@@ -69,19 +69,18 @@ class LeanCollector:
         root_done = np.zeros((n, t, 1), dtype=bool)  # a reset's done flags are False
         traj = np.empty((n, t), dtype=np.int64)
         actor_out: dict[str, list[torch.Tensor]] = {key: [] for key in self.actor.out_keys}
-        observation = np.empty((n, self._widths["observation"]), dtype=np.float32)
         current = self._current
         for step in range(t):
             for i, values in enumerate(current):
                 for key in _STEP_KEYS:
                     root[key][i, step] = values[key]
-                observation[i] = root["observation"][i, step]
             traj[:, step] = self._traj
+            observation = torch.from_numpy(root["observation"][:, step].copy())  # (N, obs_dim)
             # one environment: the Collector calls the actor on one (obs_dim,) observation
             if self.batched:
-                sampled = self.actor.sample(torch.from_numpy(observation.copy()))
+                sampled = self.actor.sample(observation)
             else:
-                sampled = tuple(v.unsqueeze(0) for v in self.actor.sample(torch.from_numpy(observation[0].copy())))
+                sampled = tuple(v.unsqueeze(0) for v in self.actor.sample(observation[0]))
             for key, value in zip(actor_out, sampled):
                 actor_out[key].append(value)
             actions = sampled[3].numpy()
