@@ -558,6 +558,8 @@ class TrainConfig(Section):
     eval_every_frames: NonNegInt  # ... or evaluate every this many frames (0: never); either triggers
     time_limit: NonNeg  # s, training episodes are truncated here (0: task.episode.duration);
     # evaluation keeps task.episode.duration
+    touch_end: bool  # a touch of an obstacle ends a training episode as a terminal failure, its
+    # step's reward lowered by touch_penalty(ppo.gamma) (evaluation: touches never end an episode)
     start_curriculum: Literal["none", "near_cube", "scripted_states"]  # near_cube: start near the
     # cube (task.arm.near_cube), more starts by task.arm.start as the level rises; scripted_states:
     # start from the scripted controller's recorded states, further back as the level rises
@@ -707,7 +709,8 @@ def load_config(overrides: Sequence[str] = (), config_dir: Path | str = CONFIG_D
 
 # Keys added after runs were recorded: a run's config.yaml that lacks them takes them from the
 # repository's configs (so the committed run folders and older checkpoints still load).
-BACKFILLED = {"safety": ("self_collision_rows", "self_collision_pairs"), "train": ("env_workers",)}
+BACKFILLED = {"safety": ("self_collision_rows", "self_collision_pairs"),
+              "train": ("env_workers", "touch_end")}
 
 
 LEGACY_PPO = {"reward_scale": 1.0}  # before the key existed: rewards unscaled

@@ -81,6 +81,8 @@ ROWS: dict[str, list[str]] = {
     # the other methods on round 3's profile (the rule acts only in AHRM: LS, MHRM and FHRM run as
     # lownoise-* would)
     **{f"round3-{m}": ["profile=scratch", f"mechanism.method={m}"] for m in METHODS if m != "ahrm"},
+    # round 4: a touch ends the training episode as a terminal failure (train.touch_end)
+    **{f"touch-{m}": ["profile=scratch", f"mechanism.method={m}", "train.touch_end=true"] for m in METHODS},
 }
 
 

@@ -1,5 +1,5 @@
 """The levers of learning without demonstrations (issue 18), each a config value that takes effect:
-the frame budget, the training time limit, near-cube starts and the start curriculum."""
+the frame budget, the training time limit, near-cube starts and the start curriculum, touch_end."""
 
 import csv
 import dataclasses
@@ -13,7 +13,7 @@ from ahrm_stack.config import (CONFIG_DIR, SECTIONS, ConfigError, config_from_di
                                profile_overrides)
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.task import PushOffTask
-from ahrm_stack.env.torchrl_env import PushOffEnv
+from ahrm_stack.env.torchrl_env import PushOffEnv, touch_penalty
 from ahrm_stack.learning.trainer import Trainer
 
 TINY = ["ppo.hidden_sizes=[16,16]", "ppo.frames_per_batch=64", "ppo.mini_batch_size=32",
@@ -343,3 +343,58 @@ def test_action_smoothing_takes_effect_in_the_environment():
 def test_bad_smoothing_names_the_key(overrides):
     with pytest.raises(ConfigError, match=r"task\.action\.smoothing"):
         load_config(overrides)
+
+
+def _touch_the_cube_with_an_obstacle(env: PushOffEnv) -> None:
+    """Place obstacle 0 flush against the cube's +x face, 1 mm into it (a contact)."""
+    physics, task = env.runner.physics, env.task
+    body = int(physics.bind(task.obstacles[0].geom).bodyid)
+    adr = physics.model.jnt_qposadr[physics.model.body_jntadr[body]]
+    cube_xy = physics.data.xpos[int(physics.bind(task.cube.geom).bodyid)][:2]
+    gap = task.config.cube.size / 2 + task.config.obstacles.size[0] / 2 - 0.001
+    physics.data.qpos[adr:adr + 2] = [cube_xy[0] + gap, cube_xy[1]]
+    physics.forward()
+
+
+@pytest.mark.parametrize("penalty", [0.0, 300.0])
+def test_touch_end_makes_a_touch_terminal_with_the_penalty(penalty):
+    config = load_config()
+    env = PushOffEnv(config.task, config.safety, seed=0, touch_penalty=penalty)  # no mechanism: LS
+    td = env.reset()
+    _touch_the_cube_with_an_obstacle(env)
+    td = env.step(td.set("action", env.action_spec.zero()))["next"]
+    assert bool(td["touched"])
+    g_sum = float(td["g"].sum())  # the linear sum of the penalty-form components (f1 = -1 on a touch)
+    assert float(td["g"][0]) == -1.0
+    assert float(td["reward"]) == pytest.approx(g_sum - penalty)
+    assert bool(td["terminated"]) == (penalty > 0) and not bool(td["truncated"])
+    if penalty > 0:
+        assert len(env.completed) == 1 and not env.completed[0].success and env.completed[0].touched
+
+
+def test_touch_penalty_is_every_objective_violated_forever():
+    assert touch_penalty(True, 0.99) == pytest.approx(3 / 0.01)  # 300: the discounted sum of -3 per step
+    assert touch_penalty(True, 0.9, objectives=2) == pytest.approx(20.0)
+    assert touch_penalty(False, 0.99) == 0.0
+
+
+def test_trainer_passes_touch_end_to_its_environments():
+    on = Trainer(load_config([*TINY, "train.touch_end=true", "ppo.gamma=0.98"]))
+    assert all(env.touch_penalty == pytest.approx(3 / 0.02) for env in on.envs)
+    on.close()
+    off = Trainer(load_config(TINY))
+    assert all(env.touch_penalty == 0.0 for env in off.envs)
+    off.close()
+
+
+def test_worker_processes_get_the_touch_penalty(monkeypatch):
+    """``train.env_workers`` > 1: each worker's environments are built with the same penalty."""
+    from ahrm_stack.learning import workers
+    built = []
+    monkeypatch.setattr(workers, "ParallelEnv", lambda n, groups, **kwargs: built.extend(groups) or
+                        type("Started", (), {"start": lambda self: None})())
+    config = load_config([*TINY, "train.touch_end=true", "ppo.gamma=0.99", "train.num_envs=2",
+                          "train.env_workers=2"])
+    workers.make_worker_envs(config, [0, 1])
+    envs = [group() for group in built]
+    assert len(envs) == 2 and all(env.touch_penalty == pytest.approx(300.0) for env in envs)

@@ -11,7 +11,8 @@ Keys (all float32 unless noted):
 * ``f`` / ``g`` — the component vectors (avoid, manipulate, time): +-1 form and penalty form;
 * ``phase`` (int64, 1..3), ``x`` (boundary distance, m), ``distances`` (signed distances of the
   pusher to B_obstacles and B_target, m), ``success`` and ``touched`` (bool);
-* ``done`` / ``terminated`` (success) / ``truncated`` (time limit).
+* ``done`` / ``terminated`` (success; in training with ``touch_penalty``, also a touch) /
+  ``truncated`` (time limit, priority constraint).
 
 torchrl's ``DMControlWrapper`` cannot wrap composer tasks, hence this class.
 """
@@ -30,6 +31,14 @@ from ahrm_stack.env.episode import EpisodeRecorder, EpisodeSummary
 from ahrm_stack.env.task import PushOffTask, StepInfo
 
 
+def touch_penalty(touch_end: bool, gamma: float, objectives: int = 3) -> float:
+    """The reward lost by a touch that ends a training episode (``train.touch_end``):
+    ``objectives / (1 - gamma)``, the discounted value of every objective's penalty (-1 each per
+    step) forever. No continuation is worth less, so ending an episode by a touch is never an
+    escape from the penalties still to come. 0 when ``touch_end`` is false."""
+    return objectives / (1.0 - gamma) if touch_end else 0.0
+
+
 class PushOffEnv(EnvBase):
     """One push-off task as a TorchRL environment (batch size ``[]``, CPU).
 
@@ -41,13 +50,20 @@ class PushOffEnv(EnvBase):
     """
 
     def __init__(self, config: TaskConfig, safety: SafetyConfig | None, seed: int | None = None,
-                 device: str = "cpu", mechanism=None, time_limit: float = 0.0) -> None:
+                 device: str = "cpu", mechanism=None, time_limit: float = 0.0,
+                 touch_penalty: float = 0.0) -> None:
         """``time_limit`` (s, > 0): episodes are truncated here instead of at
-        ``task.episode.duration`` (training's ``train.time_limit``)."""
+        ``task.episode.duration`` (training's ``train.time_limit``). ``touch_penalty`` (> 0;
+        training's ``train.touch_end``, :func:`touch_penalty`): a step that touches an obstacle
+        ends the episode as a terminal state and its reward is lowered by this much (the
+        learner's reward units, before ``ppo.reward_scale``)."""
+        if touch_penalty < 0:
+            raise ValueError(f"touch_penalty must be >= 0, got {touch_penalty}")
         super().__init__(device=device, batch_size=torch.Size([]))
         self.mechanism = mechanism
         self.completed: list[EpisodeSummary] = []
         self._monitor = None
+        self.touch_penalty = float(touch_penalty)
         self.task = PushOffTask(config)
         self.runner = TaskRunner(self.task, seed, safety)
         if time_limit > 0:
@@ -117,6 +133,10 @@ class PushOffEnv(EnvBase):
             reward = float(info.g.sum())
         else:
             reward = float(self.mechanism.reward(info.g, info.distances))
+        if self.touch_penalty > 0 and info.touched and not terminated:
+            reward -= self.touch_penalty
+            terminated, truncated = True, False
+            self.runner.end_episode()
         constrained = (self._monitor is not None and not terminated
                        and self._monitor.step(info.f, info.phase))
         if constrained and not truncated:

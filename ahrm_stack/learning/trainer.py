@@ -36,7 +36,7 @@ from torchrl.envs import SerialEnv
 from torchrl.envs.utils import ExplorationType
 
 from ahrm_stack.config import Config, ConfigError
-from ahrm_stack.env.torchrl_env import PushOffEnv
+from ahrm_stack.env.torchrl_env import PushOffEnv, touch_penalty
 from ahrm_stack.learning.demonstrations import (bc_loss, collect_corrections, collect_demonstrations,
                                                 warm_start)
 from ahrm_stack.learning.mechanisms import OBJECTIVES, RewardMechanism
@@ -93,8 +93,9 @@ class Trainer:
             self.envs: list[PushOffEnv] = []
             self.env = workers.make_worker_envs(config, seeds)
         else:
+            penalty = touch_penalty(config.train.touch_end, config.ppo.gamma)
             self.envs = [PushOffEnv(config.task, config.safety, mechanism=self.mechanism, seed=seed,
-                                    time_limit=config.train.time_limit)
+                                    time_limit=config.train.time_limit, touch_penalty=penalty)
                          for seed in seeds]
             self.env = self.envs[0] if count == 1 else SerialEnv(
                 count, [lambda env=env: env for env in self.envs])

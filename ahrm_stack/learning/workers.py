@@ -28,7 +28,7 @@ from torchrl.envs import EnvBase, ParallelEnv, SerialEnv
 
 from ahrm_stack.config import Config, MechanismConfig, SafetyConfig, TaskConfig
 from ahrm_stack.env.episode import EpisodeSummary
-from ahrm_stack.env.torchrl_env import PushOffEnv
+from ahrm_stack.env.torchrl_env import PushOffEnv, touch_penalty
 from ahrm_stack.learning.mechanisms import RewardMechanism
 
 
@@ -72,9 +72,9 @@ class WorkerEnv(PushOffEnv):
     """A :class:`PushOffEnv` living in a worker process (environment ``index`` of the trainer's)."""
 
     def __init__(self, task: TaskConfig, safety: SafetyConfig, mechanism: MechanismConfig,
-                 seed: int, index: int, time_limit: float = 0.0) -> None:
+                 seed: int, index: int, time_limit: float = 0.0, touch_penalty: float = 0.0) -> None:
         super().__init__(task, safety, seed=seed, mechanism=_DeferredMechanism(mechanism),
-                         time_limit=time_limit)
+                         time_limit=time_limit, touch_penalty=touch_penalty)
         self.index = index
         self.steps_taken = 0
         self._ends: list[tuple[int, EpisodeSummary]] = []
@@ -114,11 +114,12 @@ class WorkerEnv(PushOffEnv):
 
 
 def _make_group(task: TaskConfig, safety: SafetyConfig, mechanism: MechanismConfig,
-                seeds: tuple[int, ...], indices: tuple[int, ...], time_limit: float) -> EnvBase:
+                seeds: tuple[int, ...], indices: tuple[int, ...], time_limit: float,
+                penalty: float) -> EnvBase:
     """One worker's environments: a :class:`WorkerEnv`, or a ``SerialEnv`` of several."""
     if len(indices) == 1:
-        return WorkerEnv(task, safety, mechanism, seeds[0], indices[0], time_limit)
-    return SerialEnv(len(indices), [functools.partial(WorkerEnv, task, safety, mechanism, s, i, time_limit)
+        return WorkerEnv(task, safety, mechanism, seeds[0], indices[0], time_limit, penalty)
+    return SerialEnv(len(indices), [functools.partial(WorkerEnv, task, safety, mechanism, s, i, time_limit, penalty)
                                     for s, i in zip(seeds, indices)])
 
 
@@ -130,7 +131,8 @@ def make_worker_envs(config: Config, seeds: list[int]) -> ParallelEnv:
     per = len(seeds) // workers  # num_envs is a multiple of env_workers (config.py)
     groups = [functools.partial(_make_group, config.task, config.safety, config.mechanism,
                                 tuple(seeds[w * per:(w + 1) * per]), tuple(range(w * per, (w + 1) * per)),
-                                config.train.time_limit)
+                                config.train.time_limit,
+                                touch_penalty(config.train.touch_end, config.ppo.gamma))
               for w in range(workers)]
     # num_threads is what TorchRL sets in this process: keep its count; each worker gets one
     env = ParallelEnv(workers, groups, use_buffers=False, num_threads=torch.get_num_threads(),
