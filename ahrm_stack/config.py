@@ -560,6 +560,8 @@ class TrainConfig(Section):
     # evaluation keeps task.episode.duration
     touch_end: bool  # a touch of an obstacle ends a training episode as a terminal failure, its
     # step's reward lowered by touch_penalty(ppo.gamma) (evaluation: touches never end an episode)
+    touch_end_after: NonNegInt  # frames: with touch_end, touches end episodes only from this many
+    # frames collected on (0: from the start)
     start_curriculum: Literal["none", "near_cube", "scripted_states"]  # near_cube: start near the
     # cube (task.arm.near_cube), more starts by task.arm.start as the level rises; scripted_states:
     # start from the scripted controller's recorded states, further back as the level rises
@@ -576,6 +578,9 @@ class TrainConfig(Section):
         if self.env_workers > 1 and self.start_curriculum != "none":
             raise ConfigError(f"{key}.start_curriculum ({self.start_curriculum}) needs "
                               f"{key}.env_workers: 1 (the level is not sent to worker processes)")
+        if self.env_workers > 1 and self.touch_end and self.touch_end_after > 0:
+            raise ConfigError(f"{key}.touch_end_after ({self.touch_end_after}) needs {key}.env_workers: 1 "
+                              "(the switch is not sent to worker processes)")
         if not self.runs_dir.strip():
             raise ConfigError(f"{key}.runs_dir must name a folder, got {self.runs_dir!r}")
 
@@ -710,7 +715,7 @@ def load_config(overrides: Sequence[str] = (), config_dir: Path | str = CONFIG_D
 # Keys added after runs were recorded: a run's config.yaml that lacks them takes them from the
 # repository's configs (so the committed run folders and older checkpoints still load).
 BACKFILLED = {"safety": ("self_collision_rows", "self_collision_pairs"),
-              "train": ("env_workers", "touch_end")}
+              "train": ("env_workers", "touch_end", "touch_end_after")}
 
 
 LEGACY_PPO = {"reward_scale": 1.0}  # before the key existed: rewards unscaled

@@ -83,6 +83,9 @@ ROWS: dict[str, list[str]] = {
     **{f"round3-{m}": ["profile=scratch", f"mechanism.method={m}"] for m in METHODS if m != "ahrm"},
     # round 4: a touch ends the training episode as a terminal failure (train.touch_end)
     **{f"touch-{m}": ["profile=scratch", f"mechanism.method={m}", "train.touch_end=true"] for m in METHODS},
+    # ... only after the first 1M frames (touch-ahrm learned to keep away from the cube instead)
+    **{f"late-touch-{m}": ["profile=scratch", f"mechanism.method={m}", "train.touch_end=true",
+                           "train.touch_end_after=1000000"] for m in METHODS},
 }
 
 

@@ -378,13 +378,26 @@ def test_touch_penalty_is_every_objective_violated_forever():
     assert touch_penalty(False, 0.99) == 0.0
 
 
-def test_trainer_passes_touch_end_to_its_environments():
-    on = Trainer(load_config([*TINY, "train.touch_end=true", "ppo.gamma=0.98"]))
-    assert all(env.touch_penalty == pytest.approx(3 / 0.02) for env in on.envs)
+def test_trainer_switches_touch_end_on_after_so_many_frames():
+    """train.touch_end_after = 64 frames (one batch): the first batch is collected without the
+    penalty, the second with it; without touch_end nothing changes."""
+    on = Trainer(load_config([*TINY, "train.touch_end=true", "ppo.gamma=0.98", "train.touch_end_after=64"]))
+    seen = []
+    for _ in range(2):
+        on.iteration()
+        seen.append([env.touch_penalty for env in on.envs])
+    assert seen == [[0.0] * len(on.envs), [pytest.approx(3 / 0.02)] * len(on.envs)]
     on.close()
     off = Trainer(load_config(TINY))
+    off.iteration()
     assert all(env.touch_penalty == 0.0 for env in off.envs)
     off.close()
+
+
+def test_delayed_touch_end_with_worker_processes_names_the_key():
+    with pytest.raises(ConfigError, match="train.touch_end_after"):
+        load_config(["train.touch_end=true", "train.touch_end_after=10", "train.num_envs=2",
+                     "train.env_workers=2"])
 
 
 def test_worker_processes_get_the_touch_penalty(monkeypatch):

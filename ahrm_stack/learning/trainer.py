@@ -93,9 +93,8 @@ class Trainer:
             self.envs: list[PushOffEnv] = []
             self.env = workers.make_worker_envs(config, seeds)
         else:
-            penalty = touch_penalty(config.train.touch_end, config.ppo.gamma)
             self.envs = [PushOffEnv(config.task, config.safety, mechanism=self.mechanism, seed=seed,
-                                    time_limit=config.train.time_limit, touch_penalty=penalty)
+                                    time_limit=config.train.time_limit)
                          for seed in seeds]
             self.env = self.envs[0] if count == 1 else SerialEnv(
                 count, [lambda env=env: env for env in self.envs])
@@ -179,12 +178,22 @@ class Trainer:
             return self._collector.next()
         return next(self._iterator)
 
+    def _set_touch_end(self) -> None:
+        """``train.touch_end``: the in-process environments end episodes on a touch, with
+        :func:`touch_penalty`, once ``train.touch_end_after`` frames are collected (a whole batch
+        either way; worker processes get it at construction, config.py refuses a delayed switch)."""
+        train = self.config.train
+        penalty = touch_penalty(train.touch_end and self.frames >= train.touch_end_after, self.config.ppo.gamma)
+        for env in self.envs:
+            env.touch_penalty = penalty
+
     def iteration(self) -> IterationResult:
         started = time.perf_counter()
         ppo = self.config.ppo
         self.warm_start()
         if ppo.std_mode == "scheduled":
             self.modules.head.set_std(scheduled_std(ppo, self.frames))
+        self._set_touch_end()
         data = self._collect()
         self.frames += data.numel()
         self.batches += 1
