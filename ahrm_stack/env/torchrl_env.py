@@ -28,10 +28,11 @@ from ahrm_stack.config import SafetyConfig, TaskConfig
 from ahrm_stack.env.control_step import action_to_command, check_action_shape  # noqa: F401 (re-exported)
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.episode import EpisodeRecorder, EpisodeSummary
+from ahrm_stack.env.rewards import OBJECTIVES
 from ahrm_stack.env.task import PushOffTask, StepInfo
 
 
-def touch_penalty(touch_end: bool, gamma: float, objectives: int = 3) -> float:
+def touch_penalty(touch_end: bool, gamma: float, objectives: int = len(OBJECTIVES)) -> float:
     """The reward lost by a touch that ends a training episode (``train.touch_end``):
     ``objectives / (1 - gamma)``, the discounted value of every objective's penalty (-1 each per
     step) forever. No continuation is worth less, so ending an episode by a touch is never an
@@ -135,8 +136,9 @@ class PushOffEnv(EnvBase):
             reward = float(self.mechanism.reward(info.g, info.distances))
         if self.touch_penalty > 0 and info.touched and not terminated:
             reward -= self.touch_penalty
+            if not truncated:  # a step that hit the time limit has closed the episode already
+                self.runner.end_episode()
             terminated, truncated = True, False
-            self.runner.end_episode()
         constrained = (self._monitor is not None and not terminated
                        and self._monitor.step(info.f, info.phase))
         if constrained and not truncated:
