@@ -519,6 +519,8 @@ class PPOConfig(Section):
     bc_coeff_final: NonNeg  # the anchor's weight goes linearly from bc_coeff to this ...
     bc_decay_frames: NonNegInt  # ... over this many frames (0: constant bc_coeff)
     reward_scale: Pos  # rewards are multiplied by this before GAE (the critic learns scaled returns)
+    lane_frame: Literal["none", "mirror", "mirror_no_joints"]  # the policy reads the world mirrored
+    # x -> -x when the episode's lane is -x (learning/lane_frame.py); no_joints: joint entries zeroed
 
     def check(self, key: str) -> None:
         if self.frames_per_batch % self.mini_batch_size:
@@ -609,6 +611,17 @@ class Config(Section):
             raise ConfigError(f"safety.acceleration_limit has {len(self.safety.acceleration_limit)} "
                               f"values, task.arm.home_deg {len(self.task.arm.home)}: both give one "
                               f"value per joint of task.robot ({self.task.robot})")
+        if ppo.lane_frame != "none":
+            task = self.task
+            if not task.observation.lane_choice:
+                raise ConfigError(f"ppo.lane_frame: {ppo.lane_frame} needs task.observation.lane_choice: "
+                                  "true (the episode's lane decides whether the policy's frame is mirrored)")
+            if task.action.mode != "cartesian":
+                raise ConfigError(f"ppo.lane_frame: {ppo.lane_frame} needs task.action.mode: cartesian (a "
+                                  f"joint-velocity action has no mirror image), got {task.action.mode}")
+            if set(task.layout.lane_directions) != {"+x", "-x"}:
+                raise ConfigError(f"ppo.lane_frame: {ppo.lane_frame} needs both lanes, +x and -x, in "
+                                  f"task.layout.lane_directions, got {list(task.layout.lane_directions)}")
         if self.task.regions.distance_clip < self.mechanism.blend_band:
             raise ConfigError(f"task.regions.distance_clip ({self.task.regions.distance_clip} m) must "
                               f"be >= mechanism.blend_band ({self.mechanism.blend_band} m)")
@@ -714,7 +727,7 @@ def load_config(overrides: Sequence[str] = (), config_dir: Path | str = CONFIG_D
 
 # Keys added after runs were recorded: a run's config.yaml that lacks them takes them from the
 # repository's configs (so the committed run folders and older checkpoints still load).
-BACKFILLED = {"safety": ("self_collision_rows", "self_collision_pairs"),
+BACKFILLED = {"safety": ("self_collision_rows", "self_collision_pairs"), "ppo": ("lane_frame",),
               "train": ("env_workers", "touch_end", "touch_end_after")}
 
 

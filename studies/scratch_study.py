@@ -86,6 +86,12 @@ ROWS: dict[str, list[str]] = {
     # ... only after the first 1M frames (touch-ahrm learned to keep away from the cube instead)
     **{f"late-touch-{m}": ["profile=scratch", f"mechanism.method={m}", "train.touch_end=true",
                            "train.touch_end_after=1000000"] for m in METHODS},
+    # round 5: the policy reads the world in its episode's lane frame (mirrored x -> -x when the lane
+    # is -x, its x action mirrored back: ppo.lane_frame), so that both lanes are learned as one;
+    # with the arm's joint entries as measured (they have no mirror image) or zeroed
+    **{f"mirror-{m}": ["profile=scratch", f"mechanism.method={m}", "ppo.lane_frame=mirror"] for m in METHODS},
+    **{f"mirror-nj-{m}": ["profile=scratch", f"mechanism.method={m}", "ppo.lane_frame=mirror_no_joints"]
+       for m in METHODS},
 }
 
 

@@ -80,8 +80,9 @@ def test_lean_collection_actor_matches_torchrl_actor(mode):
 def test_deploy_policy_controller_takes_the_lean_path_with_the_same_request(mode):
     """deploy's PolicyController runs the actor without TensorDict (NumpyPolicy for a
     make_modules actor, LeanActor.act for another LeanActor) and requests what the TensorDict call
-    of the TorchRL actor gives for the same observation (1e-5: NumPy's float32 BLAS sums in
-    another order than torch's)."""
+    of the TorchRL actor gives for the same observation (5e-5: NumPy's float32 BLAS sums in
+    another order than torch's, over 256-wide layers of weights with std 0.5 and inputs of ~3:
+    with numpy 2.4.6 the difference reaches 1.8e-5 here)."""
     from types import SimpleNamespace
 
     from ahrm_stack.deploy import PolicyController
@@ -101,7 +102,7 @@ def test_deploy_policy_controller_takes_the_lean_path_with_the_same_request(mode
     for observation in torch.randn(20, 40).numpy() * 3.0:
         world.current = observation
         want = reference()
-        np.testing.assert_allclose(fast(), want, atol=1e-5, rtol=0)
+        np.testing.assert_allclose(fast(), want, atol=5e-5, rtol=0)
         np.testing.assert_allclose(lean(), want, atol=1e-6, rtol=0)
 
 

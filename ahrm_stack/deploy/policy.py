@@ -48,8 +48,8 @@ class NumpyPolicy:
         from ahrm_stack.learning.ppo import GaussianHead, RunningNorm, lean_actor
 
         lean = lean_actor(actor)
-        if lean is None or not isinstance(lean.normalizer, RunningNorm):
-            return None
+        if lean is None or not isinstance(lean.normalizer, RunningNorm) or lean.mirror is not None:
+            return None  # (a lane frame runs as LeanActor.act)
         net = lean.net
         if not (isinstance(net, nn.Sequential) and len(net) == 2
                 and isinstance(net[1], GaussianHead) and isinstance(net[0], nn.Sequential)):

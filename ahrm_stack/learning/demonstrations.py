@@ -183,7 +183,7 @@ def warm_start(modules, demos: TensorDict, epochs: int, learning_rate: float,
 
     The observation normaliser first takes in ``normalizer_data`` (default: ``demos``); a DAgger
     refit passes only the new observations, since its statistics already hold the older ones."""
-    modules.normalizer.update((demos if normalizer_data is None else normalizer_data)["observation"])
+    modules.normalizer.update(modules.framed((demos if normalizer_data is None else normalizer_data)["observation"]))
     actor_params = [p for p in modules.actor.parameters() if p.requires_grad]
     critic_params = [p for p in modules.critic.parameters() if p.requires_grad]
     actor_opt = torch.optim.Adam(actor_params, lr=learning_rate)

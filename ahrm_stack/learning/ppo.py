@@ -25,6 +25,7 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 from ahrm_stack.config import PPOConfig
+from ahrm_stack.learning.lane_frame import LaneMirror
 
 
 class RunningNorm(nn.Module):
@@ -86,26 +87,61 @@ class GaussianHead(nn.Module):
 _ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}
 
 
+class FramedNorm(nn.Module):
+    """The lane frame (:class:`~ahrm_stack.learning.lane_frame.LaneMirror`), then the normaliser:
+    observation -> (normalised observation in the lane frame, the action's signs back to the world)."""
+
+    def __init__(self, mirror: LaneMirror, normalizer: RunningNorm) -> None:
+        super().__init__()
+        self.mirror, self.normalizer = mirror, normalizer
+
+    def forward(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        framed, action_sign = self.mirror.canonical(observation)
+        return self.normalizer(framed), action_sign
+
+
+class SignedLoc(nn.Module):
+    """The Gaussian's mean mapped from the lane frame to the world: ``loc * action_sign``."""
+
+    def forward(self, loc: torch.Tensor, action_sign: torch.Tensor) -> torch.Tensor:
+        return loc * action_sign
+
+
 @dataclasses.dataclass
 class Modules:
     normalizer: RunningNorm
     head: GaussianHead  # the policy's standard deviation lives here
     actor: ProbabilisticActor
     critic: TensorDictSequential
+    mirror: LaneMirror | None = None  # ppo.lane_frame; None: the world frame
+
+    def framed(self, observation: torch.Tensor) -> torch.Tensor:
+        """Observations as the normaliser sees them (in the lane frame, if there is one): what its
+        statistics must be updated from."""
+        return observation if self.mirror is None else self.mirror(observation)
 
 
-def make_modules(config: PPOConfig, observation_dim: int, action_dim: int) -> Modules:
-    """Actor (TanhNormal over [-1, 1]) and critic, sharing one observation normaliser."""
+def make_modules(config: PPOConfig, observation_dim: int, action_dim: int,
+                 mirror: LaneMirror | None = None) -> Modules:
+    """Actor (TanhNormal over [-1, 1]) and critic, sharing one observation normaliser; with a
+    ``mirror`` (``ppo.lane_frame``, :func:`~ahrm_stack.learning.lane_frame.lane_mirror_for`) both
+    read the observation in the lane frame and the actor's mean is mapped back to the world."""
     normalizer = RunningNorm(observation_dim, config.normalizer_clip, config.normalize_observations)
-    norm_module = TensorDictModule(normalizer, in_keys=["observation"], out_keys=["observation_norm"])
+    if mirror is None:
+        norm_module = TensorDictModule(normalizer, in_keys=["observation"], out_keys=["observation_norm"])
+    else:
+        norm_module = TensorDictModule(FramedNorm(mirror, normalizer), in_keys=["observation"],
+                                       out_keys=["observation_norm", "action_sign"])
     activation = _ACTIVATIONS[config.activation]
     head = GaussianHead(action_dim, config.init_std, config.std_mode == "learned")
     actor_net = nn.Sequential(
         MLP(in_features=observation_dim, out_features=action_dim, num_cells=list(config.hidden_sizes),
             activation_class=activation),
         head)
-    actor_body = TensorDictSequential(
-        norm_module, TensorDictModule(actor_net, in_keys=["observation_norm"], out_keys=["loc", "scale"]))
+    parts = [norm_module, TensorDictModule(actor_net, in_keys=["observation_norm"], out_keys=["loc", "scale"])]
+    if mirror is not None:
+        parts.append(TensorDictModule(SignedLoc(), in_keys=["loc", "action_sign"], out_keys=["loc"]))
+    actor_body = TensorDictSequential(*parts)
     actor = ProbabilisticActor(
         actor_body, in_keys=["loc", "scale"], distribution_class=TanhNormal,
         distribution_kwargs={"low": -1.0, "high": 1.0}, return_log_prob=True)
@@ -113,7 +149,7 @@ def make_modules(config: PPOConfig, observation_dim: int, action_dim: int) -> Mo
                      activation_class=activation)
     critic = TensorDictSequential(
         norm_module, TensorDictModule(critic_net, in_keys=["observation_norm"], out_keys=["state_value"]))
-    return Modules(normalizer, head, actor, critic)
+    return Modules(normalizer, head, actor, critic, mirror)
 
 
 class LeanActor(TensorDictModuleBase):
@@ -131,14 +167,18 @@ class LeanActor(TensorDictModuleBase):
     in_keys = ["observation"]
     out_keys = ["action"]
 
-    def __init__(self, normalizer: RunningNorm, net: nn.Module) -> None:
+    def __init__(self, normalizer: RunningNorm, net: nn.Module, mirror: LaneMirror | None = None) -> None:
         super().__init__()
-        self.normalizer, self.net = normalizer, net
+        self.normalizer, self.net, self.mirror = normalizer, net, mirror
         self._squash = SafeTanhTransform()
 
     def act(self, observation: torch.Tensor) -> torch.Tensor:
         with torch.no_grad():
-            loc, _ = self.net(self.normalizer(observation))
+            if self.mirror is None:
+                loc, _ = self.net(self.normalizer(observation))
+            else:
+                framed, action_sign = self.mirror.canonical(observation)
+                loc = self.net(self.normalizer(framed))[0] * action_sign
             return self._squash(loc)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -159,21 +199,32 @@ class LeanCollectionActor(TensorDictModuleBase):
     of the module stack's TensorDict plumbing (see benchmarks/bench_policy.py).
     """
 
+    KEYS = ["observation_norm", "loc", "scale", "action", "action_log_prob"]
     in_keys = ["observation"]
-    out_keys = ["observation_norm", "loc", "scale", "action", "action_log_prob"]
+    out_keys = KEYS
     _LOG_SQRT_2PI = math.log(math.sqrt(2.0 * math.pi))
     _LOG2 = math.log(2.0)
 
-    def __init__(self, normalizer: RunningNorm, net: nn.Module) -> None:
+    def __init__(self, normalizer: RunningNorm, net: nn.Module, mirror: LaneMirror | None = None) -> None:
         super().__init__()
-        self.normalizer, self.net = normalizer, net
+        self.normalizer, self.net, self.mirror = normalizer, net, mirror
+        if mirror is not None:  # the lane frame's signs, as the TorchRL actor writes them
+            self.out_keys = [*self.KEYS, "action_sign"]
 
     def sample(self, observation: torch.Tensor, random: bool = True) -> tuple[torch.Tensor, ...]:
-        """(observation_norm, loc, scale, action, action_log_prob) for observations (..., obs_dim):
-        ``random`` a TanhNormal sample (torch's global random stream), else the deterministic action."""
+        """(observation_norm, loc, scale, action, action_log_prob[, action_sign]) for observations
+        (..., obs_dim): ``random`` a TanhNormal sample (torch's global random stream), else the
+        deterministic action; ``action_sign`` with a lane frame."""
         with torch.no_grad():
-            norm = self.normalizer(observation)
-            loc, scale = self.net(norm)
+            action_sign = None
+            if self.mirror is None:
+                norm = self.normalizer(observation)
+                loc, scale = self.net(norm)
+            else:
+                framed, action_sign = self.mirror.canonical(observation)
+                norm = self.normalizer(framed)
+                loc, scale = self.net(norm)
+                loc = loc * action_sign
             if random:
                 x = loc + torch.empty_like(loc).normal_() * scale  # Normal.rsample's draw
                 action = safetanh_noeps(x)
@@ -184,6 +235,8 @@ class LeanCollectionActor(TensorDictModuleBase):
             base = -((x - loc) ** 2) / (2 * scale**2) - scale.log() - self._LOG_SQRT_2PI
             jacobian = 2.0 * (self._LOG2 - x - softplus(-2.0 * x))
             log_prob = (0.0 - jacobian.sum(-1)) + base.sum(-1)
+        if action_sign is not None:
+            return norm, loc, scale, action, log_prob, action_sign
         return norm, loc, scale, action, log_prob
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -196,7 +249,7 @@ class LeanCollectionActor(TensorDictModuleBase):
 def lean_collection_actor(actor) -> LeanCollectionActor | None:
     """The :class:`LeanCollectionActor` of an actor built by :func:`make_modules`, or None."""
     lean = lean_actor(actor)
-    return None if lean is None else LeanCollectionActor(lean.normalizer, lean.net)
+    return None if lean is None else LeanCollectionActor(lean.normalizer, lean.net, lean.mirror)
 
 
 def lean_actor(actor) -> LeanActor | None:
@@ -207,12 +260,17 @@ def lean_actor(actor) -> LeanActor | None:
     if not isinstance(actor, ProbabilisticActor):
         return None
     body = actor.module[0] if len(actor.module) else None
-    if not isinstance(body, TensorDictSequential) or len(body.module) != 2:
+    if not isinstance(body, TensorDictSequential) or len(body.module) not in (2, 3):
         return None
     norm, net = body.module[0].module, body.module[1].module
+    mirror = None
+    if len(body.module) == 3:  # the lane frame: FramedNorm, the network, SignedLoc
+        if not (isinstance(norm, FramedNorm) and isinstance(body.module[2].module, SignedLoc)):
+            return None
+        norm, mirror = norm.normalizer, norm.mirror
     if not (isinstance(norm, RunningNorm) and isinstance(net, nn.Sequential) and isinstance(net[-1], GaussianHead)):
         return None
-    return LeanActor(norm, net)
+    return LeanActor(norm, net, mirror)
 
 
 def scheduled_std(config: PPOConfig, frames: int) -> float:

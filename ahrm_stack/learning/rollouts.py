@@ -23,6 +23,7 @@ from ahrm_stack.config import Config, config_from_dict
 from ahrm_stack.env.episode import EpisodeSummary
 from ahrm_stack.env.torchrl_env import PushOffEnv
 from ahrm_stack.learning.checkpoint import load
+from ahrm_stack.learning.lane_frame import lane_mirror_for
 from ahrm_stack.learning.ppo import lean_actor, make_modules
 from ahrm_stack.seeds import seed_table
 
@@ -76,7 +77,8 @@ def load_policy(run_dir: Path, policy_file: Path | None = None,
     run_dir = Path(run_dir)
     config = config_from_dict(yaml.safe_load((run_dir / "config.yaml").read_text()), runnable)
     saved = load(Path(policy_file) if policy_file is not None else run_dir / "policy.pt")
-    modules = make_modules(config.ppo, saved["observation_dim"], saved["action_dim"])
+    modules = make_modules(config.ppo, saved["observation_dim"], saved["action_dim"],
+                           lane_mirror_for(config, saved["observation_dim"], saved["action_dim"]))
     modules.actor.load_state_dict(saved["actor"])
     modules.actor.eval()
     return config, lean_actor(modules.actor)

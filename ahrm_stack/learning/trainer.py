@@ -42,6 +42,7 @@ from ahrm_stack.learning.demonstrations import (bc_loss, collect_corrections, co
 from ahrm_stack.learning.mechanisms import OBJECTIVES, RewardMechanism
 from ahrm_stack.learning import workers
 from ahrm_stack.learning.collection import LeanCollector
+from ahrm_stack.learning.lane_frame import lane_mirror_for
 from ahrm_stack.learning.ppo import (anchor_coeff, lean_collection_actor, make_buffer, make_loss,
                                      make_modules, scheduled_std)
 from ahrm_stack.learning.start_states import ScriptedStartStates, record_trajectories
@@ -111,7 +112,11 @@ class Trainer:
         self._apply_curriculum()
         observation_dim = self.env.observation_spec["observation"].shape[-1]
         action_dim = self.env.action_spec.shape[-1]
-        self.modules = make_modules(config.ppo, observation_dim, action_dim)
+        robot = self.envs[0].task.robot if self.envs else None  # (workers: read from the config)
+        joints = {} if robot is None else {"num_joints": robot.num_joints,
+                                           "num_commanded": len(robot.commanded_joints)}
+        mirror = lane_mirror_for(config, observation_dim, action_dim, **joints)  # ppo.lane_frame
+        self.modules = make_modules(config.ppo, observation_dim, action_dim, mirror)
         self.loss, self.advantage = make_loss(config.ppo, self.modules)
         self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=config.ppo.learning_rate)
         self.buffer = make_buffer(config.ppo)
@@ -238,7 +243,7 @@ class Trainer:
                     if key in losses.keys():
                         totals.setdefault(key, []).append(float(losses[key].detach()))
         if ppo.update_normalizer or self.modules.normalizer.count == 0:
-            self.modules.normalizer.update(data["observation"])
+            self.modules.normalizer.update(self.modules.framed(data["observation"]))
         episodes, events = self._drain_episodes()
         self._update_curriculum(episodes)
         batch = {k: float(np.mean(v)) for k, v in totals.items()}
