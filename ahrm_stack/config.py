@@ -488,6 +488,9 @@ class MechanismConfig(Section):
     blend_slope: Pos  # alpha, 1/m
 
 
+LaneFrame = Literal["none", "mirror", "mirror_no_joints"]  # ppo.lane_frame (learning/lane_frame.py)
+
+
 @Frozen
 class PPOConfig(Section):
     """PPO hyper-parameters (spec §6). ``configs/ppo.yaml`` holds the learnability study's choices;
@@ -519,7 +522,7 @@ class PPOConfig(Section):
     bc_coeff_final: NonNeg  # the anchor's weight goes linearly from bc_coeff to this ...
     bc_decay_frames: NonNegInt  # ... over this many frames (0: constant bc_coeff)
     reward_scale: Pos  # rewards are multiplied by this before GAE (the critic learns scaled returns)
-    lane_frame: Literal["none", "mirror", "mirror_no_joints"]  # the policy reads the world mirrored
+    lane_frame: LaneFrame  # the policy reads the world mirrored
     # x -> -x when the episode's lane is -x (learning/lane_frame.py); no_joints: joint entries zeroed
 
     def check(self, key: str) -> None:

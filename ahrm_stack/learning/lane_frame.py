@@ -29,14 +29,13 @@ and the deploy loop stay in the world frame, and a checkpoint carries the mirror
 
 from __future__ import annotations
 
-from typing import Literal, Sequence
+from typing import Sequence
 
 import torch
 from torch import nn
 
-from ahrm_stack.config import Config, TaskConfig
+from ahrm_stack.config import Config, LaneFrame, TaskConfig
 
-LaneFrame = Literal["none", "mirror", "mirror_no_joints"]
 MIRRORED_LANE = {"+x": "-x", "-x": "+x"}
 PROP_SIZE = 6  # per free body: world position (3) then linear velocity (3)
 
@@ -117,6 +116,9 @@ def make_lane_mirror(task: TaskConfig, frame: LaneFrame, num_joints: int, num_co
     if frame == "none":
         return None
     layout = observation_layout(task, num_joints, num_commanded)
+    directions: list[str] = list(task.layout.lane_directions)
+    if "lane_choice" not in layout or "-x" not in directions:  # Config.check names the key
+        raise ValueError("ppo.lane_frame needs task.observation.lane_choice and a -x lane")
     size = max(s.stop for s in layout.values())
     if size != observation_dim:
         raise ValueError(f"ppo.lane_frame: the observation has {observation_dim} entries, the task's "
@@ -132,7 +134,6 @@ def make_lane_mirror(task: TaskConfig, frame: LaneFrame, num_joints: int, num_co
         x_entries += [relative.start] + list(range(relative.start + 3, relative.stop, 2))
     for i in x_entries:
         sign[i] = -1.0
-    directions: list[str] = list(task.layout.lane_directions)
     for name in ("lane_clearance", "lane_choice"):
         if name in layout:
             for i, direction in enumerate(directions):
@@ -142,8 +143,6 @@ def make_lane_mirror(task: TaskConfig, frame: LaneFrame, num_joints: int, num_co
         for name in ("joints_pos", "joints_vel", "previous_action"):
             for i in range(layout[name].start, layout[name].stop):
                 keep[i] = 0.0
-    if "lane_choice" not in layout or "-x" not in directions:  # Config.check names the key
-        raise ValueError("ppo.lane_frame needs task.observation.lane_choice and a -x lane")
     minus_index = layout["lane_choice"].start + directions.index("-x")
     action_sign = [1.0] * action_dim
     action_sign[0] = -1.0  # Cartesian actions: (x, y, z) of the tip's velocity, world frame
