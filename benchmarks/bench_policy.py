@@ -20,7 +20,7 @@ sampled actions for the same seed), frames per second, interleaved batches.
 Prints per-call median (us), the ratios to the deterministic TorchRL actor, and the largest action
 difference between the lean and the TorchRL deterministic action (goal: <= 1e-6) and between
 NumpyPolicy and the lean action (goal: <= 1e-5, float32 rounding in another summation order).
-Usage: python benchmarks/bench_policy.py [--calls N] [--checkpoint RUN] [--quick]
+Usage: python benchmarks/bench_policy.py [--calls N] [--checkpoint RUN [--policy-file PT]] [--quick]
 """
 
 from __future__ import annotations
@@ -74,19 +74,24 @@ def collection_rates(config, actor, frames: int, batches: int) -> tuple[float, f
     return frames * batches / rates["torchrl"], frames * batches / rates["lean"]
 
 
-def load_actor(checkpoint: Path | None):
-    """(actor, observation dim, where from, config): the checkpoint's TorchRL actor, or a fresh one."""
-    if checkpoint is not None and (checkpoint / "policy.pt").exists():
+def load_actor(checkpoint: Path | None, policy_file: Path | None = None):
+    """(actor, observation dim, where from, config): the checkpoint's TorchRL actor (its
+    ``policy.pt`` or ``policy_file``; in its lane frame if it has one), or a fresh one."""
+    policy_file = policy_file or (None if checkpoint is None else checkpoint / "policy.pt")
+    if checkpoint is not None and policy_file is not None and policy_file.exists():
         import yaml
 
         from ahrm_stack.config import config_from_dict
         from ahrm_stack.learning.checkpoint import load
+        from ahrm_stack.learning.lane_frame import lane_mirror_for
 
         config = config_from_dict(yaml.safe_load((checkpoint / "config.yaml").read_text()))
-        saved = load(checkpoint / "policy.pt")
-        modules = make_modules(config.ppo, saved["observation_dim"], saved["action_dim"])
+        saved = load(policy_file)
+        dims = saved["observation_dim"], saved["action_dim"]
+        modules = make_modules(config.ppo, *dims, lane_mirror_for(config, *dims))
         modules.actor.load_state_dict(saved["actor"])
-        return modules.actor.eval(), saved["observation_dim"], f"{checkpoint.relative_to(ROOT)}", config
+        frame = "" if config.ppo.lane_frame == "none" else f", lane frame {config.ppo.lane_frame}"
+        return modules.actor.eval(), dims[0], f"{policy_file.resolve().relative_to(ROOT)}{frame}", config
     config = load_config()
     from ahrm_stack.env.torchrl_env import PushOffEnv
 
@@ -109,13 +114,15 @@ def main() -> None:
     parser = quick_parser(__doc__.splitlines()[0])
     parser.add_argument("--calls", type=int, default=2000, help="calls per variant (default 2000)")
     parser.add_argument("--checkpoint", type=Path, default=DEFAULT_CHECKPOINT)
+    parser.add_argument("--policy-file", type=Path, default=None,
+                        help="a policy of the checkpoint run other than its policy.pt")
     parser.add_argument("--frames", type=int, default=200, help="frames per collected batch (default 200)")
     parser.add_argument("--batches", type=int, default=3, help="batches per collector (default 3)")
     args = parser.parse_args()
     if args.quick:
         args.calls, args.frames, args.batches = 50, 20, 1
     torch.set_num_threads(1)
-    actor, obs_dim, source, config = load_actor(args.checkpoint)
+    actor, obs_dim, source, config = load_actor(args.checkpoint, args.policy_file)
     lean = lean_actor(actor)
     observations = torch.randn(args.calls, obs_dim) * 2.0
 

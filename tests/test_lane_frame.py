@@ -3,6 +3,8 @@
 the tip placed by IK at the mirrored point), the actor's equivariance and log-probabilities by
 hand, and the lever end to end: config errors, the trainer's normaliser, checkpoints, deploy."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -134,8 +136,14 @@ def test_actor_mirrors_its_x_action_with_the_lane():
     loc = net(norm(mirror(observation[32:])))[0].detach()
     expected = torch.tanh(loc * torch.tensor([-1.0, 1.0, 1.0]))
     assert torch.allclose(act(observation[32:]), expected, atol=1e-6)
-    # deploy's NumPy forward knows no lane frame: it declines, and deploy runs LeanActor.act
-    assert NumpyPolicy.from_actor(modules.actor) is None
+    # deploy's NumPy forward carries the frame: the same actions on both lanes, and the inputs
+    # are not changed by the in-place framing
+    policy = NumpyPolicy.from_actor(modules.actor)
+    assert policy is not None
+    for row, want in zip(observation.numpy().astype(np.float64), act(observation).numpy()):
+        kept = row.copy()
+        np.testing.assert_allclose(policy(row), want, atol=1e-5, rtol=0)
+        np.testing.assert_array_equal(row, kept)
 
 
 def test_lean_collection_actor_matches_the_torchrl_actor_in_the_lane_frame():
@@ -192,3 +200,31 @@ def test_trainer_learns_in_the_lane_frame_and_checkpoints_keep_it(tmp_path):
     _, policy = load_policy(tmp_path)
     assert policy.mirror is not None and torch.allclose(policy.act(observation), expected)
     trainer.close()
+
+
+SCRATCH_RUN = (Path(__file__).resolve().parents[1] / "docs" / "scratch-study" / "round5" / "runs"
+               / "mirror-nj-ahrm-seed0")
+
+
+def test_numpy_policy_gives_the_committed_scratch_policys_action_on_both_lanes():
+    """Round 5's committed policy (lane frame, joints zeroed) through deploy's NumPy forward:
+    the action of ``LeanActor.act`` on the task's own observations, episodes of either lane."""
+    from ahrm_stack.learning.rollouts import load_policy
+
+    config, lean = load_policy(SCRATCH_RUN, SCRATCH_RUN / "policies" / "episode-20472.pt")
+    policy = NumpyPolicy.from_actor(lean)
+    assert policy is not None
+    env = PushOffEnv(config.task, config.safety, seed=3)
+    lanes, worst = set(), 0.0
+    for _ in range(6):
+        td = env.reset()
+        for _ in range(30):
+            observation = td["observation"]
+            lanes.add(int(observation[74] > 0.5))
+            want = lean.act(observation).numpy()
+            got = policy(observation.numpy().astype(np.float64))
+            worst = max(worst, float(np.abs(got - want).max()))
+            td = env.step(td.set("action", torch.as_tensor(want)))["next"]
+    env.close()
+    assert lanes == {0, 1}  # both lanes were seen
+    assert worst <= 1e-5, worst

@@ -42,8 +42,9 @@ class PolicyController:
     true and the loop hands it to the filter's differential IK).
 
     The forward pass, fastest first: an actor of :func:`~ahrm_stack.learning.ppo.make_modules`
-    (or its ``LeanActor``, what ``load_policy`` gives) runs as :class:`~ahrm_stack.deploy.policy.
-    NumpyPolicy` on the world model's preallocated observation (float32, no torch call per tick);
+    (or its ``LeanActor``, what ``load_policy`` gives; in a lane frame or not) runs as
+    :class:`~ahrm_stack.deploy.policy.NumpyPolicy` on the world model's preallocated observation
+    (float32, no torch call per tick);
     a ``LeanActor`` of another network as ``LeanActor.act`` on the observation tensor; any other
     actor through its TensorDict call. :attr:`path` names the one in use."""
 

@@ -8,7 +8,9 @@ here the frozen weights are NumPy float32 arrays and every intermediate is a buf
 place, so a call allocates nothing but its returned action. Same float32 arithmetic as torch; the
 action agrees with ``LeanActor.act`` to float32 rounding (BLAS summation order; a test checks
 1e-5), and a NaN in the observation gives NaN in the action, as torch does (the deploy loop stops
-on it).
+on it). A policy trained in a lane frame (``ppo.lane_frame``) carries its mirror here as index and
+sign arrays (:class:`FrozenMirror`): the observation is mirrored in place before the normaliser
+and the mean's x entry negated before the squashing, as the torch actor does.
 """
 
 from __future__ import annotations
@@ -25,8 +27,10 @@ class NumpyPolicy:
 
     def __init__(self, mean: np.ndarray | None, std: np.ndarray | None, clip: float,
                  weights: list[np.ndarray], biases: list[np.ndarray],
-                 activations: list[tuple[str, float]], squash_limit: float) -> None:
+                 activations: list[tuple[str, float]], squash_limit: float,
+                 mirror: "FrozenMirror | None" = None) -> None:
         self._mean, self._std = mean, std  # None: no normalisation (disabled, or no statistics)
+        self._mirror = mirror  # ppo.lane_frame; None: the world frame
         self._clip = np.float32(clip)
         self._weights = [np.ascontiguousarray(w.T, dtype=np.float32) for w in weights]  # (in, out)
         self._biases = [np.asarray(b, dtype=np.float32) for b in biases]
@@ -48,8 +52,8 @@ class NumpyPolicy:
         from ahrm_stack.learning.ppo import GaussianHead, RunningNorm, lean_actor
 
         lean = lean_actor(actor)
-        if lean is None or not isinstance(lean.normalizer, RunningNorm) or lean.mirror is not None:
-            return None  # (a lane frame runs as LeanActor.act)
+        if lean is None or not isinstance(lean.normalizer, RunningNorm):
+            return None
         net = lean.net
         if not (isinstance(net, nn.Sequential) and len(net) == 2
                 and isinstance(net[1], GaussianHead) and isinstance(net[0], nn.Sequential)):
@@ -79,13 +83,19 @@ class NumpyPolicy:
                 mean = norm_mean.to(torch.float32).cpu().numpy().copy()
                 std = torch.sqrt(norm_var + 1e-8).to(torch.float32).cpu().numpy().copy()
             limit = 1.0 - torch.finfo(torch.float32).resolution  # torchrl's safetanh_noeps
-        return cls(mean, std, float(norm.clip), weights, biases, activations, limit)
+        mirror = None if lean.mirror is None else FrozenMirror.from_module(lean.mirror)
+        if mirror is not None and not mirror.fits(weights[0].shape[1], weights[-1].shape[0]):
+            return None
+        return cls(mean, std, float(norm.clip), weights, biases, activations, limit, mirror)
 
     def __call__(self, observation: np.ndarray) -> np.ndarray:
         """The action in [-1, 1] (float32, a new array) of one observation vector (any float
         type; rounded to float32 first, as ``torch.as_tensor(..., dtype=float32)`` does)."""
         x = self._input
         np.copyto(x, observation, casting="unsafe")
+        minus = False
+        if self._mirror is not None:
+            minus = self._mirror.frame(x)
         if self._mean is not None:
             np.subtract(x, self._mean, out=x)
             np.divide(x, self._std, out=x)
@@ -108,9 +118,44 @@ class NumpyPolicy:
                     negative *= np.float32(alpha)
                     np.copyto(out, negative, where=~(out > 0))
             x = out
+        if minus:  # the mean back to the world: as SignedLoc, before the squashing
+            assert self._mirror is not None
+            np.multiply(x, self._mirror.action_sign, out=x)
         action = np.tanh(x)
         np.clip(action, -self._limit, self._limit, out=action)
         return action
 
 
-__all__ = ["NumpyPolicy"]
+class FrozenMirror:
+    """:class:`~ahrm_stack.learning.lane_frame.LaneMirror` as NumPy arrays, frozen (float32)."""
+
+    def __init__(self, permutation: np.ndarray, sign: np.ndarray, keep: np.ndarray,
+                 minus_index: int, action_sign: np.ndarray) -> None:
+        self.permutation = np.asarray(permutation, dtype=np.intp)
+        self.sign = np.asarray(sign, dtype=np.float32)
+        self.keep = np.asarray(keep, dtype=np.float32)
+        self.minus_index = int(minus_index)
+        self.action_sign = np.asarray(action_sign, dtype=np.float32)
+        self._scratch = np.empty(self.permutation.shape, dtype=np.float32)
+
+    @classmethod
+    def from_module(cls, mirror) -> "FrozenMirror":
+        return cls(mirror.permutation.cpu().numpy(), mirror.sign.cpu().numpy(),
+                   mirror.keep.cpu().numpy(), int(mirror.minus_index), mirror.action_sign.cpu().numpy())
+
+    def fits(self, observation_dim: int, action_dim: int) -> bool:
+        return (self.permutation.shape == self.sign.shape == self.keep.shape == (observation_dim,)
+                and self.action_sign.shape == (action_dim,) and 0 <= self.minus_index < observation_dim)
+
+    def frame(self, x: np.ndarray) -> bool:
+        """Map the float32 observation ``x`` into the lane frame in place (as
+        ``LaneMirror.canonical``); True when its lane is -x (the action's signs then apply)."""
+        minus = bool(x[self.minus_index] > 0.5)
+        if minus:
+            np.take(x, self.permutation, out=self._scratch)
+            np.multiply(self._scratch, self.sign, out=x)
+        np.multiply(x, self.keep, out=x)
+        return minus
+
+
+__all__ = ["FrozenMirror", "NumpyPolicy"]
