@@ -19,7 +19,7 @@ collections that ran inside a tick (the loop collects between ticks).
 Goals: whole-tick p99 ≤ 1 ms; no missed deadline at 20 Hz.
 
 Usage: python benchmarks/bench_deploy.py [--duration S] [--rates 20 100] [--fast] [--checkpoint RUN]
-       [--quick]
+       [--policy-file PT] [--quick]
 """
 
 from __future__ import annotations
@@ -121,11 +121,11 @@ def _ms(values) -> tuple[float, float, float]:
         else (float("nan"),) * 3
 
 
-def bench_rate(rate: float, duration: float, realtime: bool, checkpoint) -> dict:
+def bench_rate(rate: float, duration: float, realtime: bool, checkpoint, policy_file=None) -> dict:
     settings = load_deploy_settings(rate_hz=rate, realtime=realtime, telemetry="")
     settings = dataclasses.replace(settings, watchdog=dataclasses.replace(
         settings.watchdog, max_deadline_misses=10**9))
-    config, actor = load_controller_config(checkpoint)
+    config, actor = load_controller_config(checkpoint, policy_file=policy_file)
     clock = WallClock() if realtime else FastClock()
     arm = SimArm(config.task, seed=0, clock=clock)
     world = WorldModel(config.task)
@@ -180,6 +180,8 @@ def main() -> None:
     parser.add_argument("--fast", action="store_true", help="unpaced (deadlines then count only "
                         "computation)")
     parser.add_argument("--checkpoint", help="a policy run folder instead of the scripted controller")
+    parser.add_argument("--policy-file", help="with --checkpoint: another policy of that run "
+                        "(e.g. RUN/policies/episode-N.pt)")
     parser.add_argument("--quick", action="store_true", default=os.environ.get("AHRM_BENCH_QUICK") == "1",
                         help="a brief run (1 s at 20 Hz, unpaced): checks that the benchmark works")
     args = parser.parse_args()
@@ -195,7 +197,7 @@ def main() -> None:
           f"{'tick p50/p99/max ms':>22} | {'world p50/p99':>15} | {'controller p50/p99':>18} | "
           f"{'filter p50/p99':>15}")
     for rate in args.rates:
-        r = bench_rate(rate, args.duration, not args.fast, args.checkpoint)
+        r = bench_rate(rate, args.duration, not args.fast, args.checkpoint, args.policy_file)
         step, world, ctrl, filt = r["step"], r["world"], r["controller"], r["filter"]
         print(f"{rate:5.0f}Hz {r['ticks']:6d} {r['episodes']:4d} {r['successes']:3d} "
               f"{r['misses']:6d} | {step[0]:6.3f} / {step[1]:6.3f} / {step[2]:6.3f} | "

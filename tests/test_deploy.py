@@ -196,6 +196,25 @@ def test_trained_policy_pushes_the_cube_off_through_the_deploy_loop(tmp_path, ca
     assert {2, 3} <= {t["phase"] for t in ticks}
 
 
+SCRATCH = Path(__file__).resolve().parents[1] / "docs" / "scratch-study" / "round5" / "runs" / "mirror-nj-ahrm-seed0"
+
+
+def test_a_policy_learned_from_scratch_pushes_the_cube_off_through_the_deploy_loop(tmp_path, capsys):
+    """The committed best policy of the scratch study's round 5 (AHRM in the lane frame, no
+    demonstrations; 39/40 held-out episodes at 0.8M frames), chosen with ``--policy-file``, drives
+    the sim backend through the whole deploy path (its lane frame in the numpy fast path) and pushes
+    the cube off; the run folder holds no final ``policy.pt``."""
+    assert not (SCRATCH / "policy.pt").exists()
+    telemetry = tmp_path / "scratch.jsonl"
+    code = main(["--backend", "sim", "--fast", "--duration", "20", "--checkpoint", str(SCRATCH),
+                 "--policy-file", str(SCRATCH / "policies" / "episode-20472.pt"),
+                 "--telemetry", str(telemetry)])
+    out = capsys.readouterr().out
+    assert code == 0 and "deploy summary: success True" in out, out
+    ticks = [json.loads(line) for line in telemetry.read_text().splitlines() if "latency_ms" in line]
+    assert ticks and all(t["stage"] == "policy" and len(t["u_nom"]) == 3 for t in ticks)
+
+
 def test_the_lane_choice_is_planned_from_the_first_perceived_scene():
     """The world model's own layout at construction is a random one; the observation's lane
     (task.observation.lane_choice) must come from the first scene perception reports."""

@@ -196,6 +196,9 @@ def test_bad_paths_are_one_line_errors(capsys, tmp_path):
     broken = _run(tmp_path)
     (broken / "config.yaml").write_text("safety: [unclosed")
     cases.append((["--checkpoint", str(broken)], "config.yaml"))
+    policy = TRAINED / "policy.pt"
+    cases += [(["--policy-file", str(policy)], "--checkpoint"),  # whose config?
+              (["--checkpoint", str(TRAINED), "--policy-file", str(tmp_path / "gone.pt")], "gone.pt")]
     for argv, key in cases:
         assert deploy(["--backend", "sim", "--fast", *argv]) == 2, argv
         err = capsys.readouterr().err

@@ -20,12 +20,12 @@ from hardware.backends import BACKENDS
 
 def run_backend(backend: str, settings: DeploySettings, checkpoint: Path | None,
                 overrides: Sequence[str], scene: str = "sim",
-                layout_file: Path | None = None) -> DeployLoop:
+                layout_file: Path | None = None, policy_file: Path | None = None) -> DeployLoop:
     """One deploy run on the arm adapter named ``backend`` (one of
     :data:`hardware.backends.BACKENDS`) with object poses from ``scene``: the one place the
     command line chooses them. Raises what :func:`~ahrm_stack.deploy.run.deploy` raises."""
     return deploy(settings, checkpoint, overrides, backend=backend, scene=scene,
-                  layout_file=layout_file)
+                  layout_file=layout_file, policy_file=policy_file)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -42,6 +42,8 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
                                                          for b in BACKENDS.values()))
     parser.add_argument("--checkpoint", type=Path, help="run folder with config.yaml and policy.pt "
                         "(default: the scripted controller)")
+    parser.add_argument("--policy-file", type=Path, metavar="PT", help="with --checkpoint: another "
+                        "policy of that run, e.g. RUN/policies/episode-N.pt (default: RUN/policy.pt)")
     parser.add_argument("--duration", type=float, help="s (default: deploy.yaml)")
     parser.add_argument("--rate", type=float, dest="rate_hz", help="loop rate, Hz (default: deploy.yaml)")
     pace = parser.add_mutually_exclusive_group()
@@ -95,7 +97,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     previous = signal.signal(signal.SIGTERM, terminate)
     try:
         loop = run_backend(args.backend, settings, args.checkpoint, args.overrides, args.scene,
-                           args.layout_file)
+                           args.layout_file, args.policy_file)
     except (ConfigError, DeployConfigError, CheckpointError) as error:  # before anything moved
         print(f"python -m ahrm_stack.deploy: error: {error}", file=sys.stderr)
         return 2

@@ -24,14 +24,20 @@ log = logging.getLogger("ahrm_stack.deploy")
 
 
 def load_controller_config(checkpoint: Path | None, overrides: Sequence[str] = (),
-                           notes: list[SafetyNote] | None = None) -> tuple[Config, object]:
+                           notes: list[SafetyNote] | None = None,
+                           policy_file: Path | None = None) -> tuple[Config, object]:
     """The config (and actor) of a checkpoint run, or the repository's config with ``overrides``
-    (``key=value``, e.g. ``task.robot=j2s6s200``) and no actor. A checkpoint fixes its own task
+    (``key=value``, e.g. ``task.robot=j2s6s200``) and no actor. ``policy_file``: another policy of
+    the run (e.g. ``policies/episode-N.pt``, the best evaluation) instead of its final
+    ``policy.pt``; it needs ``checkpoint`` (the run's config). A checkpoint fixes its own task
     (the arm it was trained on), so it takes no overrides; its safety section never weakens the
     repository's ``configs/safety.yaml`` (:func:`merge_safety`: each difference is logged, and
     appended to ``notes``). Errors are one line: :class:`ConfigError` (the run folder or its
     ``config.yaml``), :class:`~ahrm_stack.learning.checkpoint.CheckpointError` (``policy.pt``,
     e.g. a refused pickle), :class:`DeployConfigError` (the merged safety settings)."""
+    if checkpoint is None and policy_file is not None:
+        raise ConfigError(f"--policy-file {policy_file} needs --checkpoint (the run folder whose "
+                          "config.yaml it was trained with)")
     if checkpoint is None:
         config = load_config(overrides)
         require_filter(config.safety)
@@ -40,10 +46,13 @@ def load_controller_config(checkpoint: Path | None, overrides: Sequence[str] = (
         raise ConfigError(f"overrides {list(overrides)} cannot change a checkpoint's config "
                           f"({checkpoint}/config.yaml fixes the arm and the task)")
     run = Path(checkpoint)
-    for name in ("config.yaml", "policy.pt"):
+    for name in ("config.yaml",) + (("policy.pt",) if policy_file is None else ()):
         if not (run / name).is_file():
             raise ConfigError(f"--checkpoint {run}: no {name} there (a training run folder holds "
                               "config.yaml and policy.pt)")
+    if policy_file is not None and not Path(policy_file).is_file():
+        raise ConfigError(f"--policy-file {policy_file}: no such file")
+    policy_path = run / "policy.pt" if policy_file is None else Path(policy_file)
     deploy_safety = load_config().safety
     import torch
 
@@ -52,7 +61,8 @@ def load_controller_config(checkpoint: Path | None, overrides: Sequence[str] = (
 
     torch.set_num_threads(1)
     try:
-        config, actor = load_policy(run, runnable=False)  # its safety section is replaced below
+        config, actor = load_policy(run, policy_file, runnable=False)  # its safety section is
+        # replaced below
     except (ConfigError, CheckpointError):
         raise
     except yaml.YAMLError as error:
@@ -60,7 +70,7 @@ def load_controller_config(checkpoint: Path | None, overrides: Sequence[str] = (
                           f"({str(error).splitlines()[0]})") from None
     except (KeyError, TypeError, ValueError, RuntimeError) as error:
         first = (str(error).splitlines() or [""])[0][:200]
-        raise CheckpointError(f"{run / 'policy.pt'} does not fit {run / 'config.yaml'} "
+        raise CheckpointError(f"{policy_path} does not fit {run / 'config.yaml'} "
                               f"({type(error).__name__}: {first})") from None
     safety, differences = merge_safety(deploy_safety, config.safety)
     for note in differences:
@@ -110,12 +120,13 @@ def _start_up_fault(arm, telemetry, error: BaseException) -> DeployFault:
 
 def deploy(settings: DeploySettings, checkpoint: Path | None = None,
            overrides: Sequence[str] = (), backend: str = "sim", scene: str = "sim",
-           layout_file: Path | str | None = None) -> DeployLoop:
+           layout_file: Path | str | None = None, policy_file: Path | None = None) -> DeployLoop:
     """One run of the deploy loop against ``backend`` (a name of
     :data:`hardware.backends.BACKENDS`, whose ``check`` runs before anything is written or
     contacted and whose ``make`` builds the adapter); returns the finished loop (its
     :meth:`DeployLoop.summary`, :attr:`DeployLoop.interrupted`). ``overrides``: config
-    ``key=value`` pairs for the scripted controller's run (no checkpoint).
+    ``key=value`` pairs for the scripted controller's run (no checkpoint). ``policy_file``: another
+    policy of the checkpoint's run (:func:`load_controller_config`).
 
     ``scene``: ``sim`` (the adapter's own ``perception()``: the simulator's exact object poses, or a
     backend's static layout) or ``camera`` (:mod:`ahrm_stack.perception`: the cube from the
@@ -130,7 +141,7 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
     from hardware import backends
 
     notes: list[SafetyNote] = []
-    config, actor = load_controller_config(checkpoint, overrides, notes)
+    config, actor = load_controller_config(checkpoint, overrides, notes, policy_file)
     try:
         chosen = backends.get(backend)
         chosen.check(config, settings)
@@ -197,6 +208,7 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
 
 def deploy_sim(settings: DeploySettings, checkpoint: Path | None = None,
                overrides: Sequence[str] = (), scene: str = "sim",
-               layout_file: Path | str | None = None) -> DeployLoop:
+               layout_file: Path | str | None = None, policy_file: Path | None = None) -> DeployLoop:
     """:func:`deploy` against the sim backend."""
-    return deploy(settings, checkpoint, overrides, backend="sim", scene=scene, layout_file=layout_file)
+    return deploy(settings, checkpoint, overrides, backend="sim", scene=scene, layout_file=layout_file,
+                  policy_file=policy_file)
