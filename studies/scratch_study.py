@@ -353,6 +353,40 @@ def final_section(runs: list[Path], scripted_dir: Path | None, samples: int = 10
     return lines
 
 
+def matched_frames_section(runs: list[Path]) -> list[str]:
+    """The interim evaluations at matched frame budgets: per row (seeds pooled), at each frame
+    count where every seed of the row has an evaluation, the successes out of the episodes with
+    their Wilson 95 % interval, and the episodes touching an obstacle. Rows are the run names less
+    ``-seedN``; budgets are the evaluations' own frame counts (the same for every run that shares
+    ``ppo.frames_per_batch`` and ``--eval-every``). Empty when no run has interim evaluations."""
+    per_row: dict[str, list[dict[int, tuple[int, int, int]]]] = {}
+    for path in runs:
+        evaluations = {}
+        for row in _rows(path / "evaluations.csv") if (path / "evaluations.csv").exists() else []:
+            evaluations[int(float(row["frames"]))] = (int(float(row["successes"])), int(float(row["episodes"])),
+                                                      int(float(row["touched_episodes"])))
+        if evaluations:
+            per_row.setdefault(_row_name(path.name), []).append(evaluations)
+    if not per_row:
+        return []
+    budgets = sorted({f for seeds in per_row.values() for e in seeds for f in e if f > 0})
+    lines = ["", "Interim evaluations at matched frame budgets (seeds pooled; successes / episodes "
+             "[Wilson 95 %], episodes touching in brackets; – where a seed has no evaluation there):", "",
+             "| row | seeds | " + " | ".join(f"{f / 1e6:.1f}M" for f in budgets) + " |",
+             "|" + "---|" * (len(budgets) + 2)]
+    for name, seeds in per_row.items():
+        cells = []
+        for frames in budgets:
+            if not all(frames in e for e in seeds):
+                cells.append("–")
+                continue
+            k, n, t = (sum(e[frames][i] for e in seeds) for i in range(3))
+            low, high = wilson(k, n)
+            cells.append(f"{k}/{n} [{low:.2f}, {high:.2f}] ({t})")
+        lines.append(f"| {name} | {len(seeds)} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def _is_run(path: Path) -> bool:
     return (path / "episodes.csv").exists() or (path / "episodes.csv.gz").exists()
 
@@ -396,6 +430,7 @@ def report(runs_dirs: list[Path], out: Path, scripted_dir: Path | None = None) -
             lines.append(f"| {path.name if i == 0 else ''} | {part['episodes'][0]}–{part['episodes'][1]} | "
                          f"{part['frames']:,} | {part['successes']} | {part['displacement_mm']:.1f} | "
                          f"{part['touching']} | {part['constraint']} | {shares} |")
+    lines += matched_frames_section(runs)
     lines += final_section(runs, scripted_dir)
     (out / "table.md").write_text("\n".join(lines) + "\n")
     import matplotlib

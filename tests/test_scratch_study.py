@@ -153,3 +153,23 @@ def test_report_takes_run_folders_and_folders_of_them(study, tmp_path):
     assert (out / "curves.png").stat().st_size > 0
     with pytest.raises(SystemExit, match="no run folders"):
         study.report([tmp_path / "out"], tmp_path / "out2")
+
+
+def test_matched_frames_pools_seeds_where_every_seed_has_an_evaluation(study, tmp_path):
+    header = "episode,frames,episodes,successes,success_rate,touched_episodes\n"
+    runs = {"r-ahrm-seed0": "0,0,40,0,0.0,1\n5,200704,40,30,0.75,2\n9,401408,40,40,1.0,0\n",
+            "r-ahrm-seed1": "0,0,40,0,0.0,0\n6,200704,40,10,0.25,3\n",
+            "r-ls-seed0": "0,0,40,0,0.0,0\n5,200704,40,0,0.0,0\n9,401408,40,8,0.2,5\n"}
+    for name, text in runs.items():
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "evaluations.csv").write_text(header + text)
+    lines = study.matched_frames_section(sorted(tmp_path.iterdir()))
+    table = {line.split(" | ")[0].strip("| "): line.strip("| ").split(" | ")
+             for line in lines if line.startswith("| r-")}
+    assert lines[3] == "| row | seeds | 0.2M | 0.4M |"  # the budgets after 0 frames, in millions
+    low, high = study.wilson(40, 80)  # 30 + 10 of 80 at 200,704 frames
+    assert table["r-ahrm"][1] == "2" and table["r-ahrm"][2] == f"40/80 [{low:.2f}, {high:.2f}] (5)"
+    assert table["r-ahrm"][3] == "–"  # seed 1 has no evaluation at 401,408 frames
+    low, high = study.wilson(8, 40)
+    assert table["r-ls"][2].startswith("0/40 [0.00,") and table["r-ls"][3] == f"8/40 [{low:.2f}, {high:.2f}] (5)"
+    assert study.matched_frames_section([tmp_path / "nothing"]) == []
