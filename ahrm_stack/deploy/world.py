@@ -39,14 +39,12 @@ class WorldModel:
         # The task's observation written into one preallocated vector; None (the task's own
         # flat_observation) for a layout the builder does not reproduce exactly.
         self._builder = ObservationBuilder.checked(self.task, self.physics)
-        # place_objects' memory: the scene it last placed and the poses it placed there (rows:
-        # cube, obstacles; position m then rotation matrix, world frame)
+        # place_objects' work space: the objects' poses (rows: cube, obstacles; position m then
+        # rotation matrix, world frame), read from MuJoCo's arrays without dm_control's indexing
         raw = self.physics.data.ptr
         self._xpos, self._xmat = raw.xpos, raw.xmat
         self._object_bodies = np.array([self.task._cube_body, *self.task._obstacle_bodies], dtype=int)
         self._object_poses = np.zeros((len(self._object_bodies), 12))
-        self._placed_poses = np.full_like(self._object_poses, np.nan)
-        self._placed_scene = None
 
     @property
     def robot(self):
@@ -91,16 +89,12 @@ class WorldModel:
 
     def place_objects(self, scene) -> None:
         """Move ``scene``'s cube and obstacles to their poses in the mirror (what
-        :meth:`PushOffTask.place_objects` does), skipped when they are where this method last put
-        them in this same scene (the same transforms: nothing would change)."""
+        :meth:`PushOffTask.place_objects` does; the scene leaves an object whose pose did not
+        change as it is). A non-finite pose raises ``ValueError`` naming the object."""
         poses = self._object_poses
         np.take(self._xpos, self._object_bodies, axis=0, out=poses[:, :3], mode="clip")
         np.take(self._xmat, self._object_bodies, axis=0, out=poses[:, 3:], mode="clip")
-        if scene is self._placed_scene and np.array_equal(poses, self._placed_poses):
-            return
-        self.task.place_objects(scene, self.physics)  # raises on a non-finite pose: nothing cached
-        self._placed_scene = scene
-        self._placed_poses[:] = poses
+        scene.update_objects(poses[0, :3], poses[0, 3:].reshape(3, 3), poses[1:, :3], poses[1:, 3:])
 
 
 class ObservationBuilder:

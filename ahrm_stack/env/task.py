@@ -275,10 +275,9 @@ class PushOffTask(composer.Task):
 
     def place_objects(self, scene: CollisionScene, physics: mjcf.Physics) -> None:
         """Move the scene's cube and obstacles to their poses in ``physics``."""
-        data = physics.data
-        scene.update_objects(data.xpos[self._cube_body], data.xmat[self._cube_body].reshape(3, 3),
-                             data.xpos[self._obstacle_bodies],
-                             data.xmat[self._obstacle_bodies].reshape(-1, 3, 3))
+        xpos, xmat = physics.data.ptr.xpos, physics.data.ptr.xmat  # MuJoCo's arrays: no dm_control indexing
+        scene.update_objects(xpos[self._cube_body], xmat[self._cube_body].reshape(3, 3),
+                             xpos[self._obstacle_bodies], xmat[self._obstacle_bodies].reshape(-1, 3, 3))
 
     def make_collision_scene(self, physics: mjcf.Physics) -> CollisionScene:
         """The collision scene of this task: pusher, base and link capsules (from the compiled

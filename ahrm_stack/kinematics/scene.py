@@ -410,6 +410,11 @@ class CollisionScene:
         for i, half in enumerate(np.asarray(obstacle_half_sizes, dtype=float)):
             self.environment[f"obstacle_{i}"] = coal.CollisionObject(coal.Box(*(2 * half)))
         self._obstacles = [self.environment[n] for n in self.environment if n.startswith("obstacle_")]
+        # update_objects' memory: each object's pose as last placed (rows: the cube, then the
+        # obstacles; position, then the rotation's 9 entries), NaN before the first placement
+        self._movable = [self.environment["cube"], *self._obstacles]
+        self._placed = np.full((len(self._movable), 12), np.nan)
+        self._poses = np.empty_like(self._placed)
 
     def update_robot(self) -> None:
         """Place the pusher and the capsules at the kinematics' current configuration."""
@@ -424,6 +429,9 @@ class CollisionScene:
                        obstacle_positions: np.ndarray, obstacle_rotations: np.ndarray,
                        regions: dict[str, Box] | None = None) -> None:
         """Place the cube, the obstacles (positions m, rotation matrices) and the phase regions.
+        An object whose pose equals, bit for bit, the one this method last gave it keeps its
+        transform (it would be set to the same values): in a control loop the obstacles rarely
+        move and the cube only in phases 2–3.
 
         Raises:
             ValueError: a pose that is not finite (or of the wrong shape), or the wrong number of
@@ -434,14 +442,23 @@ class CollisionScene:
         if len(obstacle_positions) != len(self._obstacles) or len(obstacle_rotations) != len(self._obstacles):
             raise ValueError(f"{len(obstacle_positions)} obstacle positions and {len(obstacle_rotations)} "
                              f"rotations for a scene of {len(self._obstacles)} obstacles")
-        poses = [_check_pose("cube", cube_position, cube_rotation)]
-        poses += [_check_pose(f"obstacle_{i}", p, r)
-                  for i, (p, r) in enumerate(zip(obstacle_positions, obstacle_rotations))]
+        poses = self._poses
+        if np.shape(cube_position) == (3,) and np.shape(cube_rotation) == (3, 3):
+            poses[0, :3], poses[0, 3:] = cube_position, np.reshape(cube_rotation, 9)
+            poses[1:, :3], poses[1:, 3:] = obstacle_positions, obstacle_rotations.reshape(-1, 9)
+            valid = bool(np.isfinite(poses).all())
+        else:
+            valid = False
+        if not valid:  # the checks below name the object and raise
+            _check_pose("cube", cube_position, cube_rotation)
+            for i, (p, r) in enumerate(zip(obstacle_positions, obstacle_rotations)):
+                _check_pose(f"obstacle_{i}", p, r)
         for name, box in (regions or {}).items():
             _check_pose(name, box.center, np.eye(3))
-        self.environment["cube"].setTransform(_transform(poses[0][1], poses[0][0]))
-        for obj, (p, r) in zip(self._obstacles, poses[1:]):
-            obj.setTransform(_transform(r, p))
+        changed = (poses.view(np.int64) != self._placed.view(np.int64)).any(axis=1)  # bit for bit
+        for i in np.flatnonzero(changed).tolist():
+            self._movable[i].setTransform(_transform(poses[i, 3:].reshape(3, 3), poses[i, :3]))
+            self._placed[i] = poses[i]
         for name, box in (regions or {}).items():
             self.environment[name] = coal.CollisionObject(coal.Box(*(2 * np.asarray(box.half_size))),
                                                           _transform(np.eye(3), box.center))
