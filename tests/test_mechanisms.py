@@ -45,6 +45,21 @@ def test_hierarchical_sums_follow_order_and_level():
     np.testing.assert_array_equal(mhrm.phase_rewards(g), [-2.0, -1.0, -2.0])
 
 
+@pytest.mark.parametrize("method", ["ahrm", "mhrm", "fhrm"])
+def test_at_the_last_level_a_hierarchy_rewards_the_linear_sum(method):
+    """Once every phase has reached level N, R^k is the sum of all objectives in every phase, the
+    blend of equal rewards is that sum, and each hierarchy's reward is LS's (to rounding): what
+    still sets them apart is the priority constraint on the first N - 1 objectives."""
+    rng = np.random.default_rng(0)
+    g = rng.uniform(-1, 1, (2000, 3))
+    distances = rng.uniform(-0.1, 0.1, (2000, 2))  # in and around both blending bands
+    hierarchy, ls = make(method), make("ls")
+    hierarchy.orders = [tuple(rng.permutation(3)) for _ in range(3)] if method == "ahrm" else hierarchy.orders
+    hierarchy.levels = [3, 3, 3]
+    np.testing.assert_allclose(hierarchy.reward(g, distances), ls.reward(g, distances), rtol=0, atol=1e-12)
+    assert np.isnan(ls.constraint_thresholds()).all()
+
+
 def test_blend_weight_values():
     assert blend_weight(0.05, 0.05, 40.0) == pytest.approx(0.0)
     assert blend_weight(0.0, 0.05, 40.0) == pytest.approx(0.5)
