@@ -97,7 +97,8 @@ def test_env_workers_must_divide_num_envs():
 def _batches(trainer: Trainer, count: int) -> tuple[list, list]:
     trainer.warm_start()
     batches = [trainer._collect().clone() for _ in range(count)]
-    return batches, [dataclasses.asdict(s) for s in trainer._completed()]
+    # end_order counts every episode ended in this process: two trainers' differ
+    return batches, [dataclasses.asdict(s) | {"end_order": None} for s in trainer._completed()]
 
 
 @pytest.mark.parametrize("envs", [1, 2])
@@ -126,3 +127,38 @@ def test_lean_collector_gives_the_torchrl_collectors_batches(monkeypatch, envs):
     assert sum(int(b["next", "done"].sum()) for b in want) >= 2 * envs  # episodes did end
     np.testing.assert_equal(got_episodes, want_episodes)
     np.testing.assert_equal(lean_mechanism, reference_mechanism)
+
+
+def test_episodes_are_logged_in_the_order_the_mechanism_saw_them():
+    """With several environments in one process the trainer numbers the episodes (episodes.csv,
+    the events' episode) in the order they ended — the order the mechanism applied them — not
+    environment by environment: each logged row's component sums and each event's number match
+    the mechanism's own sequence of end_episode calls."""
+    # 4 environments, episodes of 5-20 steps ending at different steps (the priority constraint
+    # ends some early); the mechanism's levels advance between episodes (W = 1)
+    config = load_config([*TINY, "train.num_envs=4", "ppo.frames_per_batch=160",
+                          "mechanism.convergence_window=1", "mechanism.constraint_window=1",
+                          "mechanism.constraint_min_steps=2", "mechanism.priority_period=2"])
+    trainer = Trainer(config)
+    trainer.warm_start()
+    seen, end_episode = [], trainer.mechanism.end_episode
+
+    def recording(f, phase, **kwargs):
+        events = end_episode(f, phase, **kwargs)
+        seen.append((float(np.asarray(f).sum()), [(e.kind, e.phase, e.detail) for e in events]))
+        return events
+
+    trainer.mechanism.end_episode = recording
+    rows, events = [], []
+    for _ in range(3):
+        result = trainer.iteration()
+        rows += result.episodes
+        events += result.events
+    trainer.close()
+    assert len(rows) == len(seen) >= 8
+    ends = [row["episode"] for row in rows]
+    assert ends == list(range(1, len(rows) + 1))
+    # the order matters here: episodes of different lengths end interleaved across environments
+    assert [float(np.sum(row["component_sums"])) for row in rows] == [total for total, _ in seen]
+    want = [(i + 1, kind, phase, detail) for i, (_, made) in enumerate(seen) for kind, phase, detail in made]
+    assert [(e.episode, e.kind, e.phase, e.detail) for e in events] == want and want

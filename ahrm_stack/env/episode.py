@@ -33,6 +33,9 @@ class EpisodeSummary:
     interventions: int = 0  # safety-filter calls that modified the command
     joint_limit_violations: int = 0  # steps with a joint outside its position limits (simulator)
     events: list = dataclasses.field(default_factory=list)
+    # the process-wide order in which episodes ended (PushOffEnv), for the trainer to log several
+    # environments' episodes in the order the mechanism saw them; not a logged column
+    end_order: int | None = None
 
     @property
     def touched(self) -> bool:

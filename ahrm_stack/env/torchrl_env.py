@@ -19,6 +19,8 @@ torchrl's ``DMControlWrapper`` cannot wrap composer tasks, hence this class.
 
 from __future__ import annotations
 
+import itertools
+
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Binary, Bounded, Composite, Unbounded
@@ -30,6 +32,8 @@ from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.episode import EpisodeRecorder, EpisodeSummary
 from ahrm_stack.env.rewards import OBJECTIVES
 from ahrm_stack.env.task import PushOffTask, StepInfo
+
+_END_ORDER = itertools.count()  # episodes ended in this process, in order (EpisodeSummary.end_order)
 
 
 def touch_penalty(touch_end: bool, gamma: float, objectives: int = len(OBJECTIVES)) -> float:
@@ -158,6 +162,7 @@ class PushOffEnv(EnvBase):
             summary.events = self.mechanism.end_episode(
                 self._recorder.f, self._recorder.phase, constraint_terminated=constrained,
                 terminated_phase=phase)
+        summary.end_order = next(_END_ORDER)
         self.completed.append(summary)
 
     def _set_seed(self, seed: int | None) -> None:

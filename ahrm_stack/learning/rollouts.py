@@ -103,6 +103,7 @@ def write_episodes_csv(path: Path, summaries: list[EpisodeSummary]) -> None:
     rows = [dataclasses.asdict(s) | {"failure_mode": s.failure_mode()} for s in summaries]
     for row in rows:
         row.pop("events", None)
+        row.pop("end_order", None)
     with open(path, "w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
         writer.writeheader()

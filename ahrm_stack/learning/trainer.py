@@ -290,8 +290,9 @@ class Trainer:
     def _completed(self) -> list:
         """The episodes completed since the last call, in this process or the workers' (whose
         ends are applied to the mechanism here, in the order they ended, and the new state sent)."""
-        if not self.workers:
-            summaries = [summary for env in self.envs for summary in env.completed]
+        if not self.workers:  # in the order they ended (the order the mechanism saw them)
+            summaries = sorted((summary for env in self.envs for summary in env.completed),
+                               key=lambda summary: summary.end_order)
             for env in self.envs:
                 env.completed.clear()
             return summaries
@@ -313,6 +314,7 @@ class Trainer:
             events += summary.events
             row = dataclasses.asdict(summary)
             row.pop("events")
+            row.pop("end_order")
             row.update(episode=self.episodes, frames=self.frames, failure_mode=summary.failure_mode(),
                        orders=self.mechanism_orders(), levels=list(self.mechanism.levels))
             rows.append(row)
