@@ -292,7 +292,7 @@ class Trainer:
         ends are applied to the mechanism here, in the order they ended, and the new state sent)."""
         if not self.workers:  # in the order they ended (the order the mechanism saw them)
             summaries = sorted((summary for env in self.envs for summary in env.completed),
-                               key=lambda summary: summary.end_order)
+                               key=lambda summary: -1 if summary.end_order is None else summary.end_order)
             for env in self.envs:
                 env.completed.clear()
             return summaries
