@@ -95,6 +95,11 @@ ROWS: dict[str, list[str]] = {
     **{f"mirror-{m}": ["profile=scratch", f"mechanism.method={m}", "ppo.lane_frame=mirror"] for m in METHODS},
     **{f"mirror-nj-{m}": ["profile=scratch", f"mechanism.method={m}", "ppo.lane_frame=mirror_no_joints"]
        for m in METHODS},
+    # round 6's ablation: a hierarchy whose priority constraint never ends an episode (a margin no
+    # per-step average can fall below: the first two objectives' average is >= -2), so that after
+    # its first levels it trains on LS's reward and episodes alone
+    **{f"mirror-nj-{m}-free": ["profile=scratch", f"mechanism.method={m}", "ppo.lane_frame=mirror_no_joints",
+                               "mechanism.constraint_margin=1000"] for m in ("ahrm", "fhrm")},
 }
 
 

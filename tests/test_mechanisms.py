@@ -218,6 +218,24 @@ def test_constraint_waits_for_min_steps():
     assert monitor.step(np.array([-1.0, 0, 0]), 1)
 
 
+def test_a_margin_beyond_the_reward_range_never_ends_an_episode():
+    """The scratch study's ``-free`` rows (``constraint_margin=1000``): a two-objective per-step
+    average is >= -2, so with tau <= 2 it never falls below tau - 1000, at the last level or any."""
+    fhrm = make("fhrm", constraint_margin=1000.0)
+    fhrm.levels = [3, 3, 3]
+    for k in range(3):  # a history whose prefix average is the best possible: tau = 2
+        for _ in range(10):
+            fhrm._history[k].append((10.0, np.array([10.0, 10.0, 10.0])))
+    assert fhrm.constraint_thresholds().tolist() == [2.0, 2.0, 2.0]
+    monitor = fhrm.constraint_monitor()
+    worst = np.array([-1.0, -1.0, -1.0])
+    assert not any(monitor.step(worst, phase) for phase in (1, 2, 3) for _ in range(500))
+    default = make("fhrm")  # the same worst steps end an episode under the default margin
+    default.levels, default._history = [3, 3, 3], fhrm._history
+    strict = default.constraint_monitor()
+    assert any(strict.step(worst, 1) for _ in range(30))
+
+
 def test_state_survives_save_and_restore_exactly():
     rng = np.random.default_rng(0)
     a = make("ahrm", priority_period=5, convergence_window=3)
