@@ -93,9 +93,8 @@ class NumpyPolicy:
         type; rounded to float32 first, as ``torch.as_tensor(..., dtype=float32)`` does)."""
         x = self._input
         np.copyto(x, observation, casting="unsafe")
-        minus = False
-        if self._mirror is not None:
-            minus = self._mirror.frame(x)
+        # ppo.lane_frame: the observation framed in place; the mean's signs when its lane is -x
+        flip = self._mirror.action_sign if self._mirror is not None and self._mirror.frame(x) else None
         if self._mean is not None:
             np.subtract(x, self._mean, out=x)
             np.divide(x, self._std, out=x)
@@ -118,9 +117,8 @@ class NumpyPolicy:
                     negative *= np.float32(alpha)
                     np.copyto(out, negative, where=~(out > 0))
             x = out
-        if minus:  # the mean back to the world: as SignedLoc, before the squashing
-            assert self._mirror is not None
-            np.multiply(x, self._mirror.action_sign, out=x)
+        if flip is not None:  # the mean back to the world: as SignedLoc, before the squashing
+            np.multiply(x, flip, out=x)
         action = np.tanh(x)
         np.clip(action, -self._limit, self._limit, out=action)
         return action
