@@ -250,6 +250,7 @@ class EpisodeConfig(Section):
     duration: Pos  # s of simulated time
     control_period: Annotated[Pos, le(LIMITS["control_period"], " s")]  # s
     physics_timestep: Pos  # s
+    sleep: Bool  # MuJoCo's body sleeping in the stepped physics (TaskRunner)
 
     def check(self, key: str) -> None:
         ratio = self.control_period / self.physics_timestep
@@ -759,7 +760,7 @@ def _legacy_fill(data: dict) -> dict:
             (observation, ("lane_clip", "lane_choice")), (section("scripted"), ("descend_radius",)),
             (section("task", "rewards"), ("time_reference",)), (section("task", "action"), ("smoothing",)),
             (section("task", "arm", "near_cube"), ("bearing", "behind_spread_deg")),
-            (section("mechanism"), ("priority_rule",)))):
+            (section("mechanism"), ("priority_rule",)), (section("task", "episode"), ("sleep",)))):
         return data
     data = copy.deepcopy(data)
     defaults = {name: read_yaml(CONFIG_DIR / file) for name, file in SECTIONS.items()}
@@ -787,6 +788,8 @@ def _legacy_fill(data: dict) -> dict:
         data["task"]["action"].setdefault("smoothing", 0.0)
     if section("task", "rewards") is not None:  # before 2026-12-02: the spec's previous episode
         data["task"]["rewards"].setdefault("time_reference", "previous")
+    if section("task", "episode") is not None:  # before 2026-12-03: no body sleeping
+        data["task"]["episode"].setdefault("sleep", False)
     if section("mechanism") is not None:  # before 2026-12-02: the spec's ranking
         data["mechanism"].setdefault("priority_rule", "magnitude")
     if train is not None:  # keys whose default leaves training as it was before they existed
