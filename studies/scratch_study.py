@@ -101,7 +101,7 @@ ROWS: dict[str, list[str]] = {
     **{f"mirror-nj-{m}-free": ["profile=scratch", f"mechanism.method={m}", "ppo.lane_frame=mirror_no_joints",
                                "mechanism.constraint_margin=1000"] for m in ("ahrm", "fhrm")},
     # round 7: the same with MuJoCo's body sleeping (task.episode.sleep: resting objects leave the
-    # physics step, ~1.5x the frames per second): does learning stay as it was?
+    # physics step, ~1.3x the training frames per second): does learning stay as it was?
     **{f"mirror-nj-{m}-sleep": ["profile=scratch", f"mechanism.method={m}", "ppo.lane_frame=mirror_no_joints",
                                 "task.episode.sleep=true"] for m in METHODS},
 }

@@ -9,9 +9,10 @@ still works), so the episode logic lives in one place.
 Contacts are read at the end of each control step; a touch that does not last to the end of the
 step is caught by the obstacle-speed test of f1.
 
-With ``task.episode.sleep`` the stepped physics uses MuJoCo's body sleeping: the free objects (cube,
-obstacles), once at rest, leave the step until a contact with an awake body or a write to their
-state wakes them (``mj_resetData`` wakes every tree; the arm, actuated, never sleeps).
+With ``task.episode.sleep`` the stepped physics uses MuJoCo's body sleeping
+(:meth:`PushOffTask.enable_sleep`): the obstacles, once at rest, leave the step until a contact with
+an awake body or a write to their state wakes them (``mj_resetData`` wakes every tree; the arm and
+the cube never sleep).
 """
 
 from __future__ import annotations
@@ -59,7 +60,7 @@ class TaskRunner:
         self.task = task
         self.physics = mjcf.Physics.from_mjcf_model(task.root_entity.mjcf_model)
         if task.config.episode.sleep:
-            self.physics.model.ptr.opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_SLEEP)
+            task.enable_sleep(self.physics)
         self.safety_config = safety
         self.control = ControlStep(task.robot, task.config.action)
         self.filter: SafetyFilter | None = None

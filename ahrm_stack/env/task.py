@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import mujoco
 import numpy as np
 from dm_control import composer, mjcf
 from dm_control.composer.observation import observable
@@ -268,6 +269,17 @@ class PushOffTask(composer.Task):
         if self.config.observation.lane_choice:
             parts.append(self._lane_choice(physics))
         return np.concatenate(parts)
+
+    def enable_sleep(self, physics: mjcf.Physics) -> None:
+        """Turn on MuJoCo's body sleeping in ``physics`` (``task.episode.sleep``): the resting
+        obstacles leave the physics step until a contact with an awake body or a write to their
+        state wakes them. The arm (actuated) never sleeps, and neither does the cube: MuJoCo makes
+        no contact between two sleeping bodies, so a cube come to rest against an obstacle would
+        stop counting as a touch (f1) if both slept."""
+        model = physics.model.ptr
+        model.opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_SLEEP)
+        cube_body = int(physics.bind(self._cube.geom).bodyid)
+        model.tree_sleep_policy[model.body_treeid[cube_body]] = int(mujoco.mjtSleepPolicy.mjSLEEP_NEVER)
 
     def arm_state(self, physics: mjcf.Physics) -> tuple[np.ndarray, np.ndarray]:
         """Joint positions (rad) and velocities (rad/s) of the arm."""
