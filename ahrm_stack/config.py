@@ -815,6 +815,24 @@ def _legacy_fill(data: dict) -> dict:
     return data
 
 
+def fill_missing(data: Any) -> Any:
+    """A run folder's parsed ``config.yaml`` with the keys added since it was written filled
+    (:func:`_legacy_fill`, :data:`BACKFILLED`), so that it keeps its old behaviour and overrides of
+    the new keys apply to it; ``data`` itself is not changed (anything but a dict is returned as
+    it is, for the schema to name)."""
+    if not isinstance(data, dict):
+        return data
+    data = _legacy_fill(data)
+    if any(isinstance(data.get(section), dict) and any(k not in data[section] for k in keys)
+           for section, keys in BACKFILLED.items()):
+        data = dict(data)
+        for section, keys in BACKFILLED.items():
+            if isinstance(data.get(section), dict):
+                defaults = read_yaml(CONFIG_DIR / SECTIONS[section])
+                data[section] = {**{k: defaults[k] for k in keys}, **data[section]}
+    return data
+
+
 def config_from_dict(data: dict, runnable: bool = True, source: Source | None = None) -> Config:
     """Validate a parsed configuration (the sections of ``configs/`` or a run folder's
     ``config.yaml``, old run folders' missing keys filled) into a :class:`Config`.
@@ -823,17 +841,7 @@ def config_from_dict(data: dict, runnable: bool = True, source: Source | None = 
     whose safety settings it replaces, with False). ``source`` (see :func:`config_source`) names
     the file in messages. ``config_from_dict(config.to_dict()) == config``.
     """
-    if isinstance(data, dict):
-        data = _legacy_fill(data)
-    if isinstance(data, dict) and any(isinstance(data.get(section), dict) and
-                                      any(k not in data[section] for k in keys)
-                                      for section, keys in BACKFILLED.items()):
-        data = dict(data)
-        for section, keys in BACKFILLED.items():
-            if isinstance(data.get(section), dict):
-                defaults = read_yaml(CONFIG_DIR / SECTIONS[section])
-                data[section] = {**{k: defaults[k] for k in keys}, **data[section]}
-    config = validate(Config, data, "", source)
+    config = validate(Config, fill_missing(data), "", source)
     if runnable and config.task.action.smoothing > 0 and (
             config.train.warm_start != "none" or config.ppo.bc_coeff > 0 or config.train.dagger_rounds > 0):
         raise ConfigError(f"task.action.smoothing: {config.task.action.smoothing} needs train.warm_start: "

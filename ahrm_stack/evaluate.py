@@ -31,7 +31,7 @@ from typing import Callable, Sequence
 import yaml
 
 from ahrm_stack.cli import add_verbose_flag, quiet
-from ahrm_stack.config import (Config, ConfigError, VideoConfig, apply_overrides, config_from_dict,
+from ahrm_stack.config import (Config, ConfigError, VideoConfig, apply_overrides, config_from_dict, fill_missing,
                                load_extra, load_raw)
 
 
@@ -210,7 +210,8 @@ def evaluate(run_dir: Path | None, episodes: int, layout: str | None = None, out
         for name in needed:
             if not (run_dir / name).is_file():
                 raise ConfigError(f"{run_dir / name} not found: RUN_DIR must be a finished training run")
-        raw = yaml.safe_load((run_dir / "config.yaml").read_text())
+        # keys added since the run was written filled first, so that overrides can set them
+        raw = fill_missing(yaml.safe_load((run_dir / "config.yaml").read_text()))
     else:
         raw = load_raw()
     apply_overrides(raw, overrides)

@@ -38,7 +38,7 @@ import numpy as np
 import yaml
 
 from ahrm_stack.cli import add_verbose_flag, quiet
-from ahrm_stack.config import (Config, ConfigError, apply_overrides, config_from_dict, config_source,
+from ahrm_stack.config import (Config, ConfigError, apply_overrides, config_from_dict, config_source, fill_missing,
                                load_config, read_yaml)
 
 # torchrl announces its own deprecations at import, and dm_control turns every DeprecationWarning
@@ -92,6 +92,7 @@ def resolve_config(args: argparse.Namespace) -> tuple[Config, Path]:
             raise ConfigError(f"--resume {run_dir}: no config.yaml there; is it a run folder? (a run "
                               "killed before writing it has nothing to resume: start it again)")
         raw = read_yaml(path)  # one-line errors for a missing, broken or non-mapping file
+        raw = fill_missing(raw)  # keys added since the run was written, so that overrides can set them
         apply_overrides(raw, args.overrides)
         config = config_from_dict(raw, source=config_source(overrides=args.overrides, path=path))
         return config, run_dir

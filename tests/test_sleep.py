@@ -171,3 +171,20 @@ def test_the_scripted_controller_still_pushes_the_cube_off():
             info, terminated, truncated = runner.step_only(pusher(runner.physics))
             touched |= info.touched
         assert terminated and not touched, seed
+
+
+def test_an_old_run_folder_takes_an_override_of_the_new_key(tmp_path):
+    """Keys added after a run was written are filled before overrides apply, so that evaluating
+    an old run with ``task.episode.sleep=...`` works (it was an 'unknown config key' before)."""
+    from ahrm_stack.config import apply_overrides, fill_missing
+    from ahrm_stack.evaluate import evaluate
+
+    run = ROOT / "docs/scratch-study/round6/runs/mirror-nj-fhrm-seed0"
+    raw = yaml.safe_load((run / "config.yaml").read_text())
+    filled = fill_missing(raw)
+    assert "sleep" not in raw["task"]["episode"]  # the file's own data is left as it was
+    apply_overrides(filled, ["task.episode.sleep=true"])
+    assert config_from_dict(filled).task.episode.sleep is True
+    result = evaluate(run, episodes=1, scripted=True, out=tmp_path / "eval", quiet=True,
+                      overrides=["task.episode.sleep=true", "task.episode.duration=6"])
+    assert result["episodes"] == 1 and result["successes"] == 1
