@@ -11,8 +11,8 @@ The scripted controller's episodes (both layout modes: phases 1-3; in the config
 * TorchRL: ``PushOffEnv.step`` (``EnvBase.step``: the full step plus tensors and specs) on the
   recorded requests as normalised actions;
 * and bare and full again with MuJoCo's body sleeping (``task.episode.sleep``) flipped from the
-  config's value: the same requests, open loop (resting objects freeze ~2e-5 m apart, so the pushes
-  differ slightly); its ratio is the speed-up of sleeping.
+  config's value: the same requests, open loop (resting obstacles freeze ~2e-5 m apart, so the pushes
+  differ slightly); its ratio is the speed-up of sleeping. Each pair runs in alternating order.
 
 The five are interleaved episode by episode so that machine noise hits them alike; the ratios
 are the figures. Goal: full/bare >= 0.9.
@@ -56,9 +56,10 @@ def replay(cfg, episodes: list, repeats: int, times: dict, phases: list) -> None
     control = full_runner.control  # the action <-> request maps of the config's action mode
     cartesian = control.cartesian
     substeps = cfg.task.substeps
-    for _ in range(repeats):
+    for repeat in range(repeats):
         for episode in episodes:
-            for key in ("bare", "bare_other"):
+            first = repeat % 2 == 0  # each pair in alternating order, so neither always runs first
+            for key in ("bare", "bare_other") if first else ("bare_other", "bare"):
                 runner = runners[key]
                 runner.seed(episode.seed)
                 runner.reset()
@@ -70,7 +71,7 @@ def replay(cfg, episodes: list, repeats: int, times: dict, phases: list) -> None
                     step(substeps)
                 times[key] += time.perf_counter() - t0
 
-            for key in ("full", "full_other"):
+            for key in ("full", "full_other") if first else ("full_other", "full"):
                 runner = runners[key]
                 runner.seed(episode.seed)
                 runner.reset()
