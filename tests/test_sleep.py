@@ -38,12 +38,13 @@ def _trees(runner: TaskRunner) -> tuple[int, int, list[int]]:
     return arm, int(model.body_treeid[task._cube_body]), obstacles
 
 
-def test_the_flag_follows_the_config():
-    assert runner_flag(_runner(True)) and not runner_flag(_runner(False))
-
-
-def runner_flag(runner: TaskRunner) -> bool:
+def _sleeping(runner: TaskRunner) -> bool:
+    """Whether the runner's model has body sleeping on."""
     return bool(runner.physics.model.ptr.opt.enableflags & SLEEP)
+
+
+def test_the_flag_follows_the_config():
+    assert _sleeping(_runner(True)) and not _sleeping(_runner(False))
 
 
 def test_old_run_folders_keep_the_awake_physics():
@@ -117,7 +118,7 @@ def test_a_touch_of_a_sleeping_obstacle_is_seen(seed):
     assert all(data.tree_awake[t] == 0 for t in obstacles)
     state = np.array(data.qpos)
     q = _arm_in_an_obstacle(runner, rng)
-    assert runner_flag(runner) and all(data.tree_awake[t] == 0 for t in obstacles)
+    assert _sleeping(runner) and all(data.tree_awake[t] == 0 for t in obstacles)
     data.qpos[:] = state
     data.qpos[task._arm_qpos] = q
     mujoco.mj_forward(model, data)
