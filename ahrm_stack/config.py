@@ -581,12 +581,9 @@ class TrainConfig(Section):
         if self.num_envs % self.env_workers:
             raise ConfigError(f"{key}.num_envs ({self.num_envs}) must be a multiple of "
                               f"{key}.env_workers ({self.env_workers})")
-        if self.env_workers > 1 and self.start_curriculum != "none":
+        if self.env_workers > 1 and self.start_curriculum == "scripted_states":
             raise ConfigError(f"{key}.start_curriculum ({self.start_curriculum}) needs "
-                              f"{key}.env_workers: 1 (the level is not sent to worker processes)")
-        if self.env_workers > 1 and self.touch_end and self.touch_end_after > 0:
-            raise ConfigError(f"{key}.touch_end_after ({self.touch_end_after}) needs {key}.env_workers: 1 "
-                              "(the switch is not sent to worker processes)")
+                              f"{key}.env_workers: 1 (the recorded states are not sent to worker processes)")
         if not self.runs_dir.strip():
             raise ConfigError(f"{key}.runs_dir must name a folder, got {self.runs_dir!r}")
 

@@ -52,6 +52,7 @@ with warnings.catch_warnings(record=True):
     from ahrm_stack.learning.checkpoint import CheckpointError, CheckpointManager, Restored
     from ahrm_stack.learning.diagnostics import plot_run
     from ahrm_stack.learning.rollouts import EVAL_SEED_OFFSET, EvaluationTable, run_episodes
+    from ahrm_stack.learning.pool import WorkerError
     from ahrm_stack.learning.trainer import DemonstrationsFailed, Trainer, TrainingDiverged
     from ahrm_stack.safety.constraints.base import ConstraintDefinitionError
     from ahrm_stack.safety.filter import SafetyFilterError
@@ -422,6 +423,10 @@ def train(config: Config, run_dir: Path, resume: bool, progress: bool = True,
             except TrainingDiverged as error:
                 raise SystemExit(f"training stopped: {error}. The last good checkpoint is kept in "
                                  f"{checkpoints.directory}; nothing after it was written.") from None
+            except WorkerError as error:  # an environment process raised or died (train.env_workers)
+                first, _, rest = str(error).partition("\n")
+                raise SystemExit(f"training stopped: {first}. The last checkpoint is kept in "
+                                 f"{checkpoints.directory}; --resume continues from it.\n{rest}".rstrip()) from None
             for row in result.episodes:
                 log.episode(row)
                 recent = (recent + [bool(row["success"])])[-20:]

@@ -3,9 +3,10 @@
 For each setting (by default two: one environment in the trainer's process, ``train.num_envs=1``;
 and two environments in two worker processes, ``train.num_envs=2 train.env_workers=2``):
 
-env only : a TorchRL ``Collector`` with a random policy over the same environments, built the way
-           the trainer builds them (one ``PushOffEnv``, a ``SerialEnv``, or the worker processes of
-           :mod:`ahrm_stack.learning.workers`);
+env only : the trainer's ``LeanCollector`` with a random policy over the same environments, built
+           the way the trainer builds them (in its process, or an ``EnvPool`` of worker processes,
+           :mod:`ahrm_stack.learning.pool`); before 2026-12-03 a TorchRL ``Collector`` (a SerialEnv or
+           a ParallelEnv), which made env-only slower and the ratio easier;
 training : ``Trainer.iteration`` (collection with the configured policy through its lean collection
            path — ``ppo.hidden_sizes``, 3x256 by default — GAE, PPO epochs with the BC anchor).
 
@@ -30,13 +31,12 @@ from ahrm_stack import cli  # noqa: E402
 cli.quiet_argv()  # before the heavy imports: the libraries' warnings and INFO logs unless --verbose
 
 import torch  # noqa: E402
-from torchrl.collectors import Collector  # noqa: E402
-from torchrl.envs import SerialEnv  # noqa: E402
 
 from ahrm_stack.config import load_config  # noqa: E402
 from ahrm_stack.env.torchrl_env import PushOffEnv  # noqa: E402
-from ahrm_stack.learning import workers  # noqa: E402
+from ahrm_stack.learning.collection import LeanCollector, RandomActor  # noqa: E402
 from ahrm_stack.learning.mechanisms import RewardMechanism  # noqa: E402
+from ahrm_stack.learning.pool import EnvPool  # noqa: E402
 from ahrm_stack.learning.trainer import Trainer  # noqa: E402
 from ahrm_stack.seeds import training_seeds  # noqa: E402
 
@@ -46,14 +46,20 @@ SETTINGS = ("", "train.num_envs=2,train.env_workers=2")
 GOAL_RATIO, AIM_RATE = 0.8, 1000.0
 
 
-def env_only(config):
-    """The environments of ``config`` built as the trainer builds them (other seeds)."""
+def env_only(config) -> tuple[LeanCollector, EnvPool | None]:
+    """A random policy's collector over the environments of ``config``, built as the trainer builds
+    them (other seeds); and the pool to close, if any."""
     seeds = training_seeds(config.train.seed + 1, config.train.num_envs)
     if config.train.env_workers > 1:
-        return workers.make_worker_envs(config, seeds)
-    mechanism = RewardMechanism(config.mechanism)  # the reward as in training
-    envs = [PushOffEnv(config.task, config.safety, seed=seed, mechanism=mechanism) for seed in seeds]
-    return envs[0] if len(envs) == 1 else SerialEnv(len(envs), [lambda env=env: env for env in envs])
+        pool = EnvPool(config, seeds)
+        stepper: EnvPool | list[PushOffEnv] = pool
+        action_dim = pool.action_spec.shape[-1]
+    else:
+        pool = None
+        mechanism = RewardMechanism(config.mechanism)  # the reward as in training
+        stepper = [PushOffEnv(config.task, config.safety, seed=seed, mechanism=mechanism) for seed in seeds]
+        action_dim = stepper[0].action_spec.shape[-1]
+    return LeanCollector(stepper, RandomActor(action_dim), config.ppo.frames_per_batch), pool
 
 
 def measure(overrides: list[str], batches: int) -> dict:
@@ -61,19 +67,19 @@ def measure(overrides: list[str], batches: int) -> dict:
     torch.set_num_threads(config.train.threads)
     trainer = Trainer(config)
     frames = config.ppo.frames_per_batch
-    collector = Collector(env_only(config), None, frames_per_batch=frames, total_frames=-1)
-    collected = iter(collector)
-    next(collected)
+    collector, pool = env_only(config)
+    collector.next()
     trainer.iteration()  # warm-up of both
     env_time = train_time = 0.0
     for _ in range(batches):
         t0 = time.perf_counter()
-        next(collected)
+        collector.next()
         env_time += time.perf_counter() - t0
         t0 = time.perf_counter()
         trainer.iteration()
         train_time += time.perf_counter() - t0
-    collector.shutdown()
+    if pool is not None:
+        pool.close()
     trainer.close()
     n = frames * batches
     return dict(config=config, env=n / env_time, train=n / train_time)

@@ -24,6 +24,7 @@ from ahrm_stack.config import ConfigError, load_config
 from ahrm_stack.learning import trainer as trainer_module
 from ahrm_stack.learning.ppo import LeanCollectionActor
 from ahrm_stack.learning.collection import LeanCollector
+from ahrm_stack.learning.pool import EnvPool
 from ahrm_stack.learning.trainer import Trainer
 
 TINY = ["ppo.hidden_sizes=[16,16]", "ppo.frames_per_batch=80", "ppo.mini_batch_size=40",
@@ -101,23 +102,38 @@ def _batches(trainer: Trainer, count: int) -> tuple[list, list]:
     return batches, [dataclasses.asdict(s) | {"end_order": None} for s in trainer._completed()]
 
 
-@pytest.mark.parametrize("envs", [1, 2])
-def test_lean_collector_gives_the_torchrl_collectors_batches(monkeypatch, envs):
+@pytest.mark.parametrize("envs,workers", [(1, 1), (2, 1), (2, 2), (4, 2)])
+def test_lean_collector_gives_the_torchrl_collectors_batches(monkeypatch, envs, workers):
+    """In process (LocalEnvs) against a SerialEnv, and through the EnvPool's worker processes (one
+    or two environments each) against a ParallelEnv of the same workers."""
     # 1 s episodes (20 steps) and 40-step batches per environment: episodes end inside batches,
     # the mechanism's adaptive state changes between them (AHRM levels and orders, P = 2)
-    config = load_config([*TINY, f"train.num_envs={envs}", "mechanism.priority_period=2",
-                          "mechanism.convergence_window=1", "mechanism.constraint_window=1"])
+    config = load_config([*TINY, f"train.num_envs={envs}", f"train.env_workers={workers}",
+                          "mechanism.priority_period=2", "mechanism.convergence_window=1",
+                          "mechanism.constraint_window=1"])
     lean = Trainer(config)
-    got, got_episodes = _batches(lean, 3)
-    assert isinstance(lean._collector, LeanCollector)
-    lean_mechanism = lean.mechanism.state_dict()
-    lean.close()
+    try:
+        got, got_episodes = _batches(lean, 3)
+        assert isinstance(lean._collector, LeanCollector)
+        assert isinstance(lean.env, EnvPool) == (workers > 1)
+        lean_mechanism = lean.mechanism.state_dict()
+        lean_envs = lean.state_dict()["env_rng"]
+    finally:
+        lean.close()
     monkeypatch.setattr(trainer_module, "LEAN_COLLECTION", False)
+    if workers > 1:  # the reference: a ParallelEnv of one environment per worker (TorchRL's workers
+        # do not reach the WorkerEnv methods through a SerialEnv); with the ends deferred to the
+        # batch's end the environments are independent, so the split over workers changes nothing
+        config = dataclasses.replace(config, train=dataclasses.replace(config.train, env_workers=envs))
     reference = Trainer(config)
-    want, want_episodes = _batches(reference, 3)
-    assert not isinstance(reference._collector, LeanCollector)
-    reference_mechanism = reference.mechanism.state_dict()
-    reference.close()
+    try:
+        want, want_episodes = _batches(reference, 3)
+        assert not isinstance(reference._collector, LeanCollector)
+        assert not isinstance(reference.env, EnvPool)
+        reference_mechanism = reference.mechanism.state_dict()
+        reference_envs = reference.state_dict()["env_rng"]
+    finally:
+        reference.close()
     for a, b in zip(got, want):
         assert a.batch_size == b.batch_size
         assert set(a.keys(True, True)) == set(b.keys(True, True))
@@ -127,6 +143,7 @@ def test_lean_collector_gives_the_torchrl_collectors_batches(monkeypatch, envs):
     assert sum(int(b["next", "done"].sum()) for b in want) >= 2 * envs  # episodes did end
     np.testing.assert_equal(got_episodes, want_episodes)
     np.testing.assert_equal(lean_mechanism, reference_mechanism)
+    assert lean_envs == reference_envs  # every environment's random state after the batches
 
 
 def test_episodes_are_logged_in_the_order_the_mechanism_saw_them():

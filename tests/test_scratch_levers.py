@@ -394,14 +394,57 @@ def test_trainer_switches_touch_end_on_after_so_many_frames():
     off.close()
 
 
-def test_delayed_touch_end_with_worker_processes_names_the_key():
-    with pytest.raises(ConfigError, match="train.touch_end_after"):
-        load_config(["train.touch_end=true", "train.touch_end_after=10", "train.num_envs=2",
-                     "train.env_workers=2"])
+def test_worker_processes_get_the_curriculum_level_and_the_delayed_touch_switch():
+    """``train.env_workers=2``: the near-cube level reaches both workers' environments when it
+    rises (and after a resume), and a delayed ``touch_end`` is off for the first batch and on for
+    the second, as in process."""
+    trainer = Trainer(load_config([*TINY, "train.num_envs=2", "train.env_workers=2", "train.touch_end=true",
+                                   "ppo.gamma=0.98", "train.touch_end_after=64", "train.start_curriculum=near_cube",
+                                   "train.curriculum_window=4", "train.curriculum_step=0.25"]))
+    try:
+        assert trainer.env.worker_settings() == [(1.0, 0.0)] * 2  # level 0: every start near the cube
+        seen = []
+        for _ in range(2):
+            trainer.iteration()
+            seen.append([penalty for _, penalty in trainer.env.worker_settings()])
+        assert seen == [[0.0, 0.0], [pytest.approx(3 / 0.02)] * 2]
+        level = trainer.curriculum_level
+        trainer._update_curriculum([{"success": True}] * 4)
+        assert trainer.curriculum_level == level + 0.25
+        assert [share for share, _ in trainer.env.worker_settings()] == [1.0 - trainer.curriculum_level] * 2
+        state = trainer.state_dict()
+    finally:
+        trainer.close()
+    resumed = Trainer(load_config([*TINY, "train.num_envs=2", "train.env_workers=2",
+                                   "train.start_curriculum=near_cube"]))
+    try:
+        resumed.load_state_dict(state)
+        assert [share for share, _ in resumed.env.worker_settings()] == [1.0 - state["curriculum"]["level"]] * 2
+    finally:
+        resumed.close()
+
+
+def test_scripted_states_with_worker_processes_names_the_key():
+    with pytest.raises(ConfigError, match="train.start_curriculum .scripted_states. needs train.env_workers: 1"):
+        load_config(["train.start_curriculum=scripted_states", "train.num_envs=2", "train.env_workers=2"])
+
+
+def test_pool_workers_get_the_touch_penalty():
+    """``train.env_workers`` > 1 (the EnvPool): each worker's environments get the same penalty,
+    gamma's 3 / (1 - 0.99), and their consecutive share of the seeds."""
+    from ahrm_stack.learning import pool
+    from ahrm_stack.learning.workers import WorkerEnv
+    config = load_config([*TINY, "train.touch_end=true", "ppo.gamma=0.99", "train.num_envs=4",
+                          "train.env_workers=2"])
+    arguments = pool.worker_arguments(config, [10, 11, 12, 13])
+    assert [(a[3], a[4]) for a in arguments] == [((10, 11), (0, 1)), ((12, 13), (2, 3))]
+    env = WorkerEnv(*arguments[1][:3], arguments[1][3][0], arguments[1][4][0], *arguments[1][5:])
+    assert env.touch_penalty == pytest.approx(300.0) and env.index == 2
 
 
 def test_worker_processes_get_the_touch_penalty(monkeypatch):
-    """``train.env_workers`` > 1: each worker's environments are built with the same penalty."""
+    """``train.env_workers`` > 1 through TorchRL's ParallelEnv (the reference path): each worker's
+    environments are built with the same penalty."""
     from ahrm_stack.learning import workers
     built = []
     monkeypatch.setattr(workers, "ParallelEnv", lambda n, groups, **kwargs: built.extend(groups) or

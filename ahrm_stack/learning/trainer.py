@@ -9,15 +9,18 @@ that ended in the batch.
 With ``train.num_envs`` > 1 the environments are stepped together by a TorchRL ``SerialEnv`` in
 this process: they share the one reward mechanism (its adaptive state sees every episode, as in
 the single-environment case); each keeps its own seed stream and its own f3 phase budgets. With
-``train.env_workers`` > 1 they are split over that many worker processes (a ``ParallelEnv``, see
-:mod:`ahrm_stack.learning.workers`): the policy still runs once per step for all of them, here,
-and the mechanism's state reaches the workers at the end of each batch.
+``train.env_workers`` > 1 they are split over that many worker processes (an
+:class:`~ahrm_stack.learning.pool.EnvPool`; environments as in :mod:`ahrm_stack.learning.workers`):
+the policy still runs once per step for all of them, here, and the mechanism's state reaches the
+workers at the end of each batch.
 
 Collection runs the actor's lean path (:class:`~ahrm_stack.learning.ppo.LeanCollectionActor`:
 the same keys, values and random draws as the TorchRL actor, as plain torch ops); the PPO loss
-evaluates the TorchRL actor. In-process environments are collected by
-:class:`~ahrm_stack.learning.collection.LeanCollector` (TorchRL's Collector's batches, built once per
-batch instead of through per-step TensorDicts); worker processes by TorchRL's Collector.
+evaluates the TorchRL actor. The environments, in process or in the pool's workers, are collected
+by :class:`~ahrm_stack.learning.collection.LeanCollector`: TorchRL's Collector's batches (over a
+``SerialEnv``, or a ``ParallelEnv`` of the same workers), built once per batch instead of through
+per-step TensorDicts. ``LEAN_COLLECTION = False`` puts TorchRL's Collector and ``ParallelEnv`` back
+(the reference the tests hold the lean path to).
 """
 
 from __future__ import annotations
@@ -43,6 +46,7 @@ from ahrm_stack.learning.mechanisms import OBJECTIVES, RewardMechanism
 from ahrm_stack.learning import workers
 from ahrm_stack.learning.collection import LeanCollector
 from ahrm_stack.learning.lane_frame import lane_mirror_for
+from ahrm_stack.learning.pool import EnvPool
 from ahrm_stack.learning.ppo import (anchor_coeff, lean_collection_actor, make_buffer, make_loss,
                                      make_modules, scheduled_std)
 from ahrm_stack.learning.start_states import ScriptedStartStates, record_trajectories
@@ -50,8 +54,8 @@ from ahrm_stack.seeds import training_seeds
 
 
 
-# in-process environments collect with LeanCollector (the Collector's batches, without its per-step
-# TensorDicts); False: TorchRL's Collector (the reference it is tested against)
+# collection by LeanCollector, in process or through the EnvPool (the Collector's batches, without its
+# per-step TensorDicts); False: TorchRL's Collector and ParallelEnv (the reference it is tested against)
 LEAN_COLLECTION = True
 
 
@@ -92,7 +96,7 @@ class Trainer:
         self.workers = config.train.env_workers > 1
         if self.workers:  # the environments live in the worker processes
             self.envs: list[PushOffEnv] = []
-            self.env = workers.make_worker_envs(config, seeds)
+            self.env = EnvPool(config, seeds) if LEAN_COLLECTION else workers.make_worker_envs(config, seeds)
         else:
             self.envs = [PushOffEnv(config.task, config.safety, mechanism=self.mechanism, seed=seed,
                                     time_limit=config.train.time_limit)
@@ -100,7 +104,7 @@ class Trainer:
             self.env = self.envs[0] if count == 1 else SerialEnv(
                 count, [lambda env=env: env for env in self.envs])
         # the start curriculum (train.start_curriculum): its level rises from 0 to 1 with success
-        # (config.py refuses it with worker processes: the level is not sent to them)
+        # (worker processes get the near_cube level; config.py refuses scripted_states with them)
         self.curriculum_level = 0.0 if config.train.start_curriculum != "none" else 1.0
         self._curriculum_window: list[bool] = []
         self.start_states = None
@@ -171,8 +175,11 @@ class Trainer:
             if self.workers:
                 self.env.load_mechanism(self.mechanism.state_dict())
             lean = lean_collection_actor(self.modules.actor)
-            if lean is not None and not self.workers and LEAN_COLLECTION:
-                self._collector = LeanCollector(self.envs, lean, self.config.ppo.frames_per_batch)
+            if isinstance(self.env, EnvPool) and lean is None:
+                raise RuntimeError("worker processes collect with the lean actor: this actor has none")
+            if lean is not None and LEAN_COLLECTION:  # in-process environments or the EnvPool
+                self._collector = LeanCollector(self.env if self.workers else self.envs, lean,
+                                                self.config.ppo.frames_per_batch)
             else:
                 self._collector = Collector(self.env, lean or self.modules.actor,
                                             frames_per_batch=self.config.ppo.frames_per_batch,
@@ -186,11 +193,13 @@ class Trainer:
     def _set_touch_end(self) -> None:
         """``train.touch_end``: the in-process environments end episodes on a touch, with
         :func:`touch_penalty`, once ``train.touch_end_after`` frames are collected (a whole batch
-        either way; worker processes get it at construction, config.py refuses a delayed switch)."""
+        either way; worker processes are built with it, or get it before each batch when delayed)."""
         train = self.config.train
         penalty = touch_penalty(train.touch_end and self.frames >= train.touch_end_after, self.config.ppo.gamma)
         for env in self.envs:
             env.touch_penalty = penalty
+        if self.workers and train.touch_end_after > 0:  # (otherwise they were built with it)
+            self.env.set_touch_penalty(penalty)
 
     def iteration(self) -> IterationResult:
         started = time.perf_counter()
@@ -265,6 +274,8 @@ class Trainer:
         if self.config.train.start_curriculum == "near_cube":
             for env in self.envs:
                 env.task.near_cube_share = 1.0 - self.curriculum_level
+            if self.workers:  # before the next batch, as in process
+                self.env.set_near_cube_share(1.0 - self.curriculum_level)
         elif self.start_states is not None:
             self.start_states.level = self.curriculum_level
 

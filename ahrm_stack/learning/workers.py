@@ -1,9 +1,11 @@
-"""Environment worker processes for training (``train.env_workers`` > 1).
+"""The environments of training's worker processes (``train.env_workers`` > 1).
 
-The ``train.num_envs`` environments are split evenly over ``train.env_workers`` processes (a TorchRL
-``ParallelEnv``; each worker steps its share, several through a ``SerialEnv``), so the physics of
-different environments runs on different cores while the trainer's process runs the policy once
-per step for all of them (one batched call).
+The ``train.num_envs`` environments are split evenly over ``train.env_workers`` processes, so the
+physics of different environments runs on different cores while the trainer's process runs the
+policy once per step for all of them (one batched call). The trainer's processes are an
+:class:`~ahrm_stack.learning.pool.EnvPool`; :func:`make_worker_envs` builds the same workers as a
+TorchRL ``ParallelEnv`` (one environment per worker), the reference the pool's batches are tested
+against (``trainer.LEAN_COLLECTION = False``).
 
 The reward mechanism's adaptive state stays the trainer's. Each worker holds a copy of it for the
 per-step reward and the priority constraint, and defers every episode end to the trainer: at the end
@@ -24,7 +26,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from torchrl.envs import EnvBase, ParallelEnv, SerialEnv
+from torchrl.envs import ParallelEnv
 
 from ahrm_stack.config import Config, MechanismConfig, SafetyConfig, TaskConfig
 from ahrm_stack.env.episode import EpisodeSummary
@@ -79,9 +81,9 @@ class WorkerEnv(PushOffEnv):
         self.steps_taken = 0
         self._ends: list[tuple[int, EpisodeSummary]] = []
 
-    def _step(self, tensordict):
-        self.steps_taken += 1
-        return super()._step(tensordict)
+    def advance(self, action):
+        self.steps_taken += 1  # (the ParallelEnv's _step and the pool's LocalEnvs both come here)
+        return super().advance(action)
 
     # Called by the trainer through the ParallelEnv (same arguments for every environment).
     def drain(self) -> list[PendingEpisode]:
@@ -112,27 +114,30 @@ class WorkerEnv(PushOffEnv):
     def process_id(self) -> int:
         return os.getpid()
 
+    def set_near_cube_share(self, share: float) -> None:
+        """The start curriculum's level (``train.start_curriculum: near_cube``), from the trainer."""
+        self.task.near_cube_share = float(share)
 
-def _make_group(task: TaskConfig, safety: SafetyConfig, mechanism: MechanismConfig,
-                seeds: tuple[int, ...], indices: tuple[int, ...], time_limit: float,
-                penalty: float) -> EnvBase:
-    """One worker's environments: a :class:`WorkerEnv`, or a ``SerialEnv`` of several."""
-    if len(indices) == 1:
-        return WorkerEnv(task, safety, mechanism, seeds[0], indices[0], time_limit, penalty)
-    return SerialEnv(len(indices), [functools.partial(WorkerEnv, task, safety, mechanism, s, i, time_limit, penalty)
-                                    for s, i in zip(seeds, indices)])
+    def set_touch_penalty(self, penalty: float) -> None:
+        """``train.touch_end`` switched on after ``train.touch_end_after`` frames, from the trainer."""
+        self.touch_penalty = float(penalty)
+
+    def worker_settings(self) -> tuple[float, float]:
+        """(near-cube share, touch penalty) as this environment holds them."""
+        return self.task.near_cube_share, self.touch_penalty
 
 
 def make_worker_envs(config: Config, seeds: list[int]) -> ParallelEnv:
-    """``train.env_workers`` processes, each with ``num_envs / env_workers`` consecutive
-    environments. The parent waits on the pipes (``use_buffers=False``): TorchRL's shared-buffer
-    mode spin-polls in the parent, which takes a core from the workers on a small machine."""
+    """``train.env_workers`` processes, one environment each (the reference path). The parent
+    waits on the pipes (``use_buffers=False``): TorchRL's shared-buffer mode spin-polls in the
+    parent, which takes a core from the workers on a small machine."""
     workers = config.train.env_workers
     per = len(seeds) // workers  # num_envs is a multiple of env_workers (config.py)
-    groups = [functools.partial(_make_group, config.task, config.safety, config.mechanism,
-                                tuple(seeds[w * per:(w + 1) * per]), tuple(range(w * per, (w + 1) * per)),
-                                config.train.time_limit,
-                                touch_penalty(config.train.touch_end, config.ppo.gamma))
+    if per > 1:  # the WorkerEnv calls (drain, load_mechanism, ...) do not pass through a SerialEnv
+        raise ValueError(f"the ParallelEnv reference runs one environment per worker: train.num_envs "
+                         f"({len(seeds)}) must equal train.env_workers ({workers}); the EnvPool takes any split")
+    groups = [functools.partial(WorkerEnv, config.task, config.safety, config.mechanism, seeds[w], w,
+                                config.train.time_limit, touch_penalty(config.train.touch_end, config.ppo.gamma))
               for w in range(workers)]
     # num_threads is what TorchRL sets in this process: keep its count; each worker gets one
     env = ParallelEnv(workers, groups, use_buffers=False, num_threads=torch.get_num_threads(),
@@ -142,7 +147,7 @@ def make_worker_envs(config: Config, seeds: list[int]) -> ParallelEnv:
 
 
 def _flat(results: list) -> list:
-    """A dispatched call's results, one per environment (a SerialEnv worker returns a list)."""
+    """A dispatched call's results, one per environment (flattened where a worker returned a list)."""
     out = []
     for result in results:
         out.extend(result if isinstance(result, list) else [result])

@@ -1,0 +1,202 @@
+"""Worker processes for :class:`~ahrm_stack.learning.collection.LeanCollector` (``train.env_workers`` > 1).
+
+The ``train.num_envs`` environments are split evenly over ``train.env_workers`` processes; each
+process runs a :class:`~ahrm_stack.learning.collection.LocalEnvs` of its consecutive share (each
+environment a :class:`~ahrm_stack.learning.workers.WorkerEnv`: the reward mechanism's state from the
+trainer, episode ends deferred to it). One step of the pool sends every worker its rows of the
+actions, lets them step at once on their own cores, and gathers their arrays in environment order:
+one pipe message each way per worker per step, plain numpy arrays, no TensorDicts. The batches are
+those of TorchRL's Collector over a ``ParallelEnv`` of the same workers (``tests/test_collection.py``
+holds them key for key); what it drops is that path's per-step machinery.
+
+A worker that raises sends its traceback; a worker that dies (killed, out of memory) closes its
+pipe. Either way the trainer gets a :class:`WorkerError` naming the worker and its environments,
+and :meth:`EnvPool.close` ends the others.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import multiprocessing.connection
+import traceback
+from typing import Any
+
+import numpy as np
+
+from ahrm_stack.config import Config, MechanismConfig, SafetyConfig, TaskConfig
+from ahrm_stack.env.torchrl_env import touch_penalty
+from ahrm_stack.learning.collection import STEP_KEYS, LocalEnvs, StepOutput, Values
+
+# the WorkerEnv methods the trainer calls on every environment (see workers.WorkerEnv)
+CALLS = ("drain", "load_mechanism", "worker_state", "load_worker_state", "process_id", "set_near_cube_share",
+         "set_touch_penalty", "worker_settings")
+CLOSE_TIMEOUT = 10.0  # s a worker gets to exit after "close" before it is terminated
+
+
+class WorkerError(RuntimeError):
+    """A worker process raised or died."""
+
+
+def _serve(conn: multiprocessing.connection.Connection, task: TaskConfig, safety: SafetyConfig,
+           mechanism: MechanismConfig, seeds: tuple[int, ...], indices: tuple[int, ...], time_limit: float,
+           penalty: float) -> None:
+    """A worker's loop: build the environments, then answer (command, args) until "close" or until
+    the trainer's end of the pipe closes. Replies are ("ok", value) or ("error", traceback)."""
+    import torch
+
+    from ahrm_stack.learning.workers import WorkerEnv
+
+    torch.set_num_threads(1)  # one core per worker; the environments use no torch ops per step
+    try:
+        envs = LocalEnvs([WorkerEnv(task, safety, mechanism, seed, index, time_limit, penalty)
+                          for seed, index in zip(seeds, indices)])
+        first = envs.envs[0]
+        conn.send(("ok", (envs.widths, envs.dtypes, first.observation_spec, first.action_spec)))
+    except Exception:  # noqa: BLE001 - reported to the trainer, which raises it
+        conn.send(("error", traceback.format_exc()))
+        return
+    while True:
+        try:
+            command, args = conn.recv()
+        except (EOFError, OSError):  # the trainer is gone
+            return
+        try:
+            if command == "close":
+                conn.send(("ok", None))
+                return
+            if command == "step":
+                reply: Any = envs.step(args[0])
+            elif command == "begin":
+                reply = envs.begin()
+            elif command in CALLS:
+                reply = [getattr(env, command)(*args) for env in envs.envs]
+            else:
+                raise ValueError(f"unknown command {command!r}")
+            conn.send(("ok", reply))
+        except Exception:  # noqa: BLE001 - reported to the trainer, which raises it
+            conn.send(("error", traceback.format_exc()))
+
+
+def worker_arguments(config: Config, seeds: list[int]) -> list[tuple]:
+    """Each worker's environments: (task, safety, mechanism, seeds, indices, time limit in s, touch
+    penalty), ``len(seeds) / train.env_workers`` consecutive environments per worker."""
+    workers = config.train.env_workers
+    per = len(seeds) // workers
+    # a delayed touch_end (train.touch_end_after) starts off; the trainer switches it on
+    penalty = touch_penalty(config.train.touch_end and config.train.touch_end_after == 0, config.ppo.gamma)
+    return [(config.task, config.safety, config.mechanism, tuple(seeds[w * per:(w + 1) * per]),
+             tuple(range(w * per, (w + 1) * per)), config.train.time_limit, penalty) for w in range(workers)]
+
+
+class EnvPool:
+    """``train.env_workers`` processes stepping ``len(seeds)`` environments for
+    :class:`~ahrm_stack.learning.collection.LeanCollector` (a stepper: ``count``, ``widths``,
+    ``dtypes``, :meth:`begin`, :meth:`step`), with the calls the trainer makes on worker
+    environments (:data:`CALLS`, methods of :class:`~ahrm_stack.learning.workers.WorkerEnv`: each
+    returns one result per environment, in index order)."""
+
+    def __init__(self, config: Config, seeds: list[int]) -> None:
+        workers = config.train.env_workers
+        if workers < 1 or len(seeds) % workers:
+            raise ValueError(f"{len(seeds)} environments do not split over {workers} workers")
+        per = len(seeds) // workers
+        self.count = len(seeds)
+        self.is_closed = False
+        self._bounds = [(w * per, (w + 1) * per) for w in range(workers)]
+        context = multiprocessing.get_context("spawn")  # no fork of a process with torch's threads
+        self._conns: list[multiprocessing.connection.Connection] = []
+        self._processes: list[Any] = []
+        try:
+            for (start, stop), args in zip(self._bounds, worker_arguments(config, seeds)):
+                ours, theirs = context.Pipe()
+                process = context.Process(target=_serve, daemon=True, args=(theirs, *args),
+                                          name=f"ahrm-env-worker-{start}-{stop - 1}")
+                process.start()
+                theirs.close()
+                self._conns.append(ours)
+                self._processes.append(process)
+            layouts = self._gather()
+        except BaseException:
+            self.close()
+            raise
+        self.widths, self.dtypes, self.observation_spec, self.action_spec = layouts[0]
+
+    def _name(self, worker: int) -> str:
+        start, stop = self._bounds[worker]
+        return f"environment worker {worker} (environments {start}..{stop - 1})"
+
+    def _receive(self, worker: int) -> tuple[WorkerError | None, Any]:
+        """(None, the reply) or (the error to raise, None)."""
+        try:
+            status, value = self._conns[worker].recv()
+        except (EOFError, OSError):
+            code = self._processes[worker].exitcode if worker < len(self._processes) else None
+            return WorkerError(f"{self._name(worker)} died (exit code {code})"), None
+        if status != "ok":
+            last = value.strip().splitlines()[-1] if value.strip() else "?"
+            return WorkerError(f"{self._name(worker)} raised {last}\n{value}"), None
+        return None, value
+
+    def _gather(self) -> list[Any]:
+        """Every worker's reply, in worker order (all read before the first error is raised, so that
+        no reply is left in a pipe)."""
+        replies = [self._receive(w) for w in range(len(self._conns))]
+        for error, _ in replies:
+            if error is not None:
+                raise error
+        return [value for _, value in replies]
+
+    def _broadcast(self, messages: list[tuple[str, tuple]]) -> list[Any]:
+        """Send worker w ``messages[w]``, then gather the replies in worker order (all are sent
+        before any is awaited: the workers run at once)."""
+        if self.is_closed:
+            raise WorkerError("the environment pool is closed")
+        for conn, message in zip(self._conns, messages):
+            try:
+                conn.send(message)
+            except (BrokenPipeError, OSError):
+                pass  # the receive names the dead worker
+        return self._gather()
+
+    def begin(self) -> Values:
+        parts = self._broadcast([("begin", ())] * len(self._conns))
+        return {key: np.concatenate([p[key] for p in parts]) for key in STEP_KEYS}
+
+    def step(self, actions: np.ndarray) -> StepOutput:
+        """Environment i takes ``actions[i]``; the ended ones reset (see ``LocalEnvs.step``)."""
+        parts = self._broadcast([("step", (actions[start:stop],)) for start, stop in self._bounds])
+        values = {key: np.concatenate([p[0][key] for p in parts]) for key in STEP_KEYS}
+        reward, terminated, truncated = (np.concatenate([p[k] for p in parts]) for k in (1, 2, 3))
+        resets = {key: np.concatenate([p[4][key] for p in parts]) for key in STEP_KEYS}
+        return values, reward, terminated, truncated, resets
+
+    def call(self, method: str, *args) -> list:
+        """``method(*args)`` on every environment; the results in environment order."""
+        if method not in CALLS:
+            raise ValueError(f"unknown environment call {method!r}; one of {CALLS}")
+        return [result for part in self._broadcast([(method, args)] * len(self._conns)) for result in part]
+
+    def __getattr__(self, name: str):
+        if name in CALLS:
+            return lambda *args: self.call(name, *args)
+        raise AttributeError(name)
+
+    def close(self) -> None:
+        """Ask every worker to exit; terminate one that does not within ``CLOSE_TIMEOUT``."""
+        if self.is_closed:
+            return
+        self.is_closed = True
+        for conn in self._conns:
+            try:
+                conn.send(("close", ()))
+            except (BrokenPipeError, OSError):
+                pass
+        for conn, process in zip(self._conns, self._processes):
+            process.join(CLOSE_TIMEOUT)
+            if process.is_alive():
+                process.terminate()
+                process.join(CLOSE_TIMEOUT)
+            conn.close()
+
+
+__all__ = ["CALLS", "EnvPool", "WorkerError", "worker_arguments"]

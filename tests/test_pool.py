@@ -1,0 +1,101 @@
+"""The EnvPool's worker processes: where the environments live, and what a failing worker does.
+
+(That its batches are TorchRL's ``ParallelEnv``'s, key for key, is in ``tests/test_collection.py``.)
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+
+import numpy as np
+import pytest
+
+from ahrm_stack.config import load_config
+from ahrm_stack.learning.pool import EnvPool, WorkerError
+
+TINY = ["ppo.hidden_sizes=[16,16]", "ppo.frames_per_batch=80", "ppo.mini_batch_size=40",
+        "task.episode.duration=1.0", "train.warm_start=none", "ppo.bc_coeff=0", "train.seed=3",
+        "train.num_envs=4", "train.env_workers=2"]
+
+
+@pytest.fixture
+def pool():
+    pool = EnvPool(load_config(TINY), [10, 11, 12, 13])
+    yield pool
+    pool.close()
+
+
+def test_the_pool_steps_its_environments_in_two_other_processes(pool):
+    pids = pool.process_id()
+    assert len(pids) == 4 and pids[0] == pids[1] != pids[2] == pids[3] and os.getpid() not in pids
+    first = pool.begin()
+    assert first["observation"].shape == (4, pool.widths["observation"])
+    assert first["observation"].dtype == np.float32 and first["phase"].dtype == np.int64
+    action = np.zeros((4, pool.action_spec.shape[-1]), dtype=np.float32)
+    values, reward, terminated, truncated, resets = pool.step(action)
+    assert values["observation"].shape == (4, pool.widths["observation"])
+    assert reward.shape == terminated.shape == truncated.shape == (4,)
+    assert not (terminated | truncated).any() and len(resets["observation"]) == 0
+    for _ in range(19):  # 1 s episodes of 20 control steps: all four end at the 20th step
+        values, reward, terminated, truncated, resets = pool.step(action)
+    assert truncated.all() and len(resets["observation"]) == 4
+    assert [len(ended) for ended in pool.drain()] == [1, 1, 1, 1]
+
+
+def test_a_worker_that_raises_names_itself_and_the_error(pool):
+    pool.begin()
+    with pytest.raises(WorkerError, match=r"environment worker 0 \(environments 0\.\.1\) raised ValueError: "
+                                          r"action.mode cartesian: the action must have shape \(3,\)"):
+        pool.step(np.zeros((4, 99), dtype=np.float32))  # the wrong action size
+    # both workers' replies were read: the pipes are in step for the next call
+    assert len(pool.process_id()) == 4
+    with pytest.raises(ValueError, match="unknown environment call 'reset_everything'"):
+        pool.call("reset_everything")
+
+
+def test_a_dead_worker_is_reported_and_close_ends_the_rest(pool):
+    pool.begin()
+    os.kill(pool._processes[0].pid, signal.SIGKILL)
+    pool._processes[0].join(10)
+    with pytest.raises(WorkerError, match=r"environment worker 0 \(environments 0\.\.1\) died"):
+        pool.step(np.zeros((4, pool.action_spec.shape[-1]), dtype=np.float32))
+    pool.close()
+    assert not any(process.is_alive() for process in pool._processes)
+    with pytest.raises(WorkerError, match="closed"):
+        pool.begin()
+
+
+def test_training_stops_on_a_dead_worker_keeps_its_checkpoint_and_resumes(tmp_path, monkeypatch):
+    """End to end with ``train.env_workers=2``: a worker killed after the second batch's checkpoint
+    stops the run with one line naming the worker and the checkpoint; ``--resume`` finishes it with
+    every episode logged once, numbered 1..N."""
+    import csv
+
+    from ahrm_stack.learning.trainer import Trainer
+    from ahrm_stack.train import main
+
+    run = tmp_path / "run"
+    small = ["ppo.hidden_sizes=[32,32]", "ppo.frames_per_batch=128", "task.episode.duration=1",
+             "train.eval_episodes=0", "train.checkpoint_every=1", "train.warm_start=none", "ppo.bc_coeff=0",
+             "train.num_envs=2", "train.env_workers=2"]
+    iteration = Trainer.iteration
+
+    def killing(self):
+        if self.batches == 2:
+            os.kill(self.env._processes[1].pid, signal.SIGKILL)
+            self.env._processes[1].join(10)
+        return iteration(self)
+
+    monkeypatch.setattr(Trainer, "iteration", killing)
+    with pytest.raises(SystemExit, match=r"training stopped: environment worker 1 \(environments 1\.\.1\) died "
+                                         r"\(exit code -9\)\. The last checkpoint is kept in .*--resume"):
+        main([*small, "train.episodes=30", "--run-dir", str(run), "--no-progress"])
+    with open(run / "episodes.csv") as handle:
+        before = list(csv.DictReader(handle))
+    assert len(before) >= 2  # two batches of 64-step rounds with 20-step episodes
+    monkeypatch.setattr(Trainer, "iteration", iteration)
+    assert main(["--resume", str(run), "--no-progress"]) == 0
+    with open(run / "episodes.csv") as handle:
+        rows = list(csv.DictReader(handle))
+    assert [int(r["episode"]) for r in rows] == list(range(1, len(rows) + 1)) and len(rows) >= 30
