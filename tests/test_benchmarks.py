@@ -19,6 +19,7 @@ BENCHMARKS = sorted((ROOT / "benchmarks").glob("bench_*.py"))
 RATIO_LINE = {  # a line each benchmark prints when it got to its figures
     "bench_camera_scene.py": "ratio camera/true successes",
     "bench_collection.py": "ratio lean/TorchRL",
+    "bench_cores.py": "parallel speed-up",
     "bench_config.py": "ratio config/plain attribute access",
     "bench_deploy.py": "share of the summed tick time",
     "bench_distance_rows.py": "ratio reference/fast",
