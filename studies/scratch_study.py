@@ -107,14 +107,22 @@ ROWS: dict[str, list[str]] = {
 }
 
 
-def run(row: str, seed: int, frames: int, runs_dir: Path, eval_every: int, resume: bool) -> int:
+def run_command(row: str, seed: int, frames: int, runs_dir: Path, eval_every: int, resume: bool,
+                workers: int = 1) -> list[str]:
+    """The training command of ``row``'s run with ``seed`` (``workers`` > 1: ``train.env_workers``,
+    the environments in that many processes, which also defers the mechanism's updates to each
+    batch's end: another sample path than ``workers`` 1, not a copy of it)."""
     run_dir = runs_dir / f"{row}-seed{seed}"
-    command = [sys.executable, "-m", "ahrm_stack.train", *ROWS[row], f"train.seed={seed}",
-               f"train.frames={frames}", f"train.eval_every_frames={eval_every}", "--run-dir", str(run_dir),
-               "--no-progress"]
+    split = [f"train.env_workers={workers}"] if workers > 1 else []  # on resume: saved to its config.yaml
     if resume:
-        command = [sys.executable, "-m", "ahrm_stack.train", "--resume", str(run_dir), "--no-progress"]
-    return subprocess.call(command)
+        return [sys.executable, "-m", "ahrm_stack.train", "--resume", str(run_dir), *split, "--no-progress"]
+    return [sys.executable, "-m", "ahrm_stack.train", *ROWS[row], f"train.seed={seed}",
+            f"train.frames={frames}", f"train.eval_every_frames={eval_every}", *split,
+            "--run-dir", str(run_dir), "--no-progress"]
+
+
+def run(row: str, seed: int, frames: int, runs_dir: Path, eval_every: int, resume: bool, workers: int = 1) -> int:
+    return subprocess.call(run_command(row, seed, frames, runs_dir, eval_every, resume, workers))
 
 
 def _rows(path: Path) -> list[dict]:
@@ -487,6 +495,8 @@ def main(argv: list[str] | None = None) -> int:
     p_run.add_argument("--eval-every", type=int, default=100_000, help="frames between evaluations")
     p_run.add_argument("--runs-dir", type=Path, default=Path("runs/scratch"))
     p_run.add_argument("--resume", action="store_true")
+    p_run.add_argument("--workers", type=int, default=1,
+                       help="train.env_workers: environment processes (pays when the run has the machine alone)")
     p_probe = sub.add_parser("probe", help="a hand-written steering policy under exploration noise")
     p_probe.add_argument("--noise", type=float, nargs="+", default=[0.0, 0.1, 0.25, 0.5])
     p_probe.add_argument("--smoothing", type=float, nargs="+", default=[0.0, 0.8])
@@ -509,7 +519,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{name}: {' '.join(overrides)}")
         return 0
     if args.command == "run":
-        return run(args.row, args.seed, args.frames, args.runs_dir, args.eval_every, args.resume)
+        if args.workers < 1:
+            parser.error(f"--workers must be >= 1, got {args.workers}")
+        return run(args.row, args.seed, args.frames, args.runs_dir, args.eval_every, args.resume, args.workers)
     if args.command == "easy-eval":
         easy_eval(args.run_dir, args.policy, args.episodes)
         return 0

@@ -173,3 +173,13 @@ def test_matched_frames_pools_seeds_where_every_seed_has_an_evaluation(study, tm
     low, high = study.wilson(8, 40)
     assert table["r-ls"][2].startswith("0/40 [0.00,") and table["r-ls"][3] == f"8/40 [{low:.2f}, {high:.2f}] (5)"
     assert study.matched_frames_section([tmp_path / "nothing"]) == []
+
+
+def test_run_command_splits_the_environments_over_workers_on_request(study, tmp_path):
+    plain = study.run_command("mirror-nj-ahrm", 2, 1000, tmp_path, 500, False)
+    assert not any("env_workers" in part for part in plain)
+    assert plain[plain.index("--run-dir") + 1] == str(tmp_path / "mirror-nj-ahrm-seed2")
+    split = study.run_command("mirror-nj-ahrm", 2, 1000, tmp_path, 500, False, workers=2)
+    assert "train.env_workers=2" in split and "train.seed=2" in split
+    resumed = study.run_command("mirror-nj-ahrm", 2, 1000, tmp_path, 500, True, workers=2)
+    assert resumed[3:6] == ["--resume", str(tmp_path / "mirror-nj-ahrm-seed2"), "train.env_workers=2"]
