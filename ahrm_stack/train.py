@@ -423,10 +423,6 @@ def train(config: Config, run_dir: Path, resume: bool, progress: bool = True,
             except TrainingDiverged as error:
                 raise SystemExit(f"training stopped: {error}. The last good checkpoint is kept in "
                                  f"{checkpoints.directory}; nothing after it was written.") from None
-            except WorkerError as error:  # an environment process raised or died (train.env_workers)
-                first, _, rest = str(error).partition("\n")
-                raise SystemExit(f"training stopped: {first}. The last checkpoint is kept in "
-                                 f"{checkpoints.directory}; --resume continues from it.\n{rest}".rstrip()) from None
             for row in result.episodes:
                 log.episode(row)
                 recent = (recent + [bool(row["success"])])[-20:]
@@ -451,6 +447,10 @@ def train(config: Config, run_dir: Path, resume: bool, progress: bool = True,
             plot_run(run_dir)
         except (ValueError, FileNotFoundError) as error:  # a plot is not worth losing the run over
             print(f"warning: no diagnostics plot: {error}", file=sys.stderr)
+    except WorkerError as error:  # an environment process raised or died (train.env_workers)
+        first, _, rest = str(error).partition("\n")
+        raise SystemExit(f"training stopped: {first}. The last checkpoint is kept in "
+                         f"{checkpoints.directory}; --resume continues from it.\n{rest}".rstrip()) from None
     finally:
         bar.close()
         log.close()
@@ -471,6 +471,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except (CheckpointError, DemonstrationsFailed) as error:
         print(f"error: {error}", file=sys.stderr)
+        return 1
+    except WorkerError as error:  # an environment process failed before training began
+        first, _, rest = str(error).partition("\n")
+        print(f"error: {first}{chr(10) + rest if rest else ''}", file=sys.stderr)
         return 1
     except OSError as error:  # the run folder cannot be created or written
         print(f"error: {error.filename or ''}: {error.strerror or error}", file=sys.stderr)

@@ -96,10 +96,22 @@ def test_env_workers_must_divide_num_envs():
 
 
 def _batches(trainer: Trainer, count: int) -> tuple[list, list]:
+    """``count`` batches, draining the ended episodes after each as ``iteration`` does (with worker
+    processes that applies them to the trainer's mechanism and sends its new state to the workers,
+    so the next batch's rewards depend on it arriving)."""
     trainer.warm_start()
-    batches = [trainer._collect().clone() for _ in range(count)]
-    # end_order counts every episode ended in this process: two trainers' differ
-    return batches, [dataclasses.asdict(s) | {"end_order": None} for s in trainer._completed()]
+    batches, episodes, states = [], [], []
+    for _ in range(count):
+        batches.append(trainer._collect().clone())
+        # end_order counts every episode ended in this process: two trainers' differ
+        episodes += [dataclasses.asdict(s) | {"end_order": None} for s in trainer._completed()]
+        states.append(trainer.mechanism.state_dict())
+        if isinstance(trainer.env, EnvPool):  # every worker rewards with the trainer's new state
+            for copy in trainer.env.mechanism_state():
+                np.testing.assert_equal(copy, states[-1])
+    with pytest.raises(AssertionError):  # the state did change between the batches
+        np.testing.assert_equal(states[0], states[-1])
+    return batches, episodes
 
 
 @pytest.mark.parametrize("envs,workers", [(1, 1), (2, 1), (2, 2), (4, 2)])
@@ -141,6 +153,7 @@ def test_lean_collector_gives_the_torchrl_collectors_batches(monkeypatch, envs, 
             assert a[key].dtype == b[key].dtype and a[key].shape == b[key].shape, key
             np.testing.assert_array_equal(a[key].numpy(), b[key].numpy(), err_msg=str(key))
     assert sum(int(b["next", "done"].sum()) for b in want) >= 2 * envs  # episodes did end
+    assert len(want_episodes) == sum(int(b["next", "done"].sum()) for b in want)
     np.testing.assert_equal(got_episodes, want_episodes)
     np.testing.assert_equal(lean_mechanism, reference_mechanism)
     assert lean_envs == reference_envs  # every environment's random state after the batches

@@ -56,8 +56,7 @@ def test_a_worker_that_raises_names_itself_and_the_error(pool):
 
 def test_a_dead_worker_is_reported_and_close_ends_the_rest(pool):
     pool.begin()
-    os.kill(pool._processes[0].pid, signal.SIGKILL)
-    pool._processes[0].join(10)
+    os.kill(pool._processes[0].pid, signal.SIGKILL)  # (no join: the pool reads the exit status itself)
     with pytest.raises(WorkerError, match=r"environment worker 0 \(environments 0\.\.1\) died"):
         pool.step(np.zeros((4, pool.action_spec.shape[-1]), dtype=np.float32))
     pool.close()
@@ -84,7 +83,6 @@ def test_training_stops_on_a_dead_worker_keeps_its_checkpoint_and_resumes(tmp_pa
     def killing(self):
         if self.batches == 2:
             os.kill(self.env._processes[1].pid, signal.SIGKILL)
-            self.env._processes[1].join(10)
         return iteration(self)
 
     monkeypatch.setattr(Trainer, "iteration", killing)
@@ -99,3 +97,37 @@ def test_training_stops_on_a_dead_worker_keeps_its_checkpoint_and_resumes(tmp_pa
     with open(run / "episodes.csv") as handle:
         rows = list(csv.DictReader(handle))
     assert [int(r["episode"]) for r in rows] == list(range(1, len(rows) + 1)) and len(rows) >= 30
+
+
+@pytest.mark.parametrize("overrides,key", [
+    (["safety.position_margin=3.0"], "safety"),
+    (["task.layout.mode=fixed", "task.obstacles.fixed_layout=[[0.0,0.0]]"], "task.obstacles.fixed_layout"),
+])
+def test_what_only_building_the_environments_finds_is_one_line_with_workers(overrides, key, tmp_path, monkeypatch,
+                                                                           capsys):
+    """Checks made when the environments are built (in the workers) fail as they do in process: one
+    line naming the key, exit code 2, nothing written."""
+    from ahrm_stack.train import main
+
+    monkeypatch.chdir(tmp_path)
+    rc = main([*TINY, *overrides, "--run-dir", str(tmp_path / "run"), "--no-progress"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and err[0].startswith("error: ") and key in err[0], err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_interrupted_call_leaves_the_pool_refusing_calls(pool, monkeypatch):
+    """A call interrupted between its send and its replies (Ctrl-C) would leave replies in the pipes:
+    the pool refuses every later call instead of reading them as the next call's."""
+    pool.begin()
+    conn = pool._conns[1]
+
+    def interrupted():
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(conn, "recv", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        pool.process_id()
+    monkeypatch.undo()
+    with pytest.raises(WorkerError, match="interrupted mid-call"):
+        pool.process_id()

@@ -18,6 +18,9 @@ from __future__ import annotations
 
 import multiprocessing
 import multiprocessing.connection
+import pickle
+import signal
+import sys
 import traceback
 from typing import Any
 
@@ -29,23 +32,39 @@ from ahrm_stack.learning.collection import STEP_KEYS, LocalEnvs, StepOutput, Val
 
 # the WorkerEnv methods the trainer calls on every environment (see workers.WorkerEnv)
 CALLS = ("drain", "load_mechanism", "worker_state", "load_worker_state", "process_id", "set_near_cube_share",
-         "set_touch_penalty", "worker_settings")
+         "set_touch_penalty", "worker_settings", "mechanism_state")
 CLOSE_TIMEOUT = 10.0  # s a worker gets to exit after "close" before it is terminated
 
 
 class WorkerError(RuntimeError):
-    """A worker process raised or died."""
+    """A worker process raised or died (``cause``: the worker's exception, where it could be sent)."""
+
+    def __init__(self, message: str, cause: BaseException | None = None) -> None:
+        super().__init__(message)
+        self.cause = cause
+
+
+def _error_reply() -> tuple[str, str, BaseException | None]:
+    """("error", traceback, the exception itself where it pickles) for the exception being handled."""
+    error = sys.exc_info()[1]
+    try:
+        pickle.dumps(error)
+    except Exception:  # noqa: BLE001 - an exception that does not pickle travels as text only
+        error = None
+    return "error", traceback.format_exc(), error
 
 
 def _serve(conn: multiprocessing.connection.Connection, task: TaskConfig, safety: SafetyConfig,
            mechanism: MechanismConfig, seeds: tuple[int, ...], indices: tuple[int, ...], time_limit: float,
            penalty: float) -> None:
     """A worker's loop: build the environments, then answer (command, args) until "close" or until
-    the trainer's end of the pipe closes. Replies are ("ok", value) or ("error", traceback)."""
+    the trainer's end of the pipe closes. Replies are ("ok", value) or ("error", traceback,
+    exception). Ctrl-C is the trainer's to handle: it closes the workers."""
     import torch
 
     from ahrm_stack.learning.workers import WorkerEnv
 
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     torch.set_num_threads(1)  # one core per worker; the environments use no torch ops per step
     try:
         envs = LocalEnvs([WorkerEnv(task, safety, mechanism, seed, index, time_limit, penalty)
@@ -53,7 +72,7 @@ def _serve(conn: multiprocessing.connection.Connection, task: TaskConfig, safety
         first = envs.envs[0]
         conn.send(("ok", (envs.widths, envs.dtypes, first.observation_spec, first.action_spec)))
     except Exception:  # noqa: BLE001 - reported to the trainer, which raises it
-        conn.send(("error", traceback.format_exc()))
+        conn.send(_error_reply())
         return
     while True:
         try:
@@ -74,7 +93,7 @@ def _serve(conn: multiprocessing.connection.Connection, task: TaskConfig, safety
                 raise ValueError(f"unknown command {command!r}")
             conn.send(("ok", reply))
         except Exception:  # noqa: BLE001 - reported to the trainer, which raises it
-            conn.send(("error", traceback.format_exc()))
+            conn.send(_error_reply())
 
 
 def worker_arguments(config: Config, seeds: list[int]) -> list[tuple]:
@@ -102,6 +121,7 @@ class EnvPool:
         per = len(seeds) // workers
         self.count = len(seeds)
         self.is_closed = False
+        self._broken = False  # a call was interrupted: replies may be left in the pipes
         self._bounds = [(w * per, (w + 1) * per) for w in range(workers)]
         context = multiprocessing.get_context("spawn")  # no fork of a process with torch's threads
         self._conns: list[multiprocessing.connection.Connection] = []
@@ -116,6 +136,11 @@ class EnvPool:
                 self._conns.append(ours)
                 self._processes.append(process)
             layouts = self._gather()
+        except WorkerError as error:
+            self.close()
+            if isinstance(error.cause, Exception):  # what building them in this process would raise
+                raise error.cause from error
+            raise
         except BaseException:
             self.close()
             raise
@@ -128,13 +153,14 @@ class EnvPool:
     def _receive(self, worker: int) -> tuple[WorkerError | None, Any]:
         """(None, the reply) or (the error to raise, None)."""
         try:
-            status, value = self._conns[worker].recv()
+            status, value, *cause = self._conns[worker].recv()
         except (EOFError, OSError):
-            code = self._processes[worker].exitcode if worker < len(self._processes) else None
-            return WorkerError(f"{self._name(worker)} died (exit code {code})"), None
+            process = self._processes[worker]
+            process.join(1.0)  # the pipe closes before the exit status is there to read
+            return WorkerError(f"{self._name(worker)} died (exit code {process.exitcode})"), None
         if status != "ok":
             last = value.strip().splitlines()[-1] if value.strip() else "?"
-            return WorkerError(f"{self._name(worker)} raised {last}\n{value}"), None
+            return WorkerError(f"{self._name(worker)} raised {last}\n{value}", cause[0] if cause else None), None
         return None, value
 
     def _gather(self) -> list[Any]:
@@ -151,12 +177,20 @@ class EnvPool:
         before any is awaited: the workers run at once)."""
         if self.is_closed:
             raise WorkerError("the environment pool is closed")
-        for conn, message in zip(self._conns, messages):
-            try:
-                conn.send(message)
-            except (BrokenPipeError, OSError):
-                pass  # the receive names the dead worker
-        return self._gather()
+        if self._broken:
+            raise WorkerError("the environment pool was interrupted mid-call: its pipes may hold stale replies")
+        try:
+            for conn, message in zip(self._conns, messages):
+                try:
+                    conn.send(message)
+                except (BrokenPipeError, OSError):
+                    pass  # the receive names the dead worker
+            return self._gather()
+        except WorkerError:
+            raise  # every reply was read
+        except BaseException:  # Ctrl-C or anything else inside a send or receive
+            self._broken = True
+            raise
 
     def begin(self) -> Values:
         parts = self._broadcast([("begin", ())] * len(self._conns))

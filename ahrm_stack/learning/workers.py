@@ -122,6 +122,10 @@ class WorkerEnv(PushOffEnv):
         """``train.touch_end`` switched on after ``train.touch_end_after`` frames, from the trainer."""
         self.touch_penalty = float(penalty)
 
+    def mechanism_state(self) -> dict:
+        """The state this environment rewards with (the trainer's, as last sent)."""
+        return self.mechanism.local.state_dict()
+
     def worker_settings(self) -> tuple[float, float]:
         """(near-cube share, touch penalty) as this environment holds them."""
         return self.task.near_cube_share, self.touch_penalty
