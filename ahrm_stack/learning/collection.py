@@ -56,6 +56,11 @@ class Stepper(Protocol):
     def step(self, actions: np.ndarray) -> StepOutput: ...
 
 
+def empty_values(widths: dict[str, int], dtypes: dict[str, type], *lead: int) -> Values:
+    """Uninitialised arrays for :data:`STEP_KEYS`: shape ``(*lead, width)`` each, in its dtype."""
+    return {key: np.empty((*lead, widths[key]), dtype=dtypes[key]) for key in STEP_KEYS}
+
+
 def spec_layout(env: PushOffEnv) -> tuple[dict[str, int], dict[str, type]]:
     """Width and numpy dtype of each key of :data:`STEP_KEYS` in ``env``'s observation spec."""
     spec = env.observation_spec
@@ -76,7 +81,7 @@ class LocalEnvs:
         self.widths, self.dtypes = spec_layout(envs[0])
 
     def values(self, rows: int) -> Values:
-        return {key: np.empty((rows, self.widths[key]), dtype=self.dtypes[key]) for key in STEP_KEYS}
+        return empty_values(self.widths, self.dtypes, rows)
 
     @staticmethod
     def _write(out: Values, row: int, env: PushOffEnv, info: StepInfo) -> None:
@@ -128,8 +133,7 @@ class LeanCollector:
         self._next_traj = n
 
     def _buffers(self, n: int, t: int) -> Values:
-        stepper = self.stepper
-        return {key: np.empty((n, t, stepper.widths[key]), dtype=stepper.dtypes[key]) for key in STEP_KEYS}
+        return empty_values(self.stepper.widths, self.stepper.dtypes, n, t)
 
     def next(self) -> TensorDict:
         """The next batch: shape [N, T] (N environments, T = frames_per_batch / N), or [T] with one
