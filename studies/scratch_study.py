@@ -370,12 +370,9 @@ def final_section(runs: list[Path], scripted_dir: Path | None, samples: int = 10
     return lines
 
 
-def matched_frames_section(runs: list[Path]) -> list[str]:
-    """The interim evaluations at matched frame budgets: per row (seeds pooled), at each frame
-    count where every seed of the row has an evaluation, the successes out of the episodes with
-    their Wilson 95 % interval, and the episodes touching an obstacle. Rows are the run names less
-    ``-seedN``; budgets are the evaluations' own frame counts (the same for every run that shares
-    ``ppo.frames_per_batch`` and ``--eval-every``). Empty when no run has interim evaluations."""
+def _evaluations_by_row(runs: list[Path]) -> dict[str, list[dict[int, tuple[int, int, int]]]]:
+    """Per row (run names less ``-seedN``), per seed: frames -> (successes, episodes, touching)
+    of its interim evaluations."""
     per_row: dict[str, list[dict[int, tuple[int, int, int]]]] = {}
     for path in runs:
         evaluations = {}
@@ -384,6 +381,16 @@ def matched_frames_section(runs: list[Path]) -> list[str]:
                                                       int(float(row["touched_episodes"])))
         if evaluations:
             per_row.setdefault(_row_name(path.name), []).append(evaluations)
+    return per_row
+
+
+def matched_frames_section(runs: list[Path]) -> list[str]:
+    """The interim evaluations at matched frame budgets: per row (seeds pooled), at each frame
+    count where every seed of the row has an evaluation, the successes out of the episodes with
+    their Wilson 95 % interval, and the episodes touching an obstacle. Rows are the run names less
+    ``-seedN``; budgets are the evaluations' own frame counts (the same for every run that shares
+    ``ppo.frames_per_batch`` and ``--eval-every``). Empty when no run has interim evaluations."""
+    per_row = _evaluations_by_row(runs)
     if not per_row:
         return []
     budgets = sorted({f for seeds in per_row.values() for e in seeds for f in e if f > 0})
@@ -401,6 +408,72 @@ def matched_frames_section(runs: list[Path]) -> list[str]:
             low, high = wilson(k, n)
             cells.append(f"{k}/{n} [{low:.2f}, {high:.2f}] ({t})")
         lines.append(f"| {name} | {len(seeds)} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def seed_bootstrap(shares: list[float], rng: np.random.Generator, samples: int,
+                   other: list[float] | None = None) -> tuple[float, float, float]:
+    """Mean of per-seed success shares (minus ``other``'s mean when given) with a percentile 95 %
+    interval from resampling the seeds with replacement (each row's seeds on their own): the
+    seed, not the episode, is the unit, so the spread between runs counts in full."""
+    a = np.asarray(shares, dtype=float)
+    means = a[rng.integers(0, len(a), (samples, len(a)))].mean(axis=1)
+    point = float(a.mean())
+    if other is not None:
+        b = np.asarray(other, dtype=float)
+        means = means - b[rng.integers(0, len(b), (samples, len(b)))].mean(axis=1)
+        point -= float(b.mean())
+    low, high = np.percentile(means, [2.5, 97.5])
+    return point, float(low), float(high)
+
+
+def seed_level_section(runs: list[Path], samples: int = 10_000, budget: int | None = None) -> list[str]:
+    """The interim evaluations with the seed as the unit: per row and matched frame budget, each
+    seed's successes, the mean success share over seeds with a bootstrap-over-seeds 95 % interval
+    (:func:`seed_bootstrap`), and how many seeds reached half the episodes (Wilson 95 % over seeds);
+    then, at ``budget`` (default: the largest budget every seed of every row was evaluated at), the
+    difference in mean success share between each pair of rows, resampling each row's seeds.
+    With two or three seeds a row the intervals are coarse; that is what they say."""
+    per_row = _evaluations_by_row(runs)
+    if not per_row:
+        return []
+    rng = np.random.default_rng(0)
+    budgets = sorted({f for seeds in per_row.values() for e in seeds for f in e if f > 0})
+    lines = ["", "The same evaluations with the seed as the unit (each seed's successes; the mean share "
+             "over seeds [95 %, bootstrap over seeds]; seeds with at least half the episodes won, "
+             "[Wilson 95 % over seeds]):", "",
+             "| row | seeds | " + " | ".join(f"{f / 1e6:.1f}M" for f in budgets) + " |",
+             "|" + "---|" * (len(budgets) + 2)]
+    shares: dict[str, dict[int, list[float]]] = {}
+    for name, seeds in per_row.items():
+        cells = []
+        for frames in budgets:
+            if not all(frames in e for e in seeds):
+                cells.append("–")
+                continue
+            values = [e[frames][0] / e[frames][1] for e in seeds]
+            shares.setdefault(name, {})[frames] = values
+            point, low, high = seed_bootstrap(values, rng, samples)
+            half = sum(e[frames][0] >= 0.5 * e[frames][1] for e in seeds)
+            w_low, w_high = wilson(half, len(seeds))
+            cells.append(", ".join(str(e[frames][0]) for e in seeds)
+                         + f": {point:.2f} [{low:.2f}, {high:.2f}]; {half}/{len(seeds)} [{w_low:.2f}, {w_high:.2f}]")
+        lines.append(f"| {name} | {len(seeds)} | " + " | ".join(cells) + " |")
+    common = [f for f in budgets if all(f in by_frames for by_frames in shares.values())
+              and len(shares) == len(per_row)]
+    if budget is None and common:
+        budget = common[-1]
+    names = [name for name in per_row if budget in shares.get(name, {})]
+    if budget is None or len(names) < 2:
+        return lines
+    lines += ["", f"Differences in mean success share at {budget:,} frames (row − column; 95 %, bootstrap "
+              "over each row's seeds):", "", "| row | " + " | ".join(names[1:]) + " |",
+              "|" + "---|" * len(names)]
+    for i, name in enumerate(names[:-1]):
+        cells = ["" if j <= i else "{:+.2f} [{:+.2f}, {:+.2f}]".format(
+            *seed_bootstrap(shares[name][budget], rng, samples, shares[other][budget]))
+            for j, other in enumerate(names) if j > 0]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return lines
 
 
@@ -448,6 +521,7 @@ def report(runs_dirs: list[Path], out: Path, scripted_dir: Path | None = None) -
                          f"{part['frames']:,} | {part['successes']} | {part['displacement_mm']:.1f} | "
                          f"{part['touching']} | {part['constraint']} | {shares} |")
     lines += matched_frames_section(runs)
+    lines += seed_level_section(runs)
     lines += final_section(runs, scripted_dir)
     (out / "table.md").write_text("\n".join(lines) + "\n")
     import matplotlib

@@ -183,3 +183,38 @@ def test_run_command_splits_the_environments_over_workers_on_request(study, tmp_
     assert "train.env_workers=2" in split and "train.seed=2" in split
     resumed = study.run_command("mirror-nj-ahrm", 2, 1000, tmp_path, 500, True, workers=2)
     assert resumed[3:6] == ["--resume", str(tmp_path / "mirror-nj-ahrm-seed2"), "train.env_workers=2"]
+
+
+def test_seed_level_section_takes_the_seed_as_the_unit(study, tmp_path):
+    header = "episode,frames,episodes,successes,success_rate,touched_episodes\n"
+    runs = {"r-ahrm-seed0": "0,0,40,0,0.0,1\n5,200704,40,30,0.75,2\n9,401408,40,40,1.0,0\n",
+            "r-ahrm-seed1": "0,0,40,0,0.0,0\n6,200704,40,10,0.25,3\n",
+            "r-ls-seed0": "0,0,40,0,0.0,0\n5,200704,40,0,0.0,0\n9,401408,40,8,0.2,5\n"}
+    for name, text in runs.items():
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "evaluations.csv").write_text(header + text)
+    lines = study.seed_level_section(sorted(tmp_path.iterdir()), samples=4000)
+    split = next(i for i, line in enumerate(lines) if line.startswith("Differences"))
+    table = {line.split(" | ")[0].strip("| "): line.strip("| ").split(" | ")
+             for line in lines[:split] if line.startswith("| r-")}
+    # two seeds of shares 0.75 and 0.25: resampled means 0.25 / 0.5 / 0.75 with chances 1/4, 1/2, 1/4,
+    # so the 2.5th and 97.5th percentiles are the two ends; one seed of two won half its episodes
+    low, high = study.wilson(1, 2)
+    assert table["r-ahrm"][2] == f"30, 10: 0.50 [0.25, 0.75]; 1/2 [{low:.2f}, {high:.2f}]"
+    assert table["r-ahrm"][3] == "–"  # seed 1 has no evaluation at 0.4M
+    assert table["r-ls"][3].startswith("8: 0.20 [0.20, 0.20]; 0/1")  # one seed: no spread to resample
+    # the comparison is at the largest budget every seed of every row has (0.2M); LS's one seed is 0
+    [diff] = [line for line in lines if line.startswith("| r-ahrm | +")]
+    assert "200,704 frames" in "".join(lines) and diff == "| r-ahrm | +0.50 [+0.25, +0.75] |"
+    assert study.seed_level_section([tmp_path / "nothing"]) == []
+
+
+def test_seed_bootstrap_by_hand(study):
+    rng = __import__("numpy").random.default_rng(1)
+    # identical seeds: no spread; a difference of two constant rows is exact
+    assert study.seed_bootstrap([0.5, 0.5, 0.5], rng, 100) == (0.5, 0.5, 0.5)
+    assert study.seed_bootstrap([0.9, 0.9], rng, 100, [0.4]) == pytest.approx((0.5, 0.5, 0.5))
+    # three seeds 0, 0, 1: the resampled mean is 0 with chance (2/3)^3 = 0.30 > 0.025 and 1 with
+    # chance (1/3)^3 = 0.037 > 0.025, so the interval is [0, 1] around the mean 1/3
+    point, low, high = study.seed_bootstrap([0.0, 0.0, 1.0], rng, 20000)
+    assert point == pytest.approx(1 / 3) and (low, high) == (0.0, 1.0)
