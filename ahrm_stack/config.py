@@ -511,6 +511,8 @@ class PPOConfig(Section):
                             count(1, LIMITS["hidden_layers"])]  # actor and critic layer widths
     activation: Literal["tanh", "relu", "elu"]
     init_std: Pos  # initial standard deviation of the (pre-tanh) Gaussian policy
+    actor_init_scale: Annotated[Float, within(0, 1, "(]")]  # the actor's output layer starts with its
+    # initial weights and bias times this (1: the library's init; 0.01: Andrychowicz et al. 2021)
     std_mode: Literal["learned", "fixed", "scheduled"]  # scheduled: init_std -> final_std
     final_std: Pos  # std_mode scheduled: the standard deviation reached after std_schedule_frames
     std_schedule_frames: PosInt  # frames over which the std goes (log-linearly) to final_std
@@ -728,7 +730,8 @@ def load_config(overrides: Sequence[str] = (), config_dir: Path | str = CONFIG_D
 
 # Keys added after runs were recorded: a run's config.yaml that lacks them takes them from the
 # repository's configs (so the committed run folders and older checkpoints still load).
-BACKFILLED = {"safety": ("self_collision_rows", "self_collision_pairs"), "ppo": ("lane_frame",),
+BACKFILLED = {"safety": ("self_collision_rows", "self_collision_pairs"),
+              "ppo": ("lane_frame", "actor_init_scale"),
               "train": ("env_workers", "touch_end", "touch_end_after")}
 
 

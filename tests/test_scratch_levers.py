@@ -140,6 +140,8 @@ def test_start_curriculum_widens_when_the_success_rate_reaches_the_threshold():
     ("task.arm.near_cube.behind_spread_deg=-5", "task.arm.near_cube.behind_spread_deg"),
     ("task.rewards.time_reference=best", "task.rewards.time_reference"),
     ("mechanism.priority_rule=loudest", "mechanism.priority_rule"),
+    ("ppo.actor_init_scale=0", "ppo.actor_init_scale"),
+    ("ppo.actor_init_scale=2", "ppo.actor_init_scale"),
 ])
 def test_bad_scratch_values_name_the_key(override, key):
     with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
@@ -164,12 +166,14 @@ def test_old_run_configs_get_the_neutral_values():
     raw["mechanism"]["priority_rule"] = "violation"
     assert config_from_dict(raw).mechanism.priority_rule == "violation"
     raw["mechanism"].pop("priority_rule")
+    raw["ppo"].pop("actor_init_scale")
     config = config_from_dict(raw)
     assert config.train.frames == 0 and config.train.time_limit == 0
     assert config.train.start_curriculum == "none"
     assert config.task.rewards.time_reference == "previous"  # the spec's, as before the key
     assert config.task.arm.near_cube.bearing == "any"
     assert config.mechanism.priority_rule == "magnitude"  # the spec's ranking, as before the key
+    assert config.ppo.actor_init_scale == 1.0  # torch's init, as before the key
 
 
 def test_a_resumed_log_keeps_its_columns(tmp_path):
@@ -454,3 +458,31 @@ def test_worker_processes_get_the_touch_penalty(monkeypatch):
     workers.make_worker_envs(config, [0, 1])
     envs = [group() for group in built]
     assert len(envs) == 2 and all(env.touch_penalty == pytest.approx(300.0) for env in envs)
+
+
+def test_actor_init_scale_shrinks_the_output_layer_only():
+    """ppo.actor_init_scale multiplies the actor's output layer's initial weights and bias, after
+    the library's init: the same seed gives the same hidden layers and critic, and initial mean
+    actions (pre-tanh) that are the scaled ones, 0.01 x when every hidden layer is the same."""
+    from ahrm_stack.learning.ppo import make_modules
+
+    def build(scale: float):
+        config = load_config([*TINY, f"ppo.actor_init_scale={scale}"])
+        torch.manual_seed(7)
+        return make_modules(config.ppo, 20, 3)
+
+    plain, small = build(1.0), build(0.01)
+    linear = lambda m: [x for x in m.modules() if isinstance(x, torch.nn.Linear)]  # noqa: E731
+    actor_plain, actor_small = linear(plain.actor), linear(small.actor)
+    for a, b in zip(actor_plain[:-1], actor_small[:-1]):
+        assert torch.equal(a.weight, b.weight) and torch.equal(a.bias, b.bias)
+    assert torch.allclose(actor_small[-1].weight, 0.01 * actor_plain[-1].weight)
+    assert torch.allclose(actor_small[-1].bias, 0.01 * actor_plain[-1].bias)
+    for a, b in zip(linear(plain.critic), linear(small.critic)):
+        assert torch.equal(a.weight, b.weight)
+    # the output layer is linear: its output (the Gaussian's loc) scales exactly
+    hidden = torch.nn.Sequential(*list(plain.actor.module[0].module[1].module[0])[:-1])
+    x = torch.randn(5, 20)
+    loc_plain = actor_plain[-1](hidden(x))
+    loc_small = actor_small[-1](hidden(x))
+    assert torch.allclose(loc_small, 0.01 * loc_plain, atol=1e-7)

@@ -138,6 +138,11 @@ def make_modules(config: PPOConfig, observation_dim: int, action_dim: int,
         MLP(in_features=observation_dim, out_features=action_dim, num_cells=list(config.hidden_sizes),
             activation_class=activation),
         head)
+    if config.actor_init_scale != 1.0:  # after the init: the random stream (and the critic) stay as they were
+        output = [m for m in actor_net.modules() if isinstance(m, nn.Linear)][-1]
+        with torch.no_grad():
+            output.weight.mul_(config.actor_init_scale)
+            output.bias.mul_(config.actor_init_scale)
     parts = [norm_module, TensorDictModule(actor_net, in_keys=["observation_norm"], out_keys=["loc", "scale"])]
     if mirror is not None:
         parts.append(TensorDictModule(SignedLoc(), in_keys=["loc", "action_sign"], out_keys=["loc"]))
