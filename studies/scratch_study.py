@@ -202,28 +202,35 @@ def summarize(run_dir: Path) -> dict:
     }
 
 
+def _behaviour(rows: list[dict]) -> dict:
+    """What the training episodes ``rows`` (of episodes.csv) did: see :func:`behaviour_by_part`."""
+    steps = np.array([ast.literal_eval(r["phase_steps"]) for r in rows], dtype=float)
+    share = steps.sum(axis=0) / max(1.0, steps.sum())
+    return {
+        "episodes": (int(float(rows[0]["episode"])), int(float(rows[-1]["episode"]))),
+        "frames": int(float(rows[-1]["frames"])),
+        "successes": sum(r["success"] == "True" for r in rows),
+        "displacement_mm": 1000 * float(np.mean([float(r["cube_displacement"]) for r in rows])),
+        "touching": sum(int(float(r["touched_steps"])) > 0 for r in rows),
+        "constraint": sum(r["constraint_terminated"] == "True" for r in rows),
+        "phase_share": share.tolist(),
+    }
+
+
 def behaviour_by_part(run_dir: Path, parts: int = 5) -> list[dict]:
     """What the training episodes did, per consecutive part (a fifth by default) of a run's
     episodes: successes, mean cube displacement (mm), episodes touching an obstacle, episodes
     ended by the priority constraint, and the mean share of steps in each phase."""
     episodes = _rows(run_dir / "episodes.csv")
-    out = []
-    for chunk in np.array_split(np.arange(len(episodes)), parts):
-        if not len(chunk):
-            continue
-        rows = [episodes[i] for i in chunk]
-        steps = np.array([ast.literal_eval(r["phase_steps"]) for r in rows], dtype=float)
-        share = steps.sum(axis=0) / max(1.0, steps.sum())
-        out.append({
-            "episodes": (int(chunk[0]) + 1, int(chunk[-1]) + 1),
-            "frames": int(float(rows[-1]["frames"])),
-            "successes": sum(r["success"] == "True" for r in rows),
-            "displacement_mm": 1000 * float(np.mean([float(r["cube_displacement"]) for r in rows])),
-            "touching": sum(int(float(r["touched_steps"])) > 0 for r in rows),
-            "constraint": sum(r["constraint_terminated"] == "True" for r in rows),
-            "phase_share": share.tolist(),
-        })
-    return out
+    return [_behaviour([episodes[i] for i in chunk])
+            for chunk in np.array_split(np.arange(len(episodes)), parts) if len(chunk)]
+
+
+def early_behaviour(run_dir: Path, episodes: int = 200) -> dict | None:
+    """:func:`_behaviour` of a run's first ``episodes`` training episodes (a few batches: the
+    policy is still close to its initial network); None when the run has fewer."""
+    rows = _rows(run_dir / "episodes.csv")
+    return _behaviour(rows[:episodes]) if len(rows) >= episodes else None
 
 
 def probe(noises: list[float], smoothings: list[float], episodes: int, speed: float, gain: float,
@@ -527,6 +534,13 @@ def report(runs_dirs: list[Path], out: Path, scripted_dir: Path | None = None) -
             lines.append(f"| {path.name if i == 0 else ''} | {part['episodes'][0]}–{part['episodes'][1]} | "
                          f"{part['frames']:,} | {part['successes']} | {part['displacement_mm']:.1f} | "
                          f"{part['touching']} | {part['constraint']} | {shares} |")
+    early = [(path.name, early_behaviour(path)) for path in runs]
+    lines += ["", "The first 200 training episodes (the policy still close to its initial network, which a "
+              "seed's runs share across methods):", "",
+              "| run | frames up to | episodes touching | mean cube displacement (mm) | successes |",
+              "|---|---|---|---|---|"]
+    lines += [f"| {name} | {e['frames']:,} | {e['touching']} ({100 * e['touching'] / 200:.0f} %) | "
+              f"{e['displacement_mm']:.1f} | {e['successes']} |" for name, e in early if e is not None]
     lines += matched_frames_section(runs)
     lines += seed_level_section(runs)
     lines += final_section(runs, scripted_dir)

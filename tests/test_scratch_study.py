@@ -218,3 +218,13 @@ def test_seed_bootstrap_by_hand(study):
     # chance (1/3)^3 = 0.037 > 0.025, so the interval is [0, 1] around the mean 1/3
     point, low, high = study.seed_bootstrap([0.0, 0.0, 1.0], rng, 20000)
     assert point == pytest.approx(1 / 3) and (low, high) == (0.0, 1.0)
+
+
+def test_early_behaviour_reads_the_first_episodes_only(study, tmp_path):
+    rows = [f'{i},{100 * i},{i == 3},{0.001 * i},{int(i % 2 == 0)},False,"[1, 1, 1]"' for i in range(1, 6)]
+    (tmp_path / "episodes.csv").write_text(HEADER + "\n".join(rows) + "\n")
+    early = study.early_behaviour(tmp_path, episodes=4)
+    assert early["episodes"] == (1, 4) and early["frames"] == 400
+    assert early["touching"] == 2 and early["successes"] == 1  # episodes 2 and 4 touch; 3 succeeds
+    assert early["displacement_mm"] == pytest.approx(2.5)  # (1 + 2 + 3 + 4) / 4 mm
+    assert study.early_behaviour(tmp_path, episodes=6) is None
