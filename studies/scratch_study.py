@@ -407,20 +407,25 @@ def matched_frames_section(runs: list[Path]) -> list[str]:
     per_row = _evaluations_by_row(runs)
     if not per_row:
         return []
+
+    def cell(name: str, seeds: list[dict[int, tuple[int, int, int]]], frames: int) -> str:
+        k, n, t = (sum(e[frames][i] for e in seeds) for i in range(3))
+        low, high = wilson(k, n)
+        return f"{k}/{n} [{low:.2f}, {high:.2f}] ({t})"
+
+    return _budget_table(per_row, "Interim evaluations at matched frame budgets (seeds pooled; successes / "
+                         "episodes [Wilson 95 %], episodes touching in brackets; – where a seed has no "
+                         "evaluation there):", cell)
+
+
+def _budget_table(per_row: dict[str, list[dict[int, tuple[int, int, int]]]], caption: str, cell) -> list[str]:
+    """A table of rows by the evaluations' frame budgets (after 0 frames): ``cell(row, seeds,
+    frames)`` where every seed of the row has an evaluation at ``frames``, – elsewhere."""
     budgets = sorted({f for seeds in per_row.values() for e in seeds for f in e if f > 0})
-    lines = ["", "Interim evaluations at matched frame budgets (seeds pooled; successes / episodes "
-             "[Wilson 95 %], episodes touching in brackets; – where a seed has no evaluation there):", "",
-             "| row | seeds | " + " | ".join(f"{f / 1e6:.1f}M" for f in budgets) + " |",
+    lines = ["", caption, "", "| row | seeds | " + " | ".join(f"{f / 1e6:.1f}M" for f in budgets) + " |",
              "|" + "---|" * (len(budgets) + 2)]
     for name, seeds in per_row.items():
-        cells = []
-        for frames in budgets:
-            if not all(frames in e for e in seeds):
-                cells.append("–")
-                continue
-            k, n, t = (sum(e[frames][i] for e in seeds) for i in range(3))
-            low, high = wilson(k, n)
-            cells.append(f"{k}/{n} [{low:.2f}, {high:.2f}] ({t})")
+        cells = [cell(name, seeds, frames) if all(frames in e for e in seeds) else "–" for frames in budgets]
         lines.append(f"| {name} | {len(seeds)} | " + " | ".join(cells) + " |")
     return lines
 
@@ -452,27 +457,21 @@ def seed_level_section(runs: list[Path], samples: int = 10_000, budget: int | No
     if not per_row:
         return []
     rng = np.random.default_rng(0)
-    budgets = sorted({f for seeds in per_row.values() for e in seeds for f in e if f > 0})
-    lines = ["", "The same evaluations with the seed as the unit (each seed's successes; the mean share "
-             "over seeds [95 %, bootstrap over seeds]; seeds with at least half the episodes won, "
-             "[Wilson 95 % over seeds]):", "",
-             "| row | seeds | " + " | ".join(f"{f / 1e6:.1f}M" for f in budgets) + " |",
-             "|" + "---|" * (len(budgets) + 2)]
     shares: dict[str, dict[int, list[float]]] = {}
-    for name, seeds in per_row.items():
-        cells = []
-        for frames in budgets:
-            if not all(frames in e for e in seeds):
-                cells.append("–")
-                continue
-            values = [e[frames][0] / e[frames][1] for e in seeds]
-            shares.setdefault(name, {})[frames] = values
-            point, low, high = seed_bootstrap(values, rng, samples)
-            half = sum(e[frames][0] >= 0.5 * e[frames][1] for e in seeds)
-            w_low, w_high = wilson(half, len(seeds))
-            cells.append(", ".join(str(e[frames][0]) for e in seeds)
-                         + f": {point:.2f} [{low:.2f}, {high:.2f}]; {half}/{len(seeds)} [{w_low:.2f}, {w_high:.2f}]")
-        lines.append(f"| {name} | {len(seeds)} | " + " | ".join(cells) + " |")
+
+    def cell(name: str, seeds: list[dict[int, tuple[int, int, int]]], frames: int) -> str:
+        values = [e[frames][0] / e[frames][1] for e in seeds]
+        shares.setdefault(name, {})[frames] = values
+        point, low, high = seed_bootstrap(values, rng, samples)
+        half = sum(e[frames][0] >= 0.5 * e[frames][1] for e in seeds)
+        w_low, w_high = wilson(half, len(seeds))
+        return (", ".join(str(e[frames][0]) for e in seeds)
+                + f": {point:.2f} [{low:.2f}, {high:.2f}]; {half}/{len(seeds)} [{w_low:.2f}, {w_high:.2f}]")
+
+    lines = _budget_table(per_row, "The same evaluations with the seed as the unit (each seed's successes; the "
+                          "mean share over seeds [95 %, bootstrap over seeds]; seeds with at least half the "
+                          "episodes won, [Wilson 95 % over seeds]):", cell)
+    budgets = sorted({f for by_frames in shares.values() for f in by_frames})
     common = [f for f in budgets if all(f in by_frames for by_frames in shares.values())
               and len(shares) == len(per_row)]
     if budget is None and common:

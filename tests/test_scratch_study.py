@@ -155,7 +155,8 @@ def test_report_takes_run_folders_and_folders_of_them(study, tmp_path):
         study.report([tmp_path / "out"], tmp_path / "out2")
 
 
-def test_matched_frames_pools_seeds_where_every_seed_has_an_evaluation(study, tmp_path):
+def _three_runs(tmp_path):
+    """Interim evaluations of two AHRM seeds (seed 1 without one at 0.4M) and one LS seed."""
     header = "episode,frames,episodes,successes,success_rate,touched_episodes\n"
     runs = {"r-ahrm-seed0": "0,0,40,0,0.0,1\n5,200704,40,30,0.75,2\n9,401408,40,40,1.0,0\n",
             "r-ahrm-seed1": "0,0,40,0,0.0,0\n6,200704,40,10,0.25,3\n",
@@ -163,6 +164,10 @@ def test_matched_frames_pools_seeds_where_every_seed_has_an_evaluation(study, tm
     for name, text in runs.items():
         (tmp_path / name).mkdir()
         (tmp_path / name / "evaluations.csv").write_text(header + text)
+
+
+def test_matched_frames_pools_seeds_where_every_seed_has_an_evaluation(study, tmp_path):
+    _three_runs(tmp_path)
     lines = study.matched_frames_section(sorted(tmp_path.iterdir()))
     table = {line.split(" | ")[0].strip("| "): line.strip("| ").split(" | ")
              for line in lines if line.startswith("| r-")}
@@ -186,13 +191,7 @@ def test_run_command_splits_the_environments_over_workers_on_request(study, tmp_
 
 
 def test_seed_level_section_takes_the_seed_as_the_unit(study, tmp_path):
-    header = "episode,frames,episodes,successes,success_rate,touched_episodes\n"
-    runs = {"r-ahrm-seed0": "0,0,40,0,0.0,1\n5,200704,40,30,0.75,2\n9,401408,40,40,1.0,0\n",
-            "r-ahrm-seed1": "0,0,40,0,0.0,0\n6,200704,40,10,0.25,3\n",
-            "r-ls-seed0": "0,0,40,0,0.0,0\n5,200704,40,0,0.0,0\n9,401408,40,8,0.2,5\n"}
-    for name, text in runs.items():
-        (tmp_path / name).mkdir()
-        (tmp_path / name / "evaluations.csv").write_text(header + text)
+    _three_runs(tmp_path)
     lines = study.seed_level_section(sorted(tmp_path.iterdir()), samples=4000)
     split = next(i for i, line in enumerate(lines) if line.startswith("Differences"))
     table = {line.split(" | ")[0].strip("| "): line.strip("| ").split(" | ")
