@@ -450,8 +450,9 @@ def seed_level_section(runs: list[Path], samples: int = 10_000, budget: int | No
     """The interim evaluations with the seed as the unit: per row and matched frame budget, each
     seed's successes, the mean success share over seeds with a bootstrap-over-seeds 95 % interval
     (:func:`seed_bootstrap`), and how many seeds reached half the episodes (Wilson 95 % over seeds);
-    then, at ``budget`` (default: the largest budget every seed of every row was evaluated at), the
-    difference in mean success share between each pair of rows, resampling each row's seeds.
+    then, for the rows with two seeds or more, at ``budget`` (default: the largest budget every seed
+    of those rows was evaluated at), the difference in mean success share between each pair of
+    rows, resampling each row's seeds.
     With two or three seeds a row the intervals are coarse; that is what they say."""
     per_row = _evaluations_by_row(runs)
     if not per_row:
@@ -471,12 +472,13 @@ def seed_level_section(runs: list[Path], samples: int = 10_000, budget: int | No
     lines = _budget_table(per_row, "The same evaluations with the seed as the unit (each seed's successes; the "
                           "mean share over seeds [95 %, bootstrap over seeds]; seeds with at least half the "
                           "episodes won, [Wilson 95 % over seeds]):", cell)
-    budgets = sorted({f for by_frames in shares.values() for f in by_frames})
-    common = [f for f in budgets if all(f in by_frames for by_frames in shares.values())
-              and len(shares) == len(per_row)]
+    # compared: the rows with two seeds or more (one seed has no spread to resample)
+    several = [name for name, seeds in per_row.items() if len(seeds) >= 2]
+    budgets = sorted({f for name in several for f in shares.get(name, {})})
+    common = [f for f in budgets if all(f in shares.get(name, {}) for name in several)]
     if budget is None and common:
         budget = common[-1]
-    names = [name for name in per_row if budget in shares.get(name, {})]
+    names = [name for name in several if budget in shares.get(name, {})]
     if budget is None or len(names) < 2:
         return lines
     lines += ["", f"Differences in mean success share at {budget:,} frames (row − column; 95 %, bootstrap "

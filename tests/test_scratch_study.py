@@ -192,6 +192,12 @@ def test_run_command_splits_the_environments_over_workers_on_request(study, tmp_
 
 def test_seed_level_section_takes_the_seed_as_the_unit(study, tmp_path):
     _three_runs(tmp_path)
+    (tmp_path / "r-ls-seed1").mkdir()  # a second LS seed (rows of one seed are not compared)
+    (tmp_path / "r-ls-seed1" / "evaluations.csv").write_text(
+        "episode,frames,episodes,successes,success_rate,touched_episodes\n0,0,40,0,0.0,0\n5,200704,40,4,0.1,0\n")
+    (tmp_path / "r-mhrm-seed0").mkdir()  # one seed: in the table, not in the comparison
+    (tmp_path / "r-mhrm-seed0" / "evaluations.csv").write_text(
+        "episode,frames,episodes,successes,success_rate,touched_episodes\n5,200704,40,40,1.0,0\n")
     lines = study.seed_level_section(sorted(tmp_path.iterdir()), samples=4000)
     split = next(i for i, line in enumerate(lines) if line.startswith("Differences"))
     table = {line.split(" | ")[0].strip("| "): line.strip("| ").split(" | ")
@@ -201,10 +207,15 @@ def test_seed_level_section_takes_the_seed_as_the_unit(study, tmp_path):
     low, high = study.wilson(1, 2)
     assert table["r-ahrm"][2] == f"30, 10: 0.50 [0.25, 0.75]; 1/2 [{low:.2f}, {high:.2f}]"
     assert table["r-ahrm"][3] == "–"  # seed 1 has no evaluation at 0.4M
-    assert table["r-ls"][3].startswith("8: 0.20 [0.20, 0.20]; 0/1")  # one seed: no spread to resample
-    # the comparison is at the largest budget every seed of every row has (0.2M); LS's one seed is 0
+    assert table["r-ls"][2].startswith("0, 4: 0.05 [0.00, 0.10]; 0/2") and table["r-ls"][3] == "–"
+    assert table["r-mhrm"][2].startswith("40: 1.00 [1.00, 1.00]; 1/1")  # one seed: no spread to resample
+    # the comparison: rows of two seeds or more, at the largest budget all their seeds have (0.2M).
+    # Differences of resampled means: AHRM 0.25 / 0.5 / 0.75 (chances 1/4, 1/2, 1/4) minus LS 0 / 0.05 /
+    # 0.1 (the same chances): each end has chance 1/16 > 0.025, so the interval is [0.15, 0.75]
     [diff] = [line for line in lines if line.startswith("| r-ahrm | +")]
-    assert "200,704 frames" in "".join(lines) and diff == "| r-ahrm | +0.50 [+0.25, +0.75] |"
+    assert "200,704 frames" in "".join(lines) and diff == "| r-ahrm | +0.45 [+0.15, +0.75] |"
+    header = next(line for line in lines if line.startswith("| row | r-"))
+    assert header == "| row | r-ls |" and not any(line.startswith("| r-mhrm | +") for line in lines)
     assert study.seed_level_section([tmp_path / "nothing"]) == []
 
 
