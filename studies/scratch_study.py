@@ -226,7 +226,10 @@ def behaviour_by_part(run_dir: Path, parts: int = 5) -> list[dict]:
             for chunk in np.array_split(np.arange(len(episodes)), parts) if len(chunk)]
 
 
-def early_behaviour(run_dir: Path, episodes: int = 200) -> dict | None:
+EARLY_EPISODES = 200  # the report's "first training episodes" (a few batches at 5 s episodes)
+
+
+def early_behaviour(run_dir: Path, episodes: int = EARLY_EPISODES) -> dict | None:
     """:func:`_behaviour` of a run's first ``episodes`` training episodes (a few batches: the
     policy is still close to its initial network); None when the run has fewer."""
     rows = _rows(run_dir / "episodes.csv")
@@ -536,11 +539,11 @@ def report(runs_dirs: list[Path], out: Path, scripted_dir: Path | None = None) -
                          f"{part['frames']:,} | {part['successes']} | {part['displacement_mm']:.1f} | "
                          f"{part['touching']} | {part['constraint']} | {shares} |")
     early = [(path.name, early_behaviour(path)) for path in runs]
-    lines += ["", "The first 200 training episodes (the policy still close to its initial network, which a "
-              "seed's runs share across methods):", "",
+    lines += ["", f"The first {EARLY_EPISODES} training episodes (the policy still close to its initial network, "
+              "which a seed's runs share across methods):", "",
               "| run | frames up to | episodes touching | mean cube displacement (mm) | successes |",
               "|---|---|---|---|---|"]
-    lines += [f"| {name} | {e['frames']:,} | {e['touching']} ({100 * e['touching'] / 200:.0f} %) | "
+    lines += [f"| {name} | {e['frames']:,} | {e['touching']} ({100 * e['touching'] / EARLY_EPISODES:.0f} %) | "
               f"{e['displacement_mm']:.1f} | {e['successes']} |" for name, e in early if e is not None]
     lines += matched_frames_section(runs)
     lines += seed_level_section(runs)
