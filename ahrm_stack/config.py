@@ -63,6 +63,7 @@ LIMITS = {
     "hidden_width": 8192,
     "max_tries": 1_000_000,  # layout rejection sampling
     "settle_steps": 100_000,  # physics steps at reset
+    "noslip_iterations": 1000,  # MuJoCo's noslip passes per physics step
     "osqp_max_iter": 1_000_000,
     "max_obstacle_rows": 100,
     "window": 1_000_000,  # mechanism windows and periods, episodes or steps
@@ -251,6 +252,7 @@ class EpisodeConfig(Section):
     control_period: Annotated[Pos, le(LIMITS["control_period"], " s")]  # s
     physics_timestep: Pos  # s
     sleep: Bool  # MuJoCo's body sleeping in the stepped physics (TaskRunner)
+    noslip_iterations: Annotated[NonNegInt, le(LIMITS["noslip_iterations"])]  # MuJoCo's noslip passes per step
 
     def check(self, key: str) -> None:
         ratio = self.control_period / self.physics_timestep
@@ -760,7 +762,7 @@ def _legacy_fill(data: dict) -> dict:
             (observation, ("lane_clip", "lane_choice")), (section("scripted"), ("descend_radius",)),
             (section("task", "rewards"), ("time_reference",)), (section("task", "action"), ("smoothing",)),
             (section("task", "arm", "near_cube"), ("bearing", "behind_spread_deg")),
-            (section("mechanism"), ("priority_rule",)), (section("task", "episode"), ("sleep",)))):
+            (section("mechanism"), ("priority_rule",)), (section("task", "episode"), ("sleep", "noslip_iterations")))):
         return data
     data = copy.deepcopy(data)
     defaults = {name: read_yaml(CONFIG_DIR / file) for name, file in SECTIONS.items()}
@@ -790,6 +792,7 @@ def _legacy_fill(data: dict) -> dict:
         data["task"]["rewards"].setdefault("time_reference", "previous")
     if section("task", "episode") is not None:  # before 2026-12-03: no body sleeping
         data["task"]["episode"].setdefault("sleep", False)
+        data["task"]["episode"].setdefault("noslip_iterations", 5)  # dm_control's composer arena's
     if section("mechanism") is not None:  # before 2026-12-02: the spec's ranking
         data["mechanism"].setdefault("priority_rule", "magnitude")
     if train is not None:  # keys whose default leaves training as it was before they existed

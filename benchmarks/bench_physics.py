@@ -11,7 +11,9 @@ task's model that differ in one option:
 * ``cg`` / ``pgs``: the conjugate-gradient / projected Gauss-Seidel solver;
 * ``no islands``: constraint islands off; ``sparse``: sparse Jacobians; ``native ccd``: MuJoCo's
   own convex collider instead of libccd;
-* ``sleeping``: ``task.episode.sleep`` (the resting obstacles leave the step; the cube stays awake).
+* ``sleeping``: ``task.episode.sleep`` (the resting obstacles leave the step; the cube stays awake);
+* ``noslip 0``: ``task.episode.noslip_iterations=0`` (MuJoCo's default: no noslip passes after the
+  main solver; the configured 5 are dm_control's composer arena's).
 
 Every option but the configured one changes the contact solution within the solver's tolerance,
 so the replays part from the recorded states (open loop, as in ``bench_env_step.py``): the figures
@@ -48,6 +50,7 @@ VARIANTS: dict[str, dict] = {
     "sparse": {"jacobian": int(mujoco.mjtJacobian.mjJAC_SPARSE)},
     "native ccd": {"enable_native_ccd": True},
     "sleeping": {"sleep": True},
+    "noslip 0": {"noslip_iterations": 0},
 }
 STAGES = ("mjTIMER_POS_KINEMATICS", "mjTIMER_POS_COLLISION", "mjTIMER_POS_MAKE", "mjTIMER_POS_PROJECT",
           "mjTIMER_VELOCITY", "mjTIMER_CONSTRAINT", "mjTIMER_ADVANCE")
@@ -59,6 +62,9 @@ def runner_for(cfg, variant: dict) -> TaskRunner:
     task_cfg = cfg.task
     if variant.get("sleep"):
         task_cfg = dataclasses.replace(task_cfg, episode=dataclasses.replace(task_cfg.episode, sleep=True))
+    if "noslip_iterations" in variant:
+        task_cfg = dataclasses.replace(task_cfg, episode=dataclasses.replace(
+            task_cfg.episode, noslip_iterations=variant["noslip_iterations"]))
     runner = TaskRunner(PushOffTask(task_cfg), seed=0)
     opt = runner.physics.model.ptr.opt
     if "solver" in variant:

@@ -111,6 +111,10 @@ ROWS: dict[str, list[str]] = {
     # Andrychowicz et al. 2021) centres every seed's first actions on zero
     **{f"mirror-nj-{m}-init01": ["profile=scratch", f"mechanism.method={m}", "ppo.lane_frame=mirror_no_joints",
                                  "ppo.actor_init_scale=0.01"] for m in METHODS},
+    # round 10: MuJoCo without the noslip passes dm_control's composer arena sets (5 per step, more
+    # than half of the physics step here; benchmarks/bench_physics.py): does learning stay as it was?
+    **{f"mirror-nj-{m}-noslip0": ["profile=scratch", f"mechanism.method={m}", "ppo.lane_frame=mirror_no_joints",
+                                  "task.episode.noslip_iterations=0"] for m in METHODS},
 }
 
 

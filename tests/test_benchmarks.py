@@ -26,7 +26,7 @@ RATIO_LINE = {  # a line each benchmark prints when it got to its figures
     "bench_env_step.py": "ratio full/bare",
     "bench_kinova_gen2.py": "ratio sends per policy tick",
     "bench_phases.py": "ratio reference/fast",
-    "bench_physics.py": "ratio configured/sleeping",
+    "bench_physics.py": "ratio configured/noslip 0",
     "bench_policy.py": "ratio to the TorchRL deterministic actor",
     "bench_safety.py": "ratios osqp / daqp",
     "bench_training.py": "ratio training/env",

@@ -110,6 +110,8 @@ class PushOffTask(composer.Task):
         self.layout_sampler = LayoutSampler(config.table, config.cube, config.obstacles, config.layout)
         self.set_timesteps(control_timestep=config.episode.control_period,
                            physics_timestep=config.episode.physics_timestep)
+        # the composer arena sets 5 (with noslip_tolerance 0: every pass runs); the config decides
+        self._arena.mjcf_model.option.noslip_iterations = config.episode.noslip_iterations
 
         regions = config.regions
         self._region_params = RegionParams(regions.target_half_width, regions.target_height,
