@@ -3,10 +3,13 @@
 For each setting (by default two: one environment in the trainer's process, ``train.num_envs=1``;
 and two environments in two worker processes, ``train.num_envs=2 train.env_workers=2``):
 
-env only : the trainer's ``LeanCollector`` with a random policy over the same environments, built
-           the way the trainer builds them (in its process, or an ``EnvPool`` of worker processes,
-           :mod:`ahrm_stack.learning.pool`); before 2026-12-03 a TorchRL ``Collector`` (a SerialEnv or
-           a ParallelEnv), which made env-only slower and the ratio easier;
+env only : the trainer's ``LeanCollector`` over the environments a second ``Trainer`` builds from the
+           same config (other seeds): the training time limit (``train.time_limit``), the start
+           curriculum's first level and the touch ending, in its process or an ``EnvPool`` of worker
+           processes (:mod:`ahrm_stack.learning.pool`); the actions tanh(N(0, ``ppo.init_std``)), the
+           initial policy's noise, with no network. Before 2026-12-04 these environments had the task's
+           60 s episodes and its default starts with uniform random actions (so no resets and mostly
+           phase 1 in a 2048-frame batch), and before 2026-12-03 a TorchRL ``Collector``;
 training : ``Trainer.iteration`` (collection with the configured policy through its lean collection
            path — ``ppo.hidden_sizes``, 3x256 by default — GAE, PPO epochs with the BC anchor).
 
@@ -15,12 +18,15 @@ Both in frames per second, batches interleaved; prints per setting the ratio tra
 300-episode run for 1200-step (unsuccessful) episodes — the worst case.
 
 Usage: python benchmarks/bench_training.py [--batches N] [--settings S ...] [--quick] [key=value ...]
-       a setting is a comma-separated override list, e.g. --settings "" "train.num_envs=2,train.env_workers=2"
+       a setting is a comma-separated override list, e.g. --settings "" "train.num_envs=2,train.env_workers=2";
+       overrides for every setting go before --settings (after it they are read as settings), e.g.
+       python benchmarks/bench_training.py profile=scratch --settings "" "task.episode.noslip_iterations=0"
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import time
 
@@ -33,12 +39,8 @@ cli.quiet_argv()  # before the heavy imports: the libraries' warnings and INFO l
 import torch  # noqa: E402
 
 from ahrm_stack.config import load_config  # noqa: E402
-from ahrm_stack.env.torchrl_env import PushOffEnv  # noqa: E402
 from ahrm_stack.learning.collection import LeanCollector, RandomActor  # noqa: E402
-from ahrm_stack.learning.mechanisms import RewardMechanism  # noqa: E402
-from ahrm_stack.learning.pool import EnvPool  # noqa: E402
 from ahrm_stack.learning.trainer import Trainer  # noqa: E402
-from ahrm_stack.seeds import training_seeds  # noqa: E402
 
 QUICK_OVERRIDES = ("ppo.frames_per_batch=64", "ppo.mini_batch_size=32", "ppo.epochs=1",
                    "train.demo_episodes=1", "train.bc_epochs=1")
@@ -46,20 +48,18 @@ SETTINGS = ("", "train.num_envs=2,train.env_workers=2")
 GOAL_RATIO, AIM_RATE = 0.8, 1000.0
 
 
-def env_only(config) -> tuple[LeanCollector, EnvPool | None]:
-    """A random policy's collector over the environments of ``config``, built as the trainer builds
-    them (other seeds); and the pool to close, if any."""
-    seeds = training_seeds(config.train.seed + 1, config.train.num_envs)
-    if config.train.env_workers > 1:
-        pool = EnvPool(config, seeds)
-        stepper: EnvPool | list[PushOffEnv] = pool
-        action_dim = pool.action_spec.shape[-1]
-    else:
-        pool = None
-        mechanism = RewardMechanism(config.mechanism)  # the reward as in training
-        stepper = [PushOffEnv(config.task, config.safety, seed=seed, mechanism=mechanism) for seed in seeds]
-        action_dim = stepper[0].action_spec.shape[-1]
-    return LeanCollector(stepper, RandomActor(action_dim), config.ppo.frames_per_batch), pool
+def env_only(config) -> tuple[LeanCollector, Trainer]:
+    """A random policy's collector over the environments a second trainer builds from ``config``
+    (seed ``train.seed + 1``): the training time limit, the start curriculum at its first level and
+    the touch ending, in the process or in an ``EnvPool`` of workers; actions ``tanh(N(0, init_std))``,
+    the initial policy's noise. Returns the collector and that trainer (to close)."""
+    source = Trainer(dataclasses.replace(config, train=dataclasses.replace(config.train, seed=config.train.seed + 1)),
+                     collect_demos=False)
+    source._set_touch_end()
+    stepper = source.env if source.workers else source.envs
+    action_dim = source.env.action_spec.shape[-1]
+    actor = RandomActor(action_dim, std=config.ppo.init_std)
+    return LeanCollector(stepper, actor, config.ppo.frames_per_batch), source
 
 
 def measure(overrides: list[str], batches: int) -> dict:
@@ -67,7 +67,7 @@ def measure(overrides: list[str], batches: int) -> dict:
     torch.set_num_threads(config.train.threads)
     trainer = Trainer(config)
     frames = config.ppo.frames_per_batch
-    collector, pool = env_only(config)
+    collector, source = env_only(config)
     collector.next()
     trainer.iteration()  # warm-up of both
     env_time = train_time = 0.0
@@ -78,8 +78,7 @@ def measure(overrides: list[str], batches: int) -> dict:
         t0 = time.perf_counter()
         trainer.iteration()
         train_time += time.perf_counter() - t0
-    if pool is not None:
-        pool.close()
+    source.close()
     trainer.close()
     n = frames * batches
     return dict(config=config, env=n / env_time, train=n / train_time)
@@ -108,7 +107,7 @@ def main() -> None:
               f"({' '.join(extra) or 'the config'}); network {list(config.ppo.hidden_sizes)}, "
               f"{config.train.threads} thread(s), {config.ppo.frames_per_batch} frames/batch, "
               f"{config.ppo.epochs} epochs, {args.batches} batches")
-        print(f"  env only (random policy) : {env_rate:7.0f} frames/s")
+        print(f"  env only (noise policy)  : {env_rate:7.0f} frames/s")
         print(f"  training loop            : {train_rate:7.0f} frames/s   (aim >= {AIM_RATE:.0f}: "
               f"{'met' if train_rate >= AIM_RATE else 'NOT met'})")
         print(f"  ratio training/env       : {ratio:.3f}   (goal >= {GOAL_RATIO}: "

@@ -189,13 +189,18 @@ class LeanCollector:
 
 
 class RandomActor:
-    """Uniform random actions in [-1, 1] for :class:`LeanCollector` (env-only collection in the
-    benchmarks): ``sample`` returns the action alone, drawn from torch's global random stream."""
+    """Random actions in [-1, 1] for :class:`LeanCollector` (env-only collection in the benchmarks),
+    drawn from torch's global random stream; ``sample`` returns the action alone. ``std`` None:
+    uniform; else tanh of a zero-mean normal with that standard deviation (pre-tanh), the noise of a
+    policy that starts at ``ppo.init_std`` with a centred mean."""
 
     out_keys = ["action"]
 
-    def __init__(self, action_dim: int) -> None:
-        self.action_dim = action_dim
+    def __init__(self, action_dim: int, std: float | None = None) -> None:
+        self.action_dim, self.std = action_dim, std
 
     def sample(self, observation: torch.Tensor) -> tuple[torch.Tensor]:
-        return (torch.rand(*observation.shape[:-1], self.action_dim) * 2.0 - 1.0,)
+        shape = (*observation.shape[:-1], self.action_dim)
+        if self.std is None:
+            return (torch.rand(*shape) * 2.0 - 1.0,)
+        return (torch.tanh(torch.randn(*shape) * self.std),)

@@ -46,6 +46,7 @@ from ahrm_stack.learning.mechanisms import OBJECTIVES, RewardMechanism
 from ahrm_stack.learning import workers
 from ahrm_stack.learning.collection import LeanCollector
 from ahrm_stack.learning.lane_frame import lane_mirror_for
+from ahrm_stack.learning.lean_loss import lean_loss_for
 from ahrm_stack.learning.pool import EnvPool
 from ahrm_stack.learning.ppo import (anchor_coeff, lean_collection_actor, make_buffer, make_loss,
                                      make_modules, scheduled_std)
@@ -122,6 +123,8 @@ class Trainer:
         mirror = lane_mirror_for(config, observation_dim, action_dim, **joints)  # ppo.lane_frame
         self.modules = make_modules(config.ppo, observation_dim, action_dim, mirror)
         self.loss, self.advantage = make_loss(config.ppo, self.modules)
+        # the same loss as plain torch ops where it applies (lean_loss.py; the same parameters)
+        self.compute_loss = lean_loss_for(config.ppo, self.modules) or self.loss
         self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=config.ppo.learning_rate)
         self.buffer = make_buffer(config.ppo)
         self.episodes = 0
@@ -226,7 +229,7 @@ class Trainer:
                 break
             for _ in range(ppo.frames_per_batch // ppo.mini_batch_size):
                 batch = self.buffer.sample()
-                losses = self.loss(batch)
+                losses = self.compute_loss(batch)
                 if ppo.target_kl > 0 and float(losses["kl_approx"]) > 1.5 * ppo.target_kl:
                     kl_stopped = True  # this mini-batch already moved too far: no step
                     break
