@@ -98,7 +98,22 @@ def test_nan_loss_stops_with_a_clear_message(tmp_path, monkeypatch):
         loss.forward = nan_forward
         return loss, advantage
 
+    original_lean = trainer_module.lean_loss_for
+
+    def poisoned_lean(config, modules):  # the loss the trainer computes with where it applies
+        lean = original_lean(config, modules)
+        if lean is None:
+            return None
+
+        def nan_call(batch):
+            out = lean(batch)
+            out["loss_objective"] = out["loss_objective"] * float("nan")
+            return out
+
+        return nan_call
+
     monkeypatch.setattr(trainer_module, "make_loss", poisoned)
+    monkeypatch.setattr(trainer_module, "lean_loss_for", poisoned_lean)
     with pytest.raises(SystemExit, match="non-finite loss"):
         main(SMALL + ["train.episodes=5", "--run-dir", str(tmp_path / "nan"), "--no-progress"])
     assert not list((tmp_path / "nan").glob("checkpoints/*.pt"))
