@@ -157,6 +157,30 @@ def make_modules(config: PPOConfig, observation_dim: int, action_dim: int,
     return Modules(normalizer, head, actor, critic, mirror)
 
 
+_LOG_SQRT_2PI = math.log(math.sqrt(2.0 * math.pi))
+_LOG2 = math.log(2.0)
+
+
+def tanh_normal_log_prob_at(x: torch.Tensor, loc: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+    """log π of a TanhNormal over [-1, 1] (pre-tanh mean ``loc``, std ``scale``) at the action
+    tanh(``x``), given its pre-tanh value ``x`` (each (..., act_dim)), summed over the last dimension:
+    TransformedDistribution.log_prob's order — minus the tanh log-Jacobian 2 (log 2 − x − softplus(−2x)),
+    plus the base Normal's log density — so the result is TorchRL's to the bit."""
+    base = -((x - loc) ** 2) / (2 * scale**2) - scale.log() - _LOG_SQRT_2PI
+    jacobian = 2.0 * (_LOG2 - x - softplus(-2.0 * x))
+    return (0.0 - jacobian.sum(-1)) + base.sum(-1)
+
+
+def normalised(normalizer: RunningNorm, mirror: LaneMirror | None,
+               observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """The networks' input (the observation in the lane frame, if there is one, normalised) and
+    the action's signs back to the world (None without a lane frame)."""
+    if mirror is None:
+        return normalizer(observation), None
+    framed, action_sign = mirror.canonical(observation)
+    return normalizer(framed), action_sign
+
+
 class LeanActor(TensorDictModuleBase):
     """The actor's deterministic action as one plain torch forward: normaliser, MLP, squashing.
 
@@ -179,11 +203,10 @@ class LeanActor(TensorDictModuleBase):
 
     def act(self, observation: torch.Tensor) -> torch.Tensor:
         with torch.no_grad():
-            if self.mirror is None:
-                loc, _ = self.net(self.normalizer(observation))
-            else:
-                framed, action_sign = self.mirror.canonical(observation)
-                loc = self.net(self.normalizer(framed))[0] * action_sign
+            norm, action_sign = normalised(self.normalizer, self.mirror, observation)
+            loc = self.net(norm)[0]
+            if action_sign is not None:
+                loc = loc * action_sign
             return self._squash(loc)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -207,8 +230,6 @@ class LeanCollectionActor(TensorDictModuleBase):
     KEYS = ["observation_norm", "loc", "scale", "action", "action_log_prob"]
     in_keys = ["observation"]
     out_keys = KEYS
-    _LOG_SQRT_2PI = math.log(math.sqrt(2.0 * math.pi))
-    _LOG2 = math.log(2.0)
 
     def __init__(self, normalizer: RunningNorm, net: nn.Module, mirror: LaneMirror | None = None) -> None:
         super().__init__()
@@ -221,14 +242,9 @@ class LeanCollectionActor(TensorDictModuleBase):
         (..., obs_dim): ``random`` a TanhNormal sample (torch's global random stream), else the
         deterministic action; ``action_sign`` with a lane frame."""
         with torch.no_grad():
-            action_sign = None
-            if self.mirror is None:
-                norm = self.normalizer(observation)
-                loc, scale = self.net(norm)
-            else:
-                framed, action_sign = self.mirror.canonical(observation)
-                norm = self.normalizer(framed)
-                loc, scale = self.net(norm)
+            norm, action_sign = normalised(self.normalizer, self.mirror, observation)
+            loc, scale = self.net(norm)
+            if action_sign is not None:
                 loc = loc * action_sign
             if random:
                 x = loc + torch.empty_like(loc).normal_() * scale  # Normal.rsample's draw
@@ -236,10 +252,7 @@ class LeanCollectionActor(TensorDictModuleBase):
             else:  # TorchRL evaluates this one's log-probability at atanh(action), not at loc
                 action = safetanh_noeps(loc)
                 x = safeatanh_noeps(action)
-            # TransformedDistribution.log_prob: minus the tanh log-Jacobian, plus the base Normal's.
-            base = -((x - loc) ** 2) / (2 * scale**2) - scale.log() - self._LOG_SQRT_2PI
-            jacobian = 2.0 * (self._LOG2 - x - softplus(-2.0 * x))
-            log_prob = (0.0 - jacobian.sum(-1)) + base.sum(-1)
+            log_prob = tanh_normal_log_prob_at(x, loc, scale)
         if action_sign is not None:
             return norm, loc, scale, action, log_prob, action_sign
         return norm, loc, scale, action, log_prob
