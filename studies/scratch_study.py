@@ -5,6 +5,8 @@
     python studies/scratch_study.py run ROW --seed 0 --resume      # continue an interrupted run
     python studies/scratch_study.py report RUNS [RUNS ...] --out docs/scratch-study [--scripted DIR]
                                   (RUNS: a folder of run folders, or one run folder)
+    python studies/scratch_study.py branch RUN NEW_RUN [key=value ...]   # continue a copy of RUN
+    python studies/scratch_study.py compare A/evaluation.csv B/evaluation.csv [...] [--out FILE]
     python -m ahrm_stack.evaluate RUNS_DIR/ROW-seedN --episodes 40 --out RUNS_DIR/ROW-seedN/final/own
     python -m ahrm_stack.evaluate --policy scripted --config profile=scratch --episodes 40 --out DIR/own
 
@@ -20,6 +22,9 @@ seeds, the same episodes as its interim evaluations),
 ``table.md`` also compares the rows' final policies with intervals: Wilson 95 % intervals of the
 success and touching shares (pooled over a row's seeds), and paired bootstrap differences against
 the scripted controller on the same episodes (``--scripted DIR``) and against the LS row.
+``branch`` copies a run folder and continues the copy from its last checkpoint with changed
+settings (e.g. ``train.touch_end=true``): two branches of one checkpoint differ only in those.
+``compare`` puts evaluations of the same episodes side by side (e.g. 200 episodes of two branches).
 """
 
 from __future__ import annotations
@@ -29,6 +34,8 @@ import ast
 import dataclasses
 import gzip
 import csv
+import math
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -134,6 +141,86 @@ def run_command(row: str, seed: int, frames: int, runs_dir: Path, eval_every: in
 
 def run(row: str, seed: int, frames: int, runs_dir: Path, eval_every: int, resume: bool, workers: int = 1) -> int:
     return subprocess.call(run_command(row, seed, frames, runs_dir, eval_every, resume, workers))
+
+
+def branch_command(destination: Path, overrides: list[str]) -> list[str]:
+    """The command continuing the copied run ``destination`` with ``overrides`` (stored in its
+    config.yaml by ``ahrm_stack.train``)."""
+    return [sys.executable, "-m", "ahrm_stack.train", "--resume", str(destination), *overrides, "--no-progress"]
+
+
+def branch(source: Path, destination: Path, overrides: list[str]) -> int:
+    """Copy the run folder ``source`` to ``destination`` and continue the copy from its last
+    checkpoint with ``overrides``. The source is left as it is; two branches of one checkpoint share
+    everything before it (a resumed run restarts the episodes in flight, so a branch without
+    overrides is another sample of the same continuation, not a replay of the source). Checked
+    before anything is copied: the source is a run folder with a checkpoint, the destination does
+    not exist, and the overrides apply to the source's configuration."""
+    from ahrm_stack.config import ConfigError
+    from ahrm_stack.train import resolve_config
+
+    if not (source / "config.yaml").is_file() or not any((source / "checkpoints").glob("ckpt-*.pt")):
+        raise ConfigError(f"branch: {source} is not a run folder with a checkpoint")
+    if destination.exists():
+        raise ConfigError(f"branch: {destination} exists; give a new folder")
+    resolve_config(argparse.Namespace(resume=str(source), overrides=overrides))  # one-line errors
+    shutil.copytree(source, destination)
+    return subprocess.call(branch_command(destination, overrides))
+
+
+def sign_test(only_a: int, only_b: int) -> float:
+    """Exact two-sided sign test (McNemar's exact test) of discordant pairs: the probability, under
+    equal chances, of a split at least as uneven as ``only_a`` against ``only_b``."""
+    n, k = only_a + only_b, min(only_a, only_b)
+    if n == 0:
+        return 1.0
+    return min(1.0, 2.0 * sum(math.comb(n, i) for i in range(k + 1)) / 2.0 ** n)
+
+
+def compare(paths: list[Path], names: list[str], samples: int = 10_000) -> list[str]:
+    """Evaluations of the same episodes (``evaluation.csv`` files of one seed offset, the same
+    count) side by side: each one's successes and touching episodes (Wilson 95 %), and against the
+    first, the paired difference of each share (bootstrap 95 % over episodes) with the discordant
+    episodes (``first only / this only``) and their exact sign-test p."""
+    from ahrm_stack.config import ConfigError
+    from ahrm_stack.suite_report import read_episodes
+
+    if len(names) != len(paths):
+        raise ConfigError(f"compare: {len(names)} names for {len(paths)} evaluations")
+    for path in paths:
+        if not path.is_file():
+            raise ConfigError(f"compare: {path}: no such file")
+    runs = [read_episodes(path) for path in paths]
+    counts = {len(r["success"]) for r in runs}
+    if len(counts) != 1:
+        raise ConfigError(f"compare: the evaluations hold different episode counts {sorted(counts)}; "
+                          "they must be the same episodes")
+    n = counts.pop()
+    rng = np.random.default_rng(0)
+    draws = rng.integers(n, size=(samples, n))
+    lines = [f"{n} episodes each, the same seeds; intervals 95 %: Wilson for shares, bootstrap over "
+             "episodes for paired differences; discordant: episodes where only the first / only this "
+             "one has it; p: exact sign test of those", "",
+             f"| policy | successes | touching | s to success | success − {names[0]} | discordant (p) "
+             f"| touching − {names[0]} | discordant (p) |", "|" + "---|" * 8]
+    base = runs[0]
+    for name, run in zip(names, runs):
+        k, t = int(run["success"].sum()), int(run["touched"].sum())
+        (s_low, s_high), (t_low, t_high) = wilson(k, n), wilson(t, n)
+        finite = run["time"][np.isfinite(run["time"])]
+        cells = [f"{k}/{n} [{s_low:.2f}, {s_high:.2f}]", f"{t}/{n} [{t_low:.2f}, {t_high:.2f}]",
+                 f"{finite.mean():.2f} ± {finite.std():.2f}" if len(finite) else "–"]
+        for column in ("success", "touched"):
+            if run is base:
+                cells += ["–", "–"]
+                continue
+            d = run[column] - base[column]
+            low, high = np.percentile(d[draws].mean(axis=1), [2.5, 97.5])
+            only_base, only_this = int((d < 0).sum()), int((d > 0).sum())
+            cells += [f"{d.mean():+.3f} [{low:+.3f}, {high:+.3f}]",
+                      f"{only_base} / {only_this} ({sign_test(only_base, only_this):.2g})"]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return lines
 
 
 def _rows(path: Path) -> list[dict]:
@@ -616,7 +703,31 @@ def main(argv: list[str] | None = None) -> int:
     p_report.add_argument("--out", type=Path, default=Path("docs/scratch-study"))
     p_report.add_argument("--scripted", type=Path, default=None,
                           help="a folder holding own/evaluation.csv of the scripted controller")
+    p_branch = sub.add_parser("branch", help="continue a copy of a run folder with changed settings")
+    p_branch.add_argument("source", type=Path)
+    p_branch.add_argument("destination", type=Path)
+    p_branch.add_argument("overrides", nargs="*", help="config overrides (key=value)")
+    p_compare = sub.add_parser("compare", help="evaluations of the same episodes side by side")
+    p_compare.add_argument("evaluations", type=Path, nargs="+", help="evaluation.csv files")
+    p_compare.add_argument("--names", nargs="+", default=None, help="one per file (default: folder names)")
+    p_compare.add_argument("--out", type=Path, default=None, help="also write the table here (markdown)")
     args = parser.parse_args(argv)
+    if args.command in ("branch", "compare"):
+        from ahrm_stack.config import ConfigError
+        try:
+            if args.command == "branch":
+                return branch(args.source, args.destination, args.overrides)
+            names = args.names or [path.parent.name for path in args.evaluations]
+            lines = compare(args.evaluations, names)
+        except ConfigError as error:
+            print(f"error: {error}", file=sys.stderr)
+            return 2
+        text = "\n".join(lines) + "\n"
+        if args.out:
+            args.out.parent.mkdir(parents=True, exist_ok=True)
+            args.out.write_text(text)
+        print(text, end="")
+        return 0
     if args.command == "list":
         for name, overrides in ROWS.items():
             print(f"{name}: {' '.join(overrides)}")

@@ -238,3 +238,52 @@ def test_early_behaviour_reads_the_first_episodes_only(study, tmp_path):
     assert early["touching"] == 2 and early["successes"] == 1  # episodes 2 and 4 touch; 3 succeeds
     assert early["displacement_mm"] == pytest.approx(2.5)  # (1 + 2 + 3 + 4) / 4 mm
     assert study.early_behaviour(tmp_path, episodes=6) is None
+
+
+def test_sign_test_by_hand(study):
+    # 0 against 4: 2 * (1/2)^4; 1 against 5: 2 * (1 + 6) / 64; 3 against 3 and no pairs: 1
+    assert study.sign_test(0, 4) == pytest.approx(2 / 16)
+    assert study.sign_test(5, 1) == pytest.approx(2 * 7 / 64)
+    assert study.sign_test(3, 3) == 1.0 and study.sign_test(0, 0) == 1.0
+
+
+def test_compare_pairs_the_same_episodes(study, tmp_path):
+    a, b = tmp_path / "a" / "evaluation.csv", tmp_path / "b" / "evaluation.csv"
+    _final(tmp_path / "a", [True, True, True, False], [1, 0, 2, 0], [2.0, 2.0, 4.0, ""])
+    _final(tmp_path / "b", [True, True, True, True], [0, 0, 0, 0], [1.0, 3.0, 3.0, 5.0])
+    (tmp_path / "a" / "own" / "evaluation.csv").rename(a)
+    (tmp_path / "b" / "own" / "evaluation.csv").rename(b)
+    lines = study.compare([a, b], ["a", "b"], samples=500)
+    table = {line.split(" | ")[0].strip("| "): line.strip("| ").split(" | ") for line in lines if line.startswith("| ")}
+    assert table["a"][1].startswith("3/4") and table["a"][2].startswith("2/4") and table["a"][4] == "–"
+    assert table["a"][3] == "2.67 ± 0.94"
+    b_row = table["b"]
+    assert b_row[1].startswith("4/4") and b_row[2].startswith("0/4") and b_row[3] == "3.00 ± 1.41"
+    # success: one episode only b wins (+1/4); touching: two only a touches (-2/4)
+    assert b_row[4].startswith("+0.250 [") and b_row[5] == "0 / 1 (1)"
+    assert b_row[6].startswith("-0.500 [") and b_row[7] == "2 / 0 (0.5)"
+    # different episode counts: a one-line error, nothing compared
+    _final(tmp_path / "c", [True], [0], [1.0])
+    with pytest.raises(ValueError, match="different episode counts"):
+        study.compare([a, tmp_path / "c" / "own" / "evaluation.csv"], ["a", "c"])
+    assert study.main(["compare", str(a), str(tmp_path / "nothing.csv")]) == 2
+
+
+def test_branch_checks_before_copying(study, tmp_path, capsys):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.yaml").write_text("{}\n")
+    # no checkpoint: refused, nothing copied
+    assert study.main(["branch", str(run), str(tmp_path / "new"), "train.touch_end=true"]) == 2
+    assert "not a run folder with a checkpoint" in capsys.readouterr().err
+    assert not (tmp_path / "new").exists()
+    (run / "checkpoints").mkdir()
+    (run / "checkpoints" / "ckpt-0000001.pt").write_bytes(b"")
+    # a bad override: the config's one-line error, nothing copied
+    assert study.main(["branch", str(run), str(tmp_path / "new"), "train.touch_end=maybe"]) == 2
+    assert "touch_end" in capsys.readouterr().err and not (tmp_path / "new").exists()
+    # an existing destination is never overwritten
+    assert study.main(["branch", str(run), str(run)]) == 2
+    assert "exists" in capsys.readouterr().err
+    assert study.branch_command(tmp_path / "new", ["train.touch_end=true"])[-5:] == [
+        "ahrm_stack.train", "--resume", str(tmp_path / "new"), "train.touch_end=true", "--no-progress"]
