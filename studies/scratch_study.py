@@ -190,7 +190,12 @@ def compare(paths: list[Path], names: list[str], samples: int = 10_000) -> list[
     for path in paths:
         if not path.is_file():
             raise ConfigError(f"compare: {path}: no such file")
-    runs = [read_episodes(path) for path in paths]
+    runs = []
+    for path in paths:
+        try:
+            runs.append(read_episodes(path))
+        except (KeyError, ValueError) as error:  # not an evaluation.csv, or a damaged one
+            raise ConfigError(f"compare: {path}: not an evaluation's per-episode rows ({error})") from None
     counts = {len(r["success"]) for r in runs}
     if len(counts) != 1:
         raise ConfigError(f"compare: the evaluations hold different episode counts {sorted(counts)}; "

@@ -267,6 +267,9 @@ def test_compare_pairs_the_same_episodes(study, tmp_path):
     with pytest.raises(ValueError, match="different episode counts"):
         study.compare([a, tmp_path / "c" / "own" / "evaluation.csv"], ["a", "c"])
     assert study.main(["compare", str(a), str(tmp_path / "nothing.csv")]) == 2
+    (tmp_path / "other.csv").write_text("x,y\n1,2\n")
+    with pytest.raises(ValueError, match="other.csv: not an evaluation"):
+        study.compare([a, tmp_path / "other.csv"], ["a", "other"])
 
 
 def test_branch_checks_before_copying(study, tmp_path, capsys):
