@@ -279,6 +279,7 @@ class RewardConfig(Section):
     obstacle_speed_threshold: Pos  # m/s; a faster obstacle counts as touched
     progress_eps: Pos  # m; f2 needs progress above the best so far by more than this
     time_reference: Literal["previous", "success"]  # the episode that sets f3's phase budgets
+    avoid_margin: NonNeg  # m; f1 = -1 also while the cube or the pusher is this close to an obstacle
 
 
 @Frozen
@@ -760,7 +761,7 @@ def _legacy_fill(data: dict) -> dict:
             (train, ("dagger_rounds", "expert", *NEUTRAL_TRAIN_KEYS)), (arm, ("near_cube",)),
             (ppo, ("bc_coeff_final", *LEGACY_PPO)), (section("task"), ("observation",)),
             (observation, ("lane_clip", "lane_choice")), (section("scripted"), ("descend_radius",)),
-            (section("task", "rewards"), ("time_reference",)), (section("task", "action"), ("smoothing",)),
+            (section("task", "rewards"), ("time_reference", "avoid_margin")), (section("task", "action"), ("smoothing",)),
             (section("task", "arm", "near_cube"), ("bearing", "behind_spread_deg")),
             (section("mechanism"), ("priority_rule",)), (section("task", "episode"), ("sleep", "noslip_iterations")))):
         return data
@@ -790,6 +791,7 @@ def _legacy_fill(data: dict) -> dict:
         data["task"]["action"].setdefault("smoothing", 0.0)
     if section("task", "rewards") is not None:  # before 2026-12-02: the spec's previous episode
         data["task"]["rewards"].setdefault("time_reference", "previous")
+        data["task"]["rewards"].setdefault("avoid_margin", 0.0)  # before 2026-12-04: the touch alone
     if section("task", "episode") is not None:  # before 2026-12-03: no body sleeping
         data["task"]["episode"].setdefault("sleep", False)
         data["task"]["episode"].setdefault("noslip_iterations", 5)  # dm_control's composer arena's

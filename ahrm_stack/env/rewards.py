@@ -18,9 +18,10 @@ def penalty_form(f: np.ndarray) -> np.ndarray:
     return (np.asarray(f, dtype=float) - 1.0) / 2.0
 
 
-def avoid_component(touched: bool) -> float:
-    """f1: -1 on a step in which any obstacle is touched, +1 otherwise."""
-    return -1.0 if touched else 1.0
+def avoid_component(touched: bool, too_close: bool = False) -> float:
+    """f1: -1 on a step in which any obstacle is touched, or (``too_close``) the cube or the pusher
+    is within ``task.rewards.avoid_margin`` of one; +1 otherwise (spec §3: the touch alone)."""
+    return -1.0 if touched or too_close else 1.0
 
 
 def obstacle_touched(contact_geoms: np.ndarray, is_obstacle: np.ndarray, is_toucher: np.ndarray,

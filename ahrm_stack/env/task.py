@@ -23,6 +23,7 @@ from dm_env import specs
 
 from ahrm_stack.config import ConfigError, TaskConfig
 from ahrm_stack.env.arena import TableArena
+from ahrm_stack.env.clearance import Clearance
 from ahrm_stack.env.control_step import command_to_action
 from ahrm_stack.env.entities import BoxProp, Pusher
 from ahrm_stack.env.layout import Layout, LayoutSampler, choose_lane, lane_clearance
@@ -54,6 +55,8 @@ class StepInfo:
     target: np.ndarray  # (3,) cube centre
     progress: float  # P = d - l, m
     elapsed: float  # episode time after this step, s
+    clearance: float = float("inf")  # smallest cube or pusher distance to an obstacle, m; measured
+    # only with task.rewards.avoid_margin > 0 (exact within the margin, a lower bound beyond it)
 
     @classmethod
     def empty(cls) -> "StepInfo":
@@ -117,6 +120,9 @@ class PushOffTask(composer.Task):
         self._region_params = RegionParams(regions.target_half_width, regions.target_height,
                                            regions.obstacle_margin, regions.obstacle_height)
         self._obstacle_half_sizes = np.tile(obstacle_half, (len(self._obstacles), 1))
+        margin = config.rewards.avoid_margin
+        self._clearance = (Clearance([config.cube.size / 2] * 3, self._obstacle_half_sizes, self._pusher.radius,
+                                     self._pusher.half_length, reach=margin) if margin > 0 else None)
         self._table_center = np.zeros(2)
         self.progress_objective = ProgressObjective(config.rewards.progress_eps)
         self.time_objective = TimeObjective(config.episode.duration,
@@ -449,7 +455,9 @@ class PushOffTask(composer.Task):
             cube_dof=self._prop_linear_dofs[0], obstacle_qpos=prop_qpos[1:].reshape(-1, 7),
             obstacle_dof=self._obstacle_linear_dofs.reshape(-1, 3))
         self._is_obstacle = np.zeros(model.ngeom, dtype=bool)
-        self._is_obstacle[[int(physics.bind(o.geom).element_id) for o in self._obstacles]] = True
+        self._obstacle_geoms = np.asarray([int(physics.bind(o.geom).element_id) for o in self._obstacles], int)
+        self._is_obstacle[self._obstacle_geoms] = True
+        self._cube_geom = int(physics.bind(self._cube.geom).element_id)
         arm_bodies = {int(physics.bind(b).element_id) for b in self._arm.mjcf_model.find_all("body")}
         arm_bodies |= {int(physics.bind(b).element_id) for b in self._pusher.mjcf_model.find_all("body")}
         toucher = [g for g in range(model.ngeom) if int(model.geom_bodyid[g]) in arm_bodies]
@@ -495,8 +503,16 @@ class PushOffTask(composer.Task):
                                    cfg.rewards.obstacle_speed_threshold)
         elapsed = data.time - self._episode_start
         prog = progress(target, self._table_center, tip)
+        clearance = float("inf")
+        if self._clearance is not None:
+            gx, gm = data.geom_xpos, data.geom_xmat
+            cube_clear, pusher_clear = self._clearance.distances(
+                gx[self._cube_geom], gm[self._cube_geom].reshape(3, 3), gx[self._obstacle_geoms],
+                gm[self._obstacle_geoms].reshape(-1, 3, 3), center, rotation)
+            clearance = min(cube_clear, pusher_clear)
         if phase_time > 0:
-            f = np.array([avoid_component(touched), self.progress_objective.step(prog),
+            too_close = clearance < cfg.rewards.avoid_margin
+            f = np.array([avoid_component(touched, too_close), self.progress_objective.step(prog),
                           self.time_objective.step(phase, phase_time, elapsed)])
         else:  # the reset state: no step was taken, nothing was violated
             f = np.ones(3)
@@ -504,7 +520,8 @@ class PushOffTask(composer.Task):
         success = abs(tx) > hx or abs(ty) > hy or tz < cfg.table.height
         return StepInfo(f=f, g=penalty_form(f), phase=phase, x=x, distances=distances,
                         success=success, touched=touched,
-                        tip=tip.copy(), target=target, progress=prog, elapsed=elapsed)
+                        tip=tip.copy(), target=target, progress=prog, elapsed=elapsed,
+                        clearance=clearance)
 
     def get_reward(self, physics: mjcf.Physics) -> np.ndarray:
         return self.step_info.f
