@@ -55,8 +55,15 @@ class StepInfo:
     target: np.ndarray  # (3,) cube centre
     progress: float  # P = d - l, m
     elapsed: float  # episode time after this step, s
-    clearance: float = float("inf")  # smallest cube or pusher distance to an obstacle, m; measured
-    # only with task.rewards.avoid_margin > 0 (exact within the margin, a lower bound beyond it)
+    # smallest distance of the cube / of the pusher to any obstacle, m; measured only with
+    # task.rewards.avoid_margin > 0 (exact within the margin, a lower bound beyond it)
+    cube_clearance: float = float("inf")
+    pusher_clearance: float = float("inf")
+
+    @property
+    def clearance(self) -> float:
+        """The nearer of the cube's and the pusher's clearance, m."""
+        return min(self.cube_clearance, self.pusher_clearance)
 
     @classmethod
     def empty(cls) -> "StepInfo":
@@ -503,15 +510,14 @@ class PushOffTask(composer.Task):
                                    cfg.rewards.obstacle_speed_threshold)
         elapsed = data.time - self._episode_start
         prog = progress(target, self._table_center, tip)
-        clearance = float("inf")
+        cube_clear = pusher_clear = float("inf")
         if self._clearance is not None:
             gx, gm = data.geom_xpos, data.geom_xmat
             cube_clear, pusher_clear = self._clearance.distances(
                 gx[self._cube_geom], gm[self._cube_geom].reshape(3, 3), gx[self._obstacle_geoms],
                 gm[self._obstacle_geoms].reshape(-1, 3, 3), center, rotation)
-            clearance = min(cube_clear, pusher_clear)
         if phase_time > 0:
-            too_close = clearance < cfg.rewards.avoid_margin
+            too_close = min(cube_clear, pusher_clear) < cfg.rewards.avoid_margin
             f = np.array([avoid_component(touched, too_close), self.progress_objective.step(prog),
                           self.time_objective.step(phase, phase_time, elapsed)])
         else:  # the reset state: no step was taken, nothing was violated
@@ -521,7 +527,7 @@ class PushOffTask(composer.Task):
         return StepInfo(f=f, g=penalty_form(f), phase=phase, x=x, distances=distances,
                         success=success, touched=touched,
                         tip=tip.copy(), target=target, progress=prog, elapsed=elapsed,
-                        clearance=clearance)
+                        cube_clearance=cube_clear, pusher_clearance=pusher_clear)
 
     def get_reward(self, physics: mjcf.Physics) -> np.ndarray:
         return self.step_info.f

@@ -1,0 +1,112 @@
+"""How close a policy steers the cube and the pusher to the obstacles (issue 18, round 13): near misses
+next to touches.
+
+    python studies/clearance_probe.py RUN_DIR [--policy-file policies/X.pt] [--episodes 200] [--out FILE.csv]
+    python studies/clearance_probe.py RUN_DIR --scripted [--episodes 200]   # the controller, same episodes
+
+Replays the first N episodes of the run's own deterministic evaluation (its configuration, the
+evaluation seeds: the episodes of ``python -m ahrm_stack.evaluate RUN_DIR``) with the run's policy, or
+with the scripted controller (``--scripted``, as ``evaluate --policy scripted`` drives it), and measures
+every step's clearance — the smallest distance of the cube and of the pusher to any obstacle
+(:class:`ahrm_stack.env.clearance.Clearance`, exact within ``--reach``) — whatever the run's own
+``task.rewards.avoid_margin``: the measurement sets the margin to ``--reach`` in a copy of the
+configuration, which changes f1 only, and neither the policy's actions nor the physics. Prints per
+margin how many episodes came that close, with successes and touching episodes; ``--out`` writes one
+row per episode. Nothing else is written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import csv
+import math
+from pathlib import Path
+
+import numpy as np
+import torch
+import yaml
+
+from ahrm_stack.config import config_from_dict, fill_missing
+from ahrm_stack.env.runner import TaskRunner
+from ahrm_stack.env.scripted import ScriptedPusher
+from ahrm_stack.env.task import PushOffTask
+from ahrm_stack.learning.rollouts import EVAL_SEED_OFFSET, load_policy
+
+MARGINS = (0.005, 0.01, 0.02, 0.03)  # m, the near-miss thresholds reported
+
+
+def probe(run_dir: Path, episodes: int, policy_file: Path | None, scripted: bool, reach: float) -> list[dict]:
+    """One row per episode: success, touched steps, the smallest cube and pusher clearance (m)."""
+    raw = fill_missing(yaml.safe_load((run_dir / "config.yaml").read_text()))
+    raw = copy.deepcopy(raw)
+    raw["task"]["rewards"]["avoid_margin"] = reach
+    config = config_from_dict(raw)
+    policy = None if scripted else load_policy(run_dir, policy_file)[1]
+    task = PushOffTask(config.task)
+    runner = TaskRunner(task, seed=EVAL_SEED_OFFSET, safety=config.safety)
+    controller = ScriptedPusher(task, config.scripted) if scripted else None
+    physics = runner.physics
+    rows = []
+    for i in range(episodes):
+        runner.seed(EVAL_SEED_OFFSET + i)
+        runner.reset()
+        if controller is not None:
+            controller.reset(physics)
+        cube_min = pusher_min = math.inf
+        touched = 0
+        while True:
+            if controller is not None:
+                info, terminated, truncated = runner.step_only(controller(physics))
+            else:
+                observation = torch.as_tensor(runner.flat_observation(), dtype=torch.float32)
+                info, terminated, truncated = runner.step_action(policy.act(observation).numpy())
+            touched += int(info.touched)
+            cube_min, pusher_min = min(cube_min, info.cube_clearance), min(pusher_min, info.pusher_clearance)
+            if terminated or truncated:
+                break
+        rows.append({"episode": i, "success": int(info.success), "touched_steps": touched,
+                     "cube_clearance": cube_min, "pusher_clearance": pusher_min})
+    return rows
+
+
+def summary(rows: list[dict]) -> list[str]:
+    n = len(rows)
+    nearest = np.array([min(r["cube_clearance"], r["pusher_clearance"]) for r in rows])
+    lines = [f"episodes {n}: successes {sum(r['success'] for r in rows)}, touching "
+             f"{sum(r['touched_steps'] > 0 for r in rows)}; nearest approach (cube or pusher) quantiles "
+             f"10/25/50 %: {', '.join(f'{100 * q:.2f}' for q in np.quantile(nearest, [0.1, 0.25, 0.5]))} cm"]
+    for margin in MARGINS:
+        near = [r for r, d in zip(rows, nearest) if d < margin]
+        cube = sum(r["cube_clearance"] < margin for r in rows)
+        lines.append(f"within {100 * margin:.1f} cm: {len(near)} episodes (cube {cube}, pusher "
+                     f"{sum(r['pusher_clearance'] < margin for r in rows)}), of them touching "
+                     f"{sum(r['touched_steps'] > 0 for r in near)}, successes {sum(r['success'] for r in near)}")
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run_dir", type=Path)
+    parser.add_argument("--policy-file", type=Path, default=None, help="relative to RUN_DIR (default: policy.pt)")
+    parser.add_argument("--scripted", action="store_true", help="the scripted controller instead of the policy")
+    parser.add_argument("--episodes", type=int, default=40)
+    parser.add_argument("--reach", type=float, default=0.05, help="m; clearances are exact below this")
+    parser.add_argument("--out", type=Path, default=None, help="per-episode CSV")
+    args = parser.parse_args(argv)
+    if not (args.run_dir / "config.yaml").is_file():
+        parser.error(f"{args.run_dir}: no config.yaml there; is it a run folder?")
+    policy_file = args.run_dir / args.policy_file if args.policy_file else None
+    rows = probe(args.run_dir, args.episodes, policy_file, args.scripted, args.reach)
+    print("\n".join(summary(rows)))
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        with open(args.out, "w", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
+            writer.writeheader()
+            writer.writerows(rows)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
