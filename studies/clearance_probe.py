@@ -3,6 +3,7 @@ next to touches.
 
     python studies/clearance_probe.py RUN_DIR [--policy-file policies/X.pt] [--episodes 200] [--out FILE.csv]
     python studies/clearance_probe.py RUN_DIR --scripted [--episodes 200]   # the controller, same episodes
+    python studies/clearance_probe.py --pair A.csv B.csv   # two --out files of the same episodes
 
 Replays the first N episodes of the run's own deterministic evaluation (its configuration, the
 evaluation seeds: the episodes of ``python -m ahrm_stack.evaluate RUN_DIR``) with the run's policy, or
@@ -12,7 +13,9 @@ every step's clearance — the smallest distance of the cube and of the pusher t
 ``task.rewards.avoid_margin``: the measurement sets the margin to ``--reach`` in a copy of the
 configuration, which changes f1 only, and neither the policy's actions nor the physics. Prints per
 margin how many episodes came that close, with successes and touching episodes; ``--out`` writes one
-row per episode. Nothing else is written.
+row per episode. Nothing else is written. ``--pair`` compares two such files episode by episode: per
+margin the episodes that came that close in each, the discordant ones (only A / only B) and the
+exact sign test of them.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from __future__ import annotations
 import argparse
 import copy
 import csv
+import importlib.util
 import math
 from pathlib import Path
 
@@ -85,7 +89,54 @@ def summary(rows: list[dict]) -> list[str]:
     return lines
 
 
+class PairError(ValueError):
+    """Two files ``--pair`` cannot compare."""
+
+
+def _sign_test(only_a: int, only_b: int) -> float:
+    spec = importlib.util.spec_from_file_location("scratch_study", Path(__file__).with_name("scratch_study.py"))
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.sign_test(only_a, only_b)
+
+
+def pair(path_a: Path, path_b: Path) -> list[str]:
+    """Near misses of two probes of the same episodes (``--out`` files), episode by episode."""
+    nearest = []
+    for path in (path_a, path_b):
+        try:
+            with open(path) as handle:
+                rows = list(csv.DictReader(handle))
+            nearest.append([min(float(r["cube_clearance"]), float(r["pusher_clearance"])) for r in rows])
+        except (OSError, KeyError, ValueError) as error:
+            raise PairError(f"{path}: not a clearance probe's CSV ({type(error).__name__}: {error})") from None
+    a, b = nearest
+    if len(a) != len(b):
+        raise PairError(f"{path_a} has {len(a)} episodes, {path_b} {len(b)}: not the same episodes")
+    lines = [f"{len(a)} episodes; A = {path_a}, B = {path_b}"]
+    for margin in MARGINS:
+        only_a = sum(x < margin <= y for x, y in zip(a, b))
+        only_b = sum(y < margin <= x for x, y in zip(a, b))
+        lines.append(f"within {100 * margin:.1f} cm: A {sum(x < margin for x in a)}, B {sum(y < margin for y in b)}; "
+                     f"discordant {only_a} / {only_b}, sign test p = {_sign_test(only_a, only_b):.2g}")
+    return lines
+
+
 def main(argv: list[str] | None = None) -> int:
+    if argv is None:
+        import sys
+        argv = sys.argv[1:]  # --pair before argparse: it takes no run folder
+    if argv[:1] == ["--pair"]:
+        import sys
+        try:
+            if len(argv) != 3:
+                raise PairError("usage: clearance_probe.py --pair A.csv B.csv")
+            print("\n".join(pair(Path(argv[1]), Path(argv[2]))))
+        except PairError as error:
+            print(f"error: {error}", file=sys.stderr)
+            return 2
+        return 0
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run_dir", type=Path)
     parser.add_argument("--policy-file", type=Path, default=None, help="relative to RUN_DIR (default: policy.pt)")

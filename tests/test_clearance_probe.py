@@ -45,3 +45,21 @@ def test_a_folder_without_a_config_is_a_one_line_error(tmp_path, capsys):
         _module().main([str(tmp_path)])
     assert exit_info.value.code == 2
     assert "no config.yaml" in capsys.readouterr().err
+
+
+def test_pair_counts_discordant_near_misses(tmp_path, capsys):
+    module = _module()
+    header = "episode,success,touched_steps,cube_clearance,pusher_clearance\n"
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    # nearest approach per episode: A 0.004, 0.015, 0.04; B 0.04, 0.015, 0.008
+    a.write_text(header + "0,1,0,0.004,0.1\n1,1,0,0.2,0.015\n2,1,0,0.04,0.05\n")
+    b.write_text(header + "0,1,0,0.04,0.1\n1,1,0,0.015,0.3\n2,1,0,0.05,0.008\n")
+    lines = module.pair(a, b)
+    assert lines[1] == "within 0.5 cm: A 1, B 0; discordant 1 / 0, sign test p = 1"
+    assert lines[2] == "within 1.0 cm: A 1, B 1; discordant 1 / 1, sign test p = 1"
+    assert lines[3] == "within 2.0 cm: A 2, B 2; discordant 1 / 1, sign test p = 1"
+    assert module.main(["--pair", str(a), str(tmp_path / "missing.csv")]) == 2
+    assert capsys.readouterr().err.startswith("error: ")
+    b.write_text(header + "0,1,0,0.04,0.1\n")
+    assert module.main(["--pair", str(a), str(b)]) == 2
+    assert "not the same episodes" in capsys.readouterr().err
