@@ -21,10 +21,11 @@ exact sign test of them.
 from __future__ import annotations
 
 import argparse
-import copy
 import csv
+import functools
 import importlib.util
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -43,7 +44,6 @@ MARGINS = (0.005, 0.01, 0.02, 0.03)  # m, the near-miss thresholds reported
 def probe(run_dir: Path, episodes: int, policy_file: Path | None, scripted: bool, reach: float) -> list[dict]:
     """One row per episode: success, touched steps, the smallest cube and pusher clearance (m)."""
     raw = fill_missing(yaml.safe_load((run_dir / "config.yaml").read_text()))
-    raw = copy.deepcopy(raw)
     raw["task"]["rewards"]["avoid_margin"] = reach
     config = config_from_dict(raw)
     policy = None if scripted else load_policy(run_dir, policy_file)[1]
@@ -93,12 +93,14 @@ class PairError(ValueError):
     """Two files ``--pair`` cannot compare."""
 
 
-def _sign_test(only_a: int, only_b: int) -> float:
+@functools.cache
+def _scratch_study():
+    """studies/scratch_study.py, loaded once (its exact sign test)."""
     spec = importlib.util.spec_from_file_location("scratch_study", Path(__file__).with_name("scratch_study.py"))
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    return module.sign_test(only_a, only_b)
+    return module
 
 
 def pair(path_a: Path, path_b: Path) -> list[str]:
@@ -119,16 +121,14 @@ def pair(path_a: Path, path_b: Path) -> list[str]:
         only_a = sum(x < margin <= y for x, y in zip(a, b))
         only_b = sum(y < margin <= x for x, y in zip(a, b))
         lines.append(f"within {100 * margin:.1f} cm: A {sum(x < margin for x in a)}, B {sum(y < margin for y in b)}; "
-                     f"discordant {only_a} / {only_b}, sign test p = {_sign_test(only_a, only_b):.2g}")
+                     f"discordant {only_a} / {only_b}, sign test p = {_scratch_study().sign_test(only_a, only_b):.2g}")
     return lines
 
 
 def main(argv: list[str] | None = None) -> int:
     if argv is None:
-        import sys
         argv = sys.argv[1:]  # --pair before argparse: it takes no run folder
     if argv[:1] == ["--pair"]:
-        import sys
         try:
             if len(argv) != 3:
                 raise PairError("usage: clearance_probe.py --pair A.csv B.csv")
@@ -147,6 +147,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not (args.run_dir / "config.yaml").is_file():
         parser.error(f"{args.run_dir}: no config.yaml there; is it a run folder?")
+    if args.episodes < 1 or not args.reach > 0:
+        parser.error(f"--episodes must be >= 1 and --reach > 0 m, got {args.episodes} and {args.reach}")
     policy_file = args.run_dir / args.policy_file if args.policy_file else None
     rows = probe(args.run_dir, args.episodes, policy_file, args.scripted, args.reach)
     print("\n".join(summary(rows)))
