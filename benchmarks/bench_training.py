@@ -13,7 +13,15 @@ env only : the trainer's ``LeanCollector`` over the environments a second ``Trai
 training : ``Trainer.iteration`` (collection with the configured policy through its lean collection
            path — ``ppo.hidden_sizes``, 3x256 by default — GAE, PPO epochs with the BC anchor).
 
-Both in frames per second, batches interleaved; prints per setting the ratio training/env (goal
+env replay: the same environments' work without the learning: a twin ``Trainer`` of the same config
+           and seed (so the same environments, starts and random streams) steps, through the same
+           ``LeanCollector``, the actions the training loop's policy took in each batch just before,
+           so it visits the same states (checked: every observation equal) at the cost of no
+           network. The noise policy's trajectories differ from the policy's (they are cheaper:
+           fewer contacts and rows), which biases "env only" against training; the replay is the
+           like-for-like comparison. Both are printed; the goal is read on the replay.
+
+All in frames per second, batches interleaved; prints per setting the ratios training/env (goal
 >= 0.8), the absolute training rate (aim >= 1000 frames/s) and the projected wall time of the
 300-episode run for 1200-step (unsuccessful) episodes — the worst case.
 
@@ -62,15 +70,76 @@ def env_only(config) -> tuple[LeanCollector, Trainer]:
     return LeanCollector(stepper, actor, config.ppo.frames_per_batch), source
 
 
+class ReplayActor:
+    """Hands :class:`LeanCollector` the actions of a recorded batch, step by step (``sample`` returns
+    the action alone): the batch's ``"action"``, shape [N, T, act] (or [T, act] with one
+    environment, which the collector calls with one observation)."""
+
+    out_keys = ["action"]
+
+    def __init__(self) -> None:
+        self.actions: torch.Tensor | None = None
+        self.step = 0
+
+    def load(self, actions: torch.Tensor) -> None:
+        self.actions, self.step = actions, 0
+
+    def sample(self, observation: torch.Tensor) -> tuple[torch.Tensor]:
+        assert self.actions is not None
+        action = self.actions[..., self.step, :]
+        self.step += 1
+        return (action,)
+
+
+class Recorded:
+    """Wraps a trainer's ``_collect`` to keep the last batch it collected (its actions, its
+    observations)."""
+
+    def __init__(self, trainer: Trainer) -> None:
+        self.batch = None
+        self._collect = trainer._collect
+        trainer._collect = self  # type: ignore[method-assign]
+
+    def __call__(self):
+        self.batch = self._collect()
+        return self.batch
+
+
+def replay_twin(config) -> tuple[LeanCollector, ReplayActor, Trainer]:
+    """A twin of the training trainer (same config and seed, no demonstrations to collect: the
+    configurations measured here have none) whose environments replay the training loop's actions."""
+    twin = Trainer(config, collect_demos=False)
+    twin._set_touch_end()
+    actor = ReplayActor()
+    stepper = twin.env if twin.workers else twin.envs
+    return LeanCollector(stepper, actor, config.ppo.frames_per_batch), actor, twin
+
+
 def measure(overrides: list[str], batches: int) -> dict:
     config = load_config(overrides)
     torch.set_num_threads(config.train.threads)
     trainer = Trainer(config)
+    recorded = Recorded(trainer)
     frames = config.ppo.frames_per_batch
     collector, source = env_only(config)
+    replay, replay_actor, twin = replay_twin(config)
+    same = True
+
+    def replay_batch() -> float:
+        nonlocal same
+        replay_actor.load(recorded.batch["action"])
+        t0 = time.perf_counter()
+        data = replay.next()
+        elapsed = time.perf_counter() - t0
+        same &= bool(torch.equal(data["observation"], recorded.batch["observation"]))
+        twin.curriculum_level = trainer.curriculum_level  # the start curriculum as training has it
+        twin._apply_curriculum()
+        return elapsed
+
     collector.next()
-    trainer.iteration()  # warm-up of both
-    env_time = train_time = 0.0
+    trainer.iteration()  # warm-up of all three
+    replay_batch()
+    env_time = train_time = replay_time = 0.0
     for _ in range(batches):
         t0 = time.perf_counter()
         collector.next()
@@ -78,10 +147,12 @@ def measure(overrides: list[str], batches: int) -> dict:
         t0 = time.perf_counter()
         trainer.iteration()
         train_time += time.perf_counter() - t0
+        replay_time += replay_batch()
     source.close()
+    twin.close()
     trainer.close()
     n = frames * batches
-    return dict(config=config, env=n / env_time, train=n / train_time)
+    return dict(config=config, env=n / env_time, train=n / train_time, replay=n / replay_time, same=same)
 
 
 def main() -> None:
@@ -101,17 +172,22 @@ def main() -> None:
         extra = [o for o in setting.split(",") if o]
         result = measure([*args.overrides, *extra], args.batches)
         config, env_rate, train_rate = result["config"], result["env"], result["train"]
-        ratio = train_rate / env_rate
+        replay_rate, ratio = result["replay"], train_rate / result["replay"]
         worst = config.train.episodes * config.task.max_steps / train_rate / 60
         print(f"setting: num_envs={config.train.num_envs} env_workers={config.train.env_workers} "
               f"({' '.join(extra) or 'the config'}); network {list(config.ppo.hidden_sizes)}, "
               f"{config.train.threads} thread(s), {config.ppo.frames_per_batch} frames/batch, "
               f"{config.ppo.epochs} epochs, {args.batches} batches")
-        print(f"  env only (noise policy)  : {env_rate:7.0f} frames/s")
+        print(f"  env only (noise policy)  : {env_rate:7.0f} frames/s   (ratio training/this "
+              f"{train_rate / env_rate:.3f})")
+        print(f"  env only (replay)        : {replay_rate:7.0f} frames/s   (the training batches' "
+              f"actions; same observations: {'yes' if result['same'] else 'NO'})")
         print(f"  training loop            : {train_rate:7.0f} frames/s   (aim >= {AIM_RATE:.0f}: "
               f"{'met' if train_rate >= AIM_RATE else 'NOT met'})")
-        print(f"  ratio training/env       : {ratio:.3f}   (goal >= {GOAL_RATIO}: "
+        print(f"  ratio training/replay    : {ratio:.3f}   (goal >= {GOAL_RATIO}: "
               f"{'met' if ratio >= GOAL_RATIO else 'NOT met'})")
+        if not result["same"]:
+            raise SystemExit("the replay left the training trajectories: its rate is not comparable")
         print(f"  {config.train.episodes} episodes of {config.task.max_steps} steps at that rate: "
               f"{worst:.0f} min (worst case: no episode ends early)")
 

@@ -131,3 +131,34 @@ def test_deploy_policy_controller_smooths_as_in_training():
         np.testing.assert_allclose(smoothed(), expected, atol=1e-12)
     smoothed.reset()
     np.testing.assert_allclose(smoothed(), raw(), atol=1e-12)
+
+
+@pytest.mark.parametrize("activation", ["tanh", "relu"])
+def test_plain_forward_is_the_network_bit_for_bit(activation):
+    from ahrm_stack.learning.ppo import PlainForward, safe_atanh, safe_tanh
+    from torchrl.modules.distributions.continuous import safeatanh_noeps, safetanh_noeps
+
+    modules = _modules((f"ppo.activation={activation}", "ppo.hidden_sizes=[64,32]"))
+    net = lean_actor(modules.actor).net
+    plain = PlainForward.of(net)
+    assert plain is not None
+    obs = torch.randn(50, 40) * 3.0
+    with torch.no_grad():
+        for want, got in zip(net(obs), plain(obs)):
+            assert torch.equal(want, got)
+        for p in net.parameters():  # updated in place (the optimiser, load_state_dict): seen
+            p.mul_(0.5)
+        for want, got in zip(net(obs), plain(obs)):
+            assert torch.equal(want, got)
+        x = torch.randn(1000) * 10.0  # through tanh's saturated tails, where the clamp acts
+        assert torch.equal(safe_tanh(x), safetanh_noeps(x))
+        y = safetanh_noeps(x)
+        assert torch.equal(safe_atanh(y), safeatanh_noeps(y))
+
+
+def test_plain_forward_declines_other_networks():
+    from ahrm_stack.learning.ppo import PlainForward
+
+    modules = _modules(("ppo.activation=elu",))
+    assert PlainForward.of(lean_actor(modules.actor).net) is None  # ELU: the modules run
+    assert PlainForward.of(torch.nn.Sequential(torch.nn.Linear(3, 2))) is None

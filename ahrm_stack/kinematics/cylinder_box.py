@@ -609,18 +609,44 @@ def _cross_gathers(m: int) -> tuple[np.ndarray, ...]:
 
 _CHORD = 1e-4  # rad: half the chord around n's extreme point (the rim bulges r * 5e-9 beyond it)
 _PRISM_ROUNDS = 4  # polygon refinements of the prism certificate
+_FAN_RATIO_MIN, _FAN_RATIO_MAX = 3.0, 8.0  # bounds on the fan's angle ratio (at most ~17 vertices a side)
 
 
-def _prism_certified(lower: float, n: tuple[float, float, float], cd: tuple, b: Bounds) -> bool:
+def _fan(t: float, lower: float, r: float) -> list[float]:
+    """Angles (rad, mod pi) of extra polygon vertices around the disc angle ``t``: t +- _CHORD q^k up
+    to pi/2, a geometric fan.
+
+    Why it certifies a curved optimum (a box edge against the cap rim, a box vertex against the
+    side): the inscribed ball of radius rho = -lower about the origin touches box - cylinder at the
+    optimum, where that body curves with radius r (the rim's) about one direction and the ball with
+    rho < r. At rim angle delta from the touching point the surface has fallen ~r delta^2 / 2 below
+    the tangent plane, the ball ~r delta^2 (r / rho) / 2, so a chord between delta and q delta (sag
+    ~r (q - 1)^2 delta^2 / 8) stays outside the ball when (q - 1)^2 < 4 (r / rho - 1): q = 1 + 2
+    sqrt(r / rho - 1), kept within [_FAN_RATIO_MIN, _FAN_RATIO_MAX]; the refinement rounds of
+    :func:`_prism_certified` mend what this estimate misses (measured on random tilted poses: none
+    needed)."""
+    rho = -lower
+    q = 1.0 + 2.0 * math.sqrt(r / rho - 1.0) if 0.0 < rho < r else (_FAN_RATIO_MAX if rho <= 0.0 else 0.0)
+    q = min(max(q, _FAN_RATIO_MIN), _FAN_RATIO_MAX)
+    out: list[float] = []
+    d = _CHORD * q
+    while d < math.pi / 2:
+        out += ((t - d) % math.pi, (t + d) % math.pi)
+        d *= q
+    return out
+
+
+def _prism_certified(lower: float, n: tuple[float, float, float], cd: tuple, b: Bounds, fan: bool = False) -> bool:
     """Like :func:`_overlap_certified`, with a fatter inner body: a prism over a polygon inscribed in
     the cap disc (times the axis segment). Its vertices: the disc's extreme points along n and along
     the three world axes (so its extents along n and the six box face normals equal the
     cylinder's), two at +-_CHORD around n's (an optimum of a box edge against the cap rim, where n
-    is not a crossing, is then matched to ~r * _CHORD^2), then, for up to _PRISM_ROUNDS rounds,
-    the extreme point along the prism's own worst facet normal (a cutting-plane refinement where
-    the polygon was too coarse). A centrally symmetric polygon is a zonogon, so box - prism is a
-    zonotope; its facet normals are the cross products g_i x g_j of its generators, and along each
-    the signed distance is (|n.d| - sum_k |n.g_k|) / |n| (vectorised)."""
+    is not a crossing, is then matched to ~r * _CHORD^2), with ``fan`` a geometric fan of vertices
+    around n's (:func:`_fan`; for an n that is no crossing: the curved optima), then, for up to
+    _PRISM_ROUNDS rounds, the extreme point along the prism's own worst facet normal (a
+    cutting-plane refinement where the polygon was too coarse). A centrally symmetric polygon is a
+    zonogon, so box - prism is a zonotope; its facet normals are the cross products g_i x g_j of its
+    generators, and along each the signed distance is (|n.d| - sum_k |n.g_k|) / |n| (vectorised)."""
     (cx, cy, cz), (ax, ay, az), r, h, rot = cd[0], cd[1], cd[2], cd[3], cd[4]
     ex, ey = (rot[0][0], rot[1][0], rot[2][0]), (rot[0][1], rot[1][1], rot[2][1])  # disc plane basis
 
@@ -634,20 +660,21 @@ def _prism_certified(lower: float, n: tuple[float, float, float], cd: tuple, b: 
     t = angle(n)
     if t is not None:
         angles.update((t % math.pi, (t - _CHORD) % math.pi, (t + _CHORD) % math.pi))
+        if fan:
+            angles.update(_fan(t, lower, r))
     if not angles:
         return False
-    box_gens = [((b[3] - b[0]) / 2, 0.0, 0.0), (0.0, (b[4] - b[1]) / 2, 0.0), (0.0, 0.0, (b[5] - b[2]) / 2),
-                (h * ax, h * ay, h * az)]
+    basis = np.array([ex, ey])  # (2, 3)
+    box_gens = np.array([((b[3] - b[0]) / 2, 0.0, 0.0), (0.0, (b[4] - b[1]) / 2, 0.0), (0.0, 0.0, (b[5] - b[2]) / 2),
+                         (h * ax, h * ay, h * az)])
     d = np.array([(b[0] + b[3]) / 2 - cx, (b[1] + b[4]) / 2 - cy, (b[2] + b[5]) / 2 - cz])
     for _ in range(_PRISM_ROUNDS):
-        verts = [(r * (math.cos(t) * ex[0] + math.sin(t) * ey[0]), r * (math.cos(t) * ex[1] + math.sin(t) * ey[1]),
-                  r * (math.cos(t) * ex[2] + math.sin(t) * ey[2])) for t in sorted(angles)]
-        verts.append((-verts[0][0], -verts[0][1], -verts[0][2]))
-        gens = box_gens + [((q[0] - p[0]) / 2, (q[1] - p[1]) / 2, (q[2] - p[2]) / 2)
-                           for p, q in zip(verts, verts[1:])]
-        g = np.array(gens)
+        ts = np.array(sorted(angles))
+        verts = r * (np.stack([np.cos(ts), np.sin(ts)], axis=1) @ basis)  # (m, 3) on the disc's half circle
+        verts = np.vstack([verts, -verts[:1]])
+        g = np.vstack([box_gens, 0.5 * (verts[1:] - verts[:-1])])
         f = g.ravel()
-        a1, b2, a2, b1 = _cross_gathers(len(gens))
+        a1, b2, a2, b1 = _cross_gathers(len(g))
         normals = f[a1] * f[b2] - f[a2] * f[b1]  # g_i x g_j: the (unnormalised) facet normals
         norm = np.sqrt(np.einsum("ij,ij->i", normals, normals))
         value = (np.abs(normals @ d) - np.abs(normals @ g.T).sum(axis=1)) / np.maximum(norm, 1e-300)
@@ -669,15 +696,18 @@ def _prism_certified(lower: float, n: tuple[float, float, float], cd: tuple, b: 
     return False
 
 
+
+
 def _crossing_overlap(cd: tuple, b: Bounds) -> tuple[float | None, float, tuple[float, float, float]]:
     """(certified signed distance or None, best crossing gap, its direction) for an overlap: the
     box faces first (the usual answer, cheapest), then all 14 crossings, each certified by the
-    ruling and then by the prism."""
+    ruling (the prism, dearer, is left to the caller: :func:`_fast_distance` tries it on the better
+    of this direction and coal's)."""
     lower, n = _crossing_gap(cd, b, sides=False)
     if lower <= 0.0 and _overlap_certified(lower, n, cd, b):
         return lower, lower, n
     lower, n = _crossing_gap(cd, b)
-    if lower <= 0.0 and (_overlap_certified(lower, n, cd, b) or _prism_certified(lower, n, cd, b)):
+    if lower <= 0.0 and _overlap_certified(lower, n, cd, b):
         return lower, lower, n
     return None, lower, n
 
@@ -685,23 +715,26 @@ def _crossing_overlap(cd: tuple, b: Bounds) -> tuple[float | None, float, tuple[
 def _fast_distance(cd: tuple, b: Bounds) -> float | None:
     """Signed distance (m) by certified shortcuts; None when none applies (then the reference runs).
 
-    Overlapping: the best crossing direction (a box face normal, usually) or the direction coal's
-    EPA reports, polished, certified by :func:`_overlap_certified` or :func:`_prism_certified`.
+    Overlapping: the best crossing direction (a box face normal, usually) or, when better, the
+    direction coal's EPA reports, polished, certified by :func:`_overlap_certified` or
+    :func:`_prism_certified`.
     Apart: coal's witness gives a genuine point pair (an upper bound) and its direction the support
     gap (a lower bound); certified when they agree to POLISH_TOL, the reference routine's
     criterion. coal's values themselves are never returned (its EPA can stop on a wrong face).
     """
     inside = _point_box_signed_distance(cd[0], b) <= 0.0  # the centre is in the box: overlapping
-    if inside:
+    if inside:  # the best crossing (usually a box face) before coal: the usual deep overlap
         value, lower, n = _crossing_overlap(cd, b)
         if value is not None:
             return value
+        if lower <= 0.0 and _prism_certified(lower, n, cd, b):
+            return lower
     d, normal, witness = _coal_query(cd, b)
     nx, ny, nz = normal.tolist()
     n0 = _unit(nx, ny, nz)
-    if n0 is None or not math.isfinite(d):
-        return None
-    if d > 0.0 and not inside:
+    if n0 is None or not math.isfinite(d):  # coal failed: an overlap may still be found by the search
+        d, n0 = -math.inf, None
+    if d > 0.0 and not inside and n0 is not None:
         lower = _support_gap(n0, cd, b)
         q = _clamp(tuple(witness.tolist()), b)
         p = _project_cylinder(q, cd)
@@ -718,10 +751,48 @@ def _fast_distance(cd: tuple, b: Bounds) -> float | None:
         value, lower, n = _crossing_overlap(cd, b)
         if value is not None:
             return value
-    g, m = _polished_gap(n0, cd, b)  # coal's direction, snapped and polished (an edge-rim optimum)
-    if g > lower and g <= 0.0 and (_overlap_certified(g, m, cd, b) or _prism_certified(g, m, cd, b)):
-        return g
+    g, m = _polished_gap(n0, cd, b) if n0 is not None else (-math.inf, n)  # coal's direction, polished
+    if g > lower + POLISH_TOL:  # better than every crossing, which then cannot be the optimum: certify g
+        if g <= 0.0 and (_overlap_certified(g, m, cd, b) or _prism_certified(g, m, cd, b, fan=True)):
+            return g
+    elif not inside and lower <= 0.0 and _prism_certified(lower, n, cd, b):  # the best crossing, by the prism
+        return lower
+    if max(g, lower) > 0.0:  # a positive support gap: apart after all (coal said otherwise)
+        return None
+    # coal's EPA failed or stopped on a wrong face, or the crossing did not certify: search the
+    # curved optima (box edge vs cap rim, box vertex vs side) and certify the best of everything.
+    s, k = _searched_gap(cd, b)
+    if s > max(g, lower) + POLISH_TOL and s <= 0.0 and (
+            _overlap_certified(s, k, cd, b) or _prism_certified(s, k, cd, b, fan=True)):
+        return s
     return None
+
+
+def _searched_gap(cd: tuple, b: Bounds) -> tuple[float, tuple[float, float, float]]:
+    """Best support gap (m) and its direction over the curved optima of an overlap: on each great
+    circle n_i = 0 (a box edge against a cap rim) Newton's method from the best of its coarse samples
+    (those of :func:`_candidate_gap`), and the eight box vertices against the side (n across the
+    axis, along the vertex's offset). A lower bound, like every support gap; the caller certifies it."""
+    c, a, r, h = np.array(cd[0]), np.array(cd[1]), cd[2], cd[3]
+    g = _support_gaps(_ARC_DIRS, c, a, r, h, b).reshape(3, _ARC_SAMPLES)
+    best, arg = -math.inf, (0.0, 0.0, 1.0)
+    for i, j in enumerate(g.argmax(axis=1).tolist()):
+        seed = tuple(_ARC_DIRS[i * _ARC_SAMPLES + j].tolist())
+        for n in (seed, _arc_newton(i, seed, cd, b)):
+            if n is not None:
+                v = _support_gap(n, cd, b)
+                if v > best:
+                    best, arg = v, n
+    verts = np.array([[x, y, z] for x in (b[0], b[3]) for y in (b[1], b[4]) for z in (b[2], b[5])]) - c
+    side = verts - np.outer(verts @ a, a)
+    norm = np.sqrt((side * side).sum(axis=1))
+    side = side[norm > _DEGENERATE] / norm[norm > _DEGENERATE, None]
+    if len(side):
+        gaps = _support_gaps(side, c, a, r, h, b)
+        k = int(gaps.argmax())
+        if gaps[k] > best:
+            best, arg = float(gaps[k]), tuple(side[k].tolist())
+    return best, arg
 
 
 def _point_box_signed_distance(p: tuple[float, float, float], b: Bounds) -> float:
