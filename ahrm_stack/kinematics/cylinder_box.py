@@ -724,7 +724,9 @@ def _crossing_overlap(cd: tuple, b: Bounds) -> tuple[float | None, float, tuple[
     ruling (the prism, dearer, is left to the caller: :func:`_fast_distance` tries it on the better
     of this direction and coal's)."""
     lower, n = _crossing_gap(cd, b, sides=False)
-    if lower <= 0.0 and _overlap_certified(lower, n, cd, b):
+    if lower > 0.0:  # a positive support gap: apart (the side crossings cannot change that)
+        return None, lower, n
+    if _overlap_certified(lower, n, cd, b):
         return lower, lower, n
     lower, n = _crossing_gap(cd, b)
     if lower <= 0.0 and _overlap_certified(lower, n, cd, b):
@@ -743,12 +745,11 @@ def _fast_distance(cd: tuple, b: Bounds) -> float | None:
     criterion. coal's values themselves are never returned (its EPA can stop on a wrong face).
     """
     inside = _point_box_signed_distance(cd[0], b) <= 0.0  # the centre is in the box: overlapping
-    if inside:  # the best crossing (usually a box face) before coal: the usual deep overlap
-        value, lower, n = _crossing_overlap(cd, b)
-        if value is not None:
-            return value
-        if lower <= 0.0 and _prism_certified(lower, n, cd, b):
-            return lower
+    value, lower, n = _crossing_overlap(cd, b)  # the best crossing (usually a box face): no coal needed
+    if value is not None:
+        return value
+    if inside and lower <= 0.0 and _prism_certified(lower, n, cd, b):  # the usual deep overlap
+        return lower
     d, normal, witness = _coal_query(cd, b)
     nx, ny, nz = normal.tolist()
     n0 = _unit(nx, ny, nz)
@@ -767,12 +768,8 @@ def _fast_distance(cd: tuple, b: Bounds) -> float | None:
                 if upper - lower > POLISH_TOL:
                     return None
         return upper if upper > POLISH_TOL else min(lower, 0.0)
-    if not inside:  # (inside, the crossing's certificates were tried before coal)
-        value, lower, n = _crossing_overlap(cd, b)
-        if value is not None:
-            return value
-        if lower <= 0.0 and _prism_certified(lower, n, cd, b):  # the best crossing, by the prism
-            return lower
+    if not inside and lower <= 0.0 and _prism_certified(lower, n, cd, b):  # the best crossing, by the prism
+        return lower
     g, m = _polished_gap(n0, cd, b) if n0 is not None else (-math.inf, n)  # coal's direction, polished
     if g > lower + POLISH_TOL:  # better than every crossing, which then cannot be the optimum: certify g
         if g <= 0.0 and (_overlap_certified(g, m, cd, b) or _prism_certified(g, m, cd, b, fan=True)):
