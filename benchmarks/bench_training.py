@@ -34,6 +34,7 @@ Usage: python benchmarks/bench_training.py [--batches N] [--settings S ...] [--q
 from __future__ import annotations
 
 import argparse
+import copy
 import dataclasses
 import os
 import time
@@ -125,29 +126,43 @@ def measure(overrides: list[str], batches: int) -> dict:
     replay, replay_actor, twin = replay_twin(config)
     same = True
 
-    def replay_batch() -> float:
+    def training_batch() -> tuple[float, dict, int]:
+        """One training iteration: (seconds, the mechanism's state and the frame count before it)."""
+        state, frames_before = copy.deepcopy(trainer.mechanism.state_dict()), trainer.frames
+        t0 = time.perf_counter()
+        trainer.iteration()
+        return time.perf_counter() - t0, state, frames_before
+
+    def replay_batch(mechanism_state: dict, frames_before: int) -> float:
+        """The twin replays the last training batch from the state training collected it in: the
+        reward mechanism's state (its priority constraint can end episodes; worker processes get it
+        only at batch ends), the frame count (a delayed touch ending) and the start curriculum."""
         nonlocal same
+        twin._completed()  # the twin's finished episodes: dropped (training's own update the mechanism)
+        twin.mechanism.load_state_dict(mechanism_state)
+        if twin.workers:
+            twin.env.load_mechanism(mechanism_state)
+        twin.frames = frames_before
+        twin._set_touch_end()
         replay_actor.load(recorded.batch["action"])
         t0 = time.perf_counter()
         data = replay.next()
         elapsed = time.perf_counter() - t0
         same &= bool(torch.equal(data["observation"], recorded.batch["observation"]))
-        twin.curriculum_level = trainer.curriculum_level  # the start curriculum as training has it
+        twin.curriculum_level = trainer.curriculum_level  # the next batch's start curriculum
         twin._apply_curriculum()
         return elapsed
 
     collector.next()
-    trainer.iteration()  # warm-up of all three
-    replay_batch()
+    replay_batch(*training_batch()[1:])  # warm-up of all three
     env_time = train_time = replay_time = 0.0
     for _ in range(batches):
         t0 = time.perf_counter()
         collector.next()
         env_time += time.perf_counter() - t0
-        t0 = time.perf_counter()
-        trainer.iteration()
-        train_time += time.perf_counter() - t0
-        replay_time += replay_batch()
+        seconds, state, frames_before = training_batch()
+        train_time += seconds
+        replay_time += replay_batch(state, frames_before)
     source.close()
     twin.close()
     trainer.close()

@@ -387,8 +387,14 @@ def _settle(cd: tuple, b: Bounds, upper: float, lower: float) -> float:
 # * upper, overlapping: the signed distance of a segment inside the cylinder (the side's ruling
 #   through the extreme point), exact by the segment-box zonotope's 12 facets: a smaller body is
 #   never deeper. Tight when the pusher pokes into the box through one face or edge-on along its
-#   side (nearly every overlap of the task); a box edge against the cap rim is left to the
-#   reference.
+#   side (nearly every overlap of the task). Otherwise a fatter inscribed body: a prism over a
+#   polygon in the cap disc (box - prism is a zonotope, exact by its facets), with a geometric fan
+#   of vertices around the touching point where the optimum is curved (a box edge against the cap
+#   rim, a box vertex against the side).
+# * directions when coal's is wrong or missing (its EPA failed): a search of the curved optima
+#   (Newton on the great circles n_i = 0 from coarse samples; the box vertices against the side).
+#   What none of this certifies goes to the reference routine (none of 3,471 random tilted
+#   queries in benchmarks/bench_phases.py; 75 before the fan and the search).
 #
 # coal (the maintained successor of FCL, installed with Pinocchio; unlike python-fcl it does not
 # abort near touching) is only a source of directions and witness points: its EPA can stop on a
@@ -739,7 +745,8 @@ def _fast_distance(cd: tuple, b: Bounds) -> float | None:
 
     Overlapping: the best crossing direction (a box face normal, usually) or, when better, the
     direction coal's EPA reports, polished, certified by :func:`_overlap_certified` or
-    :func:`_prism_certified`.
+    :func:`_prism_certified`; when neither certifies, the best direction of
+    :func:`_searched_gap` (the curved optima), or the crossing's, with the prism's fan.
     Apart: coal's witness gives a genuine point pair (an upper bound) and its direction the support
     gap (a lower bound); certified when they agree to POLISH_TOL, the reference routine's
     criterion. coal's values themselves are never returned (its EPA can stop on a wrong face).
