@@ -17,9 +17,9 @@ env replay: the same environments' work without the learning: a twin ``Trainer``
            and seed (so the same environments, starts and random streams) steps, through the same
            ``LeanCollector``, the actions the training loop's policy took in each batch just before,
            so it visits the same states (checked: every observation equal) at the cost of no
-           network. The noise policy's trajectories differ from the policy's (they are cheaper:
-           fewer contacts and rows), which biases "env only" against training; the replay is the
-           like-for-like comparison. Both are printed; the goal is read on the replay.
+           network. The noise policy's trajectories are not the policy's, so their cost differs
+           (by up to ~10 % either way, measured); the replay is the like-for-like comparison.
+           Both are printed; the goal is read on the replay.
 
 All in frames per second, batches interleaved; prints per setting the ratios training/env (goal
 >= 0.8), the absolute training rate (aim >= 1000 frames/s) and the projected wall time of the
@@ -107,8 +107,9 @@ class Recorded:
 
 
 def replay_twin(config) -> tuple[LeanCollector, ReplayActor, Trainer]:
-    """A twin of the training trainer (same config and seed, no demonstrations to collect: the
-    configurations measured here have none) whose environments replay the training loop's actions."""
+    """A twin of the training trainer (same config and seed) whose environments replay the training
+    loop's actions. It collects no demonstrations: they come from environments of their own, not the
+    trainer's (the observation check holds with the default config's behaviour cloning)."""
     twin = Trainer(config, collect_demos=False)
     twin._set_touch_end()
     actor = ReplayActor()
