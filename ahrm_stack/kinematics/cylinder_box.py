@@ -401,6 +401,8 @@ def _settle(cd: tuple, b: Bounds, upper: float, lower: float) -> float:
 # wrong face (measured: ~1% of random overlaps, more near axis-aligned poses), so its values are
 # never returned. benchmarks/bench_phases.py compares the fast and the reference routine.
 
+_COAL_FAILED = -1e300  # coal's EPA reports -DBL_MAX (with an arbitrary normal) when it fails
+
 FAST_SNAP = 1e-4
 """Features (circles, crossings) within this distance of coal's direction are polished."""
 
@@ -760,8 +762,8 @@ def _fast_distance(cd: tuple, b: Bounds) -> float | None:
     d, normal, witness = _coal_query(cd, b)
     nx, ny, nz = normal.tolist()
     n0 = _unit(nx, ny, nz)
-    if n0 is None or not math.isfinite(d):  # coal failed: an overlap may still be found by the search
-        d, n0 = -math.inf, None
+    if n0 is None or not math.isfinite(d) or d <= _COAL_FAILED:  # coal failed: its direction is noise;
+        d, n0 = -math.inf, None  # an overlap may still be found by the search
     if d > 0.0 and not inside and n0 is not None:
         lower = _support_gap(n0, cd, b)
         q = _clamp(tuple(witness.tolist()), b)
