@@ -25,7 +25,6 @@ to the reference routine. The tests cross-check against python-fcl
 
 from __future__ import annotations
 
-import functools
 import math
 
 import coal
@@ -255,6 +254,13 @@ _ZOOM_COS = [np.cos(d) for d in _ZOOM_OFFSETS]
 _ZOOM_SIN = [np.sin(d) for d in _ZOOM_OFFSETS]
 
 
+def _vertex_offsets(c: np.ndarray, a: np.ndarray, b: Bounds) -> tuple[np.ndarray, np.ndarray]:
+    """The box's eight vertices minus the cylinder's centre ``c`` (8, 3), m, and those offsets
+    across the unit axis ``a`` (their part perpendicular to it)."""
+    w = np.array([[x, y, z] for x in (b[0], b[3]) for y in (b[1], b[4]) for z in (b[2], b[5])]) - c
+    return w, w - np.outer(w @ a, a)
+
+
 def _candidate_gap(cd: tuple, b: Bounds) -> float:
     """Max of the support gap over the directions where its maximum over the sphere can lie, m.
 
@@ -267,9 +273,7 @@ def _candidate_gap(cd: tuple, b: Bounds) -> float:
     """
     c, a, r, h = np.array(cd[0]), np.array(cd[1]), cd[2], cd[3]
     ax, ay, az = cd[1]
-    verts = np.array([[x, y, z] for x in (b[0], b[3]) for y in (b[1], b[4]) for z in (b[2], b[5])])
-    w = verts - c
-    side = w - np.outer(w @ a, a)  # vertex offsets across the axis
+    w, side = _vertex_offsets(c, a, b)
     side_u = side / np.maximum(np.sqrt((side * side).sum(axis=1)), _DEGENERATE)[:, None]
     rim = np.vstack([w - h * a, w + h * a]) - r * np.vstack([side_u, side_u])  # nearest rim point -> vertex
     fixed = [
@@ -603,18 +607,6 @@ def _overlap_certified(lower: float, n: tuple[float, float, float], cd: tuple, b
     return upper <= 0.0 and upper - lower <= POLISH_TOL
 
 
-@functools.lru_cache(maxsize=None)
-def _cross_gathers(m: int) -> tuple[np.ndarray, ...]:
-    """Flat indices into an (m, 3) array such that g_i x g_j over all pairs i < j is
-    f[a] * f[b] - f[c] * f[d] with f = g.ravel() (np.cross costs ~25 us on such small arrays)."""
-    pairs = [(i, j) for i in range(m) for j in range(i + 1, m)]
-    first, second = (1, 2, 0), (2, 0, 1)  # (A x B)_k = A_first B_second - A_second B_first
-    return (np.array([[3 * i + first[k] for k in range(3)] for i, _ in pairs]),
-            np.array([[3 * j + second[k] for k in range(3)] for _, j in pairs]),
-            np.array([[3 * i + second[k] for k in range(3)] for i, _ in pairs]),
-            np.array([[3 * j + first[k] for k in range(3)] for _, j in pairs]))
-
-
 _CHORD = 1e-4  # rad: half the chord around n's extreme point (the rim bulges r * 5e-9 beyond it)
 _PRISM_ROUNDS = 4  # polygon refinements of the prism certificate
 _FAN_RATIO_MIN, _FAN_RATIO_MAX = 1.5, 8.0  # bounds on the fan's angle ratio (at most 24 vertices a side)
@@ -814,8 +806,7 @@ def _searched_gap(cd: tuple, b: Bounds) -> tuple[float, tuple[float, float, floa
                 v = _support_gap(n, cd, b)
                 if v > best:
                     best, arg = v, n
-    verts = np.array([[x, y, z] for x in (b[0], b[3]) for y in (b[1], b[4]) for z in (b[2], b[5])]) - c
-    side = verts - np.outer(verts @ a, a)
+    side = _vertex_offsets(c, a, b)[1]
     norm = np.sqrt((side * side).sum(axis=1))
     side = side[norm > _DEGENERATE] / norm[norm > _DEGENERATE, None]
     if len(side):
