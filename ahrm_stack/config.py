@@ -549,6 +549,8 @@ class TrainConfig(Section):
     eval_every: NonNegInt  # also evaluate (eval_episodes) every this many training episodes (0: never)
     threads: Annotated[PosInt, le(LIMITS["threads"], " (train.py also refuses more than this "
                                                      "machine's CPU count)")]  # torch intra-op threads
+    update_threads: Annotated[PosInt, le(LIMITS["threads"])]  # torch threads for GAE and the PPO
+    # epochs (the environments wait then); at most the machine's CPU count is used
     warm_start: Literal["none", "bc"]  # bc: behaviour cloning from scripted demonstrations first
     demo_episodes: Annotated[PosInt, le(LIMITS["demo_episodes"])]  # scripted-controller episodes
     # recorded for warm start and the BC anchor

@@ -131,3 +131,37 @@ def test_an_interrupted_call_leaves_the_pool_refusing_calls(pool, monkeypatch):
     monkeypatch.undo()
     with pytest.raises(WorkerError, match="interrupted mid-call"):
         pool.process_id()
+
+
+def test_the_shared_step_gives_what_concatenating_the_workers_replies_gives():
+    """Two workers' step outputs written into their rows of one SharedStep read back as the
+    concatenation of the replies (the reset values of the ended environments in index order)."""
+    from ahrm_stack.learning.collection import STEP_KEYS
+    from ahrm_stack.learning.pool import SharedStep
+
+    widths = {key: 3 + k for k, key in enumerate(STEP_KEYS)}
+    dtypes = {key: (np.float32, np.int64, np.bool_)[k % 3] for k, key in enumerate(STEP_KEYS)}
+    rng = np.random.default_rng(0)
+
+    def reply(n, ended):
+        values = {key: (rng.uniform(-5, 5, (n, widths[key])) * 10).astype(dtypes[key]) for key in STEP_KEYS}
+        terminated, truncated = np.zeros(n, bool), np.zeros(n, bool)
+        terminated[ended[:1]], truncated[ended[1:]] = True, True
+        resets = {key: (rng.uniform(-5, 5, (len(ended), widths[key])) * 10).astype(dtypes[key]) for key in STEP_KEYS}
+        return values, rng.standard_normal(n).astype(np.float32), terminated, truncated, resets
+
+    buffer = bytearray(SharedStep.size(5, widths, dtypes, 6, np.float32))
+    shared = SharedStep(memoryview(buffer), 5, widths, dtypes, 6, np.float32)
+    for first, second in (([1], [0, 2]), ([], [])):  # ends in both workers; none
+        parts = [reply(2, first), reply(3, second)]
+        shared.write(0, parts[0])
+        shared.write(2, parts[1])
+        values, reward, terminated, truncated, resets = shared.read()
+        for key in STEP_KEYS:
+            np.testing.assert_array_equal(values[key], np.concatenate([p[0][key] for p in parts]))
+            np.testing.assert_array_equal(resets[key], np.concatenate([p[4][key] for p in parts]))
+            assert values[key].dtype == resets[key].dtype == dtypes[key]
+        for k, got in ((1, reward), (2, terminated), (3, truncated)):
+            np.testing.assert_array_equal(got, np.concatenate([p[k] for p in parts]))
+    assert len(buffer) % SharedStep.ALIGN == 0
+

@@ -134,3 +134,38 @@ def test_same_seed_same_training(tmp_path):
         batches = [{k: v for k, v in row.items() if k != "seconds"} for row in _rows(run / "batches.csv")]
         runs.append((episodes, batches))
     assert runs[0] == runs[1]
+
+
+def test_update_threads_are_set_for_the_update_and_restored(monkeypatch):
+    """``train.update_threads`` (at most the machine's CPUs) inside the update, the trainer's count
+    outside it, also when the update raises."""
+    import os
+
+    from ahrm_stack.config import load_config
+    from ahrm_stack.learning import trainer as trainer_module
+
+    before = torch.get_num_threads()
+    with trainer_module.update_threads(64) as used:
+        assert used == torch.get_num_threads() == (os.cpu_count() or 1)
+    assert torch.get_num_threads() == before
+    monkeypatch.setattr(os, "cpu_count", lambda: 1)
+    with trainer_module.update_threads(2) as used:
+        assert used == torch.get_num_threads() == 1
+    monkeypatch.undo()
+    with pytest.raises(ZeroDivisionError):
+        with trainer_module.update_threads(2):
+            1 / 0
+    assert torch.get_num_threads() == before
+    seen = []
+    trainer = trainer_module.Trainer(load_config([*SMALL, "ppo.frames_per_batch=64", "ppo.mini_batch_size=32",
+                                                  "ppo.epochs=1", "train.update_threads=2"]), collect_demos=False)
+    compute = trainer.compute_loss
+
+    def counting(batch):
+        seen.append(torch.get_num_threads())
+        return compute(batch)
+
+    trainer.compute_loss = counting
+    trainer.iteration()
+    trainer.close()
+    assert seen == [min(2, os.cpu_count() or 1)] * 2 and torch.get_num_threads() == before

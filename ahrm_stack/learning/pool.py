@@ -5,9 +5,13 @@ process runs a :class:`~ahrm_stack.learning.collection.LocalEnvs` of its consecu
 environment a :class:`~ahrm_stack.learning.workers.WorkerEnv`: the reward mechanism's state from the
 trainer, episode ends deferred to it). One step of the pool sends every worker its rows of the
 actions, lets them step at once on their own cores, and gathers their arrays in environment order:
-one pipe message each way per worker per step, plain numpy arrays, no TensorDicts. The batches are
-those of TorchRL's Collector over a ``ParallelEnv`` of the same workers (``tests/test_collection.py``
-holds them key for key); what it drops is that path's per-step machinery.
+one short pipe message each way per worker per step. The step's arrays (the actions in, each
+environment's values, reward, ends and reset values out) live in one block of shared memory that the
+pool and its workers map (:class:`SharedStep`), each worker writing its own rows, so no array is
+pickled on the way; the messages only say "step" and "done" (an action array of another shape or
+dtype than the action spec's travels in the message, so that the worker's environment judges it as
+in process). The batches are those of TorchRL's Collector over a ``ParallelEnv`` of the same workers
+(``tests/test_collection.py`` holds them key for key); what it drops is that path's per-step machinery.
 
 A worker that raises sends its traceback; a worker that dies (killed, out of memory) closes its
 pipe. Either way the trainer gets a :class:`WorkerError` naming the worker and its environments,
@@ -19,6 +23,7 @@ from __future__ import annotations
 import multiprocessing
 import multiprocessing.connection
 import pickle
+from multiprocessing import shared_memory
 import signal
 import sys
 import traceback
@@ -54,6 +59,62 @@ def _error_reply() -> tuple[str, str, BaseException | None]:
     return "error", traceback.format_exc(), error
 
 
+class SharedStep:
+    """One step's arrays for ``count`` environments, as views of one shared buffer (the pool's
+    :class:`~multiprocessing.shared_memory.SharedMemory`, mapped by the pool and every worker):
+    ``actions`` (count, action width) in; ``values`` (one array per key of ``STEP_KEYS``, a row per
+    environment), ``reward``, ``terminated``, ``truncated`` and ``resets`` (the reset's values of an
+    environment that ended, in its own row) out. Each array starts on a 64-byte boundary."""
+
+    ALIGN = 64
+
+    def __init__(self, buffer: Any, count: int, widths: dict[str, int], dtypes: dict[str, type],
+                 action_width: int, action_dtype: Any) -> None:
+        offset = 0
+
+        def take(width: int | None, dtype: Any) -> np.ndarray:
+            nonlocal offset
+            shape = (count,) if width is None else (count, width)
+            nbytes = int(np.prod(shape)) * np.dtype(dtype).itemsize
+            array = (np.empty(shape, dtype=dtype) if buffer is None
+                     else np.ndarray(shape, dtype=dtype, buffer=buffer, offset=offset))
+            offset += -(-nbytes // self.ALIGN) * self.ALIGN
+            return array
+
+        self.actions = take(action_width, action_dtype)
+        self.values = {key: take(widths[key], dtypes[key]) for key in STEP_KEYS}
+        self.resets = {key: take(widths[key], dtypes[key]) for key in STEP_KEYS}
+        self.reward = take(None, np.float32)
+        self.terminated = take(None, np.bool_)
+        self.truncated = take(None, np.bool_)
+        self.nbytes = offset
+
+    @classmethod
+    def size(cls, count: int, widths: dict[str, int], dtypes: dict[str, type], action_width: int,
+             action_dtype: Any) -> int:
+        """Bytes of the shared buffer."""
+        return cls(None, count, widths, dtypes, action_width, action_dtype).nbytes
+
+    def write(self, start: int, output: StepOutput) -> None:
+        """A worker's step (its environments are ``start``, ``start + 1``, ...) into its rows."""
+        values, reward, terminated, truncated, resets = output
+        stop = start + len(reward)
+        for key in STEP_KEYS:
+            self.values[key][start:stop] = values[key]
+        self.reward[start:stop], self.terminated[start:stop], self.truncated[start:stop] = reward, terminated, truncated
+        ended = np.flatnonzero(terminated | truncated) + start
+        if len(ended):
+            for key in STEP_KEYS:
+                self.resets[key][ended] = resets[key]
+
+    def read(self) -> StepOutput:
+        """The step of every environment, copied out (the next step overwrites the buffer)."""
+        terminated, truncated = self.terminated.copy(), self.truncated.copy()
+        ended = np.flatnonzero(terminated | truncated)
+        return ({key: value.copy() for key, value in self.values.items()}, self.reward.copy(), terminated,
+                truncated, {key: value[ended] for key, value in self.resets.items()})
+
+
 def _serve(conn: multiprocessing.connection.Connection, task: TaskConfig, safety: SafetyConfig,
            mechanism: MechanismConfig, seeds: tuple[int, ...], indices: tuple[int, ...], time_limit: float,
            penalty: float) -> None:
@@ -74,6 +135,9 @@ def _serve(conn: multiprocessing.connection.Connection, task: TaskConfig, safety
     except Exception:  # noqa: BLE001 - reported to the trainer, which raises it
         conn.send(_error_reply())
         return
+    memory: shared_memory.SharedMemory | None = None
+    shared: SharedStep | None = None
+    start = indices[0]
     while True:
         try:
             command, args = conn.recv()
@@ -81,10 +145,22 @@ def _serve(conn: multiprocessing.connection.Connection, task: TaskConfig, safety
             return
         try:
             if command == "close":
+                shared = None  # no view of the buffer may outlive it
+                if memory is not None:
+                    memory.close()
                 conn.send(("ok", None))
                 return
             if command == "step":
-                reply: Any = envs.step(args[0])
+                if shared is None:
+                    raise RuntimeError("step before the shared buffer was attached")
+                actions = args[0] if args else shared.actions[start:start + envs.count].copy()
+                shared.write(start, envs.step(actions))
+                reply: Any = None
+            elif command == "attach":
+                name, count, action_width, action_dtype = args
+                memory = shared_memory.SharedMemory(name=name)
+                shared = SharedStep(memory.buf, count, envs.widths, envs.dtypes, action_width, action_dtype)
+                reply = None
             elif command == "begin":
                 reply = envs.begin()
             elif command in CALLS:
@@ -121,6 +197,8 @@ class EnvPool:
         per = len(seeds) // workers
         self.count = len(seeds)
         self.is_closed = False
+        self._memory: shared_memory.SharedMemory | None = None
+        self._shared: SharedStep | None = None
         self._broken = False  # a call was interrupted: replies may be left in the pipes
         self._bounds = [(w * per, (w + 1) * per) for w in range(workers)]
         context = multiprocessing.get_context("spawn")  # no fork of a process with torch's threads
@@ -145,6 +223,17 @@ class EnvPool:
             self.close()
             raise
         self.widths, self.dtypes, self.observation_spec, self.action_spec = layouts[0]
+        # the step's arrays, shared with every worker
+        self._action_shape = (self.count, int(np.prod(self.action_spec.shape)))
+        self._action_dtype = np.dtype(str(self.action_spec.dtype).removeprefix("torch."))
+        layout = (self.count, self.widths, self.dtypes, *self._action_shape[1:], self._action_dtype)
+        try:
+            self._memory = shared_memory.SharedMemory(create=True, size=SharedStep.size(*layout))
+            self._shared = SharedStep(self._memory.buf, *layout)
+            self._broadcast([("attach", (self._memory.name, *layout[:1], *layout[3:]))] * len(self._conns))
+        except BaseException:
+            self.close()
+            raise
 
     def _name(self, worker: int) -> str:
         start, stop = self._bounds[worker]
@@ -197,12 +286,19 @@ class EnvPool:
         return {key: np.concatenate([p[key] for p in parts]) for key in STEP_KEYS}
 
     def step(self, actions: np.ndarray) -> StepOutput:
-        """Environment i takes ``actions[i]``; the ended ones reset (see ``LocalEnvs.step``)."""
-        parts = self._broadcast([("step", (actions[start:stop],)) for start, stop in self._bounds])
-        values = {key: np.concatenate([p[0][key] for p in parts]) for key in STEP_KEYS}
-        reward, terminated, truncated = (np.concatenate([p[k] for p in parts]) for k in (1, 2, 3))
-        resets = {key: np.concatenate([p[4][key] for p in parts]) for key in STEP_KEYS}
-        return values, reward, terminated, truncated, resets
+        """Environment i takes ``actions[i]``; the ended ones reset (see ``LocalEnvs.step``). The
+        actions go through the shared buffer when they have its shape and dtype, else in the message
+        (the worker's environments raise on a wrong shape as they would in process)."""
+        shared = self._shared
+        if shared is None:
+            raise WorkerError("the environment pool is closed")
+        actions = np.asarray(actions)
+        if actions.shape == self._action_shape and actions.dtype == self._action_dtype:
+            shared.actions[:] = actions
+            self._broadcast([("step", ())] * len(self._conns))
+        else:
+            self._broadcast([("step", (actions[start:stop],)) for start, stop in self._bounds])
+        return shared.read()
 
     def call(self, method: str, *args) -> list:
         """``method(*args)`` on every environment; the results in environment order."""
@@ -231,6 +327,11 @@ class EnvPool:
                 process.terminate()
                 process.join(CLOSE_TIMEOUT)
             conn.close()
+        self._shared = None  # no view of the buffer may outlive it
+        if self._memory is not None:
+            self._memory.close()
+            self._memory.unlink()
+            self._memory = None
 
 
-__all__ = ["CALLS", "EnvPool", "WorkerError", "worker_arguments"]
+__all__ = ["CALLS", "EnvPool", "SharedStep", "WorkerError", "worker_arguments"]
