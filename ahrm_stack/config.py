@@ -737,7 +737,7 @@ def load_config(overrides: Sequence[str] = (), config_dir: Path | str = CONFIG_D
 # repository's configs (so the committed run folders and older checkpoints still load).
 BACKFILLED = {"safety": ("self_collision_rows", "self_collision_pairs"),
               "ppo": ("lane_frame", "actor_init_scale"),
-              "train": ("env_workers", "touch_end", "touch_end_after")}
+              "train": ("env_workers", "update_threads", "touch_end", "touch_end_after")}
 
 
 LEGACY_PPO = {"reward_scale": 1.0}  # before the key existed: rewards unscaled

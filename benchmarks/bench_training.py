@@ -192,7 +192,8 @@ def main() -> None:
         worst = config.train.episodes * config.task.max_steps / train_rate / 60
         print(f"setting: num_envs={config.train.num_envs} env_workers={config.train.env_workers} "
               f"({' '.join(extra) or 'the config'}); network {list(config.ppo.hidden_sizes)}, "
-              f"{config.train.threads} thread(s), {config.ppo.frames_per_batch} frames/batch, "
+              f"{config.train.threads} thread(s) ({config.train.update_threads} for the update), "
+              f"{config.ppo.frames_per_batch} frames/batch, "
               f"{config.ppo.epochs} epochs, {args.batches} batches")
         print(f"  env only (noise policy)  : {env_rate:7.0f} frames/s   (ratio training/this "
               f"{train_rate / env_rate:.3f})")

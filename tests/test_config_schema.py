@@ -157,8 +157,10 @@ def test_replace_does_not_validate_and_sections_stay_frozen():
 def test_old_run_folders_missing_keys_are_filled():
     raw = load_raw()
     del raw["task"]["observation"], raw["train"]["dagger_rounds"], raw["task"]["arm"]["start"]
+    del raw["train"]["update_threads"]  # a run written before 2026-12-04: the default fills it
     config = config_from_dict(raw)
     assert config.task.arm.start == "home" and config.train.dagger_rounds == 0
+    assert config.train.update_threads == load_config().train.update_threads
     assert not config.task.observation.relative
     assert config_from_dict(config.to_dict()) == config
 
