@@ -550,7 +550,8 @@ class TrainConfig(Section):
     threads: Annotated[PosInt, le(LIMITS["threads"], " (train.py also refuses more than this "
                                                      "machine's CPU count)")]  # torch intra-op threads
     update_threads: Annotated[PosInt, le(LIMITS["threads"])]  # torch threads for GAE and the PPO
-    # epochs (the environments wait then); at most the machine's CPU count is used
+    # epochs (the environments wait then); at most the machine's CPU count is used. More than 1 pays
+    # only for a run alone on the machine (two runs at once with 2 each ran ~3x slower)
     warm_start: Literal["none", "bc"]  # bc: behaviour cloning from scripted demonstrations first
     demo_episodes: Annotated[PosInt, le(LIMITS["demo_episodes"])]  # scripted-controller episodes
     # recorded for warm start and the BC anchor

@@ -1,7 +1,8 @@
 """Training throughput: the whole PPO loop against env-only collection of the same environments.
 
-For each setting (by default two: one environment in the trainer's process, ``train.num_envs=1``;
-and two environments in two worker processes, ``train.num_envs=2 train.env_workers=2``):
+For each setting (by default three: one environment in the trainer's process, ``train.num_envs=1``;
+the same with the update on two threads, ``train.update_threads=2``; and two environments in two
+worker processes, ``train.num_envs=2 train.env_workers=2``):
 
 env only : the trainer's ``LeanCollector`` over the environments a second ``Trainer`` builds from the
            same config (other seeds): the training time limit (``train.time_limit``), the start
@@ -53,7 +54,7 @@ from ahrm_stack.learning.trainer import Trainer  # noqa: E402
 
 QUICK_OVERRIDES = ("ppo.frames_per_batch=64", "ppo.mini_batch_size=32", "ppo.epochs=1",
                    "train.demo_episodes=1", "train.bc_epochs=1")
-SETTINGS = ("", "train.num_envs=2,train.env_workers=2")
+SETTINGS = ("", "train.update_threads=2", "train.num_envs=2,train.env_workers=2")
 GOAL_RATIO, AIM_RATE = 0.8, 1000.0
 
 

@@ -70,7 +70,8 @@ def update_threads(threads: int) -> Iterator[int]:
     the workers, so a core that steps environments during collection is free then. On this machine
     (2 vCPUs, torch 2.13 CPU) the update's values with 2 threads were bitwise those with 1 (the 3x256
     networks, profile=scratch: the policy after 5 batches identical); torch does not promise that
-    for every BLAS build and size."""
+    for every BLAS build and size. Two runs at once with 2 update threads each collided (OpenMP's
+    threads of one took the core the other stepped on: ~3x slower), hence ``train.update_threads: 1``."""
     before = torch.get_num_threads()
     used = max(1, min(int(threads), os.cpu_count() or 1))
     if used != before:
