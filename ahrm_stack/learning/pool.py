@@ -23,10 +23,10 @@ from __future__ import annotations
 import multiprocessing
 import multiprocessing.connection
 import pickle
-from multiprocessing import shared_memory
 import signal
 import sys
 import traceback
+from multiprocessing import shared_memory
 from typing import Any
 
 import numpy as np
