@@ -202,10 +202,10 @@ def main() -> None:
               f"actions; same observations: {'yes' if result['same'] else 'NO'})")
         print(f"  training loop            : {train_rate:7.0f} frames/s   (aim >= {AIM_RATE:.0f}: "
               f"{'met' if train_rate >= AIM_RATE else 'NOT met'})")
-        print(f"  ratio training/replay    : {ratio:.3f}   (goal >= {GOAL_RATIO}: "
-              f"{'met' if ratio >= GOAL_RATIO else 'NOT met'})")
         if not result["same"]:
             raise SystemExit("the replay left the training trajectories: its rate is not comparable")
+        print(f"  ratio training/replay    : {ratio:.3f}   (goal >= {GOAL_RATIO}: "
+              f"{'met' if ratio >= GOAL_RATIO else 'NOT met'})")
         print(f"  {config.train.episodes} episodes of {config.task.max_steps} steps at that rate: "
               f"{worst:.0f} min (worst case: no episode ends early)")
 

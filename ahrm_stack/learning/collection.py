@@ -32,7 +32,7 @@ from ahrm_stack.learning.ppo import LeanCollectionActor
 
 # the per-step entries of the environment (root and "next")
 STEP_KEYS = ("observation", "f", "g", "phase", "x", "distances", "success", "touched")
-_NUMPY = {torch.float32: np.float32, torch.int64: np.int64, torch.bool: np.bool_}
+NUMPY_DTYPES = {torch.float32: np.float32, torch.int64: np.int64, torch.bool: np.bool_}
 
 Values = dict[str, np.ndarray]
 """One array per key of :data:`STEP_KEYS`, a row per environment: shape (n, width), the dtype of
@@ -65,7 +65,7 @@ def spec_layout(env: PushOffEnv) -> tuple[dict[str, int], dict[str, type]]:
     """Width and numpy dtype of each key of :data:`STEP_KEYS` in ``env``'s observation spec."""
     spec = env.observation_spec
     return ({key: int(np.prod(spec[key].shape)) for key in STEP_KEYS},
-            {key: _NUMPY[spec[key].dtype] for key in STEP_KEYS})
+            {key: NUMPY_DTYPES[spec[key].dtype] for key in STEP_KEYS})
 
 
 class LocalEnvs:

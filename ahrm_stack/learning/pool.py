@@ -33,7 +33,7 @@ import numpy as np
 
 from ahrm_stack.config import Config, MechanismConfig, SafetyConfig, TaskConfig
 from ahrm_stack.env.torchrl_env import touch_penalty
-from ahrm_stack.learning.collection import STEP_KEYS, LocalEnvs, StepOutput, Values
+from ahrm_stack.learning.collection import NUMPY_DTYPES, STEP_KEYS, LocalEnvs, StepOutput, Values
 
 # the WorkerEnv methods the trainer calls on every environment (see workers.WorkerEnv)
 CALLS = ("drain", "load_mechanism", "worker_state", "load_worker_state", "process_id", "set_near_cube_share",
@@ -224,13 +224,15 @@ class EnvPool:
             raise
         self.widths, self.dtypes, self.observation_spec, self.action_spec = layouts[0]
         # the step's arrays, shared with every worker
-        self._action_shape = (self.count, int(np.prod(self.action_spec.shape)))
-        self._action_dtype = np.dtype(str(self.action_spec.dtype).removeprefix("torch."))
-        layout = (self.count, self.widths, self.dtypes, *self._action_shape[1:], self._action_dtype)
+        action_width = int(np.prod(self.action_spec.shape))
+        self._action_shape = (self.count, action_width)
+        self._action_dtype = np.dtype(NUMPY_DTYPES[self.action_spec.dtype])
+        layout = (self.count, self.widths, self.dtypes, action_width, self._action_dtype)
         try:
             self._memory = shared_memory.SharedMemory(create=True, size=SharedStep.size(*layout))
             self._shared = SharedStep(self._memory.buf, *layout)
-            self._broadcast([("attach", (self._memory.name, *layout[:1], *layout[3:]))] * len(self._conns))
+            attach = (self._memory.name, self.count, action_width, self._action_dtype)
+            self._broadcast([("attach", attach)] * len(self._conns))
         except BaseException:
             self.close()
             raise
