@@ -19,6 +19,7 @@ BENCHMARKS = sorted((ROOT / "benchmarks").glob("bench_*.py"))
 RATIO_LINE = {  # a line each benchmark prints when it got to its figures
     "bench_camera_scene.py": "ratio camera/true successes",
     "bench_collection.py": "ratio lean/TorchRL",
+    "bench_concurrent_training.py": "parallel speed-up of runs",
     "bench_cores.py": "parallel speed-up",
     "bench_config.py": "ratio config/plain attribute access",
     "bench_deploy.py": "share of the summed tick time",
