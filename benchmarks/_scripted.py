@@ -25,6 +25,11 @@ from ahrm_stack import cli  # noqa: E402
 from ahrm_stack.config import Config  # noqa: E402
 
 
+QUICK_TRAINING = ("ppo.frames_per_batch=64", "ppo.mini_batch_size=32", "ppo.epochs=1",
+                  "train.demo_episodes=1", "train.bc_epochs=1")
+"""The training benchmarks' ``--quick`` overrides: 64-frame batches, one epoch, one demonstration."""
+
+
 @dataclasses.dataclass
 class Episode:
     seed: int

@@ -39,9 +39,9 @@ from ahrm_stack import cli  # noqa: E402
 
 cli.quiet_argv()  # before the heavy imports: the libraries' warnings and INFO logs unless --verbose
 
+from _scripted import QUICK_TRAINING  # noqa: E402
+
 SETUP = ("train.demo_episodes=20", "train.bc_epochs=2")
-QUICK_OVERRIDES = ("ppo.frames_per_batch=64", "ppo.mini_batch_size=32", "ppo.epochs=1", "train.demo_episodes=1",
-                   "train.bc_epochs=1")
 AIM_RATE = 1000.0
 
 
@@ -51,12 +51,12 @@ def run(overrides: list[str], batches: int, barrier, stop, results, index: int) 
     for all processes here), or (index, the error's line) when it fails."""
     cli.quiet_argv()
     try:
+        import torch
+
         from ahrm_stack.config import load_config
         from ahrm_stack.learning.trainer import Trainer
 
         config = load_config(overrides)
-        import torch
-
         torch.set_num_threads(config.train.threads)
         trainer = Trainer(config)
         try:
@@ -135,7 +135,7 @@ def main() -> None:
         raise SystemExit(f"--batches must be >= 1, got {args.batches}")
     base = [*SETUP, *args.overrides]
     if args.quick:
-        args.batches, base = 1, [*base, *QUICK_OVERRIDES]
+        args.batches, base = 1, [*base, *QUICK_TRAINING]
     from ahrm_stack.config import ConfigError, load_config
 
     try:  # one line naming the bad key before any process starts

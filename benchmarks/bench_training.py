@@ -48,12 +48,11 @@ cli.quiet_argv()  # before the heavy imports: the libraries' warnings and INFO l
 
 import torch  # noqa: E402
 
+from _scripted import QUICK_TRAINING  # noqa: E402
 from ahrm_stack.config import load_config  # noqa: E402
 from ahrm_stack.learning.collection import LeanCollector, RandomActor  # noqa: E402
 from ahrm_stack.learning.trainer import Trainer  # noqa: E402
 
-QUICK_OVERRIDES = ("ppo.frames_per_batch=64", "ppo.mini_batch_size=32", "ppo.epochs=1",
-                   "train.demo_episodes=1", "train.bc_epochs=1")
 SETTINGS = ("", "train.update_threads=2", "train.num_envs=2,train.env_workers=2")
 GOAL_RATIO, AIM_RATE = 0.8, 1000.0
 
@@ -184,7 +183,7 @@ def main() -> None:
     args = parser.parse_args()
     if args.quick:
         args.batches = 1
-        args.overrides = [*args.overrides, *QUICK_OVERRIDES]
+        args.overrides = [*args.overrides, *QUICK_TRAINING]
     for setting in args.settings:
         extra = [o for o in setting.split(",") if o]
         result = measure([*args.overrides, *extra], args.batches)
