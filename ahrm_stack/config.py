@@ -31,6 +31,7 @@ import yaml
 from pydantic import AfterValidator, PlainValidator
 from pydantic_core import PydanticCustomError
 
+from ahrm_stack.env.realism import RealismConfig, resolve_realism
 from ahrm_stack.schema import _float  # the Float rule, for values inside a custom validator
 from ahrm_stack.schema import (Bool, ConfigError, Float, FrozenDict, Int, Section, Source, Str, apply_override, count,
                                derived, fail, ge, gt, le, load_file, override_keys, read_yaml, show_path,
@@ -319,6 +320,8 @@ class TaskConfig(Section):
     rewards: RewardConfig
     action: ActionConfig
     observation: ObservationConfig
+    realism: RealismConfig  # training's domain randomisation: a real arm's imperfections
+    # (configs/realism.yaml names sets of them; a name there, e.g. jaco2 or ideal, or the values)
 
     @property
     def substeps(self) -> int:
@@ -523,6 +526,9 @@ class PPOConfig(Section):
     normalize_advantage: Bool  # scale each mini-batch's advantages to zero mean, unit std
     normalize_observations: Bool
     normalizer_clip: Pos  # normalised observations are clipped to +-this
+    normalizer_min_std: NonNeg  # the normaliser's per-feature scale is at least this (observation
+    # units; 0: sqrt(var + 1e-8) as it is): a feature that barely varied in training cannot turn a
+    # small measurement error into a saturated input
     update_normalizer: Bool  # keep updating its statistics from every batch (false: frozen once set)
     bc_coeff: NonNeg  # weight of a behaviour-cloning term toward the demonstrations (0: off)
     bc_coeff_final: NonNeg  # the anchor's weight goes linearly from bc_coeff to this ...
@@ -672,6 +678,7 @@ def profile_overrides(name: str, config_dir: Path | str = CONFIG_DIR) -> list[st
 def apply_overrides(data: dict, overrides: Sequence[str], config_dir: Path | str = CONFIG_DIR) -> None:
     """Apply ``key=value`` overrides in order; ``profile=NAME`` applies that profile's overrides at
     its place in the list (so later overrides win over it)."""
+    _resolve_realism(data)
     for override in overrides:
         if override.strip().startswith("profile="):
             name = override.split("=", 1)[1].strip()
@@ -683,6 +690,15 @@ def apply_overrides(data: dict, overrides: Sequence[str], config_dir: Path | str
                     raise ConfigError(f"{error} ({path})") from None
         else:
             apply_override(data, override)
+        _resolve_realism(data)
+
+
+def _resolve_realism(data: dict) -> None:
+    """``task.realism`` given as a profile name (``configs/realism.yaml``) becomes its values, in
+    place (so that the values are what a run folder records, and overrides of single values apply)."""
+    task = data.get("task")
+    if isinstance(task, dict) and isinstance(task.get("realism"), str):
+        task["realism"] = resolve_realism(task["realism"], "task.realism")
 
 
 def load_raw(config_dir: Path | str = CONFIG_DIR) -> dict:
@@ -741,7 +757,8 @@ BACKFILLED = {"safety": ("self_collision_rows", "self_collision_pairs"),
               "train": ("env_workers", "update_threads", "touch_end", "touch_end_after")}
 
 
-LEGACY_PPO = {"reward_scale": 1.0}  # before the key existed: rewards unscaled
+LEGACY_PPO = {"reward_scale": 1.0,  # before the key existed: rewards unscaled
+              "normalizer_min_std": 0.0}  # before 2026-12-04: no floor
 NEUTRAL_TRAIN_KEYS = ("frames", "eval_every_frames", "time_limit", "start_curriculum", "curriculum_states",
                       "curriculum_window", "curriculum_threshold", "curriculum_step")
 
@@ -831,6 +848,11 @@ def fill_missing(data: Any) -> Any:
     if not isinstance(data, dict):
         return data
     data = _legacy_fill(data)
+    task = data.get("task")
+    if isinstance(task, dict) and ("realism" not in task or isinstance(task["realism"], str)):
+        # before 2026-12-04: the ideal simulation (no imperfection, no random draw)
+        data = {**data, "task": {**task, "realism": task.get("realism", "ideal")}}
+        _resolve_realism(data)
     if any(isinstance(data.get(section), dict) and any(k not in data[section] for k in keys)
            for section, keys in BACKFILLED.items()):
         data = dict(data)

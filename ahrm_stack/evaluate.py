@@ -153,11 +153,12 @@ def policy_summaries(config: Config, run_dir: Path, episodes: int, seed_offset: 
                      policy_file: Path | None = None):
     """Episodes ``seed_offset + i`` of the run's deterministic policy (``policy_file``, default
     ``policy.pt``); the ``filmed`` ones rendered."""
+    from ahrm_stack.env.realism import nominal
     from ahrm_stack.env.torchrl_env import PushOffEnv
     from ahrm_stack.learning.rollouts import load_policy, run_episodes
 
     _, policy = load_policy(run_dir, policy_file)
-    env = PushOffEnv(config.task, config.safety, seed=seed_offset)
+    env = PushOffEnv(nominal(config.task), config.safety, seed=seed_offset)
     camera = camera_for(env.runner.physics) if camera_for and filmed else None
 
     def filmed_policy(tensordict):

@@ -48,6 +48,7 @@ with warnings.catch_warnings(record=True):
     import torch
     from tqdm import tqdm
 
+    from ahrm_stack.env.realism import nominal
     from ahrm_stack.env.torchrl_env import PushOffEnv
     from ahrm_stack.learning.checkpoint import CheckpointError, CheckpointManager, Restored
     from ahrm_stack.learning.diagnostics import plot_run
@@ -393,7 +394,7 @@ def train(config: Config, run_dir: Path, resume: bool, progress: bool = True,
     every, every_frames = config.train.eval_every, config.train.eval_every_frames
     interim = bool((every or every_frames) and config.train.eval_episodes)
     # built once: every interim evaluation replays the same evaluation seeds on this environment
-    eval_env = PushOffEnv(config.task, config.safety, seed=EVAL_SEED_OFFSET) if interim else None
+    eval_env = PushOffEnv(nominal(config.task), config.safety, seed=EVAL_SEED_OFFSET) if interim else None
 
     def evaluate_now() -> None:
         """One interim deterministic evaluation, logged, with the policy it evaluated."""

@@ -34,7 +34,7 @@ def _make_sim(config, settings) -> ArmAdapter:
 
     clock = WallClock() if settings.realtime else FastClock()
     return SimArm(config.task, seed=settings.seed, clock=clock,
-                  command_delay=settings.sim.command_delay)
+                  command_delay=settings.sim.command_delay, realism=settings.sim.realism)
 
 
 def _gen2_parts(config, settings):

@@ -17,6 +17,15 @@ the arm while its caller sleeps), so the loop's next ``refresh_feedback`` finds 
 The deploy loop sees only what a real arm gives (:meth:`SimArm.refresh_feedback`) plus what a
 perception module would give (:meth:`SimArm.perception`: cube and obstacle poses).
 
+A real arm's imperfections (``realism``, :class:`~ahrm_stack.env.realism.RealismConfig`;
+``deploy.sim.realism`` names a set of ``configs/realism.yaml``): a command reaches the actuators
+``command_latency`` s after it was sent and they follow it through a first-order lag of
+``actuator_lag`` s; the feedback's angles and velocities carry white noise and quantisation;
+perception gives ``perception_latency`` s old object positions and velocities with white noise
+(orientations exact); each :meth:`SimArm.reset_scene` draws the cube's and the obstacles' mass
+and friction. The noise is seeded by the layout seed. :attr:`SimArm.truth` is what really
+happened (the cube off the table, an obstacle touched), which a real deployment cannot see.
+
 Fault injection for tests (:meth:`SimArm.inject`, :class:`InjectedFault`): stale or dropped
 feedback, a delayed command, NaN in a reading, a fault flag, a lost connection. A lost connection
 stops the simulated arm at once, as the real arm's connection watchdog does.
@@ -28,12 +37,17 @@ stops the simulated arm at once, as the real arm's connection watchdog does.
 
 from __future__ import annotations
 
+import collections
+import dataclasses
 import enum
 import logging
+import math
 
 import numpy as np
 
 from ahrm_stack.config import TaskConfig
+from ahrm_stack.env.realism import RealismConfig, measure
+from ahrm_stack.env.rewards import obstacle_touched
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.task import PushOffTask
 from hardware.protocol import (DescribedArm, ArmFaultError, ArmState, CommandRefusedError,
@@ -59,6 +73,18 @@ class InjectedFault(enum.Enum):
     LOST_CONNECTION = "lost_connection"  # the session drops; every call raises ConnectionLost
 
 
+@dataclasses.dataclass
+class SimTruth:
+    """What happened in the simulated world during one episode (checked after each physics
+    advance, i.e. at least once per control tick). Times in s of physics time."""
+
+    success: bool = False  # the cube's centre left the table top (as training's task judges it)
+    success_time: float | None = None
+    touched: bool = False  # the arm or the cube touched an obstacle, or an obstacle moved
+    touch_time: float | None = None
+    cube_position: np.ndarray | None = None  # m, world frame, at the last check
+
+
 class SimArm(DescribedArm):
     """The simulated arm.
 
@@ -67,11 +93,25 @@ class SimArm(DescribedArm):
         seed: seeds the layout of :meth:`reset_scene`.
         clock: a :class:`WallClock` (real time) or a :class:`FastClock` (as fast as possible).
         command_delay: s that an injected delayed command takes to arrive.
+        realism: the arm's and the camera's imperfections (default: none).
     """
 
     def __init__(self, task_config: TaskConfig, seed: int = 0, clock: WallClock | None = None,
-                 command_delay: float = 0.03) -> None:
-        self.task = PushOffTask(task_config)
+                 command_delay: float = 0.03, realism: RealismConfig | None = None) -> None:
+        self.realism = RealismConfig.ideal() if realism is None else realism
+        # the task's own realism is this arm's: its episodes draw the dynamics
+        self.task = PushOffTask(dataclasses.replace(task_config, realism=self.realism))  # type: ignore[type-var]
+        self._rng = np.random.default_rng(seed)
+        r = self.realism
+        self._latency = r.command_latency
+        self._lag = 1.0 if r.actuator_lag <= 0 else 1.0 - math.exp(-task_config.episode.physics_timestep
+                                                                    / r.actuator_lag)
+        self._angle = (math.radians(r.angle_noise_deg), math.radians(r.angle_resolution_deg))
+        self._speed = (math.radians(r.velocity_noise_deg_s), math.radians(r.velocity_resolution_deg_s))
+        # (physics time, object positions, velocities): perception reads the one perception_latency old
+        self._seen: collections.deque[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = (
+            collections.deque(maxlen=10_000))
+        self.truth = SimTruth()
         self.runner = TaskRunner(self.task, seed=seed, safety=None)
         self._clock = clock if clock is not None else WallClock()
         self._robot = self.task.robot
@@ -86,12 +126,15 @@ class SimArm(DescribedArm):
         self._frame = 0
         self._start = 0.0  # clock time of physics time 0
         self._command = np.zeros(self._robot.num_joints)
-        self._queued: tuple[float, np.ndarray] | None = None  # (clock s, rad/s) not yet applied
+        self._actual = np.zeros(self._robot.num_joints)  # what the lagged actuators apply, rad/s
+        # (clock s, rad/s) sent, not yet applied: each at its time (sent + command_latency)
+        self._queued: collections.deque[tuple[float, np.ndarray]] = collections.deque()
         self._sleeper = _SimClock(self._clock, self)
         self.violations = 0
         self.commands_sent = 0
         self.runner.reset()
         self._bind()
+        self._begin_truth()
 
     # ------------------------------------------------------------------ description
     @property
@@ -120,11 +163,14 @@ class SimArm(DescribedArm):
         Sim only; the physics clock restarts at the adapter clock's now."""
         if seed is not None:
             self.runner.seed(seed)
-        self._queued = None  # a command of the last episode never reaches the new one
+            self._rng = np.random.default_rng(seed)
+        self._queued.clear()  # a command of the last episode never reaches the new one
         self.runner.reset()
+        self._actual = np.zeros(self._robot.num_joints)
         self._set_command(np.zeros(self._robot.num_joints))
         self._start = self._clock.now() - self.physics.data.time
         self._last = None
+        self._begin_truth()
 
     # ------------------------------------------------------------------ fault injection
     def inject(self, fault: InjectedFault) -> None:
@@ -161,6 +207,9 @@ class SimArm(DescribedArm):
         if self._take(InjectedFault.STALE_FEEDBACK) and self._last is not None:
             return self._last
         q, dq = self.task.arm_state(self.physics)
+        if self.realism.senses:  # as the arm's sensors give them
+            q = measure(q, *self._angle, self._rng)
+            dq = measure(dq, *self._speed, self._rng)
         if self._take(InjectedFault.NAN_READING):
             dq[0] = np.nan
         self._frame += 1
@@ -176,18 +225,64 @@ class SimArm(DescribedArm):
 
     def perception(self) -> ObjectPoses:
         """Cube and obstacle poses and linear velocities, world frame, as a perception module
-        would give them (exact here)."""
+        would give them: exact, or with the realism's latency and noise (positions, velocities;
+        the orientations exact)."""
         self._require()
-        data = self.physics.data
-        qpos, qvel = data.qpos, data.qvel
+        self._advance()
+        r = self.realism
+        if r.perception_latency > 0 and self._seen:
+            wanted = self.physics.data.time - r.perception_latency
+            while len(self._seen) > 1 and self._seen[1][0] <= wanted + 1e-9:
+                self._seen.popleft()  # the snapshot in use is the newest at least that old
+            _, positions, quaternions, velocities = self._seen[0]
+        else:
+            _, positions, quaternions, velocities = self._snapshot()
+        positions = measure(positions, r.perception_noise, 0.0, self._rng)
+        velocities = measure(velocities, r.perception_velocity_noise, 0.0, self._rng)
         return ObjectPoses(
             timestamp=self._clock.now(),
-            cube_position=qpos[self._cube_qpos[:3]].copy(),
-            cube_quaternion=qpos[self._cube_qpos[3:]].copy(),
-            cube_velocity=qvel[self._cube_dof].copy(),
-            obstacle_positions=qpos[self._obstacle_qpos[:, :3]].copy(),
-            obstacle_quaternions=qpos[self._obstacle_qpos[:, 3:]].copy(),
-            obstacle_velocities=qvel[self._obstacle_dof].copy())
+            cube_position=positions[0], cube_quaternion=quaternions[0].copy(), cube_velocity=velocities[0],
+            obstacle_positions=positions[1:], obstacle_quaternions=quaternions[1:].copy(),
+            obstacle_velocities=velocities[1:])
+
+    def _snapshot(self) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        """(physics time, positions (k, 3), quaternions (k, 4), velocities (k, 3)) of the
+        cube (row 0) and the obstacles, world frame."""
+        data = self.physics.data
+        qpos, qvel = data.qpos, data.qvel
+        positions = np.vstack([qpos[self._cube_qpos[:3]], qpos[self._obstacle_qpos[:, :3]]])
+        quaternions = np.vstack([qpos[self._cube_qpos[3:]], qpos[self._obstacle_qpos[:, 3:]]])
+        velocities = np.vstack([qvel[self._cube_dof], qvel[self._obstacle_dof]])
+        return float(data.time), positions, quaternions, velocities
+
+    def _begin_truth(self) -> None:
+        """A new episode's :attr:`truth`; the obstacles' resting positions remembered."""
+        self.truth = SimTruth()
+        self._seen.clear()
+        snapshot = self._snapshot()
+        self._rest = snapshot[1][1:].copy()
+        self._seen.append(snapshot)
+        self._check_truth()
+
+    def _check_truth(self) -> None:
+        """Update :attr:`truth` from the physics now (the task's own success rule; a touch: a
+        contact of the arm or the cube with an obstacle, an obstacle moving faster than the task's
+        threshold, or one moved 2 mm from where it rested)."""
+        task, data, truth = self.task, self.physics.data, self.truth
+        cube = data.xpos[task._cube_body].copy()
+        truth.cube_position = cube
+        config = task.config
+        if not truth.success:
+            (hx, hy) = config.table.half_extent
+            if abs(cube[0]) > hx or abs(cube[1]) > hy or cube[2] < config.table.height:
+                truth.success, truth.success_time = True, float(data.time)
+        if not truth.touched:
+            velocities = data.qvel[task._obstacle_linear_dofs]
+            speeds = np.sqrt((velocities * velocities).sum(axis=1))
+            moved = np.linalg.norm(data.xpos[task._obstacle_bodies] - self._rest, axis=1)
+            if (obstacle_touched(data.ptr.contact.geom, task._is_obstacle, task._is_toucher, speeds,
+                                 config.rewards.obstacle_speed_threshold) or (moved > 0.002).any()):
+                truth.touched, truth.touch_time = True, float(data.time)
 
     def send_joint_speeds(self, speeds: np.ndarray) -> np.ndarray:
         self._require()
@@ -203,11 +298,9 @@ class SimArm(DescribedArm):
             raise
         if self._take(InjectedFault.DELAYED_COMMAND):
             self._clock.sleep(self.command_delay)
-        # Applied by the next advance, at this time (the physics is not stepped here: see the
-        # module docstring); a command still queued is applied first, at its own time.
-        if self._queued is not None:
-            self._advance(self._queued[0])
-        self._queued = (self._clock.now(), command)
+        # Applied by an advance, at this time plus the command latency (the physics is not
+        # stepped here: see the module docstring); commands still queued go first, at their times.
+        self._queued.append((self._clock.now() + self._latency, command))
         self.commands_sent += 1
         return command.copy()
 
@@ -256,9 +349,11 @@ class SimArm(DescribedArm):
         self._upper = np.where(self._robot.limited, self._robot.position_upper, np.inf)
 
     def _set_command(self, command: np.ndarray) -> None:
-        """Apply ``command`` (rad/s) now; a command still queued is applied first, at its time."""
-        if self._queued is not None:
+        """Apply ``command`` (rad/s) now; commands queued until now are applied first, at their
+        times, and later ones dropped (the arm's own stop: nothing sent before it moves it)."""
+        if self._queued:
             self._advance()
+            self._queued.clear()
         if not (np.isfinite(command).all()
                 and (np.abs(command) <= self._robot.velocity_limit).all()):
             self.violations += 1  # never reached: check_joint_speeds guards every path here
@@ -272,12 +367,17 @@ class SimArm(DescribedArm):
         command applied at its own time, the last command held between commands."""
         now = self._clock.now()
         until = now if until is None else until
-        if self._queued is not None and self._queued[0] <= until:
-            stamp, command = self._queued
-            self._queued = None
+        while self._queued and self._queued[0][0] <= until:
+            stamp, command = self._queued.popleft()
             self._step_to(stamp)
-            self._set_command(command)
+            self._apply(command)
         self._step_to(until)
+
+    def _apply(self, command: np.ndarray) -> None:
+        """A queued command reaches the actuators (checked like every command)."""
+        queued, self._queued = self._queued, collections.deque()
+        self._set_command(command)
+        self._queued = queued
 
     def _step_to(self, until: float) -> None:
         """Step the physics, the current command held, up to clock time ``until``."""
@@ -286,7 +386,17 @@ class SimArm(DescribedArm):
         steps = target - int(round(data.time / self._timestep))
         if steps <= 0:
             return
-        self.physics.step(steps)
+        if self._lag < 1.0:  # the actuators follow the command through a first-order lag
+            ctrl = data.ctrl
+            for _ in range(steps):
+                self._actual += self._lag * (self._command - self._actual)
+                ctrl[self._actuators] = self._actual
+                self.physics.step(1)
+        else:
+            self.physics.step(steps)
+        self._check_truth()
+        if self.realism.perception_latency > 0:
+            self._seen.append(self._snapshot())
         q = data.qpos[self._arm_qpos]
         past = np.maximum(self._lower - q, q - self._upper)
         if (past > POSITION_TOLERANCE).any():

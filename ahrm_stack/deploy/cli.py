@@ -52,6 +52,8 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     pace.add_argument("--fast", dest="realtime", action="store_const", const=False,
                       help="as fast as possible (sim only)")
     parser.add_argument("--seed", type=int, help="sim layout seed (default: deploy.yaml)")
+    parser.add_argument("--realism", metavar="NAME", help="sim backend: the arm's and camera's "
+                        "imperfections, a set of configs/realism.yaml (ideal, jaco2; default: deploy.yaml)")
     parser.add_argument("--telemetry", help="JSONL log path ('' for none; default: deploy.yaml)")
     parser.add_argument("--config", type=Path, default=DEPLOY_CONFIG, help="deploy settings YAML")
     parser.add_argument("--scene", choices=["sim", "camera"], default="sim",
@@ -75,7 +77,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         settings = load_deploy_settings(args.config, rate_hz=args.rate_hz, duration=args.duration,
                                         realtime=args.realtime, seed=args.seed,
-                                        telemetry=args.telemetry)
+                                        telemetry=args.telemetry, realism=args.realism)
     except DeployConfigError as error:
         print(f"python -m ahrm_stack.deploy: error: {error}", file=sys.stderr)
         return 2

@@ -79,9 +79,8 @@ class NumpyPolicy:
             if norm.enabled and float(norm.count) != 0.0:
                 # exactly RunningNorm.forward's constants for float32 observations
                 norm_mean = typing.cast(torch.Tensor, norm.mean)
-                norm_var = typing.cast(torch.Tensor, norm.var)
                 mean = norm_mean.to(torch.float32).cpu().numpy().copy()
-                std = torch.sqrt(norm_var + 1e-8).to(torch.float32).cpu().numpy().copy()
+                std = norm.std(torch.float32).cpu().numpy().copy()
             limit = 1.0 - torch.finfo(torch.float32).resolution  # torchrl's safetanh_noeps
         mirror = None if lean.mirror is None else FrozenMirror.from_module(lean.mirror)
         if mirror is not None and not mirror.fits(weights[0].shape[1], weights[-1].shape[0]):

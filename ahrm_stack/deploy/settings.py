@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Annotated, Any, Optional
 
 from ahrm_stack.config import CONFIG_DIR
+from ahrm_stack.env.realism import RealismConfig, resolve_realism
 from ahrm_stack.schema import (Bool, ConfigError, Float, Int, Section, Str, ge, gt, le, read_yaml,
                                show_path, validate)
 from hardware.kinova_gen2 import Gen2Settings
@@ -42,6 +43,8 @@ class WatchdogSettings(Section):
 @dataclasses.dataclass(frozen=True)
 class SimSettings(Section):
     command_delay: NonNeg  # s
+    realism: RealismConfig  # the simulated arm's and camera's imperfections (a set of
+    # configs/realism.yaml by name, e.g. ideal or jaco2, or the values)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,10 +118,16 @@ def load_deploy_settings(path: Path | str = DEPLOY_CONFIG, **overrides: Any) -> 
     it involves."""
     data = read_yaml(path, DeployConfigError)
     given = {k: v for k, v in overrides.items() if v is not None}
+    realism = given.pop("realism", None)  # a set of configs/realism.yaml for the sim backend
     data.update(given)
     try:
+        sim = data.get("sim")
+        if isinstance(sim, dict):
+            if realism is not None:
+                sim = {**sim, "realism": realism}
+            data["sim"] = {**sim, "realism": resolve_realism(sim.get("realism"), "deploy.sim.realism")}
         return deploy_settings_from_dict(data)
-    except DeployConfigError as error:
+    except (DeployConfigError, ConfigError) as error:
         named = [f"{k}={v!r}" for k, v in given.items() if re.search(rf"deploy\.{k}\b", str(error))]
         where = f"command line {', '.join(named)}; {show_path(path)}" if named else show_path(path)
         raise DeployConfigError(f"{error} ({where})") from None

@@ -7,6 +7,7 @@ import numpy as np
 
 from ahrm_stack.config import TaskConfig
 from ahrm_stack.env.layout import lane_clearance
+from ahrm_stack.env.realism import nominal
 from ahrm_stack.env.rewards import NUM_PHASES
 
 
@@ -28,7 +29,8 @@ class WorldModel:
 
         from ahrm_stack.env.task import PushOffTask
 
-        self.task = PushOffTask(task_config)
+        # measured values are written in as they come: no imperfection added on this side
+        self.task = PushOffTask(nominal(task_config))
         self.physics = mjcf.Physics.from_mjcf_model(self.task.root_entity.mjcf_model)
         self.random_state = np.random.RandomState(seed)
         self.task.initialize_episode(self.physics, self.random_state)  # binds the task's indices

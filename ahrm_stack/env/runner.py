@@ -27,6 +27,9 @@ from dm_control import mjcf
 
 from ahrm_stack.config import SafetyConfig
 from ahrm_stack.env.control_step import ControlStep, filter_call, make_task_filter
+from ahrm_stack.env.layout import lane_clearance
+from ahrm_stack.env.observation_layout import observation_layout
+from ahrm_stack.env.realism import ActuatorModel, ObservationSensing
 from ahrm_stack.env.task import PushOffTask, StepInfo
 from ahrm_stack.safety import FilterResult, InterventionStats, SafetyFilter
 
@@ -75,6 +78,20 @@ class TaskRunner:
         self._substeps = task.config.substeps
         self.max_steps = task.config.max_steps  # control steps before truncation
         self._steps = 0
+        # task.realism: the observation measured (noise, perception latency), the commands late
+        # and lagged; None for the ideal simulation (no random draw is made then)
+        realism = task.config.realism
+        self._sensing: ObservationSensing | None = None
+        self._sensing_rng: np.random.Generator | None = None
+        if realism.senses:
+            cfg = task.config
+            layout = observation_layout(cfg, task.robot.num_joints, len(task.robot.commanded_joints))
+            self._sensing = ObservationSensing(realism, layout, cfg.episode.control_period,
+                                               len(cfg.obstacles.fixed_layout), self._lane_clearance)
+        self._actuators: ActuatorModel | None = None
+        if realism.actuates:
+            self._actuators = ActuatorModel(realism, task.config.episode.physics_timestep,
+                                            task.robot.num_joints)
         self._observe: dict[str, Callable[[], np.ndarray]] = {
             name: obs.observation_callable(self.physics, self.random_state)
             for name, obs in task.observables.items()}
@@ -87,13 +104,31 @@ class TaskRunner:
         return {name: np.asarray(fn()) for name, fn in self._observe.items()}
 
     def flat_observation(self) -> np.ndarray:
-        """The observation vector: the keys of ``observation_order``, flattened and concatenated."""
-        return self.task.flat_observation(self.physics)
+        """The observation vector: the keys of ``observation_order``, flattened and concatenated;
+        with ``task.realism``'s sensing, as measured (:class:`ObservationSensing`). Call it once
+        per control step (the perception latency counts calls)."""
+        observation = self.task.flat_observation(self.physics)
+        if self._sensing is None:
+            return observation
+        assert self._sensing_rng is not None  # drawn at reset
+        return self._sensing(observation, self._sensing_rng)
+
+    def _lane_clearance(self, cube_xy: np.ndarray, obstacle_xy: np.ndarray) -> np.ndarray:
+        """The task's clipped lane clearances for measured positions (m, world frame)."""
+        task, cfg = self.task, self.task.config
+        return lane_clearance(cube_xy, obstacle_xy, cfg.cube.size / 2, task._obstacle_half_sizes[0, :2],
+                              cfg.table, cfg.layout, (float(cfg.observation.lane_clip[0]),
+                                                                  float(cfg.observation.lane_clip[1])))
 
     def reset(self) -> Transition:
         mujoco.mj_resetData(self.physics.model.ptr, self.physics.data.ptr)
         self.task.initialize_episode(self.physics, self.random_state)
         self._steps = 0
+        if self._sensing is not None:
+            self._sensing.reset()
+            self._sensing_rng = np.random.default_rng(self.random_state.randint(2**31))
+        if self._actuators is not None:
+            self._actuators.reset()
         if self.safety_config is not None and self.safety_config.enabled:
             if self.filter is None:  # needs the task bound to this physics: built at first reset
                 self._scene = self.task.make_collision_scene(self.physics)
@@ -142,7 +177,15 @@ class TaskRunner:
 
     def _advance(self, command: np.ndarray) -> tuple[StepInfo, bool, bool]:
         self.task.before_step(self.physics, command, self.random_state)
-        self.physics.step(self._substeps)
+        if self._actuators is None:
+            self.physics.step(self._substeps)
+        else:  # task.realism: the command arrives late and the actuators follow it with a lag
+            actuators, ctrl = self._actuators, self.physics.data.ctrl
+            index = self.task._arm_actuators
+            actuators.command(command)
+            for _ in range(self._substeps):  # dm_control's step: derived fields of the new state
+                ctrl[index] = actuators.step()
+                self.physics.step(1)
         self.task.after_step(self.physics, self.random_state)
         self.limit_violations += self._count_limit_violations()
         self._steps += 1

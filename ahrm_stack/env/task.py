@@ -27,6 +27,7 @@ from ahrm_stack.env.clearance import Clearance
 from ahrm_stack.env.control_step import command_to_action
 from ahrm_stack.env.entities import BoxProp, Pusher
 from ahrm_stack.env.layout import Layout, LayoutSampler, choose_lane, lane_clearance
+from ahrm_stack.env.realism import DynamicsVariation, draw_dynamics
 from ahrm_stack.env.start_pose import solve_start_pose
 from ahrm_stack.env.rewards import (NUM_PHASES, ProgressObjective, TimeObjective, avoid_component,
                                     obstacle_touched, penalty_form, progress)
@@ -331,6 +332,7 @@ class PushOffTask(composer.Task):
     # ------------------------------------------------------------------ episode logic
     def initialize_episode(self, physics: mjcf.Physics, random_state: np.random.RandomState) -> None:
         self._bind(physics)
+        self._vary_dynamics(physics, random_state)
         if self.start_states is not None:
             start = self.start_states(random_state)
             if start is not None:
@@ -352,6 +354,25 @@ class PushOffTask(composer.Task):
         physics.data.ctrl[:] = 0.0
         self._settle(physics, q0)
         self._begin_episode(physics)
+
+    def _vary_dynamics(self, physics: mjcf.Physics, random_state: np.random.RandomState) -> None:
+        """``task.realism``'s episode draw of the cube's and obstacles' mass and friction (from
+        ``random_state``; nothing drawn when the ranges are all [1, 1])."""
+        realism = self.config.realism
+        if not realism.varies_dynamics:
+            return
+        variation = getattr(self, "_dynamics", None)
+        if variation is None or variation.physics is not physics:
+            variation = DynamicsVariation(physics, int(self._cube_body), self._obstacle_bodies,
+                                          int(self._cube_geom), self._obstacle_geoms)
+            self._dynamics = variation
+        variation.apply(draw_dynamics(realism, random_state, len(self._obstacle_bodies)))
+
+    @property
+    def dynamics_factors(self) -> dict[str, np.ndarray]:
+        """This episode's mass and friction factors (empty without ``task.realism`` dynamics)."""
+        variation = getattr(self, "_dynamics", None)
+        return {} if variation is None else variation.factors
 
     def _begin_episode(self, physics: mjcf.Physics) -> None:
         """The episode's bookkeeping once its state is set: no previous command, the clock and

@@ -32,10 +32,13 @@ class RunningNorm(nn.Module):
     the policy's state dict and checkpoints). ``update`` is called by the trainer, never in
     ``forward``, so collection and the PPO update see the same statistics."""
 
-    def __init__(self, size: int, clip: float, enabled: bool = True) -> None:
+    def __init__(self, size: int, clip: float, enabled: bool = True, min_std: float = 0.0) -> None:
         super().__init__()
         self.clip = clip
         self.enabled = enabled
+        self.min_std = float(min_std)  # ppo.normalizer_min_std: no feature is scaled up by more
+        # than 1 / min_std, so one that barely varied in training (a joint never commanded, an
+        # obstacle's height) cannot turn a small measurement error into a saturated input
         self.register_buffer("mean", torch.zeros(size))
         self.register_buffer("var", torch.ones(size))
         self.register_buffer("count", torch.tensor(0.0))
@@ -58,8 +61,15 @@ class RunningNorm(nn.Module):
     def forward(self, observation: torch.Tensor) -> torch.Tensor:
         if not self.enabled or self.count == 0:
             return observation
-        std = torch.sqrt(self.var + 1e-8).to(observation.dtype)
-        return ((observation - self.mean.to(observation.dtype)) / std).clamp(-self.clip, self.clip)
+        return ((observation - self.mean.to(observation.dtype)) / self.std(observation.dtype)).clamp(
+            -self.clip, self.clip)
+
+    def std(self, dtype: torch.dtype = torch.float32) -> torch.Tensor:
+        """The per-feature scale: sqrt(var + 1e-8), at least ``min_std`` (observation units)."""
+        std = torch.sqrt(self.var + 1e-8)
+        if self.min_std > 0:
+            std = std.clamp(min=self.min_std)
+        return std.to(dtype)
 
 
 class GaussianHead(nn.Module):
@@ -125,7 +135,8 @@ def make_modules(config: PPOConfig, observation_dim: int, action_dim: int,
     """Actor (TanhNormal over [-1, 1]) and critic, sharing one observation normaliser; with a
     ``mirror`` (``ppo.lane_frame``, :func:`~ahrm_stack.learning.lane_frame.lane_mirror_for`) both
     read the observation in the lane frame and the actor's mean is mapped back to the world."""
-    normalizer = RunningNorm(observation_dim, config.normalizer_clip, config.normalize_observations)
+    normalizer = RunningNorm(observation_dim, config.normalizer_clip, config.normalize_observations,
+                             config.normalizer_min_std)
     if mirror is None:
         norm_module = TensorDictModule(normalizer, in_keys=["observation"], out_keys=["observation_norm"])
     else:

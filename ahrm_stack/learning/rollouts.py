@@ -21,6 +21,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from ahrm_stack.config import Config, config_from_dict
 from ahrm_stack.env.episode import EpisodeSummary
+from ahrm_stack.env.realism import nominal
 from ahrm_stack.env.torchrl_env import PushOffEnv
 from ahrm_stack.learning.checkpoint import load
 from ahrm_stack.learning.lane_frame import lane_mirror_for
@@ -114,7 +115,7 @@ def evaluate_run(run_dir: Path, episodes: int) -> EvaluationTable:
     """The run's final deterministic evaluation on its own distribution: ``evaluation.yaml`` (the
     table) and ``evaluation.csv`` (per episode, as ``python -m ahrm_stack.evaluate RUN_DIR`` writes)."""
     config, policy = load_policy(run_dir)
-    env = PushOffEnv(config.task, config.safety, seed=EVAL_SEED_OFFSET)
+    env = PushOffEnv(nominal(config.task), config.safety, seed=EVAL_SEED_OFFSET)
     summaries = run_episodes(env, policy, episodes)
     table = EvaluationTable.from_summaries(summaries)
     if summaries:
