@@ -300,6 +300,11 @@ class ObservationConfig(Section):
     lanes: Bool  # append each reachable lane's clearance (m; see env.layout.lane_clearance)
     lane_clip: Pair  # m, the lane clearance saturates at these
     lane_choice: Bool  # append the episode's lane, one-hot (see env.layout.choose_lane)
+    joint_velocity: Literal["measured", "position_difference"]  # the joint velocities the policy
+    # reads: as measured (the simulator's, or the arm's velocity feedback), or estimated from the
+    # measured angles' differences over each control period, smoothed (env.realism.VelocityEstimator)
+    velocity_smoothing: Annotated[Float, within(0, 1, "[)")]  # position_difference: estimate =
+    # this * previous estimate + (1 - this) * the period's difference quotient (0: none)
 
     def check(self, key: str) -> None:
         if not self.lane_clip[0] < self.lane_clip[1]:
@@ -853,6 +858,12 @@ def fill_missing(data: Any) -> Any:
         # before 2026-12-04: the ideal simulation (no imperfection, no random draw)
         data = {**data, "task": {**task, "realism": task.get("realism", "ideal")}}
         _resolve_realism(data)
+    observation = data["task"].get("observation") if isinstance(data.get("task"), dict) else None
+    if isinstance(observation, dict) and ("joint_velocity" not in observation
+                                          or "velocity_smoothing" not in observation):
+        # before 2026-12-04: the joint velocities as measured
+        data = {**data, "task": {**data["task"], "observation": {
+            "joint_velocity": "measured", "velocity_smoothing": 0.0, **observation}}}
     if any(isinstance(data.get(section), dict) and any(k not in data[section] for k in keys)
            for section, keys in BACKFILLED.items()):
         data = dict(data)

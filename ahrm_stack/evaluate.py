@@ -68,6 +68,9 @@ def _parse(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--suite", action="store_true",
                         help="every family of the evaluation suite (layouts.yaml, suite: true), with "
                              "the scripted controller on the same episodes; writes suite.md/json")
+    parser.add_argument("--robustness", action="store_true",
+                        help="--suite, then the robustness evaluation through the deploy loop "
+                             "(python -m ahrm_stack.robustness, jaco2, same episode count) in its report")
     parser.add_argument("--no-scripted", action="store_true",
                         help="--suite without the scripted controller's columns")
     parser.add_argument("--policy-file", metavar="PT",
@@ -80,6 +83,8 @@ def _parse(argv: list[str]) -> argparse.Namespace:
         parser.error("give either RUN_DIR or --policy scripted")
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
+    if args.robustness and not (args.suite and args.run_dir):
+        parser.error("--robustness joins a run's --suite report: give RUN_DIR and --suite")
     if args.suite and (args.layout or args.video):
         parser.error("--suite evaluates every family: no --layout or --video with it")
     if args.policy_file and not args.run_dir:
@@ -302,7 +307,7 @@ def suite_markdown(suite: dict) -> str:
 def evaluate_suite(run_dir: Path | None, episodes: int, out: Path | None = None,
                    overrides: Sequence[str] = (), with_scripted: bool = True,
                    policy_file: Path | None = None, families: Sequence[str] | None = None,
-                   quiet: bool = False) -> dict:
+                   quiet: bool = False, robustness: bool = False) -> dict:
     """Evaluate a run (or the scripted controller) on every family of the evaluation suite
     (``configs/layouts.yaml`` entries with ``suite: true``), each on its own seed range, and for a
     run the scripted controller on the same episodes (the run's config). Writes
@@ -330,6 +335,13 @@ def evaluate_suite(run_dir: Path | None, episodes: int, out: Path | None = None,
     out.mkdir(parents=True, exist_ok=True)
     (out / "suite.json").write_text(json.dumps(suite, indent=2))
     table = suite_markdown(suite)
+    if robustness and run_dir is not None:  # the same policy through the deploy loop, imperfect
+        from ahrm_stack import robustness as robust
+
+        data = robust.evaluate(run_dir, episodes, "jaco2", True, 2, 30.0, out / "robustness")
+        suite["robustness"] = str(out / "robustness" / "robustness.json")
+        (out / "suite.json").write_text(json.dumps(suite, indent=2))
+        table += "\n" + robust.table(data)
     (out / "suite.md").write_text(f"Evaluation suite of {suite['policy']}, {episodes} episodes per family "
                                   f"(deterministic policy; scripted controller on the same episodes)\n\n" + table)
     if not quiet:
@@ -348,7 +360,8 @@ def main(argv: list[str] | None = None) -> int:
             evaluate_suite(Path(args.run_dir) if args.run_dir else None, args.episodes,
                            Path(args.out) if args.out else None, args.config,
                            with_scripted=not args.no_scripted,
-                           policy_file=Path(args.policy_file) if args.policy_file else None)
+                           policy_file=Path(args.policy_file) if args.policy_file else None,
+                           robustness=args.robustness)
             return 0
         evaluate(Path(args.run_dir) if args.run_dir else None, args.episodes, args.layout,
                  Path(args.out) if args.out else None, Path(args.video) if args.video else None,

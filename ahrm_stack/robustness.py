@@ -3,6 +3,7 @@ on the sim backend with a real arm's imperfections, one at a time and all togeth
 
     python -m ahrm_stack.robustness RUN_DIR [--episodes 30] [--profile jaco2] [--no-dose]
                                     [--workers 2] [--out DIR]
+    python -m ahrm_stack.robustness --render DIR     # robustness.md again from DIR/robustness.json
 
 Each condition is a :class:`~ahrm_stack.env.realism.RealismConfig`: ``ideal``; each group of
 :data:`~ahrm_stack.env.realism.GROUPS` alone at the profile's values (``configs/realism.yaml``,
@@ -209,6 +210,20 @@ def evaluate(checkpoint: Path, episodes: int, profile: str, dose: bool, workers:
     return data
 
 
+def render(folder: Path, prog: str = "python -m ahrm_stack.robustness") -> int:
+    """``folder/robustness.md`` from ``folder/robustness.json`` (the docs' tables are made so)."""
+    source = folder / "robustness.json"
+    try:
+        data = json.loads(source.read_text())
+        text = table(data)
+    except (OSError, ValueError, KeyError, TypeError) as error:
+        print(f"{prog}: error: {source}: {type(error).__name__}: {error}", file=sys.stderr)
+        return 2
+    (folder / "robustness.md").write_text(text)
+    print(text)
+    return 0
+
+
 class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # type: ignore[override]
         self.exit(2, f"{self.prog}: error: {message}\n")
@@ -216,7 +231,9 @@ class _Parser(argparse.ArgumentParser):
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = _Parser(prog="python -m ahrm_stack.robustness", description=__doc__.split("\n\n")[0])
-    parser.add_argument("run_dir", type=Path, help="a training run folder (config.yaml, policy.pt)")
+    parser.add_argument("run_dir", type=Path, nargs="?", help="a training run folder (config.yaml, policy.pt)")
+    parser.add_argument("--render", type=Path, metavar="DIR", help="write DIR/robustness.md from "
+                        "DIR/robustness.json and print it (no episode is run)")
     parser.add_argument("--episodes", type=int, default=30)
     parser.add_argument("--profile", default="jaco2", help="a set of configs/realism.yaml")
     parser.add_argument("--no-dose", dest="dose", action="store_false", help="skip the dose-response rows")
@@ -225,6 +242,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, help="folder for robustness.json / .md (default RUN_DIR/robustness)")
     args = parser.parse_args(argv)
     prog = parser.prog
+    if args.render is not None:
+        return render(args.render, prog)
+    if args.run_dir is None:
+        print(f"{prog}: error: give a run folder (or --render DIR)", file=sys.stderr)
+        return 2
     if args.episodes < 1 or args.workers < 1 or not args.duration > 0:
         print(f"{prog}: error: --episodes and --workers must be >= 1 and --duration > 0", file=sys.stderr)
         return 2

@@ -21,7 +21,7 @@ from ahrm_stack.learning.lane_frame import lane_mirror_for, observation_layout
 from ahrm_stack.learning.ppo import lean_actor, lean_collection_actor, make_modules
 from ahrm_stack.learning.start_states import StartState
 
-FRAME = ["profile=scratch", "ppo.lane_frame=mirror"]
+FRAME = ["profile=scratch", "ppo.lane_frame=mirror", "task.realism=ideal"]  # the exact reflection
 TINY = ["ppo.hidden_sizes=[16,16]", "ppo.frames_per_batch=64", "ppo.mini_batch_size=32", "train.num_envs=1"]
 
 

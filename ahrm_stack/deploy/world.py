@@ -7,7 +7,7 @@ import numpy as np
 
 from ahrm_stack.config import TaskConfig
 from ahrm_stack.env.layout import lane_clearance
-from ahrm_stack.env.realism import nominal
+from ahrm_stack.env.realism import VelocityEstimator, nominal
 from ahrm_stack.env.rewards import NUM_PHASES
 
 
@@ -36,6 +36,12 @@ class WorldModel:
         self.task.initialize_episode(self.physics, self.random_state)  # binds the task's indices
         self._addresses = self.task.addresses  # where the joints sit in this physics
         self._start = float(self.physics.data.time)
+        # task.observation.joint_velocity: position_difference: the observation's joint velocities
+        # estimated from the measured angles, as in training (None: the velocity feedback)
+        observation = task_config.observation
+        self._velocity = (VelocityEstimator(observation.velocity_smoothing)
+                          if observation.joint_velocity == "position_difference" else None)
+        self._elapsed = -1.0
         self._kinematics = mujoco.mj_kinematics
         self._model_ptr, self._data_ptr = self.physics.model.ptr, self.physics.data.ptr
         # The task's observation written into one preallocated vector; None (the task's own
@@ -61,7 +67,13 @@ class WorldModel:
                              f"has {len(at.obstacle_qpos)}")
         data = self.physics.data
         data.qpos[at.arm_qpos] = feedback.position
-        data.qvel[at.arm_dof] = feedback.velocity
+        if self._velocity is None:
+            data.qvel[at.arm_dof] = feedback.velocity
+        else:  # a new run restarts the estimate (elapsed back to 0)
+            if elapsed <= self._elapsed:
+                self._velocity.reset()
+            data.qvel[at.arm_dof] = self._velocity(feedback.position, elapsed - self._elapsed)
+        self._elapsed = elapsed
         data.qpos[at.cube_qpos[:3]] = poses.cube_position
         data.qpos[at.cube_qpos[3:]] = poses.cube_quaternion
         data.qvel[at.cube_dof] = poses.cube_velocity

@@ -223,6 +223,34 @@ class ActuatorModel:
         return self.output
 
 
+class VelocityEstimator:
+    """Joint velocities (rad/s) from measured joint angles (rad): each update's difference
+    quotient over the time since the last (angles wrapped to (-pi, pi]), exponentially smoothed
+    (``smoothing`` of the previous estimate kept). What a real controller uses when the velocity
+    feedback is poor; training (``task.observation.joint_velocity: position_difference``) and the
+    deploy loop's world model run the same estimator. Zero at the first update (the arm starts at
+    rest)."""
+
+    def __init__(self, smoothing: float) -> None:
+        self.smoothing = float(smoothing)
+        self._q: np.ndarray | None = None
+        self.velocity: np.ndarray | None = None
+
+    def reset(self) -> None:
+        self._q = self.velocity = None
+
+    def __call__(self, q: np.ndarray, dt: float) -> np.ndarray:
+        q = np.asarray(q, dtype=float)
+        if self._q is None or self.velocity is None or not dt > 0:
+            self._q, self.velocity = q.copy(), np.zeros_like(q)
+            return self.velocity.copy()
+        change = np.remainder(q - self._q + np.pi, 2 * np.pi) - np.pi
+        quotient = change / dt
+        self.velocity = self.smoothing * self.velocity + (1.0 - self.smoothing) * quotient
+        self._q = q.copy()
+        return self.velocity.copy()
+
+
 class ObservationSensing:
     """The training observation as a real arm and camera would measure it: joint angles and
     velocities with noise and quantisation, object positions and velocities with noise and
@@ -234,9 +262,11 @@ class ObservationSensing:
     ``lane_clearance``: (cube_xy, obstacle_xy) -> the clipped clearances, or None."""
 
     def __init__(self, realism: RealismConfig, layout: dict[str, slice], control_period: float,
-                 obstacles: int, lane_clearance=None) -> None:
+                 obstacles: int, lane_clearance=None, velocity: "VelocityEstimator | None" = None) -> None:
         self.realism = realism
         self.layout = layout
+        self.period = control_period
+        self.velocity = velocity  # joint velocities from the measured angles (None: as measured)
         self.delay = int(round(realism.perception_latency / control_period))
         self._history: collections.deque[np.ndarray] = collections.deque(maxlen=self.delay + 1)
         self._props = [layout["cube"]] + [layout[f"obstacle_{i}"] for i in range(obstacles)]
@@ -244,16 +274,21 @@ class ObservationSensing:
 
     def reset(self) -> None:
         self._history.clear()
+        if self.velocity is not None:
+            self.velocity.reset()
 
-    def __call__(self, observation: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    def __call__(self, observation: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
         r, at = self.realism, self.layout
         out = np.array(observation, dtype=float)
         trig = out[at["joints_pos"]]
         q = np.arctan2(trig[0::2], trig[1::2])
         q = measure(q, math.radians(r.angle_noise_deg), math.radians(r.angle_resolution_deg), rng)
         trig[0::2], trig[1::2] = np.sin(q), np.cos(q)
-        out[at["joints_vel"]] = measure(out[at["joints_vel"]], math.radians(r.velocity_noise_deg_s),
-                                        math.radians(r.velocity_resolution_deg_s), rng)
+        if self.velocity is not None:
+            out[at["joints_vel"]] = self.velocity(q, self.period)
+        else:
+            out[at["joints_vel"]] = measure(out[at["joints_vel"]], math.radians(r.velocity_noise_deg_s),
+                                            math.radians(r.velocity_resolution_deg_s), rng)
         props = np.stack([out[s] for s in self._props])  # (k, 6): position, velocity
         self._history.append(props)
         seen = self._history[0].copy()  # the oldest kept: ``delay`` periods ago (or the first)
@@ -270,5 +305,5 @@ class ObservationSensing:
         return out
 
 
-__all__ = ["ActuatorModel", "nominal", "DynamicsVariation", "GROUPS", "ObservationSensing", "RealismConfig",
-           "draw_dynamics", "measure", "realism_profiles", "resolve_realism"]
+__all__ = ["ActuatorModel", "DynamicsVariation", "GROUPS", "ObservationSensing", "RealismConfig",
+           "VelocityEstimator", "draw_dynamics", "measure", "nominal", "realism_profiles", "resolve_realism"]

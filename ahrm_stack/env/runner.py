@@ -29,7 +29,7 @@ from ahrm_stack.config import SafetyConfig
 from ahrm_stack.env.control_step import ControlStep, filter_call, make_task_filter
 from ahrm_stack.env.layout import lane_clearance
 from ahrm_stack.env.observation_layout import observation_layout
-from ahrm_stack.env.realism import ActuatorModel, ObservationSensing
+from ahrm_stack.env.realism import ActuatorModel, ObservationSensing, VelocityEstimator
 from ahrm_stack.env.task import PushOffTask, StepInfo
 from ahrm_stack.safety import FilterResult, InterventionStats, SafetyFilter
 
@@ -83,11 +83,14 @@ class TaskRunner:
         realism = task.config.realism
         self._sensing: ObservationSensing | None = None
         self._sensing_rng: np.random.Generator | None = None
-        if realism.senses:
+        estimate = task.config.observation.joint_velocity == "position_difference"
+        if realism.senses or estimate:
             cfg = task.config
             layout = observation_layout(cfg, task.robot.num_joints, len(task.robot.commanded_joints))
+            velocity = VelocityEstimator(cfg.observation.velocity_smoothing) if estimate else None
             self._sensing = ObservationSensing(realism, layout, cfg.episode.control_period,
-                                               len(cfg.obstacles.fixed_layout), self._lane_clearance)
+                                               len(cfg.obstacles.fixed_layout), self._lane_clearance,
+                                               velocity)
         self._actuators: ActuatorModel | None = None
         if realism.actuates:
             self._actuators = ActuatorModel(realism, task.config.episode.physics_timestep,
@@ -110,7 +113,6 @@ class TaskRunner:
         observation = self.task.flat_observation(self.physics)
         if self._sensing is None:
             return observation
-        assert self._sensing_rng is not None  # drawn at reset
         return self._sensing(observation, self._sensing_rng)
 
     def _lane_clearance(self, cube_xy: np.ndarray, obstacle_xy: np.ndarray) -> np.ndarray:
@@ -126,7 +128,8 @@ class TaskRunner:
         self._steps = 0
         if self._sensing is not None:
             self._sensing.reset()
-            self._sensing_rng = np.random.default_rng(self.random_state.randint(2**31))
+            self._sensing_rng = (np.random.default_rng(self.random_state.randint(2**31))
+                                 if self.task.config.realism.senses else None)
         if self._actuators is not None:
             self._actuators.reset()
         if self.safety_config is not None and self.safety_config.enabled:
