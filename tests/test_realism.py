@@ -266,3 +266,24 @@ def test_training_and_deploy_estimate_the_same_velocities():
         if step:
             assert np.abs(trained[at["joints_vel"]]).max() > 1e-3  # the arm moves
         runner.step_action(np.array([0.5, -0.3, 0.0]))
+
+
+def test_a_world_model_reused_for_a_new_run_plans_its_lane_again():
+    """A deploy world model that runs a second episode (a loop's start: elapsed back to 0) plans
+    that episode's lane anew, as training's reset does (it kept the first episode's plan)."""
+    from ahrm_stack.deploy.world import WorldModel
+    from hardware.protocol import FastClock
+
+    config = load_config(["task.realism=ideal"])
+    world = WorldModel(config.task)
+    lanes = []
+    for seed in (4200003, 4200000):
+        arm = SimArm(config.task, seed=seed, clock=FastClock())
+        arm.connect()
+        world.update(arm.refresh_feedback(), arm.perception(), 0.0)
+        lanes.append(world.task._lane_choice(world.physics).copy())
+        world.update(arm.refresh_feedback(), arm.perception(), 0.05)
+        fresh = WorldModel(config.task)
+        fresh.update(arm.refresh_feedback(), arm.perception(), 0.0)
+        np.testing.assert_array_equal(lanes[-1], fresh.task._lane_choice(fresh.physics))
+    assert not np.array_equal(lanes[0], lanes[1])  # these two layouts have different lanes

@@ -67,10 +67,12 @@ class WorldModel:
                              f"has {len(at.obstacle_qpos)}")
         data = self.physics.data
         data.qpos[at.arm_qpos] = feedback.position
+        # elapsed back to 0 (a loop's start on a model that already ran one): a new episode
+        new_run = elapsed < self._elapsed or (elapsed == 0.0 and self._elapsed > 0.0)
         if self._velocity is None:
             data.qvel[at.arm_dof] = feedback.velocity
-        else:  # a new run restarts the estimate (elapsed back to 0)
-            if elapsed <= self._elapsed:
+        else:
+            if new_run:
                 self._velocity.reset()
             data.qvel[at.arm_dof] = self._velocity(feedback.position, elapsed - self._elapsed)
         self._elapsed = elapsed
@@ -82,6 +84,8 @@ class WorldModel:
         data.qvel[at.obstacle_dof] = poses.obstacle_velocities
         data.time = self._start + elapsed
         self._kinematics(self._model_ptr, self._data_ptr)
+        if new_run:  # the episode's bookkeeping restarts: the lane is planned again, the objectives
+            self.task._begin_episode(self.physics)  # and the previous action reset
         self.task.after_step(self.physics, self.random_state)
         return self.task.step_info
 
