@@ -31,9 +31,14 @@ Every control period (``1 / rate_hz`` s) :class:`DeployLoop` does, in this order
 2. perception (cube and obstacle poses) into :class:`WorldModel`, which computes the phase k, the
    boundary distance x and the training observation with the task's own code (the observation
    written into one preallocated vector, bit for bit the task's ``flat_observation``);
-3. the controller's nominal joint velocities (rad/s);
-4. the QP safety filter with the obstacle rows on (a reported violation e-stops);
-5. ``send_joint_speeds`` — the adapter re-checks the limits and e-stops on a bad command; a command
+3. judging from perception (:mod:`~ahrm_stack.deploy.judging`, ``success``, ``touch`` and
+   ``progress`` in ``configs/deploy.yaml``): the cube perceived past a table edge by a margin for
+   several ticks stops the arm, and is a success unless perception has it back on the table
+   during a settle time after the stop; an obstacle perceived displaced from its start position
+   counts as touched; no task progress for ``progress.timeout`` s stops the arm (the watchdog);
+4. the controller's nominal joint velocities (rad/s);
+5. the QP safety filter with the obstacle rows on (a reported violation e-stops);
+6. ``send_joint_speeds`` — the adapter re-checks the limits and e-stops on a bad command; a command
    not sent within ``watchdog.command_deadline`` periods of the tick is a missed deadline.
 
 Ctrl-C (SIGINT) and SIGTERM stop the arm before the program exits. So does every fault: an
@@ -41,9 +46,10 @@ exception in start-up, perception, the world model, the controller or the filter
 count, or a controller request that is not finite (NaN from a policy is a fault, never zeroed):
 the arm is commanded to zero velocity in the tick that sees it, the stop and its cause are logged,
 and the run ends (:class:`DeployFault`). Every tick and every event is a line of the JSONL
-telemetry log (time, phase, nominal and filtered command, active constraints, loop latency); every
-run, however it ends, closes with a summary line (success, duration, interventions, deadline
-misses, latency p50/p99, stop reason, fault).
+telemetry log (time, phase, nominal and filtered command, active constraints, touched, loop
+latency; events: stops, the success judgement, touches); every run, however it ends, closes with a
+summary line (success, touched and which obstacles when, duration, interventions, deadline misses,
+latency p50/p99, stop reason, fault).
 
 Perception: the sim backend's :meth:`~hardware.sim.SimArm.perception` stands in for a perception
 module (exact poses from the simulator). The scripted controller needs object poses too; it runs on
@@ -58,6 +64,7 @@ The package, one idea per module:
 * :mod:`~ahrm_stack.deploy.controllers` — the scripted and the policy controller;
 * :mod:`~ahrm_stack.deploy.policy` — :class:`~ahrm_stack.deploy.policy.NumpyPolicy`, the policy's
   forward pass in NumPy on preallocated arrays (the policy controller's fast path);
+* :mod:`~ahrm_stack.deploy.judging` — how a run went, from perception: success, touching, progress;
 * :mod:`~ahrm_stack.deploy.loop` — :class:`DeployLoop`, its summary and faults;
 * :mod:`~ahrm_stack.deploy.run` — building one run (config, telemetry, adapter, loop);
 * :mod:`~ahrm_stack.deploy.cli` — the command line (:func:`main`; the backend is chosen in
@@ -74,14 +81,16 @@ from ahrm_stack.deploy.run import deploy, deploy_sim, load_controller_config, op
 from ahrm_stack.deploy.safety_settings import (HIGHER_IS_STRICTER, LOWER_IS_STRICTER, ON_IS_STRICTER,
                                                SafetyNote, merge_safety, require_filter)
 from ahrm_stack.deploy.settings import (DEPLOY_CONFIG, DeployConfigError, DeploySettings,
-                                        KortexSection, SimSettings, WatchdogSettings,
+                                        KortexSection, ProgressSettings, SimSettings,
+                                        SuccessSettings, TouchSettings, WatchdogSettings,
                                         control_periods, deploy_settings_from_dict,
                                         load_deploy_settings)
 from ahrm_stack.deploy.world import WorldModel
 
 __all__ = ["DEPLOY_CONFIG", "HIGHER_IS_STRICTER", "LOWER_IS_STRICTER", "ON_IS_STRICTER",
            "DeployConfigError", "DeployFault", "DeployLoop", "DeploySettings", "DeploySummary",
-           "KortexSection", "PolicyController", "SafetyNote", "ScriptedController", "SimSettings",
-           "WatchdogSettings", "WorldModel", "control_periods", "deploy_settings_from_dict",
-           "deploy", "deploy_sim", "load_controller_config", "load_deploy_settings", "main",
-           "make_controller", "merge_safety", "open_telemetry", "require_filter", "run_backend"]
+           "KortexSection", "PolicyController", "ProgressSettings", "SafetyNote", "ScriptedController",
+           "SimSettings", "SuccessSettings", "TouchSettings", "WatchdogSettings", "WorldModel",
+           "control_periods", "deploy_settings_from_dict", "deploy", "deploy_sim",
+           "load_controller_config", "load_deploy_settings", "main", "make_controller", "merge_safety",
+           "open_telemetry", "require_filter", "run_backend"]

@@ -13,6 +13,7 @@ import time
 
 import numpy as np
 
+from ahrm_stack.deploy.judging import ProgressWatchdog, SuccessJudge, TouchEstimator
 from ahrm_stack.deploy.safety_settings import require_filter
 from ahrm_stack.deploy.settings import DeploySettings, control_periods
 from ahrm_stack.deploy.world import WorldModel
@@ -24,7 +25,7 @@ log = logging.getLogger("ahrm_stack.deploy")
 
 @dataclasses.dataclass
 class DeploySummary:
-    success: bool
+    success: bool  # the cube perceived off the table, sustained, and still off after the stop
     duration: float  # s of loop time
     ticks: int
     interventions: int  # ticks whose command the safety filter modified
@@ -36,9 +37,16 @@ class DeploySummary:
     emergency_stops: int
     adapter_refusals: int
     fault: str = ""  # the software fault that stopped the run (exception, NaN request), or ''
+    # touching estimated from perception (deploy.touch): an obstacle perceived displaced
+    touched: bool = False
+    touched_obstacles: list[int] = dataclasses.field(default_factory=list)  # in order of touch
+    first_touch_time: float | None = None  # s of loop time, None when nothing was touched
 
     def __str__(self) -> str:
-        return (f"deploy summary: success {self.success} | duration {self.duration:.2f} s | "
+        touched = (f"touched {self.touched} (obstacles {self.touched_obstacles}, first at "
+                   f"{self.first_touch_time:.2f} s)" if self.touched and self.first_touch_time is not None
+                   else f"touched {self.touched}")
+        return (f"deploy summary: success {self.success} | {touched} | duration {self.duration:.2f} s | "
                 f"ticks {self.ticks} | interventions {self.interventions} | fallbacks "
                 f"{self.fallbacks} | deadline misses {self.deadline_misses} | latency p50 "
                 f"{self.latency_p50_ms:.3f} ms p99 {self.latency_p99_ms:.3f} ms | e-stops "
@@ -57,6 +65,12 @@ class DeployFault(RuntimeError):
         self.summary = summary
 
 
+def _first_line(error: BaseException) -> str:
+    """``Type: first line of the message`` (at most 200 characters of it)."""
+    text = (str(error).splitlines() or [""])[0][:200]
+    return type(error).__name__ + (f": {text}" if text else "")
+
+
 class _Halt(Exception):
     """Internal: end the run; the arm was already stopped or e-stopped."""
 
@@ -67,11 +81,21 @@ class DeployLoop:
 
     Every way a run ends commands the arm to stop (zero velocity, or an e-stop), writes a stop
     event with its cause to the log and the telemetry, and (through :meth:`run`) the summary: the
-    watchdog and hardware checks, the safety filter's report, an adapter error, success, the
-    duration, Ctrl-C, and any exception in start-up or in a tick's stages (a *fault*: the stop
-    reason names the stage, ``perception fault: ValueError: ...``; :meth:`run` then raises
+    watchdog and hardware checks, the progress watchdog, the safety filter's report, an adapter
+    error, success (confirmed or not), the duration, Ctrl-C, and any exception in start-up or in a
+    tick's stages (a *fault*: the stop reason names the stage, ``perception fault: ValueError:
+    ...``; :meth:`run` then raises
     :class:`DeployFault`). A controller request that is not finite (NaN from a policy) is a fault
     too, never a silent zero.
+
+    How the run went is judged from perception alone (:mod:`~ahrm_stack.deploy.judging`): success
+    is the cube perceived past a table edge by ``settings.success.edge_margin`` for
+    ``sustain_ticks`` ticks, then, after the stop, not perceived back on the table for
+    ``confirm_time`` s (else the stop reason says ``success not confirmed``); a cube that vanishes
+    from perception once perceived off the table (a perception error that is not the adapter's)
+    counts as gone off it. An obstacle perceived displaced counts as touched (the summary's
+    ``touched`` fields, each tick's ``touched`` flag, a ``touch`` event). A run without task
+    progress for ``settings.progress.timeout`` s is stopped by the progress watchdog.
 
     Args:
         arm: the adapter; its ``clock`` paces the loop and stamps the feedback.
@@ -134,6 +158,9 @@ class DeployLoop:
         self._t0 = 0.0
         self._started = False
         self._stage = "start-up"
+        self.success_judge = SuccessJudge(settings.success, task.config.table)
+        self.touch = TouchEstimator(settings.touch)
+        self.progress = ProgressWatchdog(settings.progress)
 
     # ------------------------------------------------------------------ helpers
     def _write(self, record: dict) -> None:
@@ -145,13 +172,21 @@ class DeployLoop:
         except (OSError, ValueError) as error:  # disk full, a closed file
             log.error("deploy: telemetry write failed (%s: %s)", type(error).__name__, error)
 
-    def _event(self, level: int, kind: str, message: str) -> None:
+    def _event(self, level: int, kind: str, message: str, **fields) -> None:
         log.log(level, "deploy: %s: %s", kind.upper(), message)
-        self._write({"t": round(self.clock.now() - self._t0, 6), "event": kind, "reason": message})
+        self._write({"t": round(self.clock.now() - self._t0, 6), "event": kind, "reason": message,
+                     **fields})
 
     def _halt(self, reason: str, emergency: bool, level: int = logging.WARNING) -> None:
         """Stop (or e-stop) the arm, log why (``level``; e-stops at ERROR), end the run."""
         self.stop_reason = reason
+        self._command_stop(emergency)
+        self._event(logging.ERROR if emergency else level,
+                    "emergency stop" if emergency else "stop", reason)
+        raise _Halt(reason)
+
+    def _command_stop(self, emergency: bool) -> None:
+        """Stop (or e-stop) the arm now; the run is halted (:attr:`stopped_at` stamped)."""
         self.halted = True
         self._sent = np.zeros_like(self._sent)
         try:
@@ -169,9 +204,65 @@ class DeployLoop:
                 except Exception:  # noqa: BLE001 - nothing more to try from here
                     pass
         self.stopped_at = self.clock.now()
-        self._event(logging.ERROR if emergency else level,
-                    "emergency stop" if emergency else "stop", reason)
-        raise _Halt(reason)
+
+    def _judge_success(self, lost: str = "") -> None:
+        """The cube was perceived off the table for ``success.sustain_ticks`` ticks, or (``lost``:
+        the perception error) perceived off and then gone from view: stop the arm, re-read
+        perception each period for ``success.confirm_time`` s (the arm still), and end the run. It
+        is a success unless a read perceives the cube back on the table; a read that fails (an
+        exception other than the adapter's, a non-finite position: a camera's tag fallen out of
+        view) ends the confirmation as the cube gone."""
+        judge = self.success_judge
+        seen = judge.seen
+        if not self.halted:
+            self.stop_reason = "success judgement: confirming after the stop"
+        self._command_stop(emergency=False)
+        stopped = self.stopped_at if self.stopped_at is not None else self.clock.now()
+        wait = self.settings.success.confirm_time
+        count = 0 if lost else max(1, math.ceil(wait / self.period - 1e-9))
+        reads: list[np.ndarray] = []
+        gone = lost
+        for k in range(1, count + 1):
+            self.clock.sleep_until(stopped + min(k * self.period, wait))
+            try:
+                poses = self._perceive()
+            except HardwareError:  # the adapter's: handled as in a tick
+                raise
+            except Exception as error:  # noqa: BLE001 - e.g. the tag out of view once fallen
+                gone = _first_line(error)
+                break
+            if not np.isfinite(poses.cube_position).all():
+                gone = "non-finite cube position"
+                break
+            reads.append(np.asarray(poses.cube_position, dtype=float)[:3].copy())
+        back = next((i for i, p in enumerate(reads) if not judge.off_table(p)), None)
+        confirmed = back is None
+        where = ", ".join(f"{v:.3f}" for v in seen[:3])
+        message = (f"the cube was perceived off the table at ({where}) m for {judge.streak} "
+                   f"tick{'s' * (judge.streak != 1)}")
+        if not confirmed:
+            assert back is not None
+            at = ", ".join(f"{v:.3f}" for v in reads[back])
+            message += (f", but back on the table at ({at}) m "
+                        f"{min((back + 1) * self.period, wait):.2f} s after the stop")
+        elif lost:
+            message += f", then gone from view ({lost})"
+        elif gone and not reads:
+            message += f", then gone from view at the first read after the stop ({gone})"
+        elif gone:
+            message += (f", still off in {len(reads)} read{'s' * (len(reads) != 1)} after the stop, "
+                        f"then gone from view ({gone})")
+        else:
+            message += f", still off {wait:g} s after the stop ({len(reads)} reads)"
+        self._event(logging.INFO if confirmed else logging.WARNING, "success judgement", message,
+                    cube=[round(float(v), 6) for v in seen[:3]], sustained_ticks=judge.streak,
+                    stopped_t=round(stopped - self._t0, 6), confirm_time=wait,
+                    confirmation_reads=[[round(float(v), 6) for v in p] for p in reads],
+                    gone_from_view=gone, confirmed=confirmed)
+        self.success = confirmed
+        self.stop_reason = f"success: {message}" if confirmed else f"success not confirmed: {message}"
+        self._event(logging.INFO if confirmed else logging.WARNING, "stop", self.stop_reason)
+        raise _Halt(self.stop_reason)
 
     def _stop_on_fault(self, error: BaseException | None, reason: str) -> None:
         """Record a software fault (``reason``; ``error`` the exception, if any), stop the arm."""
@@ -287,6 +378,8 @@ class DeployLoop:
         feedback = self.arm.refresh_feedback()
         self._last_frame = feedback.frame_id - 1
         self._ticks = int(math.ceil((self.clock.now() - self._t0) / self.period))
+        self.success_judge.reset()
+        self.progress.restart(self._ticks * self.period)
 
     def tick(self) -> bool:
         """One control period; False when the run ended (success, a halt or a fault: the arm is
@@ -306,14 +399,27 @@ class DeployLoop:
             received = time.perf_counter()
             self._check_feedback(feedback)
             self._stage = "perception"
-            poses = self._perceive()
+            try:
+                poses = self._perceive()
+            except Exception as error:  # noqa: BLE001 - re-raised: a perception or adapter fault
+                if not self.success_judge.streak or isinstance(error, HardwareError):
+                    raise
+                self._judge_success(lost=_first_line(error))  # perceived off, then gone from view
             if not poses.finite:
                 self._halt("non-finite perception (object poses)", emergency=False)
             elapsed = tick_time - self._t0
             info = self.world.update(feedback, poses, elapsed)
-            if info.success:
-                self.success = True
-                self._halt("success: the cube left the table", emergency=False, level=logging.INFO)
+            self._stage = "judging"
+            for touch in self.touch.observe(elapsed, poses.obstacle_positions):
+                self._event(logging.WARNING, "touch",
+                            f"obstacle {touch.obstacle} perceived {touch.displacement * 1e3:.1f} mm "
+                            "from its start position: touched", obstacle=touch.obstacle,
+                            displacement=round(touch.displacement, 6), first=touch is self.touch.touches[0])
+            if self.success_judge.observe(poses.cube_position):
+                self._judge_success()
+            stalled = self.progress.observe(elapsed, info.progress, info.phase)
+            if stalled:
+                self._halt(stalled, emergency=False)
             self._stage = "controller"
             u_nom = self._check_request(self.controller())
             self._stage = "safety filter"
@@ -346,7 +452,8 @@ class DeployLoop:
                 "stage": self.controller.stage,
                 "u_nom": [round(float(v), 6) for v in u_nom],
                 "u": [round(float(v), 6) for v in sent], "active": list(result.active),
-                "status": result.status, "latency_ms": round(latency * 1e3, 4)})
+                "status": result.status, "touched": self.touch.touched,
+                "latency_ms": round(latency * 1e3, 4)})
             return True
         except _Halt:
             return False
@@ -452,4 +559,5 @@ class DeployLoop:
             deadline_misses=self.deadline_misses, latency_p50_ms=float(p50),
             latency_p99_ms=float(p99), stop_reason=self.stop_reason,
             emergency_stops=self.emergency_stops, adapter_refusals=self.adapter_refusals,
-            fault=self.fault)
+            fault=self.fault, touched=self.touch.touched, touched_obstacles=self.touch.obstacles,
+            first_touch_time=self.touch.first_time)

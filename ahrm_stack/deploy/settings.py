@@ -41,6 +41,33 @@ class WatchdogSettings(Section):
 
 
 @dataclasses.dataclass(frozen=True)
+class SuccessSettings(Section):
+    """When the loop declares success (:class:`~ahrm_stack.deploy.judging.SuccessJudge`)."""
+
+    edge_margin: NonNeg  # m the perceived cube centre must be past a table edge (or below the top)
+    sustain_ticks: PosInt  # consecutive control ticks it must be perceived there
+    confirm_time: NonNeg  # s of perception re-read after the stop; the cube must still be off
+
+
+@dataclasses.dataclass(frozen=True)
+class TouchSettings(Section):
+    """Touching estimated from the perceived obstacle positions
+    (:class:`~ahrm_stack.deploy.judging.TouchEstimator`)."""
+
+    displacement: Pos  # m, horizontal, from an obstacle's start position: more counts as touched
+    reference_ticks: PosInt  # control ticks whose median perceived position is the start position
+    sustain_ticks: PosInt  # consecutive control ticks an obstacle must be perceived displaced
+
+
+@dataclasses.dataclass(frozen=True)
+class ProgressSettings(Section):
+    """The progress watchdog (:class:`~ahrm_stack.deploy.judging.ProgressWatchdog`)."""
+
+    timeout: NonNeg  # s without task progress before the arm is stopped; 0: off
+    epsilon: Pos  # m the best task progress must improve by to count as progress
+
+
+@dataclasses.dataclass(frozen=True)
 class SimSettings(Section):
     command_delay: NonNeg  # s
     realism: RealismConfig  # the simulated arm's and camera's imperfections (a set of
@@ -82,6 +109,9 @@ class DeploySettings(Section):
     seed: Annotated[Int, ge(0)]
     telemetry: Str  # path; '' for none
     watchdog: WatchdogSettings
+    success: SuccessSettings
+    touch: TouchSettings
+    progress: ProgressSettings
     sim: SimSettings
     kortex: KortexSection
     kinova_gen2: Gen2Settings
@@ -95,6 +125,9 @@ class DeploySettings(Section):
         if control_periods(self.duration, self.period) < 1:
             raise ConfigError(f"{key}.rate_hz {self.rate_hz!r} Hz with {key}.duration {self.duration!r} s "
                               "gives no control period: the loop would not run")
+        if 0 < self.progress.timeout < self.period:
+            raise ConfigError(f"{key}.progress.timeout must be 0 (off) or at least one control period "
+                              f"({self.period:g} s), got {self.progress.timeout!r}")
         timeout = self.kortex.connection_inactivity_timeout_ms
         if 1e3 / self.rate_hz > timeout:
             raise ConfigError(f"{key}.rate_hz {self.rate_hz!r} Hz: a control period of {self.period:g} s "
