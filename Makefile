@@ -12,6 +12,9 @@ GL_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libopengl0 libgl1
 # A C compiler for the tests' fake Kinova Gen2 SDK (tests/fake_kinova_sdk), installed only when no
 # cc is on PATH; without one those tests skip, saying so.
 CC_PACKAGES := gcc libc6-dev
+# libusb for Kinova's Gen2 USB communication layer (hardware/vendor/kinova_gen2/, loaded by the
+# Gen2 backend and by its tests), installed only when missing.
+USB_PACKAGES := libusb-1.0-0
 
 .PHONY: run demo test lint bench setup clean system-deps
 
@@ -26,17 +29,17 @@ setup: $(STAMP)
 
 system-deps:
 	@if ! command -v dpkg >/dev/null 2>&1; then \
-	  echo "note: no dpkg; evaluation videos need EGL (or OSMesa) OpenGL libraries"; exit 0; fi; \
-	missing=""; for p in $(GL_PACKAGES); do \
+	  echo "note: no dpkg; evaluation videos need EGL (or OSMesa) OpenGL libraries, Kinova's Gen2 SDK libusb-1.0"; exit 0; fi; \
+	missing=""; for p in $(GL_PACKAGES) $(USB_PACKAGES); do \
 	  dpkg -s $$p 2>/dev/null | grep -q "^Status: install ok installed" || missing="$$missing $$p"; done; \
 	if ! command -v cc >/dev/null 2>&1; then for p in $(CC_PACKAGES); do \
 	  dpkg -s $$p 2>/dev/null | grep -q "^Status: install ok installed" || missing="$$missing $$p"; done; fi; \
 	if [ -z "$$missing" ]; then exit 0; fi; \
 	if [ "$$(id -u)" = 0 ]; then SUDO=""; else SUDO="sudo -n"; fi; \
-	echo "installing$$missing (offscreen rendering for evaluation videos; a C compiler for the fake Kinova SDK)"; \
+	echo "installing$$missing (offscreen rendering for evaluation videos; a C compiler for the fake Kinova SDK; libusb for Kinova's Gen2 SDK)"; \
 	( $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq \
 	    --no-install-recommends $$missing ) \
-	  || echo "warning: could not install$$missing; MUJOCO_GL=egl (the default here) needs the GL ones, the Gen2 fake-SDK tests a C compiler"
+	  || echo "warning: could not install$$missing; MUJOCO_GL=egl (the default here) needs the GL ones, the Gen2 fake-SDK tests a C compiler, Kinova's Gen2 SDK libusb-1.0-0"
 
 run: $(STAMP)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m ahrm_stack.train $(ARGS)

@@ -3,18 +3,24 @@ spherical wrist) through Kinova's C SDK, loaded with :mod:`ctypes`.
 
 The SDK is the vendor's shared library that kinova-ros ships in ``kinova_driver/lib/<arch>/``:
 ``USBCommandLayerUbuntu.so`` with its communication layer ``USBCommLayerUbuntu.so`` (installed by
-Kinova's installer as ``Kinova.API.USBCommandLayerUbuntu.so`` and ``Kinova.API.CommLayerUbuntu.so``).
-Only USB is implemented: the Ethernet variant (``EthCommandLayerUbuntu.so``) needs
-``InitEthernetAPI``, which is not called here. The path is ``kinova_gen2.library`` in
-``configs/deploy.yaml``; nothing is downloaded or guessed. The
-function signatures and struct layouts below are those of kinova-ros's headers
-(``kinova_driver/include/kinova/KinovaTypes.h``, ``Kinova.API.USBCommandLayerUbuntu.h``,
-``Kinova.API.USBCommLayerUbuntu.h``); C++ references (``int &``) are pointers in the C ABI.
+Kinova's installer as ``Kinova.API.USBCommandLayerUbuntu.so`` and ``Kinova.API.CommLayerUbuntu.so``);
+the x86_64 pair is in ``hardware/vendor/kinova_gen2/``. Only USB is implemented: the Ethernet
+variant (``EthCommandLayerUbuntu.so``) needs ``InitEthernetAPI``, which is not called here. The path
+is ``kinova_gen2.library`` in ``configs/deploy.yaml``; nothing is downloaded or guessed. ``InitAPI``
+loads the communication layer by bare name, so its folder must be on the dynamic loader's path
+when the process starts: :func:`check_library` checks that before anything runs
+(:mod:`hardware.kinova_gen2_loader`). The function signatures and struct layouts below are those of
+kinova-ros's headers (``kinova_driver/include/kinova/KinovaTypes.h``,
+``Kinova.API.USBCommandLayerUbuntu.h``, ``Kinova.API.USBCommLayerUbuntu.h``) and match the vendor
+binary's debug information; C++ references (``int &``) are pointers in the C ABI.
 
 **Joint velocities must be resent at 100 Hz**: an ANGULAR_VELOCITY trajectory point moves the arm
 only briefly, so a slower sender moves it proportionally slower. The deploy loop runs at 20 Hz;
 :class:`KinovaGen2Arm` therefore runs a sender thread (``kinova_gen2.send_rate_hz``) that resends
-the latest command (already checked by :func:`~hardware.protocol.check_joint_speeds`). Its
+the latest command (already checked by :func:`~hardware.protocol.check_joint_speeds`). The arm
+executes one trajectory point per 10 ms from a FIFO of 2,000 points, so the rate is capped at 100 Hz:
+faster points would pile up and keep the arm moving after commands stop. Every stop erases the
+FIFO (``EraseAllTrajectories``). Its
 **command watchdog**: when no fresh command has come for ``kinova_gen2.command_timeout`` control
 periods, the sender sends zero velocity, then ``EraseAllTrajectories``, and records why
 (:attr:`KinovaGen2Arm.watchdog_stops`); the next fresh command moves the arm again. The thread
@@ -40,12 +46,16 @@ commands raise :class:`~hardware.protocol.ArmFaultError`.
 
 :meth:`KinovaGen2Arm.connect` selects the arm by its serial number (``kinova_gen2.serial``) from
 ``GetDevices``; it never takes the first one found. Every exit path of connect (a failure
-included) and :meth:`~KinovaGen2Arm.disconnect` leave the arm stopped: zero velocity,
-``EraseAllTrajectories``, ``StopControlAPI``, ``CloseAPI``; an ``atexit`` hook disconnects an
+included) and :meth:`~KinovaGen2Arm.disconnect` leave the arm stopped, calling only what is valid
+after what succeeded: once ``StartControlAPI`` has succeeded, zero velocity,
+``EraseAllTrajectories``, ``StopControlAPI``; then ``CloseAPI`` (valid in every state). Before that
+(``InitAPI`` failed, no arm) only ``CloseAPI``: the real SDK crashes in ``SendAdvanceTrajectory``
+when ``InitAPI`` could not load its communication layer. An ``atexit`` hook disconnects an
 adapter left connected. Only the serial number is ever logged.
 
-Tested only against the fake SDK in ``tests/fake_kinova_sdk/`` (same exports and layouts), never
-against a real arm: see docs/hardware.md.
+Tested against the fake SDK in ``tests/fake_kinova_sdk/`` (same exports and layouts; per-call USB
+latency, the trajectory FIFO, noisy velocity feedback) and, without an arm, against Kinova's own
+binary (``tests/test_kinova_gen2_vendor.py``); never against a real arm: see docs/hardware.md.
 """
 
 from __future__ import annotations
@@ -65,6 +75,7 @@ import numpy as np
 from pydantic import AfterValidator, PlainValidator
 
 from ahrm_stack.schema import ConfigError, Float, Int, Section, Str, count, fail, gt, le
+from hardware.kinova_gen2_loader import LoaderPathError, check_comm_layers
 from hardware.protocol import (DescribedArm, ArmFaultError, ArmState, CommandRefusedError,
                                ConnectionLostError, Fault, Feedback, HardwareError,
                                NotConnectedError, ServoingMode, WallClock, check_joint_speeds,
@@ -82,7 +93,10 @@ DOCS = "docs/hardware.md (section 'Kinova Gen2')"
 # ---------------------------------------------------------------------------------------------
 
 NO_ERROR_KINOVA = 1
+ERROR_NO_DEVICE_FOUND = 1015
+ERROR_LOAD_COMM_DLL = 2002
 ANGULAR_VELOCITY = 8  # POSITION_TYPE
+ARM_POINT_RATE_HZ = 100.0  # trajectory points the arm executes per second (one per 10 ms)
 SERIAL_LENGTH = 20
 MAX_KINOVA_DEVICE = 20
 ERROR_LAYER_COUNT = 7
@@ -253,10 +267,12 @@ class Gen2Settings(Section):
     """``configs/deploy.yaml``'s ``kinova_gen2`` section. Files are not looked at here
     (:func:`check_library` does, when the backend is used)."""
 
-    library: FilePath  # the command layer .so
-    comm_library: FilePath  # its communication layer, preloaded (RTLD_GLOBAL); None: not
+    library: FilePath  # the command layer .so (its communication layer: on the loader's path)
     serial: Annotated[Optional[str], PlainValidator(_serial)]  # the arm's serial; required to connect
-    send_rate_hz: Annotated[Float, gt(0), le(1000.0)]  # Hz, the sender thread's rate
+    send_rate_hz: Annotated[Float, gt(0), le(ARM_POINT_RATE_HZ, " Hz: the arm executes one trajectory "
+                                              "point per 10 ms; faster points pile up in its 2,000-point "
+                                              "FIFO and keep it moving after commands stop")]  # Hz, the
+    # sender thread's rate
     command_timeout: Annotated[Float, gt(1, " (a healthy loop sends one command per period)"),
                                le(100.0)]  # control periods without a fresh command before the
     # sender stops
@@ -274,16 +290,32 @@ def _key(name: str) -> str:
 
 
 def check_library(settings: Gen2Settings) -> Path:
-    """The command layer's path if it is a file; else a one-line :class:`Gen2ConfigError` naming
-    the key or the path and pointing to the install notes (nothing is downloaded or guessed)."""
+    """The command layer's path if it is a file whose communication layer the dynamic loader finds
+    by bare name (:func:`check_sdk_path`); else a one-line :class:`Gen2ConfigError` naming the key
+    or the path and saying what to do (nothing is downloaded or guessed)."""
     if settings.library is None:
         raise Gen2ConfigError(f"{_key('library')} is not set: give the path of Kinova's "
-                              f"USBCommandLayerUbuntu.so (kinova-ros kinova_driver/lib/); see {DOCS}")
-    for name, value in (("library", settings.library), ("comm_library", settings.comm_library)):
-        if value is not None and not Path(value).expanduser().is_file():
-            raise Gen2ConfigError(f"{_key(name)}: no file at {value}; install Kinova's Gen2 SDK "
-                                  f"as described in {DOCS}")
-    return Path(settings.library).expanduser()
+                              f"USBCommandLayerUbuntu.so (hardware/vendor/kinova_gen2/x86_64-linux-gnu/ "
+                              f"or kinova-ros kinova_driver/lib/); see {DOCS}")
+    library = Path(settings.library).expanduser()
+    if not library.is_file():
+        raise Gen2ConfigError(f"{_key('library')}: no file at {settings.library}; install Kinova's "
+                              f"Gen2 SDK as described in {DOCS}")
+    check_sdk_path(library)
+    return library
+
+
+def check_sdk_path(library: Path) -> dict[str, str | None]:
+    """The communication layers ``library``'s ``InitAPI`` loads by bare name, each loaded here as
+    the dynamic loader finds it (name -> file); a one-line :class:`Gen2ConfigError` saying what to
+    set when it does not (see :mod:`hardware.kinova_gen2_loader`)."""
+    try:
+        return check_comm_layers(library, _key("library"), DOCS)
+    except LoaderPathError as error:
+        raise Gen2ConfigError(str(error)) from None
+    except OSError as error:
+        raise Gen2ConfigError(f"{_key('library')}: cannot read {library} "
+                              f"({error.strerror or error})") from None
 
 
 def joint_convention(settings: Gen2Settings, robot: RobotDescription) -> JointConvention:
@@ -349,13 +381,13 @@ class SdkCallError(HardwareError):
 
 class Sdk:
     """The loaded SDK: :meth:`call` runs one function under one lock (the SDK is not re-entrant)
-    and raises :class:`SdkCallError` for a code other than NO_ERROR_KINOVA."""
+    and raises :class:`SdkCallError` for a code other than NO_ERROR_KINOVA. Loading it checks
+    first that the dynamic loader finds the communication layers it loads by name
+    (:func:`check_sdk_path`: :class:`Gen2ConfigError`); :attr:`comm_layers` says which files."""
 
-    def __init__(self, library: Path, comm_library: str | None = None) -> None:
+    def __init__(self, library: Path) -> None:
+        self.comm_layers = check_sdk_path(library)  # before InitAPI can ever run
         try:
-            if comm_library is not None:
-                self._comm = ctypes.CDLL(str(Path(comm_library).expanduser()),
-                                         mode=ctypes.RTLD_GLOBAL)
             self.lib = ctypes.CDLL(str(library), mode=ctypes.RTLD_GLOBAL)
         except OSError as error:
             raise HardwareError(f"cannot load the Kinova SDK {library}: {error}; see {DOCS}") from None
@@ -461,6 +493,8 @@ class KinovaGen2Arm(DescribedArm):
         self._clock = WallClock()
         self._sdk: Sdk | None = None
         self._connected = False
+        self._api_open = False  # InitAPI was called: CloseAPI is due (valid whatever InitAPI returned)
+        self._control_started = False  # StartControlAPI succeeded: trajectory calls are valid
         self._mode = ServoingMode.SINGLE_LEVEL_SERVOING
         self._faults = Fault.NONE
         self._fault_reason = ""
@@ -497,10 +531,14 @@ class KinovaGen2Arm(DescribedArm):
         if self._connected:
             raise HardwareError(f"KinovaGen2Arm({self._serial}) is already connected")
         if self._sdk is None:
-            self._sdk = Sdk(self._library, self.settings.comm_library)
+            self._sdk = Sdk(self._library)
         sdk = self._sdk
         try:
-            sdk.call("InitAPI")
+            self._api_open = True
+            try:
+                sdk.call("InitAPI")
+            except SdkCallError as error:
+                raise HardwareError(self._init_failure(error)) from None
             devices = sdk.devices()
             serials = [d.SerialNumber.decode(errors="replace") for d in devices]
             chosen = [d for d, s in zip(devices, serials) if s == self._serial]
@@ -509,6 +547,7 @@ class KinovaGen2Arm(DescribedArm):
                                     f"{serials or 'none'}); set deploy.kinova_gen2.serial")
             sdk.call("SetActiveDevice", chosen[0])
             sdk.call("StartControlAPI")
+            self._control_started = True
             sdk.call("SetAngularControl")
             sdk.call("EraseAllTrajectories")
             sdk.call("SendAdvanceTrajectory", velocity_point(np.zeros(self.num_joints)))
@@ -532,18 +571,37 @@ class KinovaGen2Arm(DescribedArm):
         sys.setswitchinterval(min(self._switch_interval, self.settings.switch_interval))
         self._thread.start()
         _LIVE.add(self)
-        log.info("kinova_gen2: connected to the arm with serial %s (%s Hz sender, watchdog %.0f ms)",
-                 self._serial, f"{self.settings.send_rate_hz:g}", self._timeout * 1e3)
+        comm = ", ".join(f"{path or name}" for name, path in sdk.comm_layers.items()) or "none named"
+        log.info("kinova_gen2: connected to the arm with serial %s (%s Hz sender, watchdog %.0f ms; "
+                 "communication layer: %s)", self._serial, f"{self.settings.send_rate_hz:g}",
+                 self._timeout * 1e3, comm)
+
+    def _init_failure(self, error: SdkCallError) -> str:
+        """One line for a failed ``InitAPI``: what the code means here and what to check."""
+        if error.code == ERROR_NO_DEVICE_FOUND:
+            return (f"no Kinova arm found on USB ({error}): check that the arm is powered "
+                    f"on, its USB cable plugged in and the udev rule installed; see {DOCS}")
+        if error.code == ERROR_LOAD_COMM_DLL:
+            names = ", ".join(self._sdk.comm_layers) if self._sdk else "its communication layer"
+            return (f"Kinova's communication layer did not load ({error}): the dynamic "
+                    f"loader must find {names or 'it'} by name when the process starts "
+                    f"(LD_LIBRARY_PATH); see {DOCS}")
+        return f"InitAPI failed ({error}); see {DOCS}"
 
     def _close_sdk(self) -> None:
-        """Zero velocity, erase the FIFO, StopControlAPI, CloseAPI: each best effort."""
+        """Leave the arm stopped and the API closed, calling only what is valid after what
+        succeeded: zero velocity, erase the FIFO and StopControlAPI once StartControlAPI has
+        succeeded; CloseAPI once InitAPI was called. Each best effort."""
         sdk = self._sdk
         if sdk is None:
             return
-        sdk.call_quietly("SendAdvanceTrajectory", velocity_point(np.zeros(self.num_joints)))
-        sdk.call_quietly("EraseAllTrajectories")
-        sdk.call_quietly("StopControlAPI")
-        sdk.call_quietly("CloseAPI")
+        if self._control_started:
+            sdk.call_quietly("SendAdvanceTrajectory", velocity_point(np.zeros(self.num_joints)))
+            sdk.call_quietly("EraseAllTrajectories")
+            sdk.call_quietly("StopControlAPI")
+        if self._api_open:
+            sdk.call_quietly("CloseAPI")
+        self._control_started = self._api_open = False
 
     def _stop_thread(self) -> None:
         self._quit.set()
@@ -769,6 +827,7 @@ class KinovaGen2Arm(DescribedArm):
                                 f"{self.settings.min_supply_voltage:g} V: release the e-stop "
                                 "(restore the actuators' power) first")
         self._call("StartControlAPI")
+        self._control_started = True
         self._call("SetAngularControl")
         self._halt_motion()
         self._call("GetSystemErrorCount", ctypes.byref(count))

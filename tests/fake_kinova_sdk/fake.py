@@ -3,7 +3,10 @@
 :func:`build` compiles it with the system C compiler (``cc -shared -fPIC``) into a folder;
 :func:`session_library` does so once per process into a temporary folder. :class:`FakeSdk` opens
 the same file (the dynamic loader returns the same handle, so it shares the adapter's state) and
-exposes the test-only functions and the call log.
+exposes the test-only functions and the call log. :meth:`FakeSdk.reset` gives a fake that behaves
+like the arm (fake_kinova.c's header: USB latency per call, the 2,000-point trajectory FIFO,
+the real SDK's return codes without an arm, noisy velocity feedback); ``latency=0`` and
+``velocity_noise=0`` make it instant and exact where a test checks logic, not timing.
 """
 
 from __future__ import annotations
@@ -22,6 +25,10 @@ import numpy as np
 SOURCE = Path(__file__).resolve().parent / "fake_kinova.c"
 SERIAL = "PJ00900006151300001"  # 19 characters, a JACO2-like serial number
 MODEL = "JACO2"
+LATENCY = 0.003  # s per SDK call: fake_kinova.c's DEFAULT_LATENCY (why: its header)
+VELOCITY_NOISE = 1.0  # deg/s, GetAngularVelocity's noise: fake_kinova.c's DEFAULT_VELOCITY_NOISE
+FIFO_SIZE = 2000  # trajectory points the arm holds
+POINT_PERIOD = 0.010  # s: the arm executes one point per 10 ms
 
 #: the function ids of the call log (the enum in fake_kinova.c)
 FUNCTIONS = ("InitAPI", "CloseAPI", "GetDevices", "SetActiveDevice", "StartControlAPI",
@@ -65,20 +72,22 @@ def session_library() -> Path:
 
 class _Call(ctypes.Structure):
     _fields_ = [("t", ctypes.c_double), ("function", ctypes.c_int), ("result", ctypes.c_int),
-                ("type", ctypes.c_int), ("values", ctypes.c_float * 7)]
+                ("type", ctypes.c_int), ("values", ctypes.c_float * 7), ("start", ctypes.c_double)]
 
 
 @dataclasses.dataclass(frozen=True)
 class Call:
-    """One recorded SDK call: ``t`` (s, CLOCK_MONOTONIC = time.perf_counter), the function's
-    name, its return code, ``type`` (the trajectory point's POSITION_TYPE, or a count/index) and
-    ``values`` (a velocity command in deg/s, or the positions read)."""
+    """One recorded SDK call: ``t`` (s, CLOCK_MONOTONIC = time.perf_counter) when it returned, the
+    function's name, its return code, ``type`` (the trajectory point's POSITION_TYPE, or a
+    count/index), ``values`` (a velocity command in deg/s, or the true positions/velocities) and
+    ``start`` (s) when it was called (before waiting for the USB bus)."""
 
     t: float
     function: str
     result: int
     type: int
     values: np.ndarray
+    start: float = 0.0
 
 
 class FakeSdk:
@@ -91,7 +100,12 @@ class FakeSdk:
         lib.FakeKinova_AddDevice.argtypes = [ctypes.c_char_p, ctypes.c_char_p]
         lib.FakeKinova_SetPosition.argtypes = [ctypes.POINTER(ctypes.c_double)]
         lib.FakeKinova_GetState.argtypes = [ctypes.POINTER(ctypes.c_double)] * 2
-        lib.FakeKinova_SetCommandExpiry.argtypes = [ctypes.c_double]
+        lib.FakeKinova_SetLatency.argtypes = [ctypes.c_double]
+        lib.FakeKinova_SetVelocityNoise.argtypes = [ctypes.c_double, ctypes.c_ulonglong]
+        lib.FakeKinova_SetCommMissing.argtypes = [ctypes.c_int]
+        lib.FakeKinova_FailNext.argtypes = [ctypes.c_int, ctypes.c_int]
+        lib.FakeKinova_Dropped.restype = ctypes.c_long
+        lib.FakeKinova_Crashes.restype = ctypes.c_long
         lib.FakeKinova_InjectError.argtypes = [ctypes.c_int]
         lib.FakeKinova_SetEStop.argtypes = [ctypes.c_int]
         lib.FakeKinova_SetUnplugged.argtypes = [ctypes.c_int]
@@ -100,9 +114,15 @@ class FakeSdk:
         lib.FakeKinova_Sizeof.restype = ctypes.c_long
         lib.FakeKinova_Sizeof.argtypes = [ctypes.c_int]
 
-    def reset(self, serials=(SERIAL,), position_deg=None) -> None:
-        """A fresh fake: no call recorded, the given arms on the bus, joints at ``position_deg``."""
+    def reset(self, serials=(SERIAL,), position_deg=None, latency: float = LATENCY,
+              velocity_noise: float = VELOCITY_NOISE, seed: int = 1) -> None:
+        """A fresh fake: no call recorded, the given arms on the bus, joints at ``position_deg``
+        (deg), ``latency`` s per SDK call, velocity feedback noise ``velocity_noise`` deg/s
+        (standard deviation; ``seed`` its generator's). Calls that would crash the real SDK are
+        counted (:meth:`crashes`), not crashed."""
         self.lib.FakeKinova_Reset()
+        self.set_latency(latency)
+        self.set_velocity_noise(velocity_noise, seed)
         for serial in serials:
             self.lib.FakeKinova_AddDevice(serial.encode(), MODEL.encode())
         if position_deg is not None:
@@ -118,8 +138,33 @@ class FakeSdk:
         self.lib.FakeKinova_GetState(q, dq)
         return np.array(q[:]), np.array(dq[:])
 
-    def set_command_expiry(self, seconds: float) -> None:
-        self.lib.FakeKinova_SetCommandExpiry(float(seconds))
+    def set_latency(self, seconds: float) -> None:
+        """s each SDK call blocks (one call at a time on the bus)."""
+        self.lib.FakeKinova_SetLatency(float(seconds))
+
+    def set_velocity_noise(self, deg_s: float, seed: int = 1) -> None:
+        self.lib.FakeKinova_SetVelocityNoise(float(deg_s), int(seed))
+
+    def set_comm_missing(self, value: bool) -> None:
+        """InitAPI cannot load the communication layer (2002, ERROR_LOAD_COMM_DLL)."""
+        self.lib.FakeKinova_SetCommMissing(int(bool(value)))
+
+    def fail_next(self, function: str, code: int) -> None:
+        """The next call of ``function`` (not GetDevices) returns ``code``, whatever it did."""
+        self.lib.FakeKinova_FailNext(FUNCTIONS.index(function) + 1, int(code))
+
+    def fifo_count(self) -> int:
+        """Trajectory points the arm holds (the executing one included)."""
+        return int(self.lib.FakeKinova_FifoCount())
+
+    def dropped(self) -> int:
+        """Points dropped because the FIFO was full."""
+        return int(self.lib.FakeKinova_Dropped())
+
+    def crashes(self) -> int:
+        """Calls since :meth:`reset` that crash the real SDK (SendAdvanceTrajectory,
+        RefresDevicesList before InitAPI loaded the communication layer)."""
+        return int(self.lib.FakeKinova_Crashes())
 
     def inject_error(self, kind: int) -> None:
         self.lib.FakeKinova_InjectError(int(kind))
@@ -155,5 +200,5 @@ class FakeSdk:
             name = FUNCTIONS[record.function - 1]
             if function is None or name == function:
                 out.append(Call(record.t, name, record.result, record.type,
-                                np.array(record.values[:6], dtype=float)))
+                                np.array(record.values[:6], dtype=float), record.start))
         return out

@@ -1,38 +1,73 @@
-/* A fake of Kinova's Gen2 C SDK (Kinova.API.USBCommandLayerUbuntu.so) for the tests.
+/* A fake of Kinova's Gen2 C SDK (USBCommandLayerUbuntu.so) for the tests, made to behave like the
+ * arm behind a USB cable.
  *
  * It exports the functions hardware/kinova_gen2.py calls, with the signatures and struct layouts
  * of kinova-ros's kinova_driver/include/kinova/ (Kinova.API.USBCommandLayerUbuntu.h,
  * KinovaTypes.h, Kinova.API.USBCommLayerUbuntu.h). C++ references (`int &result`) are pointers
  * in the C ABI; structs taken by value (SendAdvanceTrajectory, SetActiveDevice) are by value here.
  *
- * It simulates one arm: the joints integrate the last ANGULAR_VELOCITY command (deg/s), which
- * expires `command_expiry` s (25 ms) after it was sent unless resent - the real arm's behaviour that
- * forces a 100 Hz sender. GetAngularVelocity reports half the real velocity, negative values
- * wrapped by +360 (the firmware quirk kinova-ros's driver undoes). Every call is recorded, with a
- * CLOCK_MONOTONIC timestamp (the clock of Python's time.perf_counter on Linux), into a ring buffer
- * read with FakeKinova_GetCall. Test-only functions (FakeKinova_*) add devices, inject a system
- * error, press the e-stop (actuator power cut: no motion, voltage 0, a voltage error logged) or
- * unplug the arm (every call fails with ERROR_NO_DEVICE_FOUND).
+ * What it models:
+ * - USB round trips. Every SDK call blocks for `latency` s (FAKE_KINOVA_LATENCY_MS, default 3 ms)
+ *   and the calls share one bus: a second caller waits for the first. Kinova's support
+ *   (kinova-ros issue 233): the arm handles one message per 10 ms cycle, each blocking call takes
+ *   "several ms", six calls can take more than 100 ms. Measured by a kinova-ros user (issue 372):
+ *   over USB its status publisher, 9 SDK calls per cycle (kinova_arm.cpp statusTimer), tops out at
+ *   40-60 Hz, i.e. 1.9-2.8 ms per call. 3 ms sits at the low end of "several ms" and just above
+ *   that measurement: a fake that is not slower than the arm is the point.
+ * - The trajectory FIFO. An ANGULAR_VELOCITY point (SendAdvanceTrajectory) joins a FIFO of 2,000
+ *   points; the arm executes one point per 10 ms (100 Hz), back to back, and stands still when the
+ *   FIFO is empty. Points sent slower than 100 Hz move the arm proportionally slower; points sent
+ *   faster pile up and keep it moving after the sender stops, until EraseAllTrajectories empties
+ *   the FIFO. A point arriving at a full FIFO is dropped (counted; the real code is not known).
+ *   Pessimistic where the real arm is not documented: StopControlAPI, CloseAPI and a pulled cable
+ *   do not empty the FIFO, nor does a logged system error; the e-stop (actuator power cut)
+ *   stops the motion while pressed.
+ * - Return codes without an arm, as Kinova's real x86_64 binary gives them (observed, kinova-ros
+ *   kinova_driver/lib/x86_64-linux-gnu, libusb installed, no arm): see the table at
+ *   `sdk_state`. SendAdvanceTrajectory and RefresDevicesList before InitAPI has loaded the
+ *   communication layer crash the real SDK (SIGSEGV); the fake counts them (FakeKinova_Crashes) and,
+ *   in a process that did not call FakeKinova_Reset or with FAKE_KINOVA_CRASH=1, crashes too.
+ * - Noisy velocity feedback. GetAngularVelocity reports the true velocity plus Gaussian noise
+ *   (`velocity_noise` deg/s, FAKE_KINOVA_VELOCITY_NOISE, default 1 deg/s: an assumption; kinova-ros
+ *   issues 366 and 381 report readings far from zero at rest and spiky in motion, without a figure),
+ *   at half the value with negative values wrapped by +360 (the firmware quirk kinova-ros's driver
+ *   undoes).
+ *
+ * Every call is recorded, with CLOCK_MONOTONIC timestamps (the clock of Python's time.perf_counter
+ * on Linux) of its start (before waiting for the bus) and its end, into a ring buffer read with
+ * FakeKinova_GetCall. Test-only functions (FakeKinova_*) add devices, set the latency and the
+ * noise, inject a system error, press the e-stop (actuator power cut: no motion, voltage 0, a
+ * voltage error logged), unplug the arm or hide the communication layer (InitAPI: 2002).
  *
  * Build: cc -shared -fPIC -O1 -o libfakekinova.so fake_kinova.c -lm -lpthread
  */
 #include <math.h>
 #include <pthread.h>
+#include <signal.h>
+#include <stdbool.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
-#include <stdbool.h>
 #include <string.h>
 #include <time.h>
 
 #define NO_ERROR_KINOVA 1
+#define ERROR_LOAD_USB_LIBRARY 1001
+#define ERROR_NOT_INITIALIZED 1010
 #define ERROR_NO_DEVICE_FOUND 1015
-#define ERROR_API_NOT_INITIALIZED 2101
+#define ERROR_LOAD_COMM_DLL 2002
+#define JACO_COMM_FAILED 2004
 #define ERROR_INVALID_PARAM 2100
+#define ERROR_API_NOT_INITIALIZED 2101
 #define SERIAL_LENGTH 20
 #define MAX_KINOVA_DEVICE 20
 #define ERROR_LAYER_COUNT 7
 #define ERROR_DATA_COUNT_MAX 50
 #define NJ 6
+#define FIFO_SIZE 2000           /* points (Kinova Gen2: the trajectory FIFO's capacity) */
+#define POINT_PERIOD 0.010       /* s: one point per control cycle, 100 Hz */
+#define DEFAULT_LATENCY 0.003    /* s per SDK call: see the header comment */
+#define DEFAULT_VELOCITY_NOISE 1.0  /* deg/s, standard deviation: an assumption (header comment) */
 
 /* ---- KinovaTypes.h / Kinova.API.USBCommLayerUbuntu.h layouts (the fields used here) ---- */
 typedef struct { char SerialNumber[SERIAL_LENGTH]; char Model[SERIAL_LENGTH]; int VersionMajor;
@@ -64,22 +99,49 @@ enum { F_INIT = 1, F_CLOSE, F_GET_DEVICES, F_SET_ACTIVE, F_START_CONTROL, F_STOP
        F_SET_ANGULAR, F_SEND_TRAJ, F_ERASE, F_GET_POS, F_GET_VEL, F_GET_FORCE, F_GET_SENSORS,
        F_GET_ERR_COUNT, F_GET_ERR, F_REFRESH, F_GET_API_VERSION };
 
-typedef struct { double t; int function; int result; int type; float values[7]; } FakeCall;
+typedef struct { double t; int function; int result; int type; float values[7]; double start; } FakeCall;
 
 #define RING 262144
 static FakeCall ring[RING];
 static long ncalls = 0;
 
-static pthread_mutex_t lock = PTHREAD_MUTEX_INITIALIZER;
+static pthread_mutex_t bus = PTHREAD_MUTEX_INITIALIZER;   /* one USB round trip at a time */
+static pthread_mutex_t lock = PTHREAD_MUTEX_INITIALIZER;  /* the arm's state */
+
+/* ---- the SDK's state, and what each function returns in it without an arm ----
+ *
+ * CLOSED, communication layer never loaded (before InitAPI, or InitAPI returned 2002):
+ *   CloseAPI 1, EraseAllTrajectories 1, GetDevices 0 devices / result 2101, GetAngularPosition
+ *   1010, every other getter and Set/Start/StopControlAPI 2101; SendAdvanceTrajectory and
+ *   RefresDevicesList crash.
+ * CLOSED after CloseAPI (the layer loaded before): the same, but SendAdvanceTrajectory 2101
+ *   (RefresDevicesList: not observed; 2101 here).
+ * OPEN without an arm (InitAPI returned 1015; a second InitAPI then returns 1): GetDevices
+ *   0 / 1010, SetActiveDevice 1010, RefresDevicesList 1001, Start/StopControlAPI and
+ *   SetAngularControl 1, SendAdvanceTrajectory 1 (2004 once GetDevices was called),
+ *   EraseAllTrajectories 1, the getters 1015, CloseAPI 1.
+ * OPEN with an arm: 1. A pulled cable (not observed): as without an arm, SendAdvanceTrajectory 2004. */
+enum { CLOSED, OPEN_NO_DEVICE, OPEN };
+static int sdk_state = CLOSED;
+static bool comm_loaded = false, comm_missing = false, devices_listed = false;
+static long crashes = 0;
+static int fail_function = 0, fail_code = 0;  /* FakeKinova_FailNext */
+static int crash_for_real = 1;
+
 static KinovaDevice devices[MAX_KINOVA_DEVICE];
 static int ndevices = 0;
 static int active = -1;
-static bool initialized = false, control_on = false, angular = false, estop = false,
-            unplugged = false;
-static double q[NJ], cmd[NJ], cmd_time = -1.0, last_time = -1.0, command_expiry = 0.025;
+static bool control_on = false, angular = false, estop = false, unplugged = false;
+static double latency = DEFAULT_LATENCY, velocity_noise = DEFAULT_VELOCITY_NOISE;
+static double q[NJ], last_time = -1.0;
+static double fifo[FIFO_SIZE][NJ];
+static int fifo_head = 0, fifo_count = 0;
+static double head_start = 0.0;  /* when the point at the head began (valid while fifo_count > 0) */
+static long dropped = 0;
 static double voltage = 24.0;
 static SystemError errors[64];
 static unsigned int nerrors = 0;
+static uint64_t rng = 0x9E3779B97F4A7C15ULL;
 
 static double now(void) {
     struct timespec ts;
@@ -87,30 +149,49 @@ static double now(void) {
     return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
-static void record(int function, int result, int type, const double *v) {
+static double uniform(void) {  /* xorshift64*, in (0, 1) */
+    rng ^= rng >> 12; rng ^= rng << 25; rng ^= rng >> 27;
+    return ((double)((rng * 0x2545F4914F6CDD1DULL) >> 11) + 0.5) / 9007199254740992.0;
+}
+
+static double gaussian(void) { return sqrt(-2.0 * log(uniform())) * cos(6.283185307179586 * uniform()); }
+
+static void record(int function, int result, int type, const double *v, double start) {
     FakeCall *c = &ring[ncalls % RING];
-    c->t = now(); c->function = function; c->result = result; c->type = type;
+    c->t = now(); c->start = start; c->function = function; c->result = result; c->type = type;
     for (int i = 0; i < 7; i++) c->values[i] = (v != NULL && i < NJ) ? (float)v[i] : 0.0f;
     ncalls++;
 }
 
-/* Integrate the joints up to t: the command holds until it expires. */
+/* Integrate the joints up to t: the FIFO's points, one per POINT_PERIOD, back to back. */
 static void advance(double t) {
     if (last_time < 0) { last_time = t; return; }
     if (t <= last_time) return;
-    double end = t;
-    if (cmd_time >= 0) {
-        double expires = cmd_time + command_expiry;
-        double until = end < expires ? end : expires;
-        if (until > last_time && control_on && !estop)
-            for (int i = 0; i < NJ; i++) q[i] += cmd[i] * (until - last_time);
+    while (fifo_count > 0) {
+        double end = head_start + POINT_PERIOD;
+        double from = last_time > head_start ? last_time : head_start;
+        double until = end < t ? end : t;
+        if (until > from && !estop)
+            for (int i = 0; i < NJ; i++) q[i] += fifo[fifo_head][i] * (until - from);
+        if (end > t) break;
+        fifo_head = (fifo_head + 1) % FIFO_SIZE; fifo_count--;
+        head_start = end;
     }
     last_time = t;
 }
 
-static double current_velocity(int i, double t) {
-    if (cmd_time < 0 || t > cmd_time + command_expiry || !control_on || estop) return 0.0;
-    return cmd[i];
+static double current_velocity(int i) {
+    return (fifo_count > 0 && !estop) ? fifo[fifo_head][i] : 0.0;
+}
+
+static void erase_fifo(void) { fifo_head = 0; fifo_count = 0; }
+
+static void push_point(const double *v, double t) {
+    if (fifo_count >= FIFO_SIZE) { dropped++; return; }
+    if (fifo_count == 0) head_start = t;
+    int tail = (fifo_head + fifo_count) % FIFO_SIZE;
+    for (int i = 0; i < NJ; i++) fifo[tail][i] = v[i];
+    fifo_count++;
 }
 
 static void log_error(int type) {
@@ -120,26 +201,41 @@ static void log_error(int type) {
     e->ErrorHeader = nerrors; e->ErrorType = type; e->SystemTime = (unsigned int)(now() * 1e3);
 }
 
-static void zero_command(void) {
-    for (int i = 0; i < NJ; i++) cmd[i] = 0.0;
-    cmd_time = -1.0;
+static void usb_round_trip(void) {
+    if (latency <= 0) return;
+    struct timespec ts = { (time_t)latency, (long)((latency - (double)(time_t)latency) * 1e9) };
+    while (nanosleep(&ts, &ts) != 0) {}
 }
 
-#define ENTER pthread_mutex_lock(&lock); double t_ = now(); advance(t_)
-#define LEAVE(fn, res, type, v) do { int r_ = (res); record(fn, r_, type, v); \
-    pthread_mutex_unlock(&lock); return r_; } while (0)
-#define DEVICE_OK (initialized && !unplugged && active >= 0)
+/* What the real SDK does where it crashes (see the table above). */
+static int crash(void) {
+    crashes++;
+    if (crash_for_real) raise(SIGSEGV);
+    return ERROR_API_NOT_INITIALIZED;
+}
 
-/* ---------------------------------------------------------------- the SDK's functions */
-static bool environment_read = false;
+#define ENTER double start_ = now(); pthread_mutex_lock(&bus); usb_round_trip(); \
+    pthread_mutex_lock(&lock); double t_ = now(); advance(t_)
+#define LEAVE(fn, res, type, v) do { int r_ = (res); \
+    if (fail_function == (fn)) { r_ = fail_code; fail_function = 0; } \
+    record(fn, r_, type, v, start_); \
+    pthread_mutex_unlock(&lock); pthread_mutex_unlock(&bus); return r_; } while (0)
+#define ARM (sdk_state == OPEN && !unplugged && active >= 0)   /* an arm answers */
+/* a getter's code: 1 with an arm; 1015 open without one; 2101 (1010 for positions) closed */
+#define GETTER(closed_code) (ARM ? NO_ERROR_KINOVA : sdk_state != CLOSED ? ERROR_NO_DEVICE_FOUND \
+                             : (closed_code))
+/* a command's code: 1 open (with or without an arm: the SDK does not wait for an answer), 2101 closed */
+#define COMMAND (sdk_state != CLOSED ? NO_ERROR_KINOVA : ERROR_API_NOT_INITIALIZED)
+
+/* ---------------------------------------------------------------- set-up from the environment */
 
 /* For a fake used by another process (python -m ahrm_stack.deploy): FAKE_KINOVA_DEVICES
- * ("SERIAL:MODEL,SERIAL:MODEL") and FAKE_KINOVA_POSITION ("d1,...,d6", deg) are read once. */
-static void read_environment(void) {
-    if (environment_read) return;
-    environment_read = true;
+ * ("SERIAL:MODEL,SERIAL:MODEL"), FAKE_KINOVA_POSITION ("d1,...,d6", deg), FAKE_KINOVA_LATENCY_MS,
+ * FAKE_KINOVA_VELOCITY_NOISE (deg/s), FAKE_KINOVA_COMM_MISSING=1 (InitAPI: 2002) and
+ * FAKE_KINOVA_CRASH (1, the default: crash where the real SDK crashes; 0: count only). */
+__attribute__((constructor)) static void read_environment(void) {
     const char *list = getenv("FAKE_KINOVA_DEVICES");
-    if (list != NULL && ndevices == 0) {
+    if (list != NULL) {
         char buffer[512];
         strncpy(buffer, list, sizeof(buffer) - 1); buffer[sizeof(buffer) - 1] = 0;
         for (char *item = strtok(buffer, ","); item != NULL && ndevices < MAX_KINOVA_DEVICE;
@@ -159,15 +255,35 @@ static void read_environment(void) {
         if (sscanf(position, "%lf,%lf,%lf,%lf,%lf,%lf", &v[0], &v[1], &v[2], &v[3], &v[4], &v[5]) == NJ)
             for (int i = 0; i < NJ; i++) q[i] = v[i];
     }
+    const char *text = getenv("FAKE_KINOVA_LATENCY_MS");
+    if (text != NULL) latency = atof(text) * 1e-3;
+    text = getenv("FAKE_KINOVA_VELOCITY_NOISE");
+    if (text != NULL) velocity_noise = atof(text);
+    text = getenv("FAKE_KINOVA_COMM_MISSING");
+    if (text != NULL) comm_missing = atoi(text) != 0;
+    text = getenv("FAKE_KINOVA_CRASH");
+    if (text != NULL) crash_for_real = atoi(text) != 0;
 }
 
+/* ---------------------------------------------------------------- the SDK's functions */
+
 int InitAPI(void) {
-    ENTER; read_environment(); initialized = true; active = -1;
-    LEAVE(F_INIT, unplugged || ndevices == 0 ? ERROR_NO_DEVICE_FOUND : NO_ERROR_KINOVA, 0, NULL);
+    ENTER;
+    int result;
+    if (comm_missing && !comm_loaded) result = ERROR_LOAD_COMM_DLL;
+    else if (sdk_state != CLOSED) result = NO_ERROR_KINOVA;  /* observed: a second InitAPI says 1 */
+    else {
+        comm_loaded = true; devices_listed = false;
+        bool found = ndevices > 0 && !unplugged;
+        sdk_state = found ? OPEN : OPEN_NO_DEVICE;
+        active = found ? 0 : -1;
+        result = found ? NO_ERROR_KINOVA : ERROR_NO_DEVICE_FOUND;
+    }
+    LEAVE(F_INIT, result, 0, NULL);
 }
 
 int CloseAPI(void) {
-    ENTER; initialized = false; control_on = false; active = -1; zero_command();
+    ENTER; sdk_state = CLOSED; control_on = false; angular = false; active = -1; devices_listed = false;
     LEAVE(F_CLOSE, NO_ERROR_KINOVA, 0, NULL);
 }
 
@@ -177,20 +293,24 @@ int GetAPIVersion(int response[3]) {
 }
 
 int RefresDevicesList(void) {
-    ENTER; LEAVE(F_REFRESH, initialized ? NO_ERROR_KINOVA : ERROR_API_NOT_INITIALIZED, 0, NULL);
+    ENTER;
+    int result = sdk_state == CLOSED ? (comm_loaded ? ERROR_API_NOT_INITIALIZED : crash())
+                 : ARM ? NO_ERROR_KINOVA : ERROR_LOAD_USB_LIBRARY;
+    LEAVE(F_REFRESH, result, 0, NULL);
 }
 
 int GetDevices(KinovaDevice list[MAX_KINOVA_DEVICE], int *result) {
     ENTER;
     int n = 0;
-    if (!initialized) { *result = ERROR_API_NOT_INITIALIZED; }
-    else if (unplugged) { *result = ERROR_NO_DEVICE_FOUND; }
+    if (sdk_state == CLOSED) *result = ERROR_API_NOT_INITIALIZED;
+    else if (sdk_state == OPEN_NO_DEVICE || unplugged) { *result = ERROR_NOT_INITIALIZED; devices_listed = true; }
     else {
         for (int i = 0; i < ndevices; i++) list[i] = devices[i];
         n = ndevices; *result = NO_ERROR_KINOVA;
     }
-    record(F_GET_DEVICES, *result, n, NULL);
+    record(F_GET_DEVICES, *result, n, NULL, start_);
     pthread_mutex_unlock(&lock);
+    pthread_mutex_unlock(&bus);
     return n;
 }
 
@@ -199,25 +319,28 @@ int SetActiveDevice(KinovaDevice device) {
     int found = -1;
     for (int i = 0; i < ndevices; i++)
         if (strncmp(devices[i].SerialNumber, device.SerialNumber, SERIAL_LENGTH) == 0) found = i;
-    int result = (!initialized) ? ERROR_API_NOT_INITIALIZED
-                 : (found < 0 || unplugged) ? ERROR_NO_DEVICE_FOUND : NO_ERROR_KINOVA;
+    int result = sdk_state == CLOSED ? ERROR_API_NOT_INITIALIZED
+                 : (sdk_state == OPEN_NO_DEVICE || unplugged) ? ERROR_NOT_INITIALIZED
+                 : found < 0 ? ERROR_NO_DEVICE_FOUND : NO_ERROR_KINOVA;
     if (result == NO_ERROR_KINOVA) active = found;
     LEAVE(F_SET_ACTIVE, result, found, NULL);
 }
 
 int StartControlAPI(void) {
-    ENTER; int ok = DEVICE_OK; if (ok) control_on = true;
-    LEAVE(F_START_CONTROL, ok ? NO_ERROR_KINOVA : ERROR_NO_DEVICE_FOUND, 0, NULL);
+    ENTER;
+    int result = COMMAND;
+    if (ARM) control_on = true;
+    LEAVE(F_START_CONTROL, result, 0, NULL);
 }
 
 int StopControlAPI(void) {
-    ENTER; int ok = DEVICE_OK; control_on = false; zero_command();
-    LEAVE(F_STOP_CONTROL, ok ? NO_ERROR_KINOVA : ERROR_NO_DEVICE_FOUND, 0, NULL);
+    ENTER; int result = COMMAND; if (ARM) control_on = false;
+    LEAVE(F_STOP_CONTROL, result, 0, NULL);
 }
 
 int SetAngularControl(void) {
-    ENTER; int ok = DEVICE_OK; if (ok) angular = true;
-    LEAVE(F_SET_ANGULAR, ok ? NO_ERROR_KINOVA : ERROR_NO_DEVICE_FOUND, 0, NULL);
+    ENTER; int result = COMMAND; if (ARM) angular = true;
+    LEAVE(F_SET_ANGULAR, result, 0, NULL);
 }
 
 int SendAdvanceTrajectory(TrajectoryPoint point) {
@@ -225,26 +348,29 @@ int SendAdvanceTrajectory(TrajectoryPoint point) {
     double v[NJ];
     const float *a = &point.Position.Actuators.Actuator1;
     for (int i = 0; i < NJ; i++) v[i] = a[i];
-    int result = DEVICE_OK ? NO_ERROR_KINOVA : ERROR_NO_DEVICE_FOUND;
-    if (result == NO_ERROR_KINOVA && point.Position.Type == ANGULAR_VELOCITY && control_on
-        && angular && !estop) {
-        for (int i = 0; i < NJ; i++) cmd[i] = v[i];
-        cmd_time = t_;
+    int result;
+    if (sdk_state == CLOSED) result = comm_loaded ? ERROR_API_NOT_INITIALIZED : crash();
+    else if (!ARM) result = (devices_listed || unplugged) ? JACO_COMM_FAILED : NO_ERROR_KINOVA;
+    else {
+        result = NO_ERROR_KINOVA;
+        if (point.Position.Type == ANGULAR_VELOCITY && control_on && angular && !estop)
+            push_point(v, t_);
     }
     LEAVE(F_SEND_TRAJ, result, point.Position.Type, v);
 }
 
 int EraseAllTrajectories(void) {
-    ENTER; int ok = DEVICE_OK; zero_command();
-    LEAVE(F_ERASE, ok ? NO_ERROR_KINOVA : ERROR_NO_DEVICE_FOUND, 0, NULL);
+    ENTER; if (ARM) erase_fifo();
+    LEAVE(F_ERASE, NO_ERROR_KINOVA, 0, NULL);  /* 1 in every state observed */
 }
 
 int GetAngularPosition(AngularPosition *response) {
     ENTER;
     memset(response, 0, sizeof(*response));
     float *a = &response->Actuators.Actuator1;
-    for (int i = 0; i < NJ; i++) a[i] = (float)q[i];
-    LEAVE(F_GET_POS, DEVICE_OK ? NO_ERROR_KINOVA : ERROR_NO_DEVICE_FOUND, 0, q);
+    int result = GETTER(ERROR_NOT_INITIALIZED);
+    if (result == NO_ERROR_KINOVA) for (int i = 0; i < NJ; i++) a[i] = (float)q[i];
+    LEAVE(F_GET_POS, result, 0, q);
 }
 
 int GetAngularVelocity(AngularPosition *response) {
@@ -252,51 +378,66 @@ int GetAngularVelocity(AngularPosition *response) {
     memset(response, 0, sizeof(*response));
     float *a = &response->Actuators.Actuator1;
     double v[NJ];
+    int result = GETTER(ERROR_API_NOT_INITIALIZED);
     for (int i = 0; i < NJ; i++) {
-        v[i] = current_velocity(i, t_);
-        double wrapped = v[i] < 0 ? v[i] + 360.0 : v[i];  /* 0..180 positive, 360..181 negative */
-        a[i] = (float)(wrapped / 2.0);                     /* the firmware reports half */
+        v[i] = current_velocity(i);
+        double measured = v[i] + velocity_noise * gaussian();
+        double wrapped = measured < 0 ? measured + 360.0 : measured;  /* negative: 360 - |v| */
+        if (result == NO_ERROR_KINOVA) a[i] = (float)(wrapped / 2.0);  /* the firmware reports half */
     }
-    LEAVE(F_GET_VEL, DEVICE_OK ? NO_ERROR_KINOVA : ERROR_NO_DEVICE_FOUND, 0, v);
+    LEAVE(F_GET_VEL, result, 0, v);
 }
 
 int GetAngularForce(AngularPosition *response) {
     ENTER;
     memset(response, 0, sizeof(*response));
     float *a = &response->Actuators.Actuator1;
-    for (int i = 0; i < NJ; i++) a[i] = (float)(0.5 * (i + 1));  /* N m, any finite value */
-    LEAVE(F_GET_FORCE, DEVICE_OK ? NO_ERROR_KINOVA : ERROR_NO_DEVICE_FOUND, 0, NULL);
+    int result = GETTER(ERROR_API_NOT_INITIALIZED);
+    if (result == NO_ERROR_KINOVA) for (int i = 0; i < NJ; i++) a[i] = (float)(0.5 * (i + 1));
+    LEAVE(F_GET_FORCE, result, 0, NULL);
 }
 
 int GetSensorsInfo(SensorsInfo *response) {
     ENTER;
     memset(response, 0, sizeof(*response));
-    response->Voltage = (float)(estop ? 0.0 : voltage);
-    response->Current = 0.5f;
-    response->ActuatorTemp1 = 30.0f;
-    LEAVE(F_GET_SENSORS, DEVICE_OK ? NO_ERROR_KINOVA : ERROR_NO_DEVICE_FOUND, 0, NULL);
+    int result = GETTER(ERROR_API_NOT_INITIALIZED);
+    if (result == NO_ERROR_KINOVA) {
+        response->Voltage = (float)(estop ? 0.0 : voltage);
+        response->Current = 0.5f;
+        response->ActuatorTemp1 = 30.0f;
+    }
+    LEAVE(F_GET_SENSORS, result, 0, NULL);
 }
 
 int GetSystemErrorCount(unsigned int *response) {
-    ENTER; *response = nerrors;
-    LEAVE(F_GET_ERR_COUNT, DEVICE_OK ? NO_ERROR_KINOVA : ERROR_NO_DEVICE_FOUND, (int)nerrors, NULL);
+    ENTER;
+    int result = GETTER(ERROR_API_NOT_INITIALIZED);
+    if (result == NO_ERROR_KINOVA) *response = nerrors;  /* the real SDK leaves it as it was */
+    LEAVE(F_GET_ERR_COUNT, result, (int)nerrors, NULL);
 }
 
 int GetSystemError(unsigned int index, SystemError *response) {
     ENTER;
-    int ok = DEVICE_OK && index < nerrors;
-    if (ok) *response = errors[index];
-    LEAVE(F_GET_ERR, ok ? NO_ERROR_KINOVA : ERROR_INVALID_PARAM, (int)index, NULL);
+    int result = GETTER(ERROR_API_NOT_INITIALIZED);
+    if (result == NO_ERROR_KINOVA && index >= nerrors) result = ERROR_INVALID_PARAM;
+    if (result == NO_ERROR_KINOVA) *response = errors[index];
+    LEAVE(F_GET_ERR, result, (int)index, NULL);
 }
 
 /* ---------------------------------------------------------------- test-only functions */
+/* A fresh fake for an in-process test: no device, no call recorded, defaults restored, and
+ * would-be crashes counted instead of crashing the test process. */
 void FakeKinova_Reset(void) {
+    pthread_mutex_lock(&bus);
     pthread_mutex_lock(&lock);
-    ndevices = 0; active = -1; initialized = control_on = angular = estop = unplugged = false;
+    ndevices = 0; active = -1; sdk_state = CLOSED;
+    control_on = angular = estop = unplugged = comm_loaded = comm_missing = devices_listed = false;
     for (int i = 0; i < NJ; i++) q[i] = 0.0;
-    zero_command(); last_time = -1.0; command_expiry = 0.025; voltage = 24.0; nerrors = 0;
-    ncalls = 0; environment_read = true;  /* the test configures this process's fake itself */
+    erase_fifo(); dropped = 0; last_time = -1.0; voltage = 24.0; nerrors = 0; ncalls = 0;
+    latency = DEFAULT_LATENCY; velocity_noise = DEFAULT_VELOCITY_NOISE; rng = 0x9E3779B97F4A7C15ULL;
+    crashes = 0; crash_for_real = 0; fail_function = 0;
     pthread_mutex_unlock(&lock);
+    pthread_mutex_unlock(&bus);
 }
 
 int FakeKinova_AddDevice(const char *serial, const char *model) {
@@ -319,38 +460,70 @@ void FakeKinova_SetPosition(const double *degrees) {
     pthread_mutex_unlock(&lock);
 }
 
-/* The true joint state, deg and deg/s. */
+/* The true joint state, deg and deg/s (no noise). */
 void FakeKinova_GetState(double *degrees, double *velocity) {
     pthread_mutex_lock(&lock);
-    double t = now();
-    advance(t);
-    for (int i = 0; i < NJ; i++) { degrees[i] = q[i]; velocity[i] = current_velocity(i, t); }
+    advance(now());
+    for (int i = 0; i < NJ; i++) { degrees[i] = q[i]; velocity[i] = current_velocity(i); }
     pthread_mutex_unlock(&lock);
 }
 
-void FakeKinova_SetCommandExpiry(double seconds) {
-    pthread_mutex_lock(&lock); advance(now()); command_expiry = seconds; pthread_mutex_unlock(&lock);
+/* s per SDK call (0: none). */
+void FakeKinova_SetLatency(double seconds) {
+    pthread_mutex_lock(&lock); latency = seconds; pthread_mutex_unlock(&lock);
 }
 
-/* A system error of the given errorLoggerType; the arm stops. */
+/* deg/s, the standard deviation of GetAngularVelocity's noise (0: exact); `seed` restarts it. */
+void FakeKinova_SetVelocityNoise(double deg_s, unsigned long long seed) {
+    pthread_mutex_lock(&lock);
+    velocity_noise = deg_s; rng = seed ? (uint64_t)seed : 0x9E3779B97F4A7C15ULL;
+    pthread_mutex_unlock(&lock);
+}
+
+/* The points waiting in the FIFO, the executing one included; the points dropped when it was full. */
+int FakeKinova_FifoCount(void) {
+    pthread_mutex_lock(&lock); advance(now()); int n = fifo_count; pthread_mutex_unlock(&lock);
+    return n;
+}
+
+long FakeKinova_Dropped(void) {
+    pthread_mutex_lock(&lock); long n = dropped; pthread_mutex_unlock(&lock); return n;
+}
+
+/* Calls that crash the real SDK (SendAdvanceTrajectory, RefresDevicesList before the
+ * communication layer was loaded), counted since FakeKinova_Reset. */
+long FakeKinova_Crashes(void) {
+    pthread_mutex_lock(&lock); long n = crashes; pthread_mutex_unlock(&lock); return n;
+}
+
+/* InitAPI cannot load the communication layer (2002), as when it is not on the loader's path. */
+void FakeKinova_SetCommMissing(int value) {
+    pthread_mutex_lock(&lock); comm_missing = value != 0; pthread_mutex_unlock(&lock);
+}
+
+/* The next call of SDK function `function` (the call log's id) returns `code` (whatever it did). */
+void FakeKinova_FailNext(int function, int code) {
+    pthread_mutex_lock(&lock); fail_function = function; fail_code = code; pthread_mutex_unlock(&lock);
+}
+
+/* A system error of the given errorLoggerType is logged (the FIFO is left as it is: pessimistic). */
 void FakeKinova_InjectError(int type) {
-    pthread_mutex_lock(&lock); advance(now()); log_error(type); zero_command();
-    pthread_mutex_unlock(&lock);
+    pthread_mutex_lock(&lock); advance(now()); log_error(type); pthread_mutex_unlock(&lock);
 }
 
-/* The e-stop: actuator power cut (no motion, 0 V, a voltage error logged); released: power back. */
+/* The e-stop: actuator power cut (no motion while pressed, 0 V, a voltage error logged; the FIFO
+ * runs on without moving the arm); released: power back. */
 void FakeKinova_SetEStop(int pressed) {
     pthread_mutex_lock(&lock);
     advance(now());
-    if (pressed && !estop) { log_error(errorlog_voltage); zero_command(); }
+    if (pressed && !estop) log_error(errorlog_voltage);
     estop = pressed != 0;
     pthread_mutex_unlock(&lock);
 }
 
-/* The USB cable pulled (every call fails) or put back. */
+/* The USB cable pulled (the arm answers nothing; it finishes the points it holds) or put back. */
 void FakeKinova_SetUnplugged(int value) {
-    pthread_mutex_lock(&lock); advance(now()); unplugged = value != 0; if (unplugged) zero_command();
-    pthread_mutex_unlock(&lock);
+    pthread_mutex_lock(&lock); advance(now()); unplugged = value != 0; pthread_mutex_unlock(&lock);
 }
 
 long FakeKinova_CallCount(void) {
@@ -371,7 +544,7 @@ int FakeKinova_ControlOn(void) {
 }
 
 int FakeKinova_Initialized(void) {
-    pthread_mutex_lock(&lock); int on = initialized; pthread_mutex_unlock(&lock); return on;
+    pthread_mutex_lock(&lock); int on = sdk_state != CLOSED; pthread_mutex_unlock(&lock); return on;
 }
 
 /* sizeof of the SDK structs as this compiler lays them out (the ctypes layouts are checked). */
