@@ -29,19 +29,19 @@ TOP = CONFIG.task.table.height
 
 class NoisyArm(SimArm):
     """The sim arm whose perception adds N(0, sigma) noise (m, per axis) to the cube's and the
-    obstacles' positions; ``truth`` keeps (clock time, true cube position) of every read."""
+    obstacles' positions; ``true_cube`` keeps (clock time, true cube position) of every read."""
 
     def __init__(self, *args, cube_noise: float = 0.0, obstacle_noise: float = 0.0,
                  noise_seed: int = 0, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self.rng = np.random.default_rng(noise_seed)
         self.cube_noise, self.obstacle_noise = cube_noise, obstacle_noise
-        self.truth: list[tuple[float, np.ndarray]] = []
+        self.true_cube: list[tuple[float, np.ndarray]] = []
         self.perceived: list[np.ndarray] = []
 
     def perception(self):
         poses = super().perception()
-        self.truth.append((self.clock.now(), poses.cube_position.copy()))
+        self.true_cube.append((self.clock.now(), poses.cube_position.copy()))
         cube = poses.cube_position + self.rng.normal(0, self.cube_noise, 3)
         self.perceived.append(cube)
         return dataclasses.replace(
@@ -108,7 +108,7 @@ def test_perception_noise_at_the_edge_is_not_a_success(x, y):
     assert not summary.success and summary.stop_reason == "duration of 3 s reached", summary
     assert not any(line.get("event") == "success judgement" for line in lines)
     assert sum(_true_off_table(p) for p in arm.perceived) >= 3  # the naive test fired
-    assert not any(_true_off_table(truth) for _, truth in arm.truth)  # the cube stayed on
+    assert not any(_true_off_table(truth) for _, truth in arm.true_cube)  # the cube stayed on
 
 
 @pytest.mark.parametrize("seed", [3, 10, 13])
@@ -121,8 +121,8 @@ def test_a_real_push_off_with_noisy_perception_is_a_success(seed):
     loop, summary, lines = _run(arm, world, ScriptedController(world, CONFIG), _settings(), 20.0)
     assert summary.success and summary.stop_reason.startswith("success: "), summary
     naive = next(i for i, cube in enumerate(arm.perceived) if _true_off_table(cube))
-    assert not _true_off_table(arm.truth[naive][1])  # the naive success would have been false
-    at_stop = [truth for t, truth in arm.truth if t <= loop.stopped_at + 1e-9][-1]
+    assert not _true_off_table(arm.true_cube[naive][1])  # the naive success would have been false
+    at_stop = [truth for t, truth in arm.true_cube if t <= loop.stopped_at + 1e-9][-1]
     assert _true_off_table(at_stop), at_stop
     judgement = next(line for line in lines if line.get("event") == "success judgement")
     assert judgement["confirmed"] is True and len(judgement["cube"]) == 3

@@ -132,6 +132,7 @@ class DeployLoop:
         robot = task.robot
         self._lower, self._upper = robot.position_lower, robot.position_upper
         self._speed_alarm = robot.velocity_limit * (1.0 + settings.watchdog.velocity_tolerance)
+        self._over_speed = np.zeros(robot.num_joints, dtype=int)  # consecutive readings over it
         self.scene = world.make_collision_scene()
         self.filter = make_task_filter(task, dataclasses.replace(safety, obstacle_rows=True),
                                        scene=self.scene, control_period=self.period)
@@ -298,11 +299,16 @@ class DeployLoop:
             i = past[0]
             self._halt(f"limit violation: joint {i} at {feedback.position[i]:.4f} rad, outside "
                        f"[{self._lower[i]:.4f}, {self._upper[i]:.4f}]", emergency=True)
-        fast = np.flatnonzero(np.abs(feedback.velocity) > self._speed_alarm)
+        # a joint over the alarm speed on velocity_alarm_ticks consecutive readings: a runaway
+        # persists, a noisy reading (a real JACO2's velocity feedback) does not
+        over = np.abs(feedback.velocity) > self._speed_alarm
+        self._over_speed = np.where(over, self._over_speed + 1, 0)
+        fast = np.flatnonzero(self._over_speed >= self.settings.watchdog.velocity_alarm_ticks)
         if fast.size:
             i = fast[0]
             self._halt(f"limit violation: joint {i} moving at {feedback.velocity[i]:.3f} rad/s, "
-                       f"alarm at {self._speed_alarm[i]:.3f} rad/s", emergency=True)
+                       f"alarm at {self._speed_alarm[i]:.3f} rad/s on {self._over_speed[i]} "
+                       "consecutive readings", emergency=True)
 
     def _check_request(self, u_nom) -> np.ndarray:
         """The controller's request as a float vector; a wrong size or a non-finite entry (NaN
@@ -373,6 +379,7 @@ class DeployLoop:
         self.stop_reason = ""
         self.fault = ""
         self.error = None
+        self._over_speed[:] = 0
         self._sent = np.zeros_like(self._sent)
         self.filter.reset()
         feedback = self.arm.refresh_feedback()

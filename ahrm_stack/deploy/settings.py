@@ -38,6 +38,7 @@ class WatchdogSettings(Section):
     command_deadline: Annotated[Float, gt(0), le(1, " period")]  # control periods after the tick
     max_deadline_misses: Annotated[Int, ge(0)]  # tolerated before a stop (0: the first miss stops)
     velocity_tolerance: NonNeg  # fraction over the velocity limit a measured speed may reach
+    velocity_alarm_ticks: Annotated[Int, ge(1)]  # consecutive readings over it that e-stop (1: the first)
 
 
 @dataclasses.dataclass(frozen=True)
