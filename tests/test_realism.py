@@ -269,8 +269,8 @@ def test_training_and_deploy_estimate_the_same_velocities():
 
 
 def test_a_world_model_reused_for_a_new_run_plans_its_lane_again():
-    """A deploy world model that runs a second episode (a loop's start: elapsed back to 0) plans
-    that episode's lane anew, as training's reset does (it kept the first episode's plan)."""
+    """A deploy world model that runs a second episode (a loop's start: ``begin_run``) plans that
+    episode's lane anew, as training's reset does (it kept the first episode's plan)."""
     from ahrm_stack.deploy.world import WorldModel
     from hardware.protocol import FastClock
 
@@ -280,6 +280,7 @@ def test_a_world_model_reused_for_a_new_run_plans_its_lane_again():
     for seed in (4200003, 4200000):
         arm = SimArm(config.task, seed=seed, clock=FastClock())
         arm.connect()
+        world.begin_run()
         world.update(arm.refresh_feedback(), arm.perception(), 0.0)
         lanes.append(world.task._lane_choice(world.physics).copy())
         world.update(arm.refresh_feedback(), arm.perception(), 0.05)

@@ -356,6 +356,7 @@ class DeployLoop:
         feedback = self.arm.refresh_feedback()
         self._last_frame = feedback.frame_id - 1
         self._t0 = self.clock.now()
+        self.world.begin_run()
         self.world.update(feedback, self._perceive(), 0.0)
         self.controller.reset()
         self.world.place_objects(self.scene)

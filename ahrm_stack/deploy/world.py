@@ -42,6 +42,7 @@ class WorldModel:
         self._velocity = (VelocityEstimator(observation.velocity_smoothing)
                           if observation.joint_velocity == "position_difference" else None)
         self._elapsed = -1.0
+        self._new_run = False
         self._kinematics = mujoco.mj_kinematics
         self._model_ptr, self._data_ptr = self.physics.model.ptr, self.physics.data.ptr
         # The task's observation written into one preallocated vector; None (the task's own
@@ -67,12 +68,11 @@ class WorldModel:
                              f"has {len(at.obstacle_qpos)}")
         data = self.physics.data
         data.qpos[at.arm_qpos] = feedback.position
-        # elapsed back to 0 (a loop's start on a model that already ran one): a new episode
-        new_run = elapsed < self._elapsed or (elapsed == 0.0 and self._elapsed > 0.0)
+        new_run, self._new_run = self._new_run, False
         if self._velocity is None:
             data.qvel[at.arm_dof] = feedback.velocity
         else:
-            if new_run:
+            if new_run or elapsed < self._elapsed:
                 self._velocity.reset()
             data.qvel[at.arm_dof] = self._velocity(feedback.position, elapsed - self._elapsed)
         self._elapsed = elapsed
@@ -88,6 +88,12 @@ class WorldModel:
             self.task._begin_episode(self.physics)  # and the previous action reset
         self.task.after_step(self.physics, self.random_state)
         return self.task.step_info
+
+    def begin_run(self) -> None:
+        """The next :meth:`update` starts an episode (a deploy loop's start): the task's episode
+        bookkeeping restarts there (the lane is planned again, the previous action is zero, the
+        objectives restart) and the joint-velocity estimate with it."""
+        self._new_run = True
 
     def observation(self, copy: bool = True) -> np.ndarray:
         """The training observation vector (layout: ``task.observation_order``) of the last
