@@ -16,7 +16,9 @@ from ahrm_stack.config import load_config  # noqa: E402
 
 @pytest.fixture(scope="session")
 def config():
-    return load_config()
+    # the nominal simulation: the task's, the physics' and the controllers' tests check exact
+    # values; a real arm's imperfections (task.realism) are tested in tests/test_realism.py
+    return load_config(["task.realism=ideal"])
 
 
 @pytest.fixture(scope="session")

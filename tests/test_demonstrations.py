@@ -7,7 +7,7 @@ from ahrm_stack.learning.demonstrations import ACTION_LIMIT, bc_loss, collect_de
 from ahrm_stack.learning.ppo import make_modules
 from ahrm_stack.learning.trainer import Trainer
 
-SMALL = ["ppo.hidden_sizes=[32,32]", "ppo.frames_per_batch=128", "train.demo_episodes=2",
+SMALL = ["task.realism=ideal", "ppo.hidden_sizes=[32,32]", "ppo.frames_per_batch=128", "train.demo_episodes=2",
          "train.bc_epochs=30", "task.episode.duration=8"]
 
 

@@ -168,7 +168,7 @@ def test_advantage_normalisation():
 def test_demonstration_noise_changes_the_states_not_the_labels():
     base = ["task.action.mode=cartesian", "task.arm.home_deg=[240,204.2,55.4,350.7,36.2,75]",
             "task.episode.duration=8", "task.arm.start=home", "task.layout.mode=fixed",
-            "task.action.cartesian_max_speed=0.5"]  # the noise below is 0.15 m/s at this cap
+            "task.action.cartesian_max_speed=0.5", "task.realism=ideal"]  # noise: 0.15 m/s at this cap
     clean = collect_demonstrations(load_config(base), 1)
     noisy = collect_demonstrations(load_config([*base, "train.demo_noise=0.3"]), 1)
     assert clean.shape[0] > 0 and noisy.shape[0] > 0

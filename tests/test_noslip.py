@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def _runner(noslip: int) -> TaskRunner:
-    config = load_config([f"task.episode.noslip_iterations={noslip}"])
+    config = load_config([f"task.episode.noslip_iterations={noslip}", "task.realism=ideal"])
     runner = TaskRunner(PushOffTask(config.task), seed=0)
     runner.reset()
     return runner

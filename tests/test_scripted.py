@@ -158,7 +158,7 @@ def test_stateless_expert_wins_and_mostly_agrees_with_the_carried_stage() -> Non
     """Run in the learner's Cartesian mode with the stage inferred at every step: each episode
     is won without touching, every stage of the plan is visited; along the carried-over
     controller's own episode the inferred stage equals the carried one at ≥ 90 % of steps."""
-    config = load_config(["task.layout.mode=random"])
+    config = load_config(["task.layout.mode=random", "task.realism=ideal"])
     task = PushOffTask(config.task)
     runner = TaskRunner(task, seed=0, safety=config.safety)
     pusher = ScriptedPusher(task, config.scripted)

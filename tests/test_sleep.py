@@ -24,7 +24,8 @@ SLEEP = int(mujoco.mjtEnableBit.mjENBL_SLEEP)
 
 
 def _runner(sleep: bool, seed: int = 3) -> TaskRunner:
-    config = load_config(["task.layout.mode=random", f"task.episode.sleep={str(sleep).lower()}"])
+    config = load_config(["task.layout.mode=random", f"task.episode.sleep={str(sleep).lower()}",
+                          "task.realism=ideal"])
     runner = TaskRunner(PushOffTask(config.task), seed=seed, safety=config.safety)
     runner.reset()
     return runner
@@ -159,7 +160,7 @@ def test_a_cube_resting_against_an_obstacle_stays_a_touch(gap):
 def test_the_scripted_controller_still_pushes_the_cube_off():
     """The teacher on random layouts with sleeping: every episode a success without touching, as
     without it (README: 20/20 clean on the same seeds)."""
-    config = load_config(["task.layout.mode=random", "task.episode.sleep=true"])
+    config = load_config(["task.layout.mode=random", "task.episode.sleep=true", "task.realism=ideal"])
     task = PushOffTask(config.task)
     runner = TaskRunner(task, seed=0, safety=config.safety)
     pusher = ScriptedPusher(task, config.scripted)
