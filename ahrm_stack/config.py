@@ -10,16 +10,34 @@ Overrides use dotted keys, e.g. ``task.layout.mode=random`` or ``task.episode.du
 are parsed as YAML scalars/lists. ``config.to_dict()`` is the YAML-shaped mapping a run folder's
 ``config.yaml`` stores; :func:`config_from_dict` reads it back into an equal object.
 
-To add a key: one line in its section below (type, rules, comment with units), e.g.
-``collect_workers: Annotated[Int, ge(1), le(LIMITS["num_envs"])]  # processes``, the value in the
-section's YAML file, and, for run folders written before it existed, a default in
-:func:`_legacy_fill` (or :data:`BACKFILLED`). Rules over several keys go in the section's
-``check``.
+To add a key: the field in its section below, with its rules and markers and a comment with units,
+and its line in the section's YAML file; nothing else. E.g.::
+
+    collect_workers: Annotated[PosInt, le(LIMITS["num_envs"]), legacy(1)]  # processes
+    table_margin: Annotated[NonNeg, stricter("higher")]  # m (a key of the safety section)
+
+The markers (``ahrm_stack/schema.py``) hold the per-key rules that are not validation:
+
+* ``legacy(value)`` (or ``legacy_rule(f)``): the value a run folder written before the key existed
+  behaved as, a literal (so an old run does not change when a default in ``configs/`` does). A
+  run's ``config.yaml`` that lacks the key gets it (:func:`fill_missing`, one generic filler), so
+  old runs and checkpoints load, resume and take overrides of the new key. A key without the
+  marker is required: an old file without it is refused, naming the key.
+* ``stricter(direction)``, required on every key of :class:`SafetyConfig` (a test fails without
+  it): ``on``, ``higher``, ``lower`` or ``none`` (no order). Deploy's
+  :func:`~ahrm_stack.deploy.merge_safety` reads it: a checkpoint's safety value is used where it
+  is stricter than deploy's, ignored (with a note) where it is weaker.
+
+A run folder's ``config.yaml`` is ``{schema_version: SCHEMA_VERSION, **config.to_dict()}``
+(:func:`ahrm_stack.run_config.run_config_text`); every reader goes through
+:func:`ahrm_stack.run_config.load_run_config`. Renaming or removing a key raises
+:data:`SCHEMA_VERSION` with a conversion step in :func:`fill_missing`, and
+``python -m ahrm_stack.run_config docs`` rewrites the committed run folders. Rules over several
+keys go in the section's ``check``.
 """
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import math
 import re
@@ -33,9 +51,9 @@ from pydantic_core import PydanticCustomError
 
 from ahrm_stack.env.realism import RealismConfig, resolve_realism
 from ahrm_stack.schema import _float  # the Float rule, for values inside a custom validator
-from ahrm_stack.schema import (Bool, ConfigError, Float, FrozenDict, Int, Section, Source, Str, apply_override, count,
-                               derived, fail, ge, gt, le, load_file, override_keys, read_yaml, show_path,
-                               validate, within)
+from ahrm_stack.schema import (MISSING, Bool, ConfigError, Float, FrozenDict, Int, Section, Source, Str, apply_override,
+                               count, derived, fail, fill_legacy, ge, gt, le, legacy, legacy_rule, load_file,
+                               override_keys, read_yaml, show_path, source_note, stricter, validate, within)
 
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
@@ -118,6 +136,23 @@ def _even(value: int) -> int:
     return value
 
 
+def _jitter_square(layout: typing.Mapping[str, Any], root: typing.Mapping[str, Any]) -> Any:
+    """Legacy ``task.layout.cube_region``: ``task.cube.position`` +- ``task.cube.jitter`` (where random
+    mode drew the cube before the key existed); MISSING when those are malformed (the schema names
+    them)."""
+    try:
+        cube = root["task"]["cube"]
+        (x, y), jitter = cube["position"], float(cube["jitter"])
+        return [[x - jitter, x + jitter], [y - jitter, y + jitter]]
+    except (KeyError, TypeError, ValueError):
+        return MISSING
+
+
+def _bc_coeff(ppo: typing.Mapping[str, Any], root: typing.Mapping[str, Any]) -> Any:
+    """Legacy ``ppo.bc_coeff_final``: ``ppo.bc_coeff`` (a constant anchor before the schedule)."""
+    return ppo.get("bc_coeff", MISSING)
+
+
 HomeDeg = Annotated[typing.Union[tuple[float, ...], dict[str, tuple[float, ...]]], PlainValidator(_home_deg)]
 Order = Annotated[tuple[Str, Str, Str], AfterValidator(_order)]  # objective names, first = highest
 Frozen = dataclasses.dataclass(frozen=True)
@@ -155,8 +190,9 @@ class NearCubeStartConfig(Section):
 
     distance: Pair  # (lo, hi) of the tip's horizontal distance from the cube centre, m
     height: Pair  # (lo, hi) of the tip's height above the table top, m
-    bearing: Literal["any", "behind"]  # any: uniform | behind: opposite the episode's lane
-    behind_spread_deg: NonNeg  # deg, half-width of the behind bearings
+    bearing: Annotated[Literal["any", "behind"], legacy("any")]  # any: uniform | behind: opposite
+    # the episode's lane (legacy: before 2026-12-02 every bearing)
+    behind_spread_deg: Annotated[NonNeg, legacy(30.0)]  # deg, half-width of the behind bearings
 
     def check(self, key: str) -> None:
         for name in ("distance", "height"):
@@ -172,11 +208,15 @@ class ArmConfig(Section):
     home_deg: HomeDeg  # initial joint angles, degrees: a mapping robot name -> angles (task.robot
     # picks the entry) or one list for the chosen robot
     joint_jitter: NonNeg  # uniform per-joint jitter of the initial posture, rad
-    start: Literal["home", "random"]  # home: the jittered home posture; random: the pusher tip
-    # placed by IK at a uniform point of ``start_region`` with the pusher pointing down
-    start_region: tuple[Pair, Pair, Pair]  # random start: (lo, hi) of the tip's world x, y, z, m
-    start_ik: StartIKConfig
-    near_cube: NearCubeStartConfig
+    start: Annotated[Literal["home", "random"], legacy("home")]  # home: the jittered home posture;
+    # random: the pusher tip placed by IK at a uniform point of ``start_region``, pointing down
+    # (legacy: before 2026-12-01 the home start)
+    start_region: Annotated[tuple[Pair, Pair, Pair], legacy([[-0.2, 0.2], [0.0, 0.3], [0.56, 0.76]])]
+    # random start: (lo, hi) of the tip's world x, y, z, m
+    start_ik: Annotated[StartIKConfig, legacy({"tries": 20, "iterations": 60, "damping": 1.0e-3, "max_step": 0.3,
+                                               "position_tolerance": 2.0e-3, "tilt_tolerance": 0.02})]
+    near_cube: Annotated[NearCubeStartConfig, legacy({"distance": [0.06, 0.12], "height": [0.02, 0.08],
+                                                      "bearing": "any", "behind_spread_deg": 30.0})]
     home: tuple[float, ...] = derived()  # rad: home_deg of task.robot (set by TaskConfig)
     base_yaw: float = derived()  # rad: base_yaw_deg
 
@@ -217,9 +257,11 @@ class ObstacleConfig(Section):
 @Frozen
 class LayoutConfig(Section):
     mode: Literal["fixed", "random"]
-    cube_region: tuple[Pair, Pair]  # random mode: the cube centre uniform in x in [lo, hi] and y in
-    # [lo, hi], m (fixed mode: cube.position +- cube.jitter)
-    obstacle_draws_per_cube: PosInt  # random mode: obstacle draws before the cube is drawn again
+    cube_region: Annotated[tuple[Pair, Pair], legacy_rule(_jitter_square)]  # random mode: the cube
+    # centre uniform in x in [lo, hi] and y in [lo, hi], m (fixed mode: cube.position +- cube.jitter;
+    # legacy: before 2026-12-01 random mode drew it there too)
+    obstacle_draws_per_cube: Annotated[PosInt, legacy(100)]  # random mode: obstacle draws before the
+    # cube is drawn again
     radial_range: Pair  # obstacle distance from the cube centre in random mode, m
     min_gap: Float  # smallest allowed gap between two obstacles / obstacle and cube, m
     lane_width: Pos  # width of the free lane the initializer must keep, m
@@ -252,8 +294,9 @@ class EpisodeConfig(Section):
     duration: Pos  # s of simulated time
     control_period: Annotated[Pos, le(LIMITS["control_period"], " s")]  # s
     physics_timestep: Pos  # s
-    sleep: Bool  # MuJoCo's body sleeping in the stepped physics (TaskRunner)
-    noslip_iterations: Annotated[NonNegInt, le(LIMITS["noslip_iterations"])]  # MuJoCo's noslip passes per step
+    sleep: Annotated[Bool, legacy(False)]  # MuJoCo's body sleeping in the stepped physics (TaskRunner)
+    noslip_iterations: Annotated[NonNegInt, le(LIMITS["noslip_iterations"]), legacy(5)]  # MuJoCo's noslip
+    # passes per step (legacy: before 2026-12-03 dm_control's composer arena's 5)
 
     def check(self, key: str) -> None:
         ratio = self.control_period / self.physics_timestep
@@ -279,15 +322,18 @@ class EpisodeConfig(Section):
 class RewardConfig(Section):
     obstacle_speed_threshold: Pos  # m/s; a faster obstacle counts as touched
     progress_eps: Pos  # m; f2 needs progress above the best so far by more than this
-    time_reference: Literal["previous", "success"]  # the episode that sets f3's phase budgets
-    avoid_margin: NonNeg  # m; f1 = -1 also while the cube or the pusher is this close to an obstacle
+    time_reference: Annotated[Literal["previous", "success"], legacy("previous")]  # the episode that
+    # sets f3's phase budgets (legacy: before 2026-12-02 the spec's previous episode)
+    avoid_margin: Annotated[NonNeg, legacy(0.0)]  # m; f1 = -1 also while the cube or the pusher is
+    # this close to an obstacle (legacy: before 2026-12-04 the touch alone)
 
 
 @Frozen
 class ActionConfig(Section):
     mode: Literal["joint", "cartesian"]
     cartesian_max_speed: Pos  # m/s, scale of a normalised Cartesian action
-    smoothing: NonNeg  # in [0, 1): request = smoothing * previous request + (1 - smoothing) * new
+    smoothing: Annotated[NonNeg, legacy(0.0)]  # in [0, 1): request = smoothing * previous request +
+    # (1 - smoothing) * new
 
     def check(self, key: str) -> None:
         if not self.smoothing < 1:
@@ -298,12 +344,13 @@ class ActionConfig(Section):
 class ObservationConfig(Section):
     relative: Bool  # append the tip and each obstacle relative to the cube (m, world frame)
     lanes: Bool  # append each reachable lane's clearance (m; see env.layout.lane_clearance)
-    lane_clip: Pair  # m, the lane clearance saturates at these
-    lane_choice: Bool  # append the episode's lane, one-hot (see env.layout.choose_lane)
-    joint_velocity: Literal["measured", "position_difference"]  # the joint velocities the policy
+    lane_clip: Annotated[Pair, legacy([-0.1, 0.3])]  # m, the lane clearance saturates at these
+    lane_choice: Annotated[Bool, legacy(False)]  # append the episode's lane, one-hot (see
+    # env.layout.choose_lane)
+    joint_velocity: Annotated[Literal["measured", "position_difference"], legacy("measured")]  # the joint velocities the policy
     # reads: as measured (the simulator's, or the arm's velocity feedback), or estimated from the
     # measured angles' differences over each control period, smoothed (env.realism.VelocityEstimator)
-    velocity_smoothing: Annotated[Float, within(0, 1, "[)")]  # position_difference: estimate =
+    velocity_smoothing: Annotated[Float, within(0, 1, "[)"), legacy(0.0)]  # position_difference: estimate =
     # this * previous estimate + (1 - this) * the period's difference quotient (0: none)
 
     def check(self, key: str) -> None:
@@ -324,9 +371,10 @@ class TaskConfig(Section):
     episode: EpisodeConfig
     rewards: RewardConfig
     action: ActionConfig
-    observation: ObservationConfig
-    realism: RealismConfig  # training's domain randomisation: a real arm's imperfections
-    # (configs/realism.yaml names sets of them; a name there, e.g. jaco2 or ideal, or the values)
+    observation: Annotated[ObservationConfig, legacy({"relative": False, "lanes": False})]
+    realism: Annotated[RealismConfig, legacy("ideal")]  # training's domain randomisation: a real
+    # arm's imperfections (configs/realism.yaml names sets of them; a name there, e.g. jaco2 or
+    # ideal, or the values; legacy: before 2026-12-04 the ideal simulation)
 
     @property
     def substeps(self) -> int:
@@ -390,7 +438,7 @@ class ScriptedConfig(Section):
     max_heading: NonNeg  # rad, largest lean of the push direction from the lane
     realign_distance: Pos  # m, the push stops advancing while the tip is this far off its line
     waypoint_tolerance: Pos  # m
-    descend_radius: Pos  # m, the stateless stage inference (train.expert: stateless) has the tip
+    descend_radius: Annotated[Pos, legacy(0.03)]  # m, the stateless stage inference (train.expert: stateless) has the tip
     # over the push start within this (above waypoint_tolerance, so a descent is not undone)
     collision_margin: NonNeg  # m, distance the IK keeps between the arm/pusher and the obstacles
     collision_detection: Pos  # m, distance at which that constraint becomes active
@@ -407,6 +455,17 @@ class ScriptedConfig(Section):
             raise ConfigError(f"{key}.solver: {self.solver!r} is not installed; choose one of "
                               f"{sorted(qpsolvers.available_solvers)}")
 
+
+#: ``safety.self_collision_pairs`` of a run written before the key existed: configs/safety.yaml's
+#: pairs when the key was added (2026-12-01).
+SELF_COLLISION_PAIRS_2026_12_01 = {
+    "jaco": [["base", "link4"], ["base", "link5"], ["base", "link6"], ["base", "pusher"],
+             ["link1", "link4"], ["link1", "link5"], ["link1", "link6"], ["link1", "pusher"],
+             ["link2", "link4"], ["link2", "link5"], ["link2", "link6"], ["link2", "pusher"]],
+    "j2s6s200": [["base", "link4"], ["base", "link5"], ["base", "link6"], ["base", "pusher"],
+                 ["link1", "link4"], ["link1", "link5"], ["link1", "link6"], ["link1", "pusher"],
+                 ["link2", "link4"], ["link2", "link5"], ["link2", "link6"], ["link2", "pusher"],
+                 ["link3", "link5"], ["link3", "link6"], ["link3", "pusher"]]}
 
 SELF_COLLISION_PART = re.compile(r"^(base|pusher|link[1-9])$")
 
@@ -436,36 +495,44 @@ class SafetyConfig(Section):
     """The QP action filter (spec §5). Joint limits and velocity limits come from the robot
     description; only margins and the extra limits the description lacks live here."""
 
-    enabled: Bool  # false only for an explicit ablation (logged as such)
-    solver: Literal["osqp", "daqp"]
-    position_margin: NonNeg  # rad, kept from each finite joint limit
-    velocity_margin: Annotated[Float, within(0, 1, "[)")]  # fraction of each joint's velocity limit
-    # left unused: headroom for the velocity controller, whose joints run faster than commanded
-    # under gravity (servo error)
-    acceleration_limit: tuple[Pos, ...]  # rad/s^2 per joint, |u - u_prev| <= a_max dt
-    braking_horizon: Bool  # true: position and Cartesian rows look ahead max(dt, max_i v_i/a_i) s
-    # (the time to brake from full speed), which keeps them satisfiable under the acceleration
-    # limits; false: one control period dt, the literal one-step rows
-    table_rows: Bool  # the tip and wrist stay table_margin above the table top
-    table_margin: NonNeg  # m, the pusher tip stays this far above the table top
-    wrist_table_margin: NonNeg  # m, the wrist point (the pusher's attachment, inside the wrist
-    # ring) stays this far above the table top: the ring's radius plus a clearance
-    workspace_rows: Bool  # the tip and wrist stay inside the workspace box
-    workspace_lower: Vec3  # m, world-frame box the tip and wrist stay in
-    workspace_upper: Vec3
-    table_distance_rows: Bool  # distance rows robot part-table (pusher body, link capsules)
-    obstacle_rows: Bool  # distance rows robot part-obstacle (off in training, on in deployment)
-    obstacle_safe_distance: NonNeg  # m, d_safe
-    obstacle_activation_distance: Float  # m, pairs farther than this add no row
-    max_obstacle_rows: Annotated[NonNegInt, le(LIMITS["max_obstacle_rows"])]  # the nearest pairs
-    # within the activation distance get a row
-    self_collision_rows: Bool  # distance rows between the arm's own parts (the pairs below), with
-    # the obstacle rows' safe distance, activation distance and horizon
-    self_collision_pairs: SelfCollisionPairs
-    osqp_eps: Pos  # OSQP absolute and relative tolerance
-    osqp_max_iter: Annotated[PosInt, le(LIMITS["osqp_max_iter"])]
-    cartesian_regularization: Pos  # lambda of ||u||^2 in cartesian mode, (m/rad)^2
-    cartesian_orientation_weight: NonNeg  # weight of holding the pusher's axis direction, m^2
+    enabled: Annotated[Bool, stricter("on")]  # false only for an explicit ablation (logged as such)
+    solver: Annotated[Literal["osqp", "daqp"], stricter("none")]
+    position_margin: Annotated[NonNeg, stricter("higher")]  # rad, kept from each finite joint limit
+    velocity_margin: Annotated[Float, within(0, 1, "[)"), stricter("higher")]  # fraction of each
+    # joint's velocity limit left unused: headroom for the velocity controller, whose joints run
+    # faster than commanded under gravity (servo error)
+    acceleration_limit: Annotated[tuple[Pos, ...], stricter("lower")]  # rad/s^2 per joint,
+    # |u - u_prev| <= a_max dt
+    braking_horizon: Annotated[Bool, stricter("on")]  # true: position and Cartesian rows look ahead
+    # max(dt, max_i v_i/a_i) s (the time to brake from full speed), which keeps them satisfiable
+    # under the acceleration limits; false: one control period dt, the literal one-step rows
+    table_rows: Annotated[Bool, stricter("on")]  # the tip and wrist stay table_margin above the table top
+    table_margin: Annotated[NonNeg, stricter("higher")]  # m, the pusher tip stays this far above the table top
+    wrist_table_margin: Annotated[NonNeg, stricter("higher")]  # m, the wrist point (the pusher's
+    # attachment, inside the wrist ring) stays this far above the table top: the ring's radius plus
+    # a clearance
+    workspace_rows: Annotated[Bool, stricter("on")]  # the tip and wrist stay inside the workspace box
+    workspace_lower: Annotated[Vec3, stricter("higher")]  # m, world-frame box the tip and wrist stay in
+    workspace_upper: Annotated[Vec3, stricter("lower")]  # m
+    table_distance_rows: Annotated[Bool, stricter("on")]  # distance rows robot part-table (pusher
+    # body, link capsules)
+    obstacle_rows: Annotated[Bool, stricter("on")]  # distance rows robot part-obstacle (off in
+    # training, on in deployment)
+    obstacle_safe_distance: Annotated[NonNeg, stricter("higher")]  # m, d_safe
+    obstacle_activation_distance: Annotated[Float, stricter("higher")]  # m, pairs farther than this
+    # add no row
+    max_obstacle_rows: Annotated[NonNegInt, le(LIMITS["max_obstacle_rows"]), stricter("higher")]  # the
+    # nearest pairs within the activation distance get a row
+    self_collision_rows: Annotated[Bool, stricter("on"), legacy(True)]  # distance rows between the
+    # arm's own parts (the pairs below), with the obstacle rows' safe distance, activation distance
+    # and horizon (legacy: runs before 2026-12-01 were read with the rows on, as configs/ had it then)
+    self_collision_pairs: Annotated[SelfCollisionPairs, stricter("none"), legacy(SELF_COLLISION_PAIRS_2026_12_01)]
+    # no order: deploy's pairs are used (its arm's)
+    osqp_eps: Annotated[Pos, stricter("none")]  # OSQP absolute and relative tolerance
+    osqp_max_iter: Annotated[PosInt, le(LIMITS["osqp_max_iter"]), stricter("none")]
+    cartesian_regularization: Annotated[Pos, stricter("none")]  # lambda of ||u||^2 in cartesian mode, (m/rad)^2
+    cartesian_orientation_weight: Annotated[NonNeg, stricter("none")]  # weight of holding the pusher's
+    # axis direction, m^2
 
     def check(self, key: str) -> None:
         if self.obstacle_activation_distance <= self.obstacle_safe_distance:
@@ -495,7 +562,8 @@ class MechanismConfig(Section):
     priority_period: Window  # P: visiting episodes between priority determinations
     # magnitude (spec Eqs. 3-5): |mean episode sum of f_i| high to low | violation: the per-step
     # average of f_i low to high (the most often violated objective first)
-    priority_rule: Literal["magnitude", "violation"]
+    priority_rule: Annotated[Literal["magnitude", "violation"], legacy("magnitude")]  # (legacy: before
+    # 2026-12-02 the spec's ranking)
     blend_band: Pos  # delta, m
     blend_slope: Pos  # alpha, 1/m
 
@@ -522,7 +590,7 @@ class PPOConfig(Section):
                             count(1, LIMITS["hidden_layers"])]  # actor and critic layer widths
     activation: Literal["tanh", "relu", "elu"]
     init_std: Pos  # initial standard deviation of the (pre-tanh) Gaussian policy
-    actor_init_scale: Annotated[Float, within(0, 1, "(]")]  # the actor's output layer starts with its
+    actor_init_scale: Annotated[Float, within(0, 1, "(]"), legacy(1.0)]  # the actor's output layer starts with its
     # initial weights and bias times this (1: the library's init; 0.01: Andrychowicz et al. 2021)
     std_mode: Literal["learned", "fixed", "scheduled"]  # scheduled: init_std -> final_std
     final_std: Pos  # std_mode scheduled: the standard deviation reached after std_schedule_frames
@@ -531,15 +599,17 @@ class PPOConfig(Section):
     normalize_advantage: Bool  # scale each mini-batch's advantages to zero mean, unit std
     normalize_observations: Bool
     normalizer_clip: Pos  # normalised observations are clipped to +-this
-    normalizer_min_std: NonNeg  # the normaliser's per-feature scale is at least this (observation
+    normalizer_min_std: Annotated[NonNeg, legacy(0.0)]  # the normaliser's per-feature scale is at least this (observation
     # units; 0: sqrt(var + 1e-8) as it is): a feature that barely varied in training cannot turn a
-    # small measurement error into a saturated input
+    # small measurement error into a saturated input (legacy: before 2026-12-04 no floor)
     update_normalizer: Bool  # keep updating its statistics from every batch (false: frozen once set)
     bc_coeff: NonNeg  # weight of a behaviour-cloning term toward the demonstrations (0: off)
-    bc_coeff_final: NonNeg  # the anchor's weight goes linearly from bc_coeff to this ...
-    bc_decay_frames: NonNegInt  # ... over this many frames (0: constant bc_coeff)
-    reward_scale: Pos  # rewards are multiplied by this before GAE (the critic learns scaled returns)
-    lane_frame: LaneFrame  # the policy reads the world mirrored
+    bc_coeff_final: Annotated[NonNeg, legacy_rule(_bc_coeff)]  # the anchor's weight goes linearly
+    # from bc_coeff to this ...
+    bc_decay_frames: Annotated[NonNegInt, legacy(0)]  # ... over this many frames (0: constant bc_coeff)
+    reward_scale: Annotated[Pos, legacy(1.0)]  # rewards are multiplied by this before GAE (the critic
+    # learns scaled returns)
+    lane_frame: Annotated[LaneFrame, legacy("none")]  # the policy reads the world mirrored
     # x -> -x when the episode's lane is -x (learning/lane_frame.py); no_joints: joint entries zeroed
 
     def check(self, key: str) -> None:
@@ -560,7 +630,7 @@ class TrainConfig(Section):
     eval_every: NonNegInt  # also evaluate (eval_episodes) every this many training episodes (0: never)
     threads: Annotated[PosInt, le(LIMITS["threads"], " (train.py also refuses more than this "
                                                      "machine's CPU count)")]  # torch intra-op threads
-    update_threads: Annotated[PosInt, le(LIMITS["threads"])]  # torch threads for GAE and the PPO
+    update_threads: Annotated[PosInt, le(LIMITS["threads"]), legacy(1)]  # torch threads for GAE and the PPO
     # epochs (the environments wait then); at most the machine's CPU count is used. More than 1 pays
     # only for a run alone on the machine (two runs at once with 2 each ran ~3x slower)
     warm_start: Literal["none", "bc"]  # bc: behaviour cloning from scripted demonstrations first
@@ -570,30 +640,30 @@ class TrainConfig(Section):
     # behaviour cloning and the critic refit
     bc_learning_rate: Pos
     demo_noise: NonNeg  # std of noise on the executed demonstration actions (normalised; labels clean)
-    expert: Literal["stateful", "stateless"]  # the scripted teacher of the demonstrations and the
+    expert: Annotated[Literal["stateful", "stateless"], legacy("stateful")]  # the scripted teacher of the demonstrations and the
     # DAgger labels: stages carried over from step to step, or inferred from each state alone
     num_envs: Annotated[PosInt, le(LIMITS["num_envs"])]  # environments stepped together (in one
     # process, sharing the reward mechanism)
-    env_workers: PosInt  # processes the num_envs environments are split over (1: the trainer's own)
-    dagger_rounds: NonNegInt  # after cloning: rounds of (run the clone, label its states with the
+    env_workers: Annotated[PosInt, legacy(1)]  # processes the num_envs environments are split over (1: the trainer's own)
+    dagger_rounds: Annotated[NonNegInt, legacy(0)]  # after cloning: rounds of (run the clone, label its states with the
     # scripted controller, refit on all data so far); 0: none
-    dagger_episodes: PosInt  # episodes per round
-    dagger_duration: Pos  # s, a round's episode is cut after this much simulated time
-    frames: NonNegInt  # training stops once this many frames are collected (0: ``episodes`` decides)
-    eval_every_frames: NonNegInt  # ... or evaluate every this many frames (0: never); either triggers
-    time_limit: NonNeg  # s, training episodes are truncated here (0: task.episode.duration);
+    dagger_episodes: Annotated[PosInt, legacy(30)]  # episodes per round
+    dagger_duration: Annotated[Pos, legacy(15.0)]  # s, a round's episode is cut after this much simulated time
+    frames: Annotated[NonNegInt, legacy(0)]  # training stops once this many frames are collected (0: ``episodes`` decides)
+    eval_every_frames: Annotated[NonNegInt, legacy(0)]  # ... or evaluate every this many frames (0: never); either triggers
+    time_limit: Annotated[NonNeg, legacy(0.0)]  # s, training episodes are truncated here (0: task.episode.duration);
     # evaluation keeps task.episode.duration
-    touch_end: bool  # a touch of an obstacle ends a training episode as a terminal failure, its
+    touch_end: Annotated[bool, legacy(False)]  # a touch of an obstacle ends a training episode as a terminal failure, its
     # step's reward lowered by touch_penalty(ppo.gamma) (evaluation: touches never end an episode)
-    touch_end_after: NonNegInt  # frames: with touch_end, touches end episodes only from this many
+    touch_end_after: Annotated[NonNegInt, legacy(0)]  # frames: with touch_end, touches end episodes only from this many
     # frames collected on (0: from the start)
-    start_curriculum: Literal["none", "near_cube", "scripted_states"]  # near_cube: start near the
+    start_curriculum: Annotated[Literal["none", "near_cube", "scripted_states"], legacy("none")]  # near_cube: start near the
     # cube (task.arm.near_cube), more starts by task.arm.start as the level rises; scripted_states:
     # start from the scripted controller's recorded states, further back as the level rises
-    curriculum_states: PosInt  # scripted_states: scripted episodes recorded (the won ones are used)
-    curriculum_window: PosInt  # training episodes whose success rate decides a rise of the level
-    curriculum_threshold: Annotated[Float, within(0, 1)]  # success rate over the window that raises it
-    curriculum_step: Annotated[Float, within(0, 1, "(]")]  # the level's rise (0 to 1; at 1 the task
+    curriculum_states: Annotated[PosInt, legacy(100)]  # scripted_states: scripted episodes recorded (the won ones are used)
+    curriculum_window: Annotated[PosInt, legacy(50)]  # training episodes whose success rate decides a rise of the level
+    curriculum_threshold: Annotated[Float, within(0, 1), legacy(0.5)]  # success rate over the window that raises it
+    curriculum_step: Annotated[Float, within(0, 1, "(]"), legacy(0.25)]  # the level's rise (0 to 1; at 1 the task
     # draws every start)
 
     def check(self, key: str) -> None:
@@ -755,134 +825,49 @@ def load_config(overrides: Sequence[str] = (), config_dir: Path | str = CONFIG_D
     return config_from_dict(data, source=config_source(config_dir, overrides))
 
 
-# Keys added after runs were recorded: a run's config.yaml that lacks them takes them from the
-# repository's configs (so the committed run folders and older checkpoints still load).
-BACKFILLED = {"safety": ("self_collision_rows", "self_collision_pairs"),
-              "ppo": ("lane_frame", "actor_init_scale"),
-              "train": ("env_workers", "update_threads", "touch_end", "touch_end_after")}
-
-
-LEGACY_PPO = {"reward_scale": 1.0,  # before the key existed: rewards unscaled
-              "normalizer_min_std": 0.0}  # before 2026-12-04: no floor
-NEUTRAL_TRAIN_KEYS = ("frames", "eval_every_frames", "time_limit", "start_curriculum", "curriculum_states",
-                      "curriculum_window", "curriculum_threshold", "curriculum_step")
-
-
-def _legacy_fill(data: dict) -> dict:
-    """A run folder's config.yaml written before the task distribution (2026-12-01) lacks its
-    keys: fill them so that the run keeps its old behaviour — the home start, the cube at
-    ``cube.position`` ± ``cube.jitter`` in random mode, no DAgger, a constant BC anchor."""
-    def section(*path):
-        node = data
-        for key in path:
-            node = node.get(key) if isinstance(node, dict) else None
-        return node if isinstance(node, dict) else None
-
-    arm, layout, cube = section("task", "arm"), section("task", "layout"), section("task", "cube")
-    train, ppo = section("train"), section("ppo")
-    observation = section("task", "observation")
-    if not any(s is not None and any(k not in s for k in keys) for s, keys in (
-            (arm, ("start", "start_ik")), (layout, ("cube_region", "obstacle_draws_per_cube")),
-            (train, ("dagger_rounds", "expert", *NEUTRAL_TRAIN_KEYS)), (arm, ("near_cube",)),
-            (ppo, ("bc_coeff_final", *LEGACY_PPO)), (section("task"), ("observation",)),
-            (observation, ("lane_clip", "lane_choice")), (section("scripted"), ("descend_radius",)),
-            (section("task", "rewards"), ("time_reference", "avoid_margin")), (section("task", "action"), ("smoothing",)),
-            (section("task", "arm", "near_cube"), ("bearing", "behind_spread_deg")),
-            (section("mechanism"), ("priority_rule",)), (section("task", "episode"), ("sleep", "noslip_iterations")))):
-        return data
-    data = copy.deepcopy(data)
-    defaults = {name: read_yaml(CONFIG_DIR / file) for name, file in SECTIONS.items()}
-    if arm is not None and "start" not in arm:
-        data["task"]["arm"].setdefault("start", "home")
-        data["task"]["arm"].setdefault("start_region", defaults["task"]["arm"]["start_region"])
-    if arm is not None:
-        data["task"]["arm"].setdefault("start_ik", defaults["task"]["arm"]["start_ik"])
-    if layout is not None:
-        data["task"]["layout"].setdefault("obstacle_draws_per_cube",
-                                          defaults["task"]["layout"]["obstacle_draws_per_cube"])
-    if layout is not None and "cube_region" not in layout and cube is not None:
-        try:
-            (x, y), jitter = cube["position"], float(cube["jitter"])
-            data["task"]["layout"]["cube_region"] = [[x - jitter, x + jitter], [y - jitter, y + jitter]]
-        except (KeyError, TypeError, ValueError):
-            pass  # the schema check names what is wrong
-    if arm is not None:
-        data["task"]["arm"].setdefault("near_cube", defaults["task"]["arm"]["near_cube"])
-        if isinstance(data["task"]["arm"]["near_cube"], dict):  # before 2026-12-02: any bearing
-            data["task"]["arm"]["near_cube"].setdefault("bearing", "any")
-            data["task"]["arm"]["near_cube"].setdefault(
-                "behind_spread_deg", defaults["task"]["arm"]["near_cube"]["behind_spread_deg"])
-    if section("task", "action") is not None:  # before 2026-12-02: no smoothing
-        data["task"]["action"].setdefault("smoothing", 0.0)
-    if section("task", "rewards") is not None:  # before 2026-12-02: the spec's previous episode
-        data["task"]["rewards"].setdefault("time_reference", "previous")
-        data["task"]["rewards"].setdefault("avoid_margin", 0.0)  # before 2026-12-04: the touch alone
-    if section("task", "episode") is not None:  # before 2026-12-03: no body sleeping
-        data["task"]["episode"].setdefault("sleep", False)
-        data["task"]["episode"].setdefault("noslip_iterations", 5)  # dm_control's composer arena's
-    if section("mechanism") is not None:  # before 2026-12-02: the spec's ranking
-        data["mechanism"].setdefault("priority_rule", "magnitude")
-    if train is not None:  # keys whose default leaves training as it was before they existed
-        for key in NEUTRAL_TRAIN_KEYS:
-            data["train"].setdefault(key, defaults["train"][key])
-    if ppo is not None:
-        for key, value in LEGACY_PPO.items():
-            data["ppo"].setdefault(key, value)
-    if section("scripted") is not None:  # read only by the stateless teacher, new with it
-        data["scripted"].setdefault("descend_radius", defaults["scripted"]["descend_radius"])
-    if train is not None:
-        data["train"].setdefault("expert", "stateful")  # the only teacher before 2026-12-02
-        for key in ("dagger_rounds", "dagger_episodes", "dagger_duration"):
-            data["train"].setdefault(key, 0 if key == "dagger_rounds" else defaults["train"][key])
-    if isinstance(data.get("task"), dict) and "observation" not in data["task"]:
-        data["task"]["observation"] = {"relative": False, "lanes": False}
-    if isinstance(data.get("task"), dict) and isinstance(data["task"].get("observation"), dict):
-        data["task"]["observation"].setdefault("lane_clip", defaults["task"]["observation"]["lane_clip"])
-        data["task"]["observation"].setdefault("lane_choice", False)  # before 2026-12-02
-    if ppo is not None and "bc_coeff_final" not in ppo and "bc_coeff" in ppo:
-        data["ppo"].setdefault("bc_coeff_final", ppo["bc_coeff"])
-        data["ppo"].setdefault("bc_decay_frames", 0)
-    return data
+#: The version of the run-folder layout of ``config.yaml`` that this code writes (the file's
+#: top-level ``schema_version``; a file without one is version 0, written before it was recorded).
+#: Adding a key does not change it (a file that lacks the key takes the field's legacy marker);
+#: renaming or removing one does, with a step in :func:`fill_missing` that converts older files.
+SCHEMA_VERSION = 1
 
 
 def fill_missing(data: Any) -> Any:
-    """A run folder's parsed ``config.yaml`` with the keys added since it was written filled
-    (:func:`_legacy_fill`, :data:`BACKFILLED`), so that it keeps its old behaviour and overrides of
-    the new keys apply to it; ``data`` itself is not changed (anything but a dict is returned as
-    it is, for the schema to name)."""
+    """A run folder's parsed ``config.yaml`` brought to this schema: its ``schema_version`` checked
+    and dropped, every missing key with a :func:`~ahrm_stack.schema.legacy` marker filled with the
+    value that run had before the key existed (so it keeps its behaviour, and overrides of the new
+    keys apply to it), and a ``task.realism`` profile name resolved. ``data`` itself is not changed;
+    anything but a dict is returned as it is, for the schema to name. Raises :class:`ConfigError`
+    for a ``schema_version`` this code does not know."""
     if not isinstance(data, dict):
         return data
-    data = _legacy_fill(data)
+    if "schema_version" in data:
+        version = data["schema_version"]
+        if isinstance(version, bool) or not isinstance(version, int) or not 0 <= version <= SCHEMA_VERSION:
+            raise ConfigError(f"schema_version: {version!r} is not a version this code reads (0 to "
+                              f"{SCHEMA_VERSION}; a newer ahrm_stack wrote it?)")
+        data = {key: value for key, value in data.items() if key != "schema_version"}
+    data = fill_legacy(Config, data)
     task = data.get("task")
-    if isinstance(task, dict) and ("realism" not in task or isinstance(task["realism"], str)):
-        # before 2026-12-04: the ideal simulation (no imperfection, no random draw)
-        data = {**data, "task": {**task, "realism": task.get("realism", "ideal")}}
-        _resolve_realism(data)
-    observation = data["task"].get("observation") if isinstance(data.get("task"), dict) else None
-    if isinstance(observation, dict) and ("joint_velocity" not in observation
-                                          or "velocity_smoothing" not in observation):
-        # before 2026-12-04: the joint velocities as measured
-        data = {**data, "task": {**data["task"], "observation": {
-            "joint_velocity": "measured", "velocity_smoothing": 0.0, **observation}}}
-    if any(isinstance(data.get(section), dict) and any(k not in data[section] for k in keys)
-           for section, keys in BACKFILLED.items()):
-        data = dict(data)
-        for section, keys in BACKFILLED.items():
-            if isinstance(data.get(section), dict):
-                defaults = read_yaml(CONFIG_DIR / SECTIONS[section])
-                data[section] = {**{k: defaults[k] for k in keys}, **data[section]}
+    if isinstance(task, dict) and isinstance(task.get("realism"), str):
+        data = {**data, "task": {**task, "realism": resolve_realism(task["realism"], "task.realism")}}
     return data
 
 
 def config_from_dict(data: dict, runnable: bool = True, source: Source | None = None) -> Config:
     """Validate a parsed configuration (the sections of ``configs/`` or a run folder's
-    ``config.yaml``, old run folders' missing keys filled) into a :class:`Config`.
+    ``config.yaml``: its ``schema_version`` read, keys added since it was written filled by
+    :func:`fill_missing`) into a :class:`Config`.
 
     ``runnable``: also refuse combinations that cannot run (deploy reads a checkpoint's config,
     whose safety settings it replaces, with False). ``source`` (see :func:`config_source`) names
     the file in messages. ``config_from_dict(config.to_dict()) == config``.
     """
-    config = validate(Config, fill_missing(data), "", source)
+    try:
+        data = fill_missing(data)
+    except ConfigError as error:
+        raise ConfigError(f"{error}{source_note(source, 'schema_version')}") from None
+    config = validate(Config, data, "", source)
     if runnable and config.task.action.smoothing > 0 and (
             config.train.warm_start != "none" or config.ppo.bc_coeff > 0 or config.train.dagger_rounds > 0):
         raise ConfigError(f"task.action.smoothing: {config.task.action.smoothing} needs train.warm_start: "

@@ -21,6 +21,11 @@ validate: tests and ``deploy.merge_safety`` build deliberately out-of-range copi
 object. Fields marked :func:`derived` (e.g. radians computed from a ``*_deg`` key) are filled by
 :meth:`Section.derive` after validation and are not written back.
 
+Per-key rules that are not validation ride in the same annotation as markers that pydantic
+ignores: :func:`legacy` (what a file written before the key existed behaved as; one generic
+:func:`fill_legacy` fills such files) and :func:`stricter` (for a safety key, which of two values
+is the stricter; deploy's ``merge_safety`` reads it). :func:`markers` lists a section's markers.
+
 Scalars are strict: :data:`Int` refuses booleans, floats and strings; :data:`Float` takes integers
 and the numeric strings YAML 1.1 produces for ``1e-4`` but refuses booleans, other strings, NaN
 and infinities; :data:`Bool` takes only true/false; :data:`Str` only strings. Choices are
@@ -29,6 +34,7 @@ and infinities; :data:`Bool` takes only true/false; :data:`Str` only strings. Ch
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import functools
 import math
@@ -41,6 +47,8 @@ from typing import Annotated, Any, Callable, Literal, Mapping, Sequence, TypeVar
 import yaml
 from pydantic import AfterValidator, ConfigDict, PlainValidator, TypeAdapter, ValidationError
 from pydantic_core import PydanticCustomError, core_schema
+
+T = TypeVar("T")
 
 
 class ConfigError(ValueError):
@@ -179,6 +187,117 @@ def derived(**kwargs: Any) -> Any:
 
 
 # ----------------------------------------------------------------------------------------------
+# Per-key markers, written in a field's annotation beside its rules:
+#
+#     sleep: Annotated[Bool, legacy(False)]  # a run written before the key existed: no sleeping
+#     table_margin: Annotated[NonNeg, stricter("higher")]  # m; deploy keeps the larger one
+#
+# legacy(): what a run folder's config.yaml written before the key existed behaved as (read by
+# fill_legacy); stricter(): for a safety key, which of two values is the stricter (read by
+# deploy's merge_safety). Pydantic ignores both.
+# ----------------------------------------------------------------------------------------------
+
+MISSING: Any = type("Missing", (), {"__repr__": lambda self: "MISSING"})()  # "no value": leave the key out
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Legacy:
+    """Marker: a mapping written before this key existed takes ``value`` (a YAML-shaped value,
+    copied) or, with ``rule``, ``rule(section, root)``: the value computed from the section's
+    mapping and the whole mapping as read (:data:`MISSING`: leave the key out, for the schema to
+    name). A section's value may itself lack keys whose fields carry their own markers."""
+
+    value: Any = None
+    rule: Callable[[Mapping[str, Any], Mapping[str, Any]], Any] | None = None
+
+    def fill(self, section: Mapping[str, Any], root: Mapping[str, Any]) -> Any:
+        """The value for a mapping that lacks the key."""
+        return self.rule(section, root) if self.rule is not None else copy.deepcopy(self.value)
+
+
+def legacy(value: Any) -> Legacy:
+    """Marker: runs written before the key existed behaved as if it held ``value`` (YAML-shaped:
+    lists, mappings, plain scalars; a literal, so that an old run's behaviour does not move when
+    the repository's default does)."""
+    return Legacy(value)
+
+
+def legacy_rule(rule: Callable[[Mapping[str, Any], Mapping[str, Any]], Any]) -> Legacy:
+    """Marker: runs written before the key existed behaved as if it held ``rule(section, root)``
+    (e.g. a value computed from the keys of that time); :data:`MISSING` leaves the key out."""
+    return Legacy(rule=rule)
+
+
+Direction = Literal["on", "higher", "lower", "none"]
+DIRECTIONS: tuple[str, ...] = typing.get_args(Direction)
+
+
+@dataclasses.dataclass(frozen=True)
+class Stricter:
+    """Marker of a safety key: which of two values is the stricter. ``on``: true (a boolean);
+    ``higher`` / ``lower``: the larger / smaller number, entry by entry for a vector; ``none``: no
+    order (a solver setting, a set of pairs): the deploying side's value is used."""
+
+    direction: Direction
+
+
+def stricter(direction: Direction) -> Stricter:
+    """Marker: the stricter direction of a safety key (one of :data:`DIRECTIONS`)."""
+    if direction not in DIRECTIONS:
+        raise ValueError(f"stricter({direction!r}): choose one of {list(DIRECTIONS)}")
+    return Stricter(direction)
+
+
+def _marker(cls: type, name: str, kind: type[T]) -> T | None:
+    """The ``kind`` marker in the annotation of ``cls``'s field ``name`` (None if it has none)."""
+    hint = typing.get_type_hints(cls, include_extras=True)[name]
+    found = [m for m in getattr(hint, "__metadata__", ()) if isinstance(m, kind)]
+    return found[-1] if found else None
+
+
+@functools.lru_cache(maxsize=None)
+def markers(cls: type, kind: type) -> dict[str, Any]:
+    """Field name -> its ``kind`` marker (:class:`Legacy` or :class:`Stricter`) or None, for every
+    field of the section ``cls`` read from YAML (not :func:`derived`), in field order."""
+    return {f.name: _marker(cls, f.name, kind) for f in dataclasses.fields(cls) if not f.metadata.get("derived")}
+
+
+@functools.lru_cache(maxsize=None)
+def _sections(cls: type) -> dict[str, type]:
+    """Field name -> the Section type of each field of ``cls`` that is itself a section."""
+    hints = typing.get_type_hints(cls, include_extras=True)
+    out = {}
+    for field in dataclasses.fields(cls):
+        tp = _strip(hints[field.name])
+        if isinstance(tp, type) and issubclass(tp, Section):
+            out[field.name] = tp
+    return out
+
+
+def fill_legacy(cls: type, data: Any, root: Mapping[str, Any] | None = None) -> Any:
+    """``data`` (a YAML-shaped mapping for the section ``cls``) with every missing key whose field
+    carries a :func:`legacy` marker filled, in nested sections too; ``data`` itself is not changed
+    (a copy is made only where something is filled). Anything but a dict is returned as it is, for
+    the schema to name. ``root``: the whole mapping, for :func:`legacy_rule` (default ``data``)."""
+    if not isinstance(data, dict):
+        return data
+    root = data if root is None else root
+    out = data
+    sections = _sections(cls)
+    for name, mark in markers(cls, Legacy).items():
+        value = data.get(name, MISSING)
+        if value is MISSING and mark is not None:
+            value = mark.fill(data, root)
+        if name in sections and value is not MISSING:
+            value = fill_legacy(sections[name], value, root)
+        if value is not data.get(name, MISSING):
+            if out is data:
+                out = dict(data)
+            out[name] = value
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
 # Sections.
 # ----------------------------------------------------------------------------------------------
 
@@ -265,7 +384,8 @@ def show_path(path: str | Path) -> str:
         return str(path)
 
 
-def _note(source: Source | None, key: str) -> str:
+def source_note(source: Source | None, key: str) -> str:
+    """' (where)': the note that ends a message about ``key`` (empty without a source)."""
     if source is None:
         return ""
     if callable(source):
@@ -374,7 +494,7 @@ def _finish(obj: Any, key: str, error: type[Exception], source: Source | None) -
         try:
             obj.check(key)
         except ConfigError as problem:
-            raise error(f"{problem}{_note(source, key)}") from None
+            raise error(f"{problem}{source_note(source, key)}") from None
     elif isinstance(obj, dict):
         for name, value in obj.items():
             _finish(value, f"{key}.{name}" if key else str(name), error, source)
@@ -383,8 +503,6 @@ def _finish(obj: Any, key: str, error: type[Exception], source: Source | None) -
             if isinstance(value, Section):
                 _finish(value, key, error, source)
 
-
-T = TypeVar("T")
 
 
 def validate(tp: type[T] | Any, data: Any, key: str = "", source: Source | None = None,
@@ -399,7 +517,7 @@ def validate(tp: type[T] | Any, data: Any, key: str = "", source: Source | None 
         unknown = [e for e in errors if e["type"] in ("unexpected_keyword_argument", "extra_forbidden",
                                                       "derived_key")]
         where, text = _message(tp, key, (unknown or errors)[0])  # a misspelt key before its "missing"
-        raise error(f"{text}{_note(source, where)}") from None
+        raise error(f"{text}{source_note(source, where)}") from None
     _finish(obj, key, error, source)
     return obj
 

@@ -19,8 +19,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from ahrm_stack.config import load_config
-from ahrm_stack.deploy import (HIGHER_IS_STRICTER, LOWER_IS_STRICTER, ON_IS_STRICTER,
-                               DeployConfigError, load_controller_config, merge_safety)
+from ahrm_stack.deploy import DeployConfigError, load_controller_config, merge_safety, safety_directions
 from ahrm_stack.deploy import main as deploy
 from ahrm_stack.evaluate import main as evaluate
 
@@ -131,15 +130,14 @@ def test_merged_settings_are_as_strict_as_both(ours, data):
     except DeployConfigError:
         return  # a contradiction is refused, never half-applied
     changed = {n.key for n in notes}
-    for field in dataclasses.fields(ours):
-        key = field.name
+    for key, direction in safety_directions().items():
         m, a, b = (getattr(x, key) for x in (merged, ours, theirs))
         vec = (lambda v: v) if isinstance(a, tuple) else (lambda v: (v,))
-        if key in HIGHER_IS_STRICTER:
+        if direction == "higher":
             assert all(x == max(y, z) for x, y, z in zip(vec(m), vec(a), vec(b))), key
-        elif key in LOWER_IS_STRICTER:
+        elif direction == "lower":
             assert all(x == min(y, z) for x, y, z in zip(vec(m), vec(a), vec(b))), key
-        elif key in ON_IS_STRICTER:
+        elif direction == "on":
             assert m == (a or b), key
         else:
             assert m == a, key  # no stricter direction: deploy's value

@@ -13,9 +13,11 @@ scripted sections from ``configs/*.yaml`` as in training.
 The safety filter's settings are always deploy's own (``configs/safety.yaml``, plus ``key=value``
 overrides for the scripted controller). A checkpoint's ``safety`` section may only tighten them
 (:func:`merge_safety`: a larger margin, a lower limit, more rows, a smaller workspace box, a row
-family turned on); a weaker value is ignored, and every difference is printed (a WARNING naming the
-key for a weaker one) and written to the telemetry. Ignoring rather than refusing lets a policy
-trained with a lighter filter (or none: an ablation) be deployed behind the full one.
+family turned on; each key's direction is the ``stricter(...)`` marker on its field of
+:class:`~ahrm_stack.config.SafetyConfig`); a weaker value is ignored, and every difference is
+printed (a WARNING naming the key for a weaker one) and written to the telemetry. Ignoring rather
+than refusing lets a policy trained with a lighter filter (or none: an ablation) be deployed behind
+the full one.
 
 Exit status: 0 success; 1 the run ended without success (duration, watchdog, hardware stop);
 2 bad input (settings, command line, checkpoint, a refused pickle: a one-line error, nothing
@@ -78,8 +80,7 @@ from ahrm_stack.deploy.cli import main, run_backend
 from ahrm_stack.deploy.controllers import PolicyController, ScriptedController, make_controller
 from ahrm_stack.deploy.loop import DeployFault, DeployLoop, DeploySummary
 from ahrm_stack.deploy.run import deploy, deploy_sim, load_controller_config, open_telemetry
-from ahrm_stack.deploy.safety_settings import (HIGHER_IS_STRICTER, LOWER_IS_STRICTER, ON_IS_STRICTER,
-                                               SafetyNote, merge_safety, require_filter)
+from ahrm_stack.deploy.safety_settings import SafetyNote, merge_safety, require_filter, safety_directions
 from ahrm_stack.deploy.settings import (DEPLOY_CONFIG, DeployConfigError, DeploySettings,
                                         KortexSection, ProgressSettings, SimSettings,
                                         SuccessSettings, TouchSettings, WatchdogSettings,
@@ -87,10 +88,9 @@ from ahrm_stack.deploy.settings import (DEPLOY_CONFIG, DeployConfigError, Deploy
                                         load_deploy_settings)
 from ahrm_stack.deploy.world import WorldModel
 
-__all__ = ["DEPLOY_CONFIG", "HIGHER_IS_STRICTER", "LOWER_IS_STRICTER", "ON_IS_STRICTER",
-           "DeployConfigError", "DeployFault", "DeployLoop", "DeploySettings", "DeploySummary",
+__all__ = ["DEPLOY_CONFIG", "DeployConfigError", "DeployFault", "DeployLoop", "DeploySettings", "DeploySummary",
            "KortexSection", "PolicyController", "ProgressSettings", "SafetyNote", "ScriptedController",
            "SimSettings", "SuccessSettings", "TouchSettings", "WatchdogSettings", "WorldModel",
            "control_periods", "deploy_settings_from_dict", "deploy", "deploy_sim",
            "load_controller_config", "load_deploy_settings", "main", "make_controller", "merge_safety",
-           "open_telemetry", "require_filter", "run_backend"]
+           "open_telemetry", "require_filter", "run_backend", "safety_directions"]

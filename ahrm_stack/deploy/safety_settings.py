@@ -1,5 +1,10 @@
 """The safety filter's settings in deployment: deploy's own (``configs/safety.yaml``); a
-checkpoint's ``safety`` section may only tighten them (:func:`merge_safety`)."""
+checkpoint's ``safety`` section may only tighten them (:func:`merge_safety`).
+
+Which value of a key is the stricter is not kept here: it is the ``stricter(...)`` marker on the
+key's field of :class:`~ahrm_stack.config.SafetyConfig` (``on``, ``higher``, ``lower`` or ``none``),
+read by :func:`safety_directions`; a key without one is refused, so a key added later cannot
+silently become "not a safety bound"."""
 
 from __future__ import annotations
 
@@ -7,18 +12,21 @@ import dataclasses
 import math
 from typing import Any
 
+from ahrm_stack.config import SafetyConfig
 from ahrm_stack.deploy.settings import DeployConfigError
+from ahrm_stack.schema import Stricter, markers
 
-#: Safety settings with a stricter direction, and which direction that is. A checkpoint's value
-#: is used where it is stricter (per entry for vectors); where it is weaker it is ignored.
-HIGHER_IS_STRICTER = ("position_margin", "velocity_margin", "table_margin", "wrist_table_margin",
-                      "obstacle_safe_distance", "obstacle_activation_distance",
-                      "max_obstacle_rows", "workspace_lower")
-LOWER_IS_STRICTER = ("acceleration_limit", "workspace_upper")
-ON_IS_STRICTER = ("enabled", "braking_horizon", "table_rows", "workspace_rows",
-                  "table_distance_rows", "obstacle_rows")
-# Every other key (solver, osqp_eps, osqp_max_iter, cartesian_regularization,
-# cartesian_orientation_weight, and any key added later) is no bound: deploy's value is used.
+
+def safety_directions() -> dict[str, str]:
+    """Each key of :class:`~ahrm_stack.config.SafetyConfig` -> its stricter direction (``on``,
+    ``higher``, ``lower``, ``none``), from the fields' :func:`~ahrm_stack.schema.stricter`
+    markers. Raises ``TypeError`` naming a key that has none (a programming error)."""
+    found = markers(SafetyConfig, Stricter)
+    for key, mark in found.items():
+        if mark is None:
+            raise TypeError(f"safety.{key} has no stricter(...) marker in ahrm_stack/config.py "
+                            "(SafetyConfig): say which of two values is the stricter")
+    return {key: mark.direction for key, mark in found.items()}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -43,10 +51,12 @@ def require_filter(safety) -> None:
                                 "safety filter")
 
 
-def merge_safety(deploy, checkpoint) -> tuple[Any, list[SafetyNote]]:
+def merge_safety(deploy: SafetyConfig, checkpoint: SafetyConfig) -> tuple[SafetyConfig, list[SafetyNote]]:
     """The safety settings a checkpoint run is deployed with: ``deploy``'s (configs/safety.yaml as
-    deploy reads it), tightened wherever ``checkpoint`` (the run's ``config.yaml``) is stricter;
-    a weaker checkpoint value is ignored. Both are :class:`~ahrm_stack.config.SafetyConfig`.
+    deploy reads it), tightened wherever ``checkpoint`` (the run's ``config.yaml``) is stricter in
+    its key's direction (:func:`safety_directions`; per entry for a vector); a weaker checkpoint
+    value, a non-finite one or a vector of another length is ignored; a key without an order
+    (``none``) takes deploy's value.
 
     Returns the merged settings and one :class:`SafetyNote` per differing key. Raises
     :class:`DeployConfigError` when deploy's own settings turn the filter off, or when the
@@ -54,13 +64,13 @@ def merge_safety(deploy, checkpoint) -> tuple[Any, list[SafetyNote]]:
     above the safe distance)."""
     require_filter(deploy)
     merged, notes = {}, []
-    for field in dataclasses.fields(deploy):
-        key, ours, theirs = field.name, getattr(deploy, field.name), getattr(checkpoint, field.name)
+    for key, direction in safety_directions().items():
+        ours, theirs = getattr(deploy, key), getattr(checkpoint, key)
         if ours == theirs:
             continue
         name = f"safety.{key}"
         said = f"{name}: the checkpoint's {_show(theirs)}"
-        if key in ON_IS_STRICTER:
+        if direction == "on":
             if theirs:
                 merged[key] = True
                 notes.append(SafetyNote(key, "stricter", f"{said} is stricter than deploy's "
@@ -68,8 +78,8 @@ def merge_safety(deploy, checkpoint) -> tuple[Any, list[SafetyNote]]:
             else:
                 notes.append(SafetyNote(key, "weaker", f"{said} is weaker than deploy's "
                                         f"{_show(ours)}: ignored, using {_show(ours)}"))
-        elif key in HIGHER_IS_STRICTER or key in LOWER_IS_STRICTER:
-            pick = max if key in HIGHER_IS_STRICTER else min
+        elif direction in ("higher", "lower"):
+            pick = max if direction == "higher" else min
             vector = isinstance(ours, tuple)
             a, b = (ours, theirs) if vector else ((ours,), (theirs,))
             if len(a) != len(b):
@@ -96,7 +106,7 @@ def merge_safety(deploy, checkpoint) -> tuple[Any, list[SafetyNote]]:
             else:
                 notes.append(SafetyNote(key, "stricter", f"{said} is stricter than deploy's "
                                         f"{_show(ours)}: using {_show(value)}"))
-        else:
+        else:  # "none": no order between two values
             notes.append(SafetyNote(key, "other", f"{said} differs from deploy's {_show(ours)} "
                                     f"(not a safety bound): using {_show(ours)}"))
     result = dataclasses.replace(deploy, **merged)

@@ -1,0 +1,135 @@
+"""Deploy's safety settings against a checkpoint's, key by key, from the schema: every key of
+``SafetyConfig`` carries a ``stricter(...)`` marker, and :func:`merge_safety` follows it — a
+checkpoint's stricter value wins, a weaker one is ignored with a note, a key without an order keeps
+deploy's value, a vector of another length is ignored. Fast (no simulator)."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import pytest
+
+from ahrm_stack.config import SafetyConfig, load_config
+from ahrm_stack.deploy import DeployConfigError, merge_safety, safety_directions
+from ahrm_stack.schema import DIRECTIONS, Stricter, keys_of, markers, stricter
+
+
+@pytest.fixture(scope="module")
+def ours() -> SafetyConfig:
+    return load_config().safety
+
+
+def test_every_safety_key_has_a_direction_that_fits_its_type(ours):
+    found = markers(SafetyConfig, Stricter)
+    assert sorted(found) == keys_of(SafetyConfig)
+    unmarked = [key for key, mark in found.items() if mark is None]
+    assert not unmarked, f"safety keys without a stricter(...) marker in ahrm_stack/config.py: {unmarked}"
+    for key, direction in safety_directions().items():
+        value = getattr(ours, key)
+        assert direction in DIRECTIONS, key
+        if direction == "on":
+            assert isinstance(value, bool), key
+        elif direction in ("higher", "lower"):
+            entries = value if isinstance(value, tuple) else (value,)
+            assert all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in entries), key
+
+
+def test_an_unmarked_safety_key_is_refused_not_merged(monkeypatch):
+    @dataclasses.dataclass(frozen=True)
+    class Unmarked(SafetyConfig):
+        brand_new_rows: bool = True  # a key added without its marker
+
+    monkeypatch.setattr("ahrm_stack.deploy.safety_settings.SafetyConfig", Unmarked)
+    with pytest.raises(TypeError, match=r"^safety.brand_new_rows has no stricter\(...\) marker"):
+        safety_directions()
+    with pytest.raises(ValueError, match="stricter"):
+        stricter("tighter")  # type: ignore[arg-type]
+
+
+def _step(value: Any, sign: int) -> Any:
+    """``value`` moved by ``sign`` (+1 up, -1 down): 1 for an integer, 0.01 for a float, entry by
+    entry for a vector."""
+    if isinstance(value, tuple):
+        return tuple(_step(v, sign) for v in value)
+    return value + sign * (1 if isinstance(value, int) else 0.01)
+
+
+def _other(value: Any) -> Any:
+    """A different value of the same kind, for a key without an order."""
+    if isinstance(value, str):
+        return "osqp" if value != "osqp" else "daqp"
+    if dataclasses.is_dataclass(value):  # e.g. the self-collision pairs: one pair fewer
+        first = dataclasses.fields(value)[0].name
+        return dataclasses.replace(value, **{first: getattr(value, first)[:-1]})
+    return _step(value, +1)
+
+
+def _cases(ours: SafetyConfig) -> list[tuple[str, str, Any, Any, Any]]:
+    """Per key and direction: (key, direction, deploy's value, the checkpoint's stricter value,
+    the checkpoint's weaker value); None where no such value exists."""
+    cases = []
+    for key, direction in safety_directions().items():
+        value = getattr(ours, key)
+        if direction == "on":
+            cases.append((key, direction, value, True, False))
+        elif direction == "higher":
+            cases.append((key, direction, value, _step(value, +1), _step(value, -1)))
+        elif direction == "lower":
+            cases.append((key, direction, value, _step(value, -1), _step(value, +1)))
+        else:
+            cases.append((key, direction, value, None, _other(value)))
+    return cases
+
+
+def test_a_stricter_checkpoint_value_wins_for_every_safety_key(ours):
+    for key, direction, value, strict, _ in _cases(ours):
+        if strict is None:
+            continue
+        deploy = dataclasses.replace(ours, **{key: False}) if direction == "on" else ours
+        if key == "enabled":  # deploy never runs without its filter, whatever the checkpoint says
+            with pytest.raises(DeployConfigError, match="safety.enabled"):
+                merge_safety(deploy, dataclasses.replace(deploy, enabled=True))
+            continue
+        merged, notes = merge_safety(deploy, dataclasses.replace(deploy, **{key: strict}))
+        assert getattr(merged, key) == strict, key
+        assert merged == dataclasses.replace(deploy, **{key: strict}), key  # nothing else moves
+        assert [(n.key, n.kind) for n in notes] == [(key, "stricter")], key
+        assert notes[0].text.startswith(f"safety.{key}: the checkpoint's ") and "stricter" in notes[0].text
+
+
+def test_a_weaker_checkpoint_value_is_ignored_with_a_note_for_every_safety_key(ours):
+    for key, direction, value, _, weak in _cases(ours):
+        deploy = dataclasses.replace(ours, **{key: True}) if direction == "on" else ours
+        merged, notes = merge_safety(deploy, dataclasses.replace(deploy, **{key: weak}))
+        assert merged == deploy, key
+        kind = "other" if direction == "none" else "weaker"
+        assert [(n.key, n.kind) for n in notes] == [(key, kind)], key
+        kept = getattr(deploy, key)
+        shown = repr(list(kept)) if isinstance(kept, tuple) else repr(kept)
+        said = "(not a safety bound): using" if kind == "other" else "ignored, using"
+        assert notes[0].text.startswith(f"safety.{key}: the checkpoint's "), key
+        assert notes[0].text.endswith(f"{said} {shown}"), (key, notes[0].text)
+
+
+def test_a_checkpoint_with_self_collision_rows_turns_them_on(ours):
+    """The issue's case: rows on in training, off in deploy's settings -> on (the stricter)."""
+    deploy = dataclasses.replace(ours, self_collision_rows=False)
+    merged, notes = merge_safety(deploy, dataclasses.replace(deploy, self_collision_rows=True))
+    assert merged.self_collision_rows is True
+    assert [(n.key, n.kind) for n in notes] == [("self_collision_rows", "stricter")]
+    assert notes[0].text == ("safety.self_collision_rows: the checkpoint's True is stricter than "
+                             "deploy's False: using True")
+
+
+@pytest.mark.parametrize("key", ["acceleration_limit", "workspace_lower", "workspace_upper"])
+@pytest.mark.parametrize("change", [+1, -1])
+def test_a_checkpoint_vector_of_another_length_is_ignored(ours, key, change):
+    value = getattr(ours, key)
+    direction = safety_directions()[key]
+    strict = _step(value, +1 if direction == "higher" else -1)  # stricter in every entry ...
+    theirs = strict + (strict[-1],) if change > 0 else strict[:-1]  # ... but another length
+    merged, notes = merge_safety(ours, dataclasses.replace(ours, **{key: theirs}))
+    assert merged == ours
+    assert [(n.key, n.kind) for n in notes] == [(key, "weaker")]
+    assert f"has {len(theirs)} entries, deploy's {len(value)}: ignored" in notes[0].text
