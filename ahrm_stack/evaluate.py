@@ -28,11 +28,11 @@ import time
 from pathlib import Path
 from typing import Callable, Sequence
 
-import yaml
 
 from ahrm_stack.cli import add_verbose_flag, quiet
-from ahrm_stack.config import (Config, ConfigError, VideoConfig, apply_overrides, config_from_dict, fill_missing,
-                               load_extra, load_raw)
+from ahrm_stack.config import (Config, ConfigError, VideoConfig, apply_overrides, config_from_dict, load_extra,
+                               load_raw)
+from ahrm_stack.run_config import load_run_config
 
 
 class _Parser(argparse.ArgumentParser):
@@ -216,16 +216,20 @@ def evaluate(run_dir: Path | None, episodes: int, layout: str | None = None, out
         for name in needed:
             if not (run_dir / name).is_file():
                 raise ConfigError(f"{run_dir / name} not found: RUN_DIR must be a finished training run")
-        # keys added since the run was written filled first, so that overrides can set them
-        raw = fill_missing(yaml.safe_load((run_dir / "config.yaml").read_text()))
+    seed_offsets: list[int] = []  # the named layout's seed range, once applied
+
+    def place(raw: dict) -> None:  # the named layout, after the overrides
+        if layout is not None:
+            from ahrm_stack.env.layout_catalog import apply_layout
+            seed_offsets.append(apply_layout(raw, layout).seed_offset)
+    if run_dir is not None:
+        config = load_run_config(run_dir, overrides, edit=place)
     else:
         raw = load_raw()
-    apply_overrides(raw, overrides)
-    seed_offset = None
-    if layout is not None:
-        from ahrm_stack.env.layout_catalog import apply_layout
-        seed_offset = apply_layout(raw, layout).seed_offset
-    config = config_from_dict(raw)
+        apply_overrides(raw, overrides)
+        place(raw)
+        config = config_from_dict(raw)
+    seed_offset = seed_offsets[0] if seed_offsets else None
 
     from ahrm_stack.learning.rollouts import EVAL_SEED_OFFSET, EvaluationTable
 

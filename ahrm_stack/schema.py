@@ -263,7 +263,7 @@ def markers(cls: type, kind: type) -> dict[str, Any]:
 
 
 @functools.lru_cache(maxsize=None)
-def _sections(cls: type) -> dict[str, type]:
+def section_fields(cls: type) -> dict[str, type]:
     """Field name -> the Section type of each field of ``cls`` that is itself a section."""
     hints = typing.get_type_hints(cls, include_extras=True)
     out = {}
@@ -283,7 +283,7 @@ def fill_legacy(cls: type, data: Any, root: Mapping[str, Any] | None = None) -> 
         return data
     root = data if root is None else root
     out = data
-    sections = _sections(cls)
+    sections = section_fields(cls)
     for name, mark in markers(cls, Legacy).items():
         value = data.get(name, MISSING)
         if value is MISSING and mark is not None:

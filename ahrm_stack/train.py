@@ -35,11 +35,10 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from ahrm_stack.cli import add_verbose_flag, quiet
-from ahrm_stack.config import (Config, ConfigError, apply_overrides, config_from_dict, config_source, fill_missing,
-                               load_config, read_yaml)
+from ahrm_stack.config import Config, ConfigError, load_config
+from ahrm_stack.run_config import load_run_config, run_config_text
 
 # torchrl announces its own deprecations at import, and dm_control turns every DeprecationWarning
 # on (warnings.simplefilter('always')): on stderr they would bury a one-line error. The warnings
@@ -93,11 +92,7 @@ def resolve_config(args: argparse.Namespace) -> tuple[Config, Path]:
         if not path.is_file():
             raise ConfigError(f"--resume {run_dir}: no config.yaml there; is it a run folder? (a run "
                               "killed before writing it has nothing to resume: start it again)")
-        raw = read_yaml(path)  # one-line errors for a missing, broken or non-mapping file
-        raw = fill_missing(raw)  # keys added since the run was written, so that overrides can set them
-        apply_overrides(raw, args.overrides)
-        config = config_from_dict(raw, source=config_source(overrides=args.overrides, path=path))
-        return config, run_dir
+        return load_run_config(run_dir, args.overrides), run_dir
     config = load_config(args.overrides)
     if args.run_dir:
         run_dir = Path(args.run_dir)
@@ -298,10 +293,10 @@ class RunLog:
 
 
 def _write_config(run_dir: Path, config: Config) -> None:
-    """``run_dir/config.yaml`` (the resolved configuration, ``config.to_dict()``), atomically; a new
+    """``run_dir/config.yaml`` (the resolved configuration, :func:`run_config_text`), atomically; a new
     folder appears only once it holds it, so a run folder without a config.yaml is never left
     behind by a kill."""
-    text = yaml.safe_dump(config.to_dict(), sort_keys=False)
+    text = run_config_text(config)
     if run_dir.is_dir():
         _write_atomically(run_dir / "config.yaml", text)
         return

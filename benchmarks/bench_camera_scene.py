@@ -39,7 +39,6 @@ sys.path.insert(0, str(ROOT))
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
-import yaml  # noqa: E402
 
 DEFAULT_CHECKPOINT = ROOT / "docs" / "policies" / "ahrm-default-seed0"
 
@@ -63,16 +62,16 @@ class Episode:
 
 
 def load_config(checkpoint: Path, family: str):
-    from ahrm_stack.env.layout_catalog import apply_layout
+    """The checkpoint run's config (as deploy reads it) with the layout ``family`` applied, and the
+    family's first seed."""
+    from ahrm_stack.env.layout_catalog import run_config_in_layout
 
-    raw = yaml.safe_load((checkpoint / "config.yaml").read_text())
-    offset = apply_layout(raw, family).seed_offset
-    return raw, offset
+    config, entry = run_config_in_layout(checkpoint, family, runnable=False)
+    return config, entry.seed_offset
 
 
-def run_episode(raw: dict, checkpoint: Path, seed: int, duration: float, camera_scene: bool,
+def run_episode(config, checkpoint: Path, seed: int, duration: float, camera_scene: bool,
                 shared: dict) -> Episode:
-    from ahrm_stack.config import config_from_dict
     from ahrm_stack.deploy import (DeployFault, DeployLoop, PolicyController, WorldModel,
                                    load_deploy_settings, merge_safety)
     from ahrm_stack.config import load_config as load_repo_config
@@ -80,7 +79,6 @@ def run_episode(raw: dict, checkpoint: Path, seed: int, duration: float, camera_
     from hardware.protocol import FastClock
     from hardware.sim import SimArm
 
-    config = config_from_dict(raw, runnable=False)
     safety, _ = merge_safety(load_repo_config().safety, config.safety)
     config = dataclasses.replace(config, safety=safety)
     settings = load_deploy_settings(realtime=False, telemetry="", duration=duration)
@@ -195,18 +193,17 @@ def main(argv: list[str] | None = None) -> int:
     from ahrm_stack.learning.rollouts import load_policy
     from ahrm_stack.perception.settings import load_perception_settings
     from ahrm_stack.perception.sim_camera import SimCamera
-    from ahrm_stack.config import config_from_dict
 
     logging.basicConfig(level=logging.ERROR)
     torch.set_num_threads(1)
-    raw, offset = load_config(args.checkpoint, args.family)
+    config, offset = load_config(args.checkpoint, args.family)
     _, actor = load_policy(args.checkpoint, runnable=False)
     perception = load_perception_settings()
     shared = {"actor": actor, "perception": perception, "tmp": tempfile.mkdtemp(prefix="camera-scene-")}
     if "camera" in args.scenes:
         from ahrm_stack.perception.apriltag import TagDetector
 
-        task_config = config_from_dict(raw, runnable=False).task
+        task_config = config.task
         shared["camera"] = SimCamera(task_config, perception)
         shared["detector"] = TagDetector(perception, task_config.cube.size)
     print(f"policy {args.checkpoint.relative_to(ROOT) if args.checkpoint.is_relative_to(ROOT) else args.checkpoint}, "
@@ -218,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
     for scene in args.scenes:
         results[scene] = []
         for i in range(args.episodes):
-            episode = run_episode(raw, args.checkpoint, offset + i, args.duration, scene == "camera",
+            episode = run_episode(config, args.checkpoint, offset + i, args.duration, scene == "camera",
                                   shared)
             results[scene].append(episode)
             print(f"  {scene} seed {episode.seed}: success {episode.success} touched "

@@ -79,13 +79,11 @@ def load_actor(checkpoint: Path | None, policy_file: Path | None = None):
     ``policy.pt`` or ``policy_file``; in its lane frame if it has one), or a fresh one."""
     policy_file = policy_file or (None if checkpoint is None else checkpoint / "policy.pt")
     if checkpoint is not None and policy_file is not None and policy_file.exists():
-        import yaml
-
-        from ahrm_stack.config import config_from_dict
         from ahrm_stack.learning.checkpoint import load
         from ahrm_stack.learning.lane_frame import lane_mirror_for
+        from ahrm_stack.run_config import load_run_config
 
-        config = config_from_dict(yaml.safe_load((checkpoint / "config.yaml").read_text()))
+        config = load_run_config(checkpoint)
         saved = load(policy_file)
         dims = saved["observation_dim"], saved["action_dim"]
         modules = make_modules(config.ppo, *dims, lane_mirror_for(config, *dims))

@@ -30,22 +30,19 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import yaml
 
-from ahrm_stack.config import config_from_dict, fill_missing
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.scripted import ScriptedPusher
 from ahrm_stack.env.task import PushOffTask
 from ahrm_stack.learning.rollouts import EVAL_SEED_OFFSET, load_policy
+from ahrm_stack.run_config import load_run_config
 
 MARGINS = (0.005, 0.01, 0.02, 0.03)  # m, the near-miss thresholds reported
 
 
 def probe(run_dir: Path, episodes: int, policy_file: Path | None, scripted: bool, reach: float) -> list[dict]:
     """One row per episode: success, touched steps, the smallest cube and pusher clearance (m)."""
-    raw = fill_missing(yaml.safe_load((run_dir / "config.yaml").read_text()))
-    raw["task"]["rewards"]["avoid_margin"] = reach
-    config = config_from_dict(raw)
+    config = load_run_config(run_dir, [f"task.rewards.avoid_margin={reach!r}"])
     policy = None if scripted else load_policy(run_dir, policy_file)[1]
     task = PushOffTask(config.task)
     runner = TaskRunner(task, seed=EVAL_SEED_OFFSET, safety=config.safety)

@@ -24,14 +24,13 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import yaml
 
-from ahrm_stack.config import config_from_dict
-from ahrm_stack.env.layout_catalog import apply_layout
+from ahrm_stack.env.layout_catalog import run_config_in_layout
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.scripted import ScriptedPusher
 from ahrm_stack.env.task import PushOffTask
 from ahrm_stack.learning.rollouts import EVAL_SEED_OFFSET, load_policy
+from ahrm_stack.run_config import load_run_config
 
 
 def _first_touch(runner: TaskRunner, policy, task: PushOffTask) -> dict | None:
@@ -108,8 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     counts: Counter = Counter()
     lanes: Counter = Counter()
     if args.own:
-        raw = yaml.safe_load((run / "config.yaml").read_text())
-        _replay("own", config_from_dict(raw), EVAL_SEED_OFFSET, range(args.own), policy, counts, lanes,
+        _replay("own", load_run_config(run), EVAL_SEED_OFFSET, range(args.own), policy, counts, lanes,
                 quiet_clean=True)
     else:
         for family_dir in sorted(p for p in suite.iterdir() if p.is_dir()):
@@ -118,9 +116,8 @@ def main(argv: list[str] | None = None) -> int:
             touching = [i for i, row in enumerate(rows) if int(row["touched_steps"]) > 0]
             if not touching:
                 continue
-            raw = yaml.safe_load((run / "config.yaml").read_text())
-            offset = apply_layout(raw, family_dir.name).seed_offset
-            _replay(family_dir.name, config_from_dict(raw), offset, touching, policy, counts, lanes)
+            config, entry = run_config_in_layout(run, family_dir.name)
+            _replay(family_dir.name, config, entry.seed_offset, touching, policy, counts, lanes)
     print(f"first touches: {dict(counts)}; lanes: {dict(lanes)}")
     return 0
 

@@ -65,25 +65,25 @@ def _other(value: Any) -> Any:
     return _step(value, +1)
 
 
-def _cases(ours: SafetyConfig) -> list[tuple[str, str, Any, Any, Any]]:
-    """Per key and direction: (key, direction, deploy's value, the checkpoint's stricter value,
-    the checkpoint's weaker value); None where no such value exists."""
+def _cases(ours: SafetyConfig) -> list[tuple[str, str, Any, Any]]:
+    """Per key: (key, direction, the checkpoint's stricter value, its weaker value) around
+    deploy's value (None: no stricter value, for a key without an order)."""
     cases = []
     for key, direction in safety_directions().items():
         value = getattr(ours, key)
         if direction == "on":
-            cases.append((key, direction, value, True, False))
+            cases.append((key, direction, True, False))
         elif direction == "higher":
-            cases.append((key, direction, value, _step(value, +1), _step(value, -1)))
+            cases.append((key, direction, _step(value, +1), _step(value, -1)))
         elif direction == "lower":
-            cases.append((key, direction, value, _step(value, -1), _step(value, +1)))
+            cases.append((key, direction, _step(value, -1), _step(value, +1)))
         else:
-            cases.append((key, direction, value, None, _other(value)))
+            cases.append((key, direction, None, _other(value)))
     return cases
 
 
 def test_a_stricter_checkpoint_value_wins_for_every_safety_key(ours):
-    for key, direction, value, strict, _ in _cases(ours):
+    for key, direction, strict, _ in _cases(ours):
         if strict is None:
             continue
         deploy = dataclasses.replace(ours, **{key: False}) if direction == "on" else ours
@@ -99,7 +99,7 @@ def test_a_stricter_checkpoint_value_wins_for_every_safety_key(ours):
 
 
 def test_a_weaker_checkpoint_value_is_ignored_with_a_note_for_every_safety_key(ours):
-    for key, direction, value, _, weak in _cases(ours):
+    for key, direction, _, weak in _cases(ours):
         deploy = dataclasses.replace(ours, **{key: True}) if direction == "on" else ours
         merged, notes = merge_safety(deploy, dataclasses.replace(deploy, **{key: weak}))
         assert merged == deploy, key

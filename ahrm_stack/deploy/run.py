@@ -11,7 +11,6 @@ import math
 from pathlib import Path
 from typing import Sequence
 
-import yaml
 
 from ahrm_stack.config import Config, ConfigError, load_config
 from ahrm_stack.deploy.controllers import make_controller
@@ -65,9 +64,6 @@ def load_controller_config(checkpoint: Path | None, overrides: Sequence[str] = (
         # replaced below
     except (ConfigError, CheckpointError):
         raise
-    except yaml.YAMLError as error:
-        raise ConfigError(f"{run / 'config.yaml'} is not valid YAML "
-                          f"({str(error).splitlines()[0]})") from None
     except (KeyError, TypeError, ValueError, RuntimeError) as error:
         first = (str(error).splitlines() or [""])[0][:200]
         raise CheckpointError(f"{policy_path} does not fit {run / 'config.yaml'} "

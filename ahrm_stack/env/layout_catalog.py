@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Literal, Optional
+from typing import Literal, Optional, Sequence
 
 import numpy as np
 
-from ahrm_stack.config import CONFIG_DIR, ConfigError, Pair, config_from_dict
+from ahrm_stack.config import CONFIG_DIR, Config, ConfigError, Pair, config_from_dict
 from ahrm_stack.env.layout import Layout, LayoutError, validate_layout
 from ahrm_stack.schema import Bool, Section, derived, read_yaml, validate
 from ahrm_stack.seeds import SEEDS_FILE, seed_table
@@ -103,6 +103,19 @@ def apply_layout(raw: dict, name: str, path: Path | str = LAYOUTS_FILE) -> Named
         raise ConfigError(f"{path}: layout '{name}': {error}") from None
     entry.seed_offset  # a family without a seed range fails here, before any episode
     return entry
+
+
+def run_config_in_layout(run_dir: Path | str, name: str, overrides: Sequence[str] = (),
+                         runnable: bool = True) -> tuple[Config, NamedLayout]:
+    """The config of the run in ``run_dir`` (:func:`~ahrm_stack.run_config.load_run_config`, with
+    ``overrides``) with the named layout applied (:func:`apply_layout`), and the layout's entry
+    (its ``seed_offset``: the family's first evaluation seed)."""
+    from ahrm_stack.run_config import load_run_config  # imports ahrm_stack.config, as this module does
+
+    placed: list[NamedLayout] = []
+    config = load_run_config(run_dir, overrides, runnable=runnable,
+                             edit=lambda raw: placed.append(apply_layout(raw, name)))
+    return config, placed[0]
 
 
 def suite_names(path: Path | str = LAYOUTS_FILE) -> list[str]:

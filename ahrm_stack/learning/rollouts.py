@@ -19,7 +19,8 @@ import yaml
 from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from ahrm_stack.config import Config, config_from_dict
+from ahrm_stack.config import Config
+from ahrm_stack.run_config import load_run_config
 from ahrm_stack.env.episode import EpisodeSummary
 from ahrm_stack.env.realism import nominal
 from ahrm_stack.env.torchrl_env import PushOffEnv
@@ -76,7 +77,7 @@ def load_policy(run_dir: Path, policy_file: Path | None = None,
     TensorDict in, ``"action"`` written; ``.act(observation)`` on a plain tensor), which gives the
     deterministic action of the TorchRL actor at a fraction of its per-call cost."""
     run_dir = Path(run_dir)
-    config = config_from_dict(yaml.safe_load((run_dir / "config.yaml").read_text()), runnable)
+    config = load_run_config(run_dir, runnable=runnable)
     saved = load(Path(policy_file) if policy_file is not None else run_dir / "policy.pt")
     modules = make_modules(config.ppo, saved["observation_dim"], saved["action_dim"],
                            lane_mirror_for(config, saved["observation_dim"], saved["action_dim"]))
