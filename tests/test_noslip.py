@@ -37,7 +37,7 @@ def test_the_option_follows_the_config(noslip):
 
 
 def test_old_run_folders_and_the_default_keep_the_arena_s_five():
-    run = ROOT / "docs/scratch-study/round6/runs/mirror-nj-fhrm-seed0"
+    run = ROOT / "tests/data/legacy_run_configs/scratch-study/round6/runs/mirror-nj-fhrm-seed0"  # as written
     assert "noslip_iterations" not in (run / "config.yaml").read_text()
     assert config_from_dict(yaml.safe_load((run / "config.yaml").read_text())).task.episode.noslip_iterations == 5
     assert load_config([]).task.episode.noslip_iterations == 5

@@ -50,7 +50,7 @@ def test_the_flag_follows_the_config():
 
 def test_old_run_folders_keep_the_awake_physics():
     """A run folder written before the key existed loads with sleeping off (its episodes replay)."""
-    run = ROOT / "docs/scratch-study/round6/runs/mirror-nj-fhrm-seed0"
+    run = ROOT / "tests/data/legacy_run_configs/scratch-study/round6/runs/mirror-nj-fhrm-seed0"  # as written
     assert "sleep" not in (run / "config.yaml").read_text()
     assert config_from_dict(yaml.safe_load((run / "config.yaml").read_text())).task.episode.sleep is False
     assert load_config([]).task.episode.sleep is False  # the shipped default
@@ -181,7 +181,7 @@ def test_an_old_run_folder_takes_an_override_of_the_new_key(tmp_path):
     from ahrm_stack.config import apply_overrides, fill_missing
     from ahrm_stack.evaluate import evaluate
 
-    run = ROOT / "docs/scratch-study/round6/runs/mirror-nj-fhrm-seed0"
+    run = ROOT / "tests/data/legacy_run_configs/scratch-study/round6/runs/mirror-nj-fhrm-seed0"  # as written
     raw = yaml.safe_load((run / "config.yaml").read_text())
     filled = fill_missing(raw)
     assert "sleep" not in raw["task"]["episode"]  # the file's own data is left as it was
