@@ -100,6 +100,15 @@ def test_a_run_config_records_its_version_and_reads_back(tmp_path):
     assert config_from_dict(yaml.safe_load(run_config_text(config))) == config
 
 
+def test_training_writes_the_versioned_file(tmp_path):
+    from ahrm_stack.train import _write_config
+
+    config = load_config()
+    _write_config(tmp_path / "run", config)
+    assert (tmp_path / "run" / "config.yaml").read_text() == run_config_text(config)
+    assert load_run_config(tmp_path / "run") == config
+
+
 def test_overrides_apply_after_the_legacy_fill(tmp_path):
     old = OLD_RUNS[0]
     config = load_run_config(old, ["task.episode.sleep=true", "ppo.normalizer_min_std=0.01"])
