@@ -18,7 +18,9 @@ from ahrm_stack.perception.tracker import CubeTracker
 from hardware.protocol import FastClock
 from hardware.sim import SimArm
 
-TRAINED = Path(__file__).resolve().parents[1] / "docs" / "policies" / "ahrm-default-seed0"
+# The tracking tests' push: the fixed-layout policy of 2026-12-01 (its cube speed profile is what the
+# bounds below were set on; today's default policy pushes faster: velocity error RMS ~0.13 m/s)
+TRAINED = Path(__file__).resolve().parents[1] / "docs" / "policies" / "ahrm-fixed-layout-seed0"
 
 
 @pytest.fixture(scope="module")
