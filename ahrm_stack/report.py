@@ -61,15 +61,36 @@ def budget(grid: dict) -> str:
     return f"{frames:,} frames" if frames else f"{grid['episodes']} episodes"
 
 
-def episodes_to_threshold(success: Sequence[bool], threshold: float, window: int) -> int | None:
-    """The first training episode (1-based) whose trailing ``window`` episodes reach a success
-    fraction of ``threshold``; None if none does (a window must be full)."""
+def _window_fractions(success: Sequence[bool], window: int) -> np.ndarray:
+    """Success fraction of every full window of ``window`` consecutive training episodes; entry k
+    is the window that starts after k episodes (episodes k+1 .. k+window, 1-based)."""
     success = np.asarray(success, dtype=float)
     if len(success) < window:
+        return np.empty(0)
+    return np.convolve(success, np.ones(window), mode="valid") / window
+
+
+def episodes_to_threshold(success: Sequence[bool], threshold: float, window: int) -> int | None:
+    """Training episodes played before the policy first reached ``threshold``: the number of
+    episodes before the first window of ``window`` consecutive episodes whose success fraction
+    reaches ``threshold``. 0 when the first ``window`` episodes already do (the warm start met it:
+    no training was needed); None when no window does (or none is full). Counting the window's own
+    episodes as needed (this function used to return the window's last episode) made every run
+    that met the threshold from the start read ``window``, its floor, whatever it learned."""
+    hits = np.flatnonzero(_window_fractions(success, window) >= threshold - 1e-12)
+    return int(hits[0]) if hits.size else None
+
+
+def episodes_to_hold_threshold(success: Sequence[bool], threshold: float, window: int) -> int | None:
+    """Training episodes played before the policy reached ``threshold`` for good: the start of the
+    first window from which every later window reaches ``threshold`` up to the end of training
+    (0: it never fell below). None when the last window is below ``threshold``: a run that met it
+    and then lost it has not reached it."""
+    fractions = _window_fractions(success, window)
+    below = np.flatnonzero(fractions < threshold - 1e-12)
+    if not fractions.size or (below.size and below[-1] == len(fractions) - 1):
         return None
-    fractions = np.convolve(success, np.ones(window), mode="valid") / window  # ends at window..n
-    hits = np.flatnonzero(fractions >= threshold - 1e-12)
-    return int(hits[0] + window) if hits.size else None
+    return int(below[-1] + 1) if below.size else 0
 
 
 def orders_by_phase(orders: str) -> list[str]:
@@ -257,20 +278,29 @@ def _order_rows(runs: list[RunRecord]) -> list[list[str]]:
 
 
 def _threshold_rows(runs: list[RunRecord], methods: list[str], threshold: float, window: int) -> list[list[str]]:
+    def mean_of(values: list[int], seeds: int) -> str:
+        return f"{np.mean(values):.0f} ({len(values)}/{seeds} seeds)" if values else f"never (0/{seeds} seeds)"
+
     rows = []
     for method in methods:
-        per_seed, reached = [], []
+        per_seed, reached, held = [], [], []
         for r in runs:
             if r.method != method or r.episodes is None:
                 continue
-            episode = episodes_to_threshold(r.episodes["success"], threshold, window)
-            total = len(r.episodes["success"])
-            per_seed.append(f"seed {r.seed}: {episode if episode is not None else f'not in {total}'}")
-            if episode is not None:
-                reached.append(episode)
-        summary = (f"{np.mean(reached):.0f} ({len(reached)}/{len(per_seed)} seeds)" if reached
-                   else f"not reached (0/{len(per_seed)} seeds)")
-        rows.append([METHOD_NAMES.get(method, method), summary, "; ".join(per_seed) or "—"])
+            success = r.episodes["success"]
+            first = episodes_to_threshold(success, threshold, window)
+            kept = episodes_to_hold_threshold(success, threshold, window)
+            last = _window_fractions(success, window)
+            end = f"last {window}: {last[-1]:.0%}" if last.size else f"{len(success)} episodes"
+            per_seed.append(f"seed {r.seed}: " + (f"reached after {first}" if first is not None else
+                                                  f"not reached in {len(success)}")
+                            + (f", held from {kept}" if kept is not None else
+                               f", not held ({end})" if first is not None else ""))
+            reached += [first] if first is not None else []
+            held += [kept] if kept is not None else []
+        seeds = len(per_seed)
+        rows.append([METHOD_NAMES.get(method, method), mean_of(reached, seeds), mean_of(held, seeds),
+                     "; ".join(per_seed) or "—"])
     return rows
 
 
@@ -384,9 +414,12 @@ def write_report(out: Path | str, experiment: ExperimentConfig | None = None) ->
     lines += _table(["Run", "Phase 1 (approach)", "Phase 2 (pre-manipulate)", "Phase 3 (manipulate)",
                      "Order changes", "Locked"], _order_rows(runs))
     lines += ["", f"## Episodes to reach {experiment.success_threshold:.0%} success", "",
-              f"First training episode whose trailing {experiment.success_window} episodes reach "
-              f"{experiment.success_threshold:.0%} success (stochastic training policy).", ""]
-    lines += _table(["Method", "Mean over seeds that reached it", "Per seed"],
+              f"Training episodes played before the first window of {experiment.success_window} consecutive "
+              f"training episodes (stochastic training policy) with {experiment.success_threshold:.0%} "
+              "success (reached; 0: from the first episode, i.e. the warm start already met it), and before "
+              "the window from which every later window meets it up to the end of training (held; a run "
+              "that met it and then lost it never held it). Means over the seeds that reached it.", ""]
+    lines += _table(["Method", "Reached after", "Held from", "Per seed"],
                     _threshold_rows(runs, methods, experiment.success_threshold, experiment.success_window))
     lines += ["", "## Safety", "",
               "Evaluation: safety-filter interventions per episode (commands the QP changed), episodes "
