@@ -322,10 +322,10 @@ def _safety_rows(runs: list[RunRecord], methods: list[str], summaries: dict, scr
 
 
 def _suite_lines(out: Path, grid: dict, runs: list[RunRecord], methods: list[str],
-                 experiment: ExperimentConfig) -> list[str]:
+                 experiment: ExperimentConfig, split: str) -> list[str]:
     """The evaluation-suite section (when the grid evaluated the suite): per-family tables for
     every method, the clone and the scripted controller, paired bootstrap differences, ranking."""
-    from ahrm_stack.suite_report import rank, read_suite, suite_section
+    from ahrm_stack.suite_report import rank, read_suite, read_support, suite_section
 
     columns: dict[str, list] = {}
     for method in methods:
@@ -349,7 +349,7 @@ def _suite_lines(out: Path, grid: dict, runs: list[RunRecord], methods: list[str
     lines = ["", "## Evaluation suite", "",
              f"Every run's final deterministic policy on every family of the evaluation suite "
              f"(`configs/layouts.yaml`, {grid['eval_episodes']} episodes each, each family on its own "
-             "seeds); `clone` is the first method's policy before any PPO update (the warm start: "
+             f"seeds of the **{split} split**); `clone` is the first method's policy before any PPO update (the warm start: "
              "behaviour cloning, plus DAgger when `train.dagger_rounds` > 0), `scripted` the scripted "
              "controller on the same episodes.",
              "", f"Ranking on the suite (success, then fewer touching episodes): "
@@ -358,7 +358,12 @@ def _suite_lines(out: Path, grid: dict, runs: list[RunRecord], methods: list[str
              + ("" if "ls" not in order else " and LS last" if order[-1] == "ls" else "; LS is not last")
              + " (the paper: AHRM first, LS last). Where the intervals below include 0 the "
              "difference is not resolved by these seeds.", ""]
-    return lines + suite_section(columns, families, compared, experiment.bootstrap_samples)
+    support: dict[str, str] = {}
+    for r in sorted(runs, key=lambda r: r.seed):  # the grid's runs share one training config
+        if r.status == "done" and not support:
+            support = read_support(Path(grid["out"]) / "runs" / r.name / "suite")
+    return lines + suite_section(columns, families, compared, experiment.bootstrap_samples,
+                                 support=support or None)
 
 
 def _suite_order() -> list[str]:
@@ -372,6 +377,7 @@ def write_report(out: Path | str, experiment: ExperimentConfig | None = None) ->
     if not (out / "grid.json").is_file():
         raise ConfigError(f"{out / 'grid.json'} not found: is {out} an experiment folder?")
     grid = json.loads((out / "grid.json").read_text())
+    split = grid.get("split", "validation")  # grids written before the split: the validation seeds
     if experiment is None:
         experiment = load_extra(ExperimentConfig, "experiment", grid.get("experiment_overrides", []))
     runs = load_runs(out, grid)
@@ -390,11 +396,14 @@ def write_report(out: Path | str, experiment: ExperimentConfig | None = None) ->
              f"Generated {time.strftime('%Y-%m-%d %H:%M')} by `python -m ahrm_stack.experiment` from the "
              f"files in this folder. {grid['seeds']} seed(s) per method, {budget(grid)} of "
              f"training per run, {grid['eval_episodes']} deterministic evaluation episodes per run on the "
-             f"`{grid['layout']}` layout (fresh seeds), every command through the safety filter.",
+             f"`{grid['layout']}` layout, **{split} split** (configs/seeds.yaml; "
+             + ("sealed: read only by this final evaluation of the frozen policies" if split == "test" else
+                "the seeds of interim evaluations and studies, not the sealed test split")
+             + "), every command through the safety filter.",
              f"Training overrides: `{' '.join(grid['train_overrides']) or 'none'}`.", "",
              "## Findings", ""]
     lines += [f"- {line}" for line in findings(summaries, paper, runs)]
-    lines += ["", "## Table II: this reproduction (mean ± std over seeds) and the paper", "",
+    lines += ["", f"## Table II: this reproduction ({split} split, mean ± std over seeds) and the paper", "",
               "Successes and touches are per 40-episode evaluation in the paper and per "
               f"{grid['eval_episodes']}-episode evaluation here. Time: mean time to success (over "
               "successful episodes), s; cube travel: mean path length of the cube's centre, m. Here "
@@ -405,7 +414,7 @@ def write_report(out: Path | str, experiment: ExperimentConfig | None = None) ->
     lines += ["", "### Per run", ""]
     lines += _table(["Run", "Status", "Successes", "Touched", "Time (s)", "Cube travel (m)",
                      "Interventions/episode", "Joint-limit violations", "Wall time (min)"], _run_rows(runs))
-    lines += _suite_lines(out, grid, runs, methods, experiment)
+    lines += _suite_lines(out, grid, runs, methods, experiment, split)
     lines += ["", "## Learned priority orders per phase (Fig. 3)", "",
               "The mechanism's order at the end of training (highest priority first), the number of "
               "order changes and where the orders were locked. Only AHRM determines its orders; "

@@ -31,7 +31,7 @@ from ahrm_stack.env.layout_catalog import apply_layout
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.scripted import ScriptedPusher
 from ahrm_stack.env.task import PushOffTask
-from ahrm_stack.learning.rollouts import EVAL_SEED_OFFSET, load_policy
+from ahrm_stack.learning.rollouts import VALIDATION_SEED_OFFSET, load_policy
 
 
 def _first_touch(runner: TaskRunner, policy, task: PushOffTask) -> dict | None:
@@ -109,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     lanes: Counter = Counter()
     if args.own:
         raw = yaml.safe_load((run / "config.yaml").read_text())
-        _replay("own", config_from_dict(raw), EVAL_SEED_OFFSET, range(args.own), policy, counts, lanes,
+        _replay("own", config_from_dict(raw), VALIDATION_SEED_OFFSET, range(args.own), policy, counts, lanes,
                 quiet_clean=True)
     else:
         for family_dir in sorted(p for p in suite.iterdir() if p.is_dir()):
