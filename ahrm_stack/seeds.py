@@ -172,7 +172,11 @@ def evaluation_range(name: str, split: Split = "validation") -> SeedRange:
         return table.evaluation[name].validation
     if split != "test":
         raise ConfigError(f"split must be one of {list(SPLITS)}, got {split!r}")
-    caller = sys._getframe(1).f_globals.get("__name__")
+    frame_globals = sys._getframe(1).f_globals
+    caller = frame_globals.get("__name__")
+    spec = frame_globals.get("__spec__")
+    if caller == "__main__" and spec is not None:  # python -m ahrm_stack.evaluate: the module run as __main__
+        caller = getattr(spec, "name", caller)
     if caller != FINAL_EVALUATION:
         raise SealedSplitError(f"the test split is sealed: only the final evaluation of a frozen policy "
                                f"(python -m ahrm_stack.evaluate RUN --split test) reads it, not {caller}")

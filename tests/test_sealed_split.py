@@ -139,3 +139,25 @@ def test_a_short_training_never_draws_a_test_seed(tmp_path, seed_spy):
     assert evaluate_cli([str(run), "--episodes", "1", "--split", "test"]) == 0  # the frozen policy, after
     assert any(s in table.evaluation["run"].test for s in seed_spy)
     assert json.loads((run / "test" / "evaluation.json").read_text())["split"] == "test"
+
+
+def test_the_command_line_reads_the_test_split_and_a_script_cannot(tmp_path):
+    """``python -m ahrm_stack.evaluate --split test`` runs as ``__main__``; it is let in by its
+    module spec, while any other script (``__main__`` without that spec) is refused."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": str(root), "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    done = subprocess.run([sys.executable, "-m", "ahrm_stack.evaluate", "--policy", "scripted", "--episodes", "1",
+                           "--split", "test", "--out", str(tmp_path / "out")], cwd=root, env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-500:]
+    assert "test split" in done.stdout
+    script = tmp_path / "peek.py"
+    script.write_text("from ahrm_stack.seeds import evaluation_range\nevaluation_range('run', 'test')\n")
+    peek = subprocess.run([sys.executable, str(script)], cwd=root, env=env, capture_output=True, text=True,
+                          timeout=120)
+    assert peek.returncode != 0 and "sealed" in peek.stderr
