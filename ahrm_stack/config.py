@@ -923,6 +923,7 @@ class ExperimentConfig(Section):
     eval_episodes: PosInt  # deterministic evaluation episodes per run
     scripted_episodes: NonNegInt  # evaluation episodes of the scripted controller (0: no row)
     eval_layout: Str  # a name in configs/layouts.yaml
+    split: Literal["validation", "test"]  # the final evaluation's seeds (configs/seeds.yaml); test is sealed
     video_episode: Annotated[Int, ge(-1)]  # evaluation episode rendered per method (-1: no videos)
     cpus_per_run: Pos  # Ray num_cpus of one run
     ray_temp_dir: Str

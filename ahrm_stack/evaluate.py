@@ -1,14 +1,23 @@
 """Evaluate a trained policy or the scripted controller: the paper's Table II metrics (spec §7).
 
-    python -m ahrm_stack.evaluate RUN_DIR [--episodes 40] [--layout NAME] [--out DIR]
-                                  [--video PATH [--video-episodes 0,1]]
+    python -m ahrm_stack.evaluate RUN_DIR [--episodes 40] [--layout NAME] [--split validation|test]
+                                  [--out DIR] [--video PATH [--video-episodes 0,1]]
     python -m ahrm_stack.evaluate --policy scripted [--episodes 40] [--layout NAME] ...
                                   [--config key=value ...]
+    python -m ahrm_stack.evaluate RUN_DIR --suite [--split test]
 
 Episodes use fresh seeds (never used in training) and the deterministic policy (the distribution's
-mode), or the mink scripted controller. Every command passes through the safety filter. Prints the
-table and writes ``evaluation.csv`` (one row per episode) and ``evaluation.json`` (the table) to
-``--out`` (default: the run folder, or ``runs/scripted-eval`` for the scripted controller).
+mode), or the mink scripted controller, on the nominal task (no real arm's imperfections; a
+family's cube mass and friction factors when it sets them). Every command passes through the
+safety filter. Prints the table and writes ``evaluation.csv`` (one row per episode) and
+``evaluation.json`` (the table, its split, seeds and the layout's training support) to ``--out``
+(default: the run folder, or ``runs/scripted-eval`` for the scripted controller; a ``test``
+subfolder of the run, or ``runs/scripted-eval-test``, for ``--split test``).
+
+``--split``: the seeds of ``configs/seeds.yaml`` the episodes use. ``validation`` (the default)
+is what interim evaluations, checkpoint choice, studies and benchmarks use; ``test`` is sealed:
+only this final evaluation of a frozen policy reads it (and the experiment's final table, through
+it). Every output names its split.
 
 ``--layout`` names an entry of ``configs/layouts.yaml``: ``fixed`` / ``random`` (the run's own
 modes), fixed layouts (``default``, ``mirrored``, ``corridor``, ``offset_cube``) or held-out random
@@ -21,18 +30,22 @@ only reads the simulation, so the episodes are the same with or without it.
 from __future__ import annotations
 
 import argparse
+import copy
 import dataclasses
 import json
 import sys
 import time
 from pathlib import Path
-from typing import Callable, Sequence
-
+from typing import TYPE_CHECKING, Callable, Sequence
 
 from ahrm_stack.cli import add_verbose_flag, quiet
-from ahrm_stack.config import (Config, ConfigError, VideoConfig, apply_overrides, config_from_dict, load_extra,
-                               load_raw)
+from ahrm_stack.config import (Config, ConfigError, VideoConfig, apply_overrides, config_from_dict, config_source,
+                               load_extra, load_raw)
 from ahrm_stack.run_config import load_run_config
+from ahrm_stack.seeds import RUN, SPLITS, Split, evaluation_range
+
+if TYPE_CHECKING:
+    from ahrm_stack.env.layout_catalog import NamedLayout
 
 
 class _Parser(argparse.ArgumentParser):
@@ -58,6 +71,9 @@ def _parse(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--policy", choices=["scripted"], help="evaluate the scripted controller")
     parser.add_argument("--episodes", type=int, default=40)
     parser.add_argument("--layout", help="a layout name of configs/layouts.yaml (default: the config's mode)")
+    parser.add_argument("--split", choices=list(SPLITS), default="validation",
+                        help="the seeds: validation (default) or the sealed test split (final evaluation "
+                             "of a frozen policy only)")
     parser.add_argument("--out", help="folder for evaluation.csv and evaluation.json")
     parser.add_argument("--video", metavar="PATH", help="render the chosen episodes into this MP4")
     parser.add_argument("--video-episodes", type=_episode_list, default=[0], metavar="I,J",
@@ -120,7 +136,8 @@ class Camera:
 
 def scripted_summaries(config: Config, episodes: int, seed_offset: int, camera_for: Callable | None = None,
                        filmed: Sequence[int] = ()):
-    """Episodes ``seed_offset + i`` of the scripted controller through the safety filter; with
+    """Episodes ``seed_offset + i`` of the scripted controller through the safety filter, on
+    ``config.task`` as it is (:func:`evaluate` passes the evaluation's task); with
     ``camera_for(physics)``, the episodes in ``filmed`` are rendered."""
     from ahrm_stack.env.episode import EpisodeRecorder
     from ahrm_stack.env.runner import TaskRunner
@@ -157,13 +174,13 @@ def policy_summaries(config: Config, run_dir: Path, episodes: int, seed_offset: 
                      camera_for: Callable | None = None, filmed: Sequence[int] = (),
                      policy_file: Path | None = None):
     """Episodes ``seed_offset + i`` of the run's deterministic policy (``policy_file``, default
-    ``policy.pt``); the ``filmed`` ones rendered."""
-    from ahrm_stack.env.realism import nominal
+    ``policy.pt``) on ``config.task`` as it is (:func:`evaluate` passes the evaluation's task);
+    the ``filmed`` ones rendered."""
     from ahrm_stack.env.torchrl_env import PushOffEnv
     from ahrm_stack.learning.rollouts import load_policy, run_episodes
 
     _, policy = load_policy(run_dir, policy_file)
-    env = PushOffEnv(nominal(config.task), config.safety, seed=seed_offset)
+    env = PushOffEnv(config.task, config.safety, seed=seed_offset)
     camera = camera_for(env.runner.physics) if camera_for and filmed else None
 
     def filmed_policy(tensordict):
@@ -181,6 +198,33 @@ def policy_summaries(config: Config, run_dir: Path, episodes: int, seed_offset: 
     return summaries, camera
 
 
+def evaluation_configs(run_dir: Path | None, overrides: Sequence[str] = (), layout: str | None = None,
+                       needs_policy: bool = False) -> tuple[Config, NamedLayout | None, Config]:
+    """The config an evaluation starts from (the run's ``config.yaml`` read by
+    :func:`~ahrm_stack.run_config.load_run_config`, or ``configs/`` for the scripted controller,
+    with ``overrides``, then the named ``layout`` applied), the layout's entry (None without one)
+    and the config training used (the run's as written, or ``configs/`` with ``overrides``: what
+    a run would train with). Raises :class:`ConfigError` when ``run_dir`` is not a finished run
+    (``needs_policy``: with ``policy.pt``) or a key, override or layout is bad."""
+    from ahrm_stack.env.layout_catalog import apply_layout, run_config_in_layout
+
+    if run_dir is None:
+        raw = load_raw()
+        apply_overrides(raw, overrides)
+        source = config_source(overrides=overrides)
+        trained = config_from_dict(copy.deepcopy(raw), source=source)
+        entry = apply_layout(raw, layout) if layout is not None else None
+        return config_from_dict(raw, source=source), entry, trained
+    for name in ["config.yaml"] + (["policy.pt"] if needs_policy else []):
+        if not (Path(run_dir) / name).is_file():
+            raise ConfigError(f"{Path(run_dir) / name} not found: RUN_DIR must be a finished training run")
+    trained = load_run_config(run_dir)
+    if layout is None:
+        return load_run_config(run_dir, overrides), None, trained
+    config, entry = run_config_in_layout(run_dir, layout, overrides)
+    return config, entry, trained
+
+
 def _write_outputs(out: Path, summaries, table, header: dict) -> None:
     from ahrm_stack.learning.rollouts import write_episodes_csv
 
@@ -194,62 +238,61 @@ def evaluate(run_dir: Path | None, episodes: int, layout: str | None = None, out
              video_path: Path | None = None, video_episodes: Sequence[int] = (0,),
              video_overrides: Sequence[str] = (), quiet: bool = False,
              overrides: Sequence[str] = (), scripted: bool = False,
-             policy_file: Path | None = None) -> dict:
-    """Evaluate a run (``run_dir``) or the scripted controller (``None``) and write the outputs.
+             policy_file: Path | None = None, split: Split = "validation") -> dict:
+    """Evaluate a run (``run_dir``) or the scripted controller (``None``) on ``split``'s seeds of
+    ``layout`` (default: the run's own layouts) and write the outputs.
 
     ``overrides`` (``key=value``) change the run's (or the default) config before the layout is
     applied. ``scripted=True`` with a ``run_dir`` evaluates the scripted controller on the run's
     own config (the same episodes the run's policy gets); ``policy_file`` evaluates another policy
-    file of the run (e.g. ``policies/episode-00000.pt``, the clone before any PPO update). Returns the contents of ``evaluation.json``. Raises :class:`ConfigError` on bad input (a
-    missing run, an unknown layout, a bad video setting) and ``RenderError`` when a video is asked
-    for and offscreen rendering is impossible.
+    file of the run (e.g. ``policies/episode-00000.pt``, the clone before any PPO update). ``split``:
+    ``validation`` or the sealed ``test`` (refused while a training runs, see
+    :func:`ahrm_stack.seeds.evaluation_range`). Returns the contents of ``evaluation.json``, which
+    names the split, the seeds and the layout's training support (the run's config, or for the
+    scripted controller the default config with ``overrides``, against the evaluation's; see
+    :mod:`ahrm_stack.env.support`). Raises :class:`ConfigError` on bad input (a missing run, an
+    unknown layout or split, a bad video setting), before anything is written, and ``RenderError``
+    when a video is asked for and offscreen rendering is impossible.
     """
+    if split not in SPLITS:
+        raise ConfigError(f"split must be one of {list(SPLITS)}, got {split!r}")
     video = load_extra(VideoConfig, "video", video_overrides) if video_path else None
     if video is not None:
         from ahrm_stack.env.video import select_gl_backend
         select_gl_backend(video.gl_backends)  # before mujoco is imported
     if run_dir is not None:
         run_dir = Path(run_dir)
-        needed = ["config.yaml"] + ([] if scripted or policy_file else ["policy.pt"])
-        if policy_file is not None and not Path(policy_file).is_file():
-            raise ConfigError(f"--policy-file {policy_file} not found")
-        for name in needed:
-            if not (run_dir / name).is_file():
-                raise ConfigError(f"{run_dir / name} not found: RUN_DIR must be a finished training run")
-    seed_offsets: list[int] = []  # the named layout's seed range, once applied
+    config, entry, trained = evaluation_configs(run_dir, overrides, layout,
+                                                needs_policy=not (scripted or policy_file))
+    if policy_file is not None and not Path(policy_file).is_file():
+        raise ConfigError(f"--policy-file {policy_file} not found")
+    from ahrm_stack.env.layout_catalog import evaluation_task
+    from ahrm_stack.env.support import as_dict, training_support
 
-    def place(raw: dict) -> None:  # the named layout, after the overrides
-        if layout is not None:
-            from ahrm_stack.env.layout_catalog import apply_layout
-            seed_offsets.append(apply_layout(raw, layout).seed_offset)
-    if run_dir is not None:
-        config = load_run_config(run_dir, overrides, edit=place)
-    else:
-        raw = load_raw()
-        apply_overrides(raw, overrides)
-        place(raw)
-        config = config_from_dict(raw)
-    seed_offset = seed_offsets[0] if seed_offsets else None
+    config = dataclasses.replace(config, task=evaluation_task(config.task, entry))
+    support = as_dict(training_support(trained.task, config.task))
+    seed_offset = evaluation_range(layout or RUN, split).start  # the test split: sealed but here
 
-    from ahrm_stack.learning.rollouts import EVAL_SEED_OFFSET, EvaluationTable
+    from ahrm_stack.learning.rollouts import EvaluationTable
 
-    seed_offset = EVAL_SEED_OFFSET if seed_offset is None else seed_offset
     camera_for = (lambda physics: Camera(physics, video)) if video is not None else None
     filmed = tuple(video_episodes) if video is not None else ()
     started = time.perf_counter()
     if run_dir is not None and not scripted:
         summaries, camera = policy_summaries(config, run_dir, episodes, seed_offset, camera_for, filmed,
                                              policy_file)
-        out = Path(out) if out else run_dir
+        out = Path(out) if out else run_dir / ("test" if split == "test" else "")
         name = str(policy_file or run_dir)
     else:
         summaries, camera = scripted_summaries(config, episodes, seed_offset, camera_for, filmed)
-        out = Path(out) if out else Path(config.train.runs_dir) / "scripted-eval"
+        default = "scripted-eval-test" if split == "test" else "scripted-eval"
+        out = Path(out) if out else Path(config.train.runs_dir) / default
         name = "scripted controller"
     seconds = time.perf_counter() - started
     table = EvaluationTable.from_summaries(summaries)
     header = {"policy": name, "layout": layout or config.task.layout.mode,
-              "layout_mode": config.task.layout.mode, "seed_offset": seed_offset, "wall_seconds": seconds}
+              "layout_mode": config.task.layout.mode, "split": split, "seed_offset": seed_offset,
+              "training_support": support, "wall_seconds": seconds}
     if camera is not None:
         from ahrm_stack.env.video import write_mp4
         fps = 1.0 / (config.task.episode.control_period * video.frame_every)
@@ -261,7 +304,8 @@ def evaluate(run_dir: Path | None, episodes: int, layout: str | None = None, out
     _write_outputs(out, summaries, table, header)
     result = json.loads((out / "evaluation.json").read_text())
     if not quiet:
-        print(f"{name} ({header['layout']} layout, seeds {seed_offset}+): {table}")
+        print(f"{name} ({header['layout']} layout, {split} split, seeds {seed_offset}+; training support: "
+              f"{support['verdict']}): {table}")
         print(f"written: {out / 'evaluation.csv'}, {out / 'evaluation.json'}")
         if camera is not None:
             v = header["video"]
@@ -280,12 +324,18 @@ def _cell(result: dict | None) -> list[str]:
     return [f"{result['successes']}/{result['episodes']}", str(result["touched_episodes"]), time]
 
 
+def _support_cell(result: dict | None) -> str:
+    """A family's training support in one cell (``–`` for results written before it was computed)."""
+    return (result or {}).get("training_support", {}).get("verdict", "–")
+
+
 def suite_markdown(suite: dict) -> str:
-    """The suite's table: per family the policy's and the scripted controller's success, touching
+    """The suite's table: per family whether it lies inside the training support (computed, see
+    :mod:`ahrm_stack.env.support`), the policy's and the scripted controller's success, touching
     episodes and time to success (mean ± std over successes, s), and their time ratio."""
     scripted_only = suite["policy"] == "scripted controller"
     with_scripted = scripted_only or bool(suite.get("scripted"))
-    head = ["family"]
+    head = ["family", "training support"]
     if not scripted_only:
         head += ["policy successes", "touching", "time (s)"]
     if with_scripted:
@@ -296,7 +346,7 @@ def suite_markdown(suite: dict) -> str:
     for family in suite["families"]:
         mine = suite["results"].get(family)
         theirs = (suite.get("scripted") or {}).get(family)
-        row = [family]
+        row = [family, _support_cell(mine)]
         if not scripted_only:
             row += _cell(mine)
         if with_scripted:
@@ -311,29 +361,45 @@ def suite_markdown(suite: dict) -> str:
 def evaluate_suite(run_dir: Path | None, episodes: int, out: Path | None = None,
                    overrides: Sequence[str] = (), with_scripted: bool = True,
                    policy_file: Path | None = None, families: Sequence[str] | None = None,
-                   quiet: bool = False, robustness: bool = False) -> dict:
+                   quiet: bool = False, robustness: bool = False, split: Split = "validation") -> dict:
     """Evaluate a run (or the scripted controller) on every family of the evaluation suite
-    (``configs/layouts.yaml`` entries with ``suite: true``), each on its own seed range, and for a
-    run the scripted controller on the same episodes (the run's config). Writes
-    ``suite.json`` and ``suite.md`` (the table) and each family's ``evaluation.csv`` under
-    ``OUT/<family>/`` (``OUT/<family>/scripted/`` for the controller's row)."""
+    (``configs/layouts.yaml`` entries with ``suite: true``), each on its own seed range of
+    ``split``, and for a run the scripted controller on the same episodes (the run's config).
+    Writes ``suite.json`` and ``suite.md`` (the table, naming the split, with each family's
+    training support) and each family's ``evaluation.csv`` under ``OUT/<family>/``
+    (``OUT/<family>/scripted/`` for the controller's row). Every family and its seeds are checked
+    before the first episode (a :class:`ConfigError` names the bad one; nothing is written)."""
     from ahrm_stack.env.layout_catalog import suite_names
 
+    if split not in SPLITS:
+        raise ConfigError(f"split must be one of {list(SPLITS)}, got {split!r}")
+    if robustness and split == "test":
+        raise ConfigError("--robustness runs on its own seeds (configs/seeds.yaml 'robustness'), which have "
+                          "no test split: evaluate the test split without it")
     names = list(families) if families else suite_names()
+    evaluated = Path(run_dir) if run_dir is not None else None
+    evaluation_configs(evaluated, overrides, needs_policy=policy_file is None)  # a finished run, good overrides
+    if policy_file is not None and not Path(policy_file).is_file():
+        raise ConfigError(f"--policy-file {policy_file} not found")
+    for family in names:  # every family applies and has seeds in the split, before anything runs
+        evaluation_configs(evaluated, overrides, family)
+        evaluation_range(family, split)
+    suffix = "-test" if split == "test" else ""
     if run_dir is not None:
         run_dir = Path(run_dir)
-        default_out = run_dir / ("suite" if policy_file is None else f"suite-{Path(policy_file).stem}")
+        default_out = run_dir / (("suite" if policy_file is None else f"suite-{Path(policy_file).stem}") + suffix)
     else:
-        default_out = Path(load_raw()["train"]["runs_dir"]) / "scripted-suite"
+        default_out = Path(load_raw()["train"]["runs_dir"]) / f"scripted-suite{suffix}"
     out = Path(out) if out else default_out
     suite = {"policy": str(policy_file or run_dir) if run_dir else "scripted controller",
-             "episodes": episodes, "families": names, "results": {}, "scripted": {} if run_dir and with_scripted else None}
+             "episodes": episodes, "split": split, "families": names, "results": {},
+             "scripted": {} if run_dir and with_scripted else None}
     for family in names:
         suite["results"][family] = evaluate(run_dir, episodes, family, out / family, quiet=True,
-                                            overrides=overrides, policy_file=policy_file)
+                                            overrides=overrides, policy_file=policy_file, split=split)
         if run_dir is not None and with_scripted:
             suite["scripted"][family] = evaluate(run_dir, episodes, family, out / family / "scripted",
-                                                 quiet=True, overrides=overrides, scripted=True)
+                                                 quiet=True, overrides=overrides, scripted=True, split=split)
         if not quiet:
             print(f"{family}: " + " | ".join(_cell(suite["results"][family])), flush=True)
     out.mkdir(parents=True, exist_ok=True)
@@ -346,8 +412,11 @@ def evaluate_suite(run_dir: Path | None, episodes: int, out: Path | None = None,
         suite["robustness"] = str(out / "robustness" / "robustness.json")
         (out / "suite.json").write_text(json.dumps(suite, indent=2))
         table += "\n" + robust.table(data)
-    (out / "suite.md").write_text(f"Evaluation suite of {suite['policy']}, {episodes} episodes per family "
-                                  f"(deterministic policy; scripted controller on the same episodes)\n\n" + table)
+    (out / "suite.md").write_text(f"Evaluation suite of {suite['policy']}, {episodes} episodes per family, "
+                                  f"{split} split (deterministic policy; scripted controller on the same "
+                                  "episodes; training support: the family's config against the training "
+                                  "config, the run's or, for the scripted controller alone, configs/ with "
+                                  "the overrides; ahrm_stack/env/support.py)\n\n" + table)
     if not quiet:
         print(table)
         print(f"written: {out / 'suite.md'}, {out / 'suite.json'}")
@@ -365,12 +434,12 @@ def main(argv: list[str] | None = None) -> int:
                            Path(args.out) if args.out else None, args.config,
                            with_scripted=not args.no_scripted,
                            policy_file=Path(args.policy_file) if args.policy_file else None,
-                           robustness=args.robustness)
+                           robustness=args.robustness, split=args.split)
             return 0
         evaluate(Path(args.run_dir) if args.run_dir else None, args.episodes, args.layout,
                  Path(args.out) if args.out else None, Path(args.video) if args.video else None,
                  args.video_episodes, args.video_config, overrides=args.config,
-                 policy_file=Path(args.policy_file) if args.policy_file else None)
+                 policy_file=Path(args.policy_file) if args.policy_file else None, split=args.split)
     except (ConfigError, RenderError, CheckpointError) as error:  # a refused pickle among them
         print(f"error: {error}", file=sys.stderr)
         return 2

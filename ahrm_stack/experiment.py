@@ -8,9 +8,10 @@ Defaults come from ``configs/experiment.yaml``. ``--config`` overrides go to the
 (``task.episode.duration=30``), to ``experiment.*`` (``experiment.eval_episodes=10``) or to
 ``video.*`` (``video.width=320``). Every (method, seed) run is one Ray task (``cpus_per_run`` CPUs;
 a local Ray instance by default, a cluster with ``--address``) that trains in-process
-(``ahrm_stack.train.train``) into ``OUT/runs/<method>-seed<seed>/``, evaluates the deterministic
-policy (``eval/``) and, for the first seed, renders one evaluation episode to
-``OUT/videos/<method>.mp4``. A finished run writes ``done.json`` and is skipped on a rerun; a run
+(``ahrm_stack.train.train``) into ``OUT/runs/<method>-seed<seed>/``, then evaluates the frozen
+deterministic policy (``eval/``, and the suite) on ``experiment.split``'s seeds (``test`` by
+default: the sealed split, read only here, after training) and, for the first seed, renders one
+evaluation episode to ``OUT/videos/<method>.mp4``. A finished run writes ``done.json`` and is skipped on a rerun; a run
 stopped during training resumes from its last checkpoint; a failed run writes ``failed.json`` (the
 error text, also in the report) and the others go on. The scripted controller's row is one more
 task (``OUT/scripted/``). Each run's output goes to its ``log.txt``.
@@ -32,7 +33,8 @@ from ahrm_stack.cli import add_verbose_flag, library_log_level, quiet
 from ahrm_stack.config import ConfigError, ExperimentConfig, VideoConfig, load_config, load_extra, load_raw
 
 DONE, FAILED, GRID = "done.json", "failed.json", "grid.json"
-RESULT_KEYS = ("overrides", "eval_episodes", "episodes", "layout")  # a run's spec keys that change its result
+RESULT_KEYS = ("overrides", "eval_episodes", "episodes", "layout", "split")  # a run's spec keys that change its result
+LEGACY_SPEC = {"split": "validation"}  # a done.json written before the key: what it was
 
 
 class _Parser(argparse.ArgumentParser):
@@ -96,18 +98,19 @@ def build_grid(args: argparse.Namespace) -> dict:
                                                 f"train.frames={experiment.frames}",
                                                 "train.eval_episodes=0"],
                 "eval_episodes": experiment.eval_episodes, "layout": experiment.eval_layout,
-                "suite": experiment.suite, "suite_clone": experiment.suite and method == experiment.methods[0],
+                "split": experiment.split, "suite": experiment.suite,
+                "suite_clone": experiment.suite and method == experiment.methods[0],
                 "video": str(out / "videos" / f"{method}.mp4") if with_video and seed == 0 else None,
                 "video_episode": experiment.video_episode, "video_overrides": video_overrides})
     return {"out": str(out), "methods": list(experiment.methods), "seeds": experiment.seeds,
             "episodes": experiment.episodes, "frames": experiment.frames,
             "eval_episodes": experiment.eval_episodes,
-            "layout": experiment.eval_layout, "train_overrides": train_overrides,
+            "layout": experiment.eval_layout, "split": experiment.split, "train_overrides": train_overrides,
             "experiment_overrides": experiment_overrides, "video_overrides": video_overrides,
             "runs": runs,
             "scripted": {"name": "scripted", "run_dir": str(out / "scripted"),
                          "episodes": experiment.scripted_episodes, "layout": experiment.eval_layout,
-                         "overrides": train_overrides, "suite": experiment.suite,
+                         "split": experiment.split, "overrides": train_overrides, "suite": experiment.suite,
                          "suite_episodes": experiment.eval_episodes,
                          "video": str(out / "videos" / "scripted.mp4") if with_video else None,
                          "video_episode": experiment.video_episode, "video_overrides": video_overrides}}
@@ -146,18 +149,19 @@ def run_one(spec: dict) -> dict:
                 resume = checkpoints.is_dir() and any(checkpoints.glob("ckpt-*.pt"))
                 train(config, run_dir, resume=resume, progress=False)
             from ahrm_stack.evaluate import evaluate
+            split = spec.get("split", "validation")
             evaluation = evaluate(run_dir, spec["eval_episodes"], spec["layout"], run_dir / "eval",
                                   Path(spec["video"]) if spec["video"] else None,
-                                  [spec["video_episode"]], spec["video_overrides"], quiet=True)
+                                  [spec["video_episode"]], spec["video_overrides"], quiet=True, split=split)
             suites = {}
             if spec.get("suite"):
                 from ahrm_stack.evaluate import evaluate_suite
                 from ahrm_stack.train import CLONE_POLICY
                 suites["policy"] = evaluate_suite(run_dir, spec["eval_episodes"], run_dir / "suite",
-                                                  with_scripted=False, quiet=True)["results"]
+                                                  with_scripted=False, quiet=True, split=split)["results"]
                 if spec.get("suite_clone") and (run_dir / CLONE_POLICY).is_file():
                     suites["clone"] = evaluate_suite(run_dir, spec["eval_episodes"], run_dir / "suite-clone",
-                                                     with_scripted=False, quiet=True,
+                                                     with_scripted=False, quiet=True, split=split,
                                                      policy_file=run_dir / CLONE_POLICY)["results"]
         result = {"name": spec["name"], "method": spec["method"], "seed": spec["seed"],
                   "status": "done", "seconds": time.perf_counter() - started, "evaluation": evaluation,
@@ -183,15 +187,16 @@ def run_scripted(spec: dict) -> dict:
     try:
         with _logged(out):
             from ahrm_stack.evaluate import evaluate
+            split = spec.get("split", "validation")
             evaluation = evaluate(None, spec["episodes"], spec["layout"], out,
                                   Path(spec["video"]) if spec["video"] else None,
                                   [spec["video_episode"]], spec["video_overrides"], quiet=True,
-                                  overrides=spec["overrides"])
+                                  overrides=spec["overrides"], split=split)
             suite = None
             if spec.get("suite"):
                 from ahrm_stack.evaluate import evaluate_suite
                 suite = evaluate_suite(None, spec["suite_episodes"], out / "suite", spec["overrides"],
-                                       quiet=True)["results"]
+                                       quiet=True, split=split)["results"]
         result = {"name": "scripted", "status": "done", "seconds": time.perf_counter() - started,
                   "evaluation": evaluation, "suite": suite, "spec": spec}
         _write_json(out / DONE, result)
@@ -229,7 +234,7 @@ def check_finished(grid: dict) -> None:
     for spec in grid["runs"] + [grid["scripted"]]:
         done = Path(spec["run_dir"]) / DONE
         if done.is_file():
-            before = json.loads(done.read_text()).get("spec") or {}
+            before = {**LEGACY_SPEC, **(json.loads(done.read_text()).get("spec") or {})}
             changed = [k for k in RESULT_KEYS if before.get(k) != spec.get(k)]
             if changed:
                 raise ConfigError(f"{done} was made with other settings ({', '.join(changed)} differ); "

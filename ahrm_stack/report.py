@@ -61,15 +61,36 @@ def budget(grid: dict) -> str:
     return f"{frames:,} frames" if frames else f"{grid['episodes']} episodes"
 
 
-def episodes_to_threshold(success: Sequence[bool], threshold: float, window: int) -> int | None:
-    """The first training episode (1-based) whose trailing ``window`` episodes reach a success
-    fraction of ``threshold``; None if none does (a window must be full)."""
+def _window_fractions(success: Sequence[bool], window: int) -> np.ndarray:
+    """Success fraction of every full window of ``window`` consecutive training episodes; entry k
+    is the window that starts after k episodes (episodes k+1 .. k+window, 1-based)."""
     success = np.asarray(success, dtype=float)
     if len(success) < window:
+        return np.empty(0)
+    return np.convolve(success, np.ones(window), mode="valid") / window
+
+
+def episodes_to_threshold(success: Sequence[bool], threshold: float, window: int) -> int | None:
+    """Training episodes played before the policy first reached ``threshold``: the number of
+    episodes before the first window of ``window`` consecutive episodes whose success fraction
+    reaches ``threshold``. 0 when the first ``window`` episodes already do (the warm start met it:
+    no training was needed); None when no window does (or none is full). Counting the window's own
+    episodes as needed (this function used to return the window's last episode) made every run
+    that met the threshold from the start read ``window``, its floor, whatever it learned."""
+    hits = np.flatnonzero(_window_fractions(success, window) >= threshold - 1e-12)
+    return int(hits[0]) if hits.size else None
+
+
+def episodes_to_hold_threshold(success: Sequence[bool], threshold: float, window: int) -> int | None:
+    """Training episodes played before the policy reached ``threshold`` for good: the start of the
+    first window from which every later window reaches ``threshold`` up to the end of training
+    (0: it never fell below). None when the last window is below ``threshold``: a run that met it
+    and then lost it has not reached it."""
+    fractions = _window_fractions(success, window)
+    below = np.flatnonzero(fractions < threshold - 1e-12)
+    if not fractions.size or (below.size and below[-1] == len(fractions) - 1):
         return None
-    fractions = np.convolve(success, np.ones(window), mode="valid") / window  # ends at window..n
-    hits = np.flatnonzero(fractions >= threshold - 1e-12)
-    return int(hits[0] + window) if hits.size else None
+    return int(below[-1] + 1) if below.size else 0
 
 
 def orders_by_phase(orders: str) -> list[str]:
@@ -257,20 +278,29 @@ def _order_rows(runs: list[RunRecord]) -> list[list[str]]:
 
 
 def _threshold_rows(runs: list[RunRecord], methods: list[str], threshold: float, window: int) -> list[list[str]]:
+    def mean_of(values: list[int], seeds: int) -> str:
+        return f"{np.mean(values):.0f} ({len(values)}/{seeds} seeds)" if values else f"never (0/{seeds} seeds)"
+
     rows = []
     for method in methods:
-        per_seed, reached = [], []
+        per_seed, reached, held = [], [], []
         for r in runs:
             if r.method != method or r.episodes is None:
                 continue
-            episode = episodes_to_threshold(r.episodes["success"], threshold, window)
-            total = len(r.episodes["success"])
-            per_seed.append(f"seed {r.seed}: {episode if episode is not None else f'not in {total}'}")
-            if episode is not None:
-                reached.append(episode)
-        summary = (f"{np.mean(reached):.0f} ({len(reached)}/{len(per_seed)} seeds)" if reached
-                   else f"not reached (0/{len(per_seed)} seeds)")
-        rows.append([METHOD_NAMES.get(method, method), summary, "; ".join(per_seed) or "—"])
+            success = r.episodes["success"]
+            first = episodes_to_threshold(success, threshold, window)
+            kept = episodes_to_hold_threshold(success, threshold, window)
+            last = _window_fractions(success, window)
+            end = f"last {window}: {last[-1]:.0%}" if last.size else f"{len(success)} episodes"
+            per_seed.append(f"seed {r.seed}: " + (f"reached after {first}" if first is not None else
+                                                  f"not reached in {len(success)}")
+                            + (f", held from {kept}" if kept is not None else
+                               f", not held ({end})" if first is not None else ""))
+            reached += [first] if first is not None else []
+            held += [kept] if kept is not None else []
+        seeds = len(per_seed)
+        rows.append([METHOD_NAMES.get(method, method), mean_of(reached, seeds), mean_of(held, seeds),
+                     "; ".join(per_seed) or "—"])
     return rows
 
 
@@ -292,10 +322,10 @@ def _safety_rows(runs: list[RunRecord], methods: list[str], summaries: dict, scr
 
 
 def _suite_lines(out: Path, grid: dict, runs: list[RunRecord], methods: list[str],
-                 experiment: ExperimentConfig) -> list[str]:
+                 experiment: ExperimentConfig, split: str) -> list[str]:
     """The evaluation-suite section (when the grid evaluated the suite): per-family tables for
     every method, the clone and the scripted controller, paired bootstrap differences, ranking."""
-    from ahrm_stack.suite_report import rank, read_suite, suite_section
+    from ahrm_stack.suite_report import rank, read_suite, read_support, suite_section
 
     columns: dict[str, list] = {}
     for method in methods:
@@ -319,7 +349,7 @@ def _suite_lines(out: Path, grid: dict, runs: list[RunRecord], methods: list[str
     lines = ["", "## Evaluation suite", "",
              f"Every run's final deterministic policy on every family of the evaluation suite "
              f"(`configs/layouts.yaml`, {grid['eval_episodes']} episodes each, each family on its own "
-             "seeds); `clone` is the first method's policy before any PPO update (the warm start: "
+             f"seeds of the **{split} split**); `clone` is the first method's policy before any PPO update (the warm start: "
              "behaviour cloning, plus DAgger when `train.dagger_rounds` > 0), `scripted` the scripted "
              "controller on the same episodes.",
              "", f"Ranking on the suite (success, then fewer touching episodes): "
@@ -328,7 +358,12 @@ def _suite_lines(out: Path, grid: dict, runs: list[RunRecord], methods: list[str
              + ("" if "ls" not in order else " and LS last" if order[-1] == "ls" else "; LS is not last")
              + " (the paper: AHRM first, LS last). Where the intervals below include 0 the "
              "difference is not resolved by these seeds.", ""]
-    return lines + suite_section(columns, families, compared, experiment.bootstrap_samples)
+    support: dict[str, str] = {}
+    for r in sorted(runs, key=lambda r: r.seed):  # the grid's runs share one training config
+        if r.status == "done" and not support:
+            support = read_support(Path(grid["out"]) / "runs" / r.name / "suite")
+    return lines + suite_section(columns, families, compared, experiment.bootstrap_samples,
+                                 support=support or None)
 
 
 def _suite_order() -> list[str]:
@@ -342,6 +377,7 @@ def write_report(out: Path | str, experiment: ExperimentConfig | None = None) ->
     if not (out / "grid.json").is_file():
         raise ConfigError(f"{out / 'grid.json'} not found: is {out} an experiment folder?")
     grid = json.loads((out / "grid.json").read_text())
+    split = grid.get("split", "validation")  # grids written before the split: the validation seeds
     if experiment is None:
         experiment = load_extra(ExperimentConfig, "experiment", grid.get("experiment_overrides", []))
     runs = load_runs(out, grid)
@@ -360,11 +396,14 @@ def write_report(out: Path | str, experiment: ExperimentConfig | None = None) ->
              f"Generated {time.strftime('%Y-%m-%d %H:%M')} by `python -m ahrm_stack.experiment` from the "
              f"files in this folder. {grid['seeds']} seed(s) per method, {budget(grid)} of "
              f"training per run, {grid['eval_episodes']} deterministic evaluation episodes per run on the "
-             f"`{grid['layout']}` layout (fresh seeds), every command through the safety filter.",
+             f"`{grid['layout']}` layout, **{split} split** (configs/seeds.yaml; "
+             + ("sealed: read only by this final evaluation of the frozen policies" if split == "test" else
+                "the seeds of interim evaluations and studies, not the sealed test split")
+             + "), every command through the safety filter.",
              f"Training overrides: `{' '.join(grid['train_overrides']) or 'none'}`.", "",
              "## Findings", ""]
     lines += [f"- {line}" for line in findings(summaries, paper, runs)]
-    lines += ["", "## Table II: this reproduction (mean ± std over seeds) and the paper", "",
+    lines += ["", f"## Table II: this reproduction ({split} split, mean ± std over seeds) and the paper", "",
               "Successes and touches are per 40-episode evaluation in the paper and per "
               f"{grid['eval_episodes']}-episode evaluation here. Time: mean time to success (over "
               "successful episodes), s; cube travel: mean path length of the cube's centre, m. Here "
@@ -375,7 +414,7 @@ def write_report(out: Path | str, experiment: ExperimentConfig | None = None) ->
     lines += ["", "### Per run", ""]
     lines += _table(["Run", "Status", "Successes", "Touched", "Time (s)", "Cube travel (m)",
                      "Interventions/episode", "Joint-limit violations", "Wall time (min)"], _run_rows(runs))
-    lines += _suite_lines(out, grid, runs, methods, experiment)
+    lines += _suite_lines(out, grid, runs, methods, experiment, split)
     lines += ["", "## Learned priority orders per phase (Fig. 3)", "",
               "The mechanism's order at the end of training (highest priority first), the number of "
               "order changes and where the orders were locked. Only AHRM determines its orders; "
@@ -384,9 +423,12 @@ def write_report(out: Path | str, experiment: ExperimentConfig | None = None) ->
     lines += _table(["Run", "Phase 1 (approach)", "Phase 2 (pre-manipulate)", "Phase 3 (manipulate)",
                      "Order changes", "Locked"], _order_rows(runs))
     lines += ["", f"## Episodes to reach {experiment.success_threshold:.0%} success", "",
-              f"First training episode whose trailing {experiment.success_window} episodes reach "
-              f"{experiment.success_threshold:.0%} success (stochastic training policy).", ""]
-    lines += _table(["Method", "Mean over seeds that reached it", "Per seed"],
+              f"Training episodes played before the first window of {experiment.success_window} consecutive "
+              f"training episodes (stochastic training policy) with {experiment.success_threshold:.0%} "
+              "success (reached; 0: from the first episode, i.e. the warm start already met it), and before "
+              "the window from which every later window meets it up to the end of training (held; a run "
+              "that met it and then lost it never held it). Means over the seeds that reached it.", ""]
+    lines += _table(["Method", "Reached after", "Held from", "Per seed"],
                     _threshold_rows(runs, methods, experiment.success_threshold, experiment.success_window))
     lines += ["", "## Safety", "",
               "Evaluation: safety-filter interventions per episode (commands the QP changed), episodes "

@@ -150,6 +150,20 @@ def count(least: int, most: int | None = None) -> AfterValidator:
     return AfterValidator(check)
 
 
+def ordered() -> AfterValidator:
+    """Rule for a range ``(lo, hi)`` or a box of them (``((lo, hi), ...)``), or None: every
+    ``lo <= hi``."""
+    def check(value: Sequence | None) -> Sequence | None:
+        if value is None:
+            return None
+        pairs = [value] if value and not isinstance(value[0], (tuple, list)) else value
+        if any(lo > hi for lo, hi in pairs):
+            shown = [list(p) for p in pairs] if pairs is value else list(value)
+            fail(f" must be [lo, hi] with lo <= hi per range, got {shown}")
+        return value
+    return AfterValidator(check)
+
+
 def unit_quaternion(tolerance: float) -> AfterValidator:
     """Rule for a quaternion (w, x, y, z), or None: its norm within ``tolerance`` of 1 (rounding in
     a hand-written file, never a wrong rotation); the value is returned divided by its norm."""

@@ -11,6 +11,7 @@ mean difference.
 from __future__ import annotations
 
 import csv
+import json
 from pathlib import Path
 from typing import Sequence
 
@@ -27,6 +28,17 @@ def read_suite(suite_dir: Path) -> Episodes | None:
         return None
     families = {path.parent.name: read_episodes(path) for path in sorted(suite_dir.glob("*/evaluation.csv"))}
     return families or None
+
+
+def read_support(suite_dir: Path) -> dict[str, str]:
+    """Each family's training-support verdict under ``suite_dir`` (``<family>/evaluation.json``,
+    computed when it was evaluated); families evaluated before it was computed are left out."""
+    support = {}
+    for path in sorted(Path(suite_dir).glob("*/evaluation.json")):
+        verdict = json.loads(path.read_text()).get("training_support", {}).get("verdict")
+        if verdict:
+            support[path.parent.name] = verdict
+    return support
 
 
 def read_episodes(path: Path) -> dict[str, np.ndarray]:
@@ -95,22 +107,25 @@ def _fmt(value: float, digits: int = 1) -> str:
 
 
 def suite_section(columns: dict[str, list[Episodes]], families: Sequence[str], methods: Sequence[str],
-                  samples: int, seed: int = 0) -> list[str]:
+                  samples: int, seed: int = 0, support: dict[str, str] | None = None) -> list[str]:
     """Markdown lines of the report's suite section.
 
     ``columns``: name -> per-seed suites, for every method and, when present, ``clone`` (the
     first method's warm start, before PPO) and ``scripted`` (one entry). ``methods`` are the
-    compared ones (the first is the reference of the differences)."""
+    compared ones (the first is the reference of the differences). ``support``: family -> its
+    training-support verdict (:func:`read_support`), a column of the successes table."""
     names = [m for m in columns]
     shown = [n.upper() if n in methods else n for n in names]  # methods in capitals, as elsewhere
     lines = []
     for title, key, digits in (("Successes", "successes", 1), ("Episodes touching an obstacle", "touched", 1),
                                ("Time to success (s)", "time", 2)):
+        with_support = support is not None and key == "successes"
         lines += [f"### {title} per family (mean over seeds)", "",
-                  "| family | " + " | ".join(shown) + " |", "|---|" + "---|" * len(names)]
+                  "| family | " + ("training support | " if with_support else "") + " | ".join(shown) + " |",
+                  "|---|" + ("---|" if with_support else "") + "---|" * len(names)]
         total: dict[str, list] = {n: [] for n in names}
         for family in families:
-            row = [family]
+            row = [family] + ([(support or {}).get(family, "–")] if with_support else [])
             for name in names:
                 value = family_means(columns[name], family)[key]
                 total[name].append(value)
@@ -119,7 +134,7 @@ def suite_section(columns: dict[str, list[Episodes]], families: Sequence[str], m
         agg = [("sum" if key != "time" else "mean")] + [
             _fmt(np.nansum(total[n]) if key != "time" else np.nanmean(total[n]) if np.isfinite(total[n]).any()
                  else np.nan, digits) for n in names]
-        lines += ["| **" + agg[0] + "** | " + " | ".join(agg[1:]) + " |", ""]
+        lines += ["| **" + agg[0] + "** | " + ("| " if with_support else "") + " | ".join(agg[1:]) + " |", ""]
     rng = np.random.default_rng(seed)
     reference = methods[0]
     lines += [f"### Differences {reference.upper()} − other (paired, bootstrap 95 % interval over seeds "

@@ -10,7 +10,9 @@ A run folder holds the resolved ``config.yaml``, ``checkpoints/`` (atomic writes
 ``episodes.csv`` (one row per episode), ``batches.csv`` (losses), ``events.jsonl`` (reward-mechanism
 events), TensorBoard logs in ``tb/``, with ``train.eval_every`` interim deterministic evaluations in
 ``evaluations.csv`` and their policies in ``policies/``, and at the end ``policy.pt`` and
-``diagnostics.png`` (per-episode diagnostics: where a failing run fails). ``--resume`` continues a run
+``diagnostics.png`` (per-episode diagnostics: where a failing run fails). Every evaluation a training
+makes (interim, and ``evaluation.yaml`` at the end) uses the validation split of the run's own
+layouts (``configs/seeds.yaml``); the test split is sealed while it runs. ``--resume`` continues a run
 that was stopped or killed from its last checkpoint, reward-mechanism state included.
 
 Resume never loses or repeats an episode and says what it did: the logs are cut back to the
@@ -51,7 +53,7 @@ with warnings.catch_warnings(record=True):
     from ahrm_stack.env.torchrl_env import PushOffEnv
     from ahrm_stack.learning.checkpoint import CheckpointError, CheckpointManager, Restored
     from ahrm_stack.learning.diagnostics import plot_run
-    from ahrm_stack.learning.rollouts import EVAL_SEED_OFFSET, EvaluationTable, run_episodes
+    from ahrm_stack.learning.rollouts import VALIDATION_SEED_OFFSET, EvaluationTable, run_episodes
     from ahrm_stack.learning.pool import WorkerError
     from ahrm_stack.learning.trainer import DemonstrationsFailed, Trainer, TrainingDiverged
     from ahrm_stack.safety.constraints.base import ConstraintDefinitionError
@@ -359,8 +361,18 @@ def train(config: Config, run_dir: Path, resume: bool, progress: bool = True,
     Raises ``ConfigError`` (a bad value that only the built environment reveals, a fresh run into
     a folder with checkpoints) or :class:`CheckpointError` (no usable checkpoint to resume from)
     before anything is written. ``rewrite_config``: on resume, store ``config`` (the run's config
-    with this resume's overrides) as the run's config.yaml.
+    with this resume's overrides) as the run's config.yaml. The whole run holds
+    :func:`ahrm_stack.seeds.sealed`: its interim evaluations use the validation split, and nothing
+    it calls can obtain a test seed.
     """
+    from ahrm_stack.seeds import sealed
+
+    with sealed():
+        return _train(config, run_dir, resume, progress, rewrite_config)
+
+
+def _train(config: Config, run_dir: Path, resume: bool, progress: bool, rewrite_config: bool) -> Path:
+    """:func:`train`'s body, run inside the sealed test split."""
     cpus = os.cpu_count() or 1
     if config.train.threads > cpus:
         raise ConfigError(f"train.threads ({config.train.threads}) must be <= the {cpus} CPUs of this "
@@ -389,7 +401,7 @@ def train(config: Config, run_dir: Path, resume: bool, progress: bool = True,
     every, every_frames = config.train.eval_every, config.train.eval_every_frames
     interim = bool((every or every_frames) and config.train.eval_episodes)
     # built once: every interim evaluation replays the same evaluation seeds on this environment
-    eval_env = PushOffEnv(nominal(config.task), config.safety, seed=EVAL_SEED_OFFSET) if interim else None
+    eval_env = PushOffEnv(nominal(config.task), config.safety, seed=VALIDATION_SEED_OFFSET) if interim else None
 
     def evaluate_now() -> None:
         """One interim deterministic evaluation, logged, with the policy it evaluated."""

@@ -34,7 +34,7 @@ import torch
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.scripted import ScriptedPusher
 from ahrm_stack.env.task import PushOffTask
-from ahrm_stack.learning.rollouts import EVAL_SEED_OFFSET, load_policy
+from ahrm_stack.learning.rollouts import VALIDATION_SEED_OFFSET, load_policy
 from ahrm_stack.run_config import load_run_config
 
 MARGINS = (0.005, 0.01, 0.02, 0.03)  # m, the near-miss thresholds reported
@@ -45,12 +45,12 @@ def probe(run_dir: Path, episodes: int, policy_file: Path | None, scripted: bool
     config = load_run_config(run_dir, [f"task.rewards.avoid_margin={reach!r}"])
     policy = None if scripted else load_policy(run_dir, policy_file)[1]
     task = PushOffTask(config.task)
-    runner = TaskRunner(task, seed=EVAL_SEED_OFFSET, safety=config.safety)
+    runner = TaskRunner(task, seed=VALIDATION_SEED_OFFSET, safety=config.safety)
     controller = ScriptedPusher(task, config.scripted) if scripted else None
     physics = runner.physics
     rows = []
     for i in range(episodes):
-        runner.seed(EVAL_SEED_OFFSET + i)
+        runner.seed(VALIDATION_SEED_OFFSET + i)
         runner.reset()
         if controller is not None:
             controller.reset(physics)

@@ -398,7 +398,7 @@ def easy_eval(run_dir: Path, policy_file: Path | None, episodes: int) -> dict:
     the newest of ``policy.pt`` and ``policies/episode-*.pt``. Returns the evaluation table's
     figures and the policy file used."""
     from ahrm_stack.env.torchrl_env import PushOffEnv
-    from ahrm_stack.learning.rollouts import EVAL_SEED_OFFSET, EvaluationTable, load_policy, run_episodes
+    from ahrm_stack.learning.rollouts import VALIDATION_SEED_OFFSET, EvaluationTable, load_policy, run_episodes
 
     if policy_file is None:
         candidates = sorted(run_dir.glob("policies/episode-*.pt")) + sorted(run_dir.glob("policy.pt"))
@@ -406,7 +406,7 @@ def easy_eval(run_dir: Path, policy_file: Path | None, episodes: int) -> dict:
             raise SystemExit(f"error: no policy file in {run_dir} (policy.pt or policies/episode-*.pt)")
         policy_file = candidates[-1]
     config, policy = load_policy(run_dir, policy_file)
-    env = PushOffEnv(config.task, config.safety, seed=EVAL_SEED_OFFSET, time_limit=config.train.time_limit)
+    env = PushOffEnv(config.task, config.safety, seed=VALIDATION_SEED_OFFSET, time_limit=config.train.time_limit)
     env.task.near_cube_share = 1.0
     table = EvaluationTable.from_summaries(run_episodes(env, policy, episodes))
     print(f"{run_dir.name} {policy_file.name}: near-cube starts ({config.task.arm.near_cube.bearing}), "

@@ -29,7 +29,7 @@ from ahrm_stack.env.layout_catalog import run_config_in_layout
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.scripted import ScriptedPusher
 from ahrm_stack.env.task import PushOffTask
-from ahrm_stack.learning.rollouts import EVAL_SEED_OFFSET, load_policy
+from ahrm_stack.learning.rollouts import VALIDATION_SEED_OFFSET, load_policy
 from ahrm_stack.run_config import load_run_config
 
 
@@ -107,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     counts: Counter = Counter()
     lanes: Counter = Counter()
     if args.own:
-        _replay("own", load_run_config(run), EVAL_SEED_OFFSET, range(args.own), policy, counts, lanes,
+        _replay("own", load_run_config(run), VALIDATION_SEED_OFFSET, range(args.own), policy, counts, lanes,
                 quiet_clean=True)
     else:
         for family_dir in sorted(p for p in suite.iterdir() if p.is_dir()):

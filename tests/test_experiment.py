@@ -11,6 +11,7 @@ import pytest
 
 from ahrm_stack.env.video import read_mp4
 from ahrm_stack.experiment import main
+from ahrm_stack.seeds import seed_table
 
 RAY_TEMP = f"/tmp/ahrm-ray-test-{os.getpid()}"  # short: Ray's socket paths must fit 107 bytes
 TINY = ["task.episode.duration=2", "ppo.hidden_sizes=[16]", "ppo.frames_per_batch=128",
@@ -58,6 +59,9 @@ def test_rerun_skips_the_finished_run_and_redoes_the_failed_one(grid):
     assert (ahrm / "episodes.csv").stat().st_mtime_ns == first["ahrm_episodes_mtime"]  # not retrained
     done = json.loads((ls / "done.json").read_text())
     assert done["status"] == "done" and done["evaluation"]["episodes"] == 2
+    # the final table: the frozen policy on the sealed test split (configs/experiment.yaml split: test)
+    assert done["evaluation"]["split"] == "test" and done["spec"]["split"] == "test"
+    assert done["evaluation"]["seed_offset"] == seed_table().evaluation["random"].test.start  # eval_layout
     assert not (ls / "failed.json").exists()
     assert len((ls / "episodes.csv").read_text().strip().splitlines()) - 1 >= 2      # trained
 
@@ -65,6 +69,21 @@ def test_rerun_skips_the_finished_run_and_redoes_the_failed_one(grid):
 def test_changed_settings_do_not_reuse_finished_runs(grid, capsys):
     assert main(_args(grid["out"], episodes=3)) == 2
     assert "ahrm-seed0/done.json was made with other settings (overrides differ)" in capsys.readouterr().err
+
+
+def test_a_run_finished_before_the_split_existed_counts_as_validation(tmp_path):
+    """A done.json without a split was evaluated on the validation seeds: a test-split grid does
+    not reuse it, a validation grid does."""
+    from ahrm_stack.config import ConfigError
+    from ahrm_stack.experiment import check_finished
+
+    spec = {"run_dir": str(tmp_path / "run"), "overrides": [], "eval_episodes": 2, "episodes": 2, "layout": "random"}
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "done.json").write_text(json.dumps({"spec": spec}))
+    scripted = {"run_dir": str(tmp_path / "scripted")}
+    check_finished({"runs": [{**spec, "split": "validation"}], "scripted": scripted})
+    with pytest.raises(ConfigError, match="other settings \\(split differ"):
+        check_finished({"runs": [{**spec, "split": "test"}], "scripted": scripted})
 
 
 def test_the_budget_is_frames_unless_episodes_are_asked_for(tmp_path):
@@ -90,7 +109,9 @@ def test_report_tables_figures_and_videos(grid):
     for row in ("| AHRM (here, 1/1 seeds) |", "| AHRM (paper) | 37 | 92.5 % | 2 | 3.8 ± 0.3 | 0.5103 ± 0.0032 |",
                 "| LS (here, 1/1 seeds) |", "| LS (paper) | 4 | 10.0 % | 39 | 8.3 ± 1.1 | 0.5342 ± 0.0219 |",
                 "| scripted controller (mink) | ", "| ahrm-seed0 | avoid > manipulate > time |",
-                "## Episodes to reach 80% success", "## Safety", "below the paper's 92.5%"):
+                "## Episodes to reach 80% success", "| Method | Reached after | Held from | Per seed |",
+                "## Safety", "below the paper's 92.5%", "**test split**",
+                "## Table II: this reproduction (test split, mean ± std over seeds) and the paper"):
         assert row in report
     assert "failed" not in report.split("## Findings")[1].split("##")[0]
     for name in ("learning_curves", "objectives_per_phase", "priority_orders"):

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from ahrm_stack.config import PaperRow
-from ahrm_stack.report import (RunRecord, episodes_to_threshold, findings, mean_std, method_summary,
-                               orders_by_phase, rank_methods)
+from ahrm_stack.report import (RunRecord, episodes_to_hold_threshold, episodes_to_threshold, findings, mean_std,
+                               method_summary, orders_by_phase, rank_methods)
 from ahrm_stack.report_plots import ORDER_CODES, order_index, seed_band
 
 PAPER = {"ahrm": PaperRow(37, 40, 2, (3.8, 0.3), (0.5103, 0.0032)),
@@ -32,13 +32,36 @@ def test_mean_std_over_seeds_ignores_nan():
 
 
 def test_episodes_to_threshold_by_hand():
-    # window 4, threshold 0.75: trailing windows end at episodes 4..8 with fractions
-    # [0,1,1,1]=.75 -> reached at episode 4
-    assert episodes_to_threshold([0, 1, 1, 1, 0, 0, 0, 0], 0.75, 4) == 4
-    # [0,0,1,1]=.5, [0,1,1,0]=.5, [1,1,0,1]=.75 -> episode 6
-    assert episodes_to_threshold([0, 0, 1, 1, 0, 1, 0, 0], 0.75, 4) == 6
+    """Training episodes played before the first window (of 4 here) with 75 % success."""
+    # windows start after 0, 1, ... episodes: [0,1,1,1]=.75 starts after 0 -> 0 (met from the start)
+    assert episodes_to_threshold([0, 1, 1, 1, 0, 0, 0, 0], 0.75, 4) == 0
+    # [0,0,1,1]=.5, [0,1,1,0]=.5, [1,1,0,1]=.75 starts after 2 episodes -> 2
+    assert episodes_to_threshold([0, 0, 1, 1, 0, 1, 0, 0], 0.75, 4) == 2
     assert episodes_to_threshold([1, 1, 1], 0.5, 4) is None          # the window is never full
     assert episodes_to_threshold([0, 1, 0, 1, 0, 1], 0.8, 2) is None  # never 80 %
+
+
+def test_episodes_to_threshold_returns_more_than_its_floor():
+    """The bug: every warm-started run read 20 (the window, the smallest value it could return),
+    whether it learned or not. Now the floor is 0 (met from the first episode), and a run that
+    learns later reads the episodes it played before: 30 failures, then successes, window 20 at
+    80 %: the first window with 16 successes starts after 26 episodes."""
+    success = [False] * 30 + [True] * 40
+    first = episodes_to_threshold(success, 0.8, 20)
+    # the window starting after k episodes holds 20 - (30 - k) successes for 10 <= k <= 30: >= 16 from k = 26
+    assert first == 26 and first > 0
+    assert episodes_to_threshold([True] * 40, 0.8, 20) == 0  # the warm start: no training needed
+    assert episodes_to_hold_threshold(success, 0.8, 20) == 26
+
+
+def test_holding_the_threshold_needs_it_until_the_end():
+    collapsed = [True] * 20 + [False] * 20  # a warm start that training destroyed
+    assert episodes_to_threshold(collapsed, 0.8, 4) == 0
+    assert episodes_to_hold_threshold(collapsed, 0.8, 4) is None
+    recovered = [1, 1, 1, 1, 0, 0, 0, 0, 1, 1, 1, 1]  # windows from 7 on: .75, 1.0
+    assert episodes_to_hold_threshold(recovered, 0.75, 4) == 7
+    assert episodes_to_hold_threshold([1, 1, 1, 1, 1], 0.75, 4) == 0
+    assert episodes_to_hold_threshold([1, 1], 0.75, 4) is None  # no full window
 
 
 def test_orders_by_phase():

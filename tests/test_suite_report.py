@@ -55,3 +55,24 @@ def test_family_means_and_rank_and_the_section():
     assert "| f | 3.5 | 1.0 | 4.0 |" in text
     assert "| LS | 62.5 pp" in text  # (3/4 + 4/4) / 2 - (1/4 + 1/4) / 2 = 0.875 - 0.25
     assert "| scripted | -12.5 pp" in text
+
+
+def test_the_section_shows_each_familys_training_support(tmp_path):
+    import json
+
+    from ahrm_stack.suite_report import read_support
+
+    for family, verdict in (("heldout", "inside"), ("cube_heavy", "outside: cube_mass")):
+        (tmp_path / family).mkdir()
+        (tmp_path / family / "evaluation.json").write_text(json.dumps({"training_support": {"verdict": verdict}}))
+    (tmp_path / "old").mkdir()
+    (tmp_path / "old" / "evaluation.json").write_text("{}")  # evaluated before the support was computed
+    support = read_support(tmp_path)
+    assert support == {"heldout": "inside", "cube_heavy": "outside: cube_mass"}
+    suites = [{"heldout": _suite([1, 1]), "cube_heavy": _suite([1, 0]), "old": _suite([0, 0])}]
+    text = "\n".join(suite_section({"ahrm": suites, "ls": suites}, ["heldout", "cube_heavy", "old"],
+                                   ["ahrm", "ls"], 10, support=support))
+    assert "| family | training support | AHRM | LS |" in text
+    assert "| cube_heavy | outside: cube_mass | 1.0 | 1.0 |" in text and "| old | – | 0.0 | 0.0 |" in text
+    assert "| **sum** | | 3.0 | 3.0 |" in text
+    assert "| family | AHRM | LS |" in text  # the other tables as before

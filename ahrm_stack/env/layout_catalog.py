@@ -1,24 +1,28 @@
 """Named evaluation layouts (``configs/layouts.yaml``): fixed layouts and held-out random families.
 
 A named layout turns into config overrides of ``task`` (mode, fixed layout, cube position, cube
-region, radial range); its evaluation episodes use its own seed range of ``configs/seeds.yaml``
-(episode i: the range's start + i). The evaluation suite is every entry with ``suite: true``. Fixed layouts are checked with the task's
+region, radial range, start region) and, for the evaluation only, the cube's mass and friction
+factors (:func:`evaluation_task`); its evaluation episodes use its own seed ranges of
+``configs/seeds.yaml`` (a validation and a sealed test range; episode i: the range's start + i).
+The evaluation suite is every entry with ``suite: true``. Fixed layouts are checked with the task's
 own placement rules (:func:`validate_layout`) when they are applied, so a bad entry fails with the
-file, the name and the broken rule before any episode runs.
+file, the name and the broken rule before any episode runs. Whether a family lies inside the
+training support is computed (:mod:`ahrm_stack.env.support`), not written here.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Literal, Optional, Sequence
+from typing import Annotated, Literal, Optional, Sequence
 
 import numpy as np
 
-from ahrm_stack.config import CONFIG_DIR, Config, ConfigError, Pair, config_from_dict
+from ahrm_stack.config import CONFIG_DIR, Config, ConfigError, Pair, TaskConfig, config_from_dict
 from ahrm_stack.env.layout import Layout, LayoutError, validate_layout
-from ahrm_stack.schema import Bool, Section, derived, read_yaml, validate
-from ahrm_stack.seeds import SEEDS_FILE, seed_table
+from ahrm_stack.env.realism import Scale, nominal
+from ahrm_stack.schema import Bool, Section, derived, ordered, read_yaml, validate
+from ahrm_stack.seeds import evaluation_range
 
 LAYOUTS_FILE = CONFIG_DIR / "layouts.yaml"
 
@@ -30,8 +34,15 @@ class NamedLayout(Section):
     mode: Literal["fixed", "random"]
     cube: Optional[Pair] = None  # fixed mode: nominal cube (x, y), m; None: the run's own
     obstacles: Optional[tuple[Pair, ...]] = None  # fixed mode: obstacle (x, y) centres, m; None: the run's
-    radial_range: Optional[Pair] = None  # random mode, m; None: the run's own
-    cube_region: Optional[tuple[Pair, Pair]] = None  # random mode: cube x, y ranges, m; None: the run's own
+    radial_range: Annotated[Optional[Pair], ordered()] = None  # random mode, m; None: the run's own
+    # random mode: cube x, y ranges, m; None: the run's own
+    cube_region: Annotated[Optional[tuple[Pair, Pair]], ordered()] = None
+    # the pusher tip's start (x, y, z ranges, m; task.arm.start becomes random); None: the run's own
+    start_region: Annotated[Optional[tuple[Pair, Pair, Pair]], ordered()] = None
+    # factor ranges on the cube's mass and sliding friction, drawn per episode (the evaluation is
+    # otherwise the nominal task); None: the nominal cube (factor 1)
+    cube_mass_scale: Annotated[Optional[Scale], ordered()] = None
+    cube_friction_scale: Annotated[Optional[Scale], ordered()] = None
     suite: Bool = True  # part of the evaluation suite (evaluate --suite)
     name: str = derived()  # the entry's key
 
@@ -41,18 +52,12 @@ class NamedLayout(Section):
         for field in ("radial_range", "cube_region"):
             if self.mode == "fixed" and getattr(self, field) is not None:
                 raise ConfigError(f"{key}: {field} belongs to random layouts only")
-        if self.cube_region is not None and any(lo > hi for lo, hi in self.cube_region):
-            raise ConfigError(f"{key}.cube_region: expected [[x_lo, x_hi], [y_lo, y_hi]] with lo <= hi, "
-                              f"got {[list(r) for r in self.cube_region]}")
 
     @property
     def seed_offset(self) -> int:
-        """Episode i of this family uses seed ``seed_offset + i`` (its range in seeds.yaml)."""
-        table = seed_table()
-        if self.name not in table.ranges:
-            raise ConfigError(f"layout '{self.name}' has no seed range in {SEEDS_FILE}; add one "
-                              "(disjoint from the others)")
-        return table.ranges[self.name].start
+        """Episode i of this family's validation split uses seed ``seed_offset + i`` (seeds.yaml);
+        the test split only through ``python -m ahrm_stack.evaluate --split test``."""
+        return evaluation_range(self.name, "validation").start
 
 
 def load_layouts(path: Path | str = LAYOUTS_FILE) -> dict[str, NamedLayout]:
@@ -87,6 +92,9 @@ def apply_layout(raw: dict, name: str, path: Path | str = LAYOUTS_FILE) -> Named
         task["layout"]["radial_range"] = list(entry.radial_range)
     if entry.cube_region is not None:
         task["layout"]["cube_region"] = [list(r) for r in entry.cube_region]
+    if entry.start_region is not None:
+        task["arm"]["start"] = "random"
+        task["arm"]["start_region"] = [list(r) for r in entry.start_region]
     try:
         config = config_from_dict(raw).task
     except ConfigError as error:
@@ -101,7 +109,7 @@ def apply_layout(raw: dict, name: str, path: Path | str = LAYOUTS_FILE) -> Named
             LayoutSampler(config.table, config.cube, config.obstacles, config.layout)
     except LayoutError as error:
         raise ConfigError(f"{path}: layout '{name}': {error}") from None
-    entry.seed_offset  # a family without a seed range fails here, before any episode
+    entry.seed_offset  # a family without seed ranges fails here, before any episode
     return entry
 
 
@@ -116,6 +124,18 @@ def run_config_in_layout(run_dir: Path | str, name: str, overrides: Sequence[str
     config = load_run_config(run_dir, overrides, runnable=runnable,
                              edit=lambda raw: placed.append(apply_layout(raw, name)))
     return config, placed[0]
+
+
+def evaluation_task(task: TaskConfig, entry: NamedLayout | None = None) -> TaskConfig:
+    """The task an evaluation runs: ``task`` (a layout already applied) without a real arm's
+    imperfections (:func:`~ahrm_stack.env.realism.nominal`), but for the family ``entry``'s cube
+    mass and friction factors when it sets them. The same for a policy and the scripted controller."""
+    evaluated = nominal(task)
+    changes = {name: getattr(entry, name) for name in ("cube_mass_scale", "cube_friction_scale")
+               if entry is not None and getattr(entry, name) is not None}
+    if not changes:
+        return evaluated
+    return dataclasses.replace(evaluated, realism=dataclasses.replace(evaluated.realism, **changes))
 
 
 def suite_names(path: Path | str = LAYOUTS_FILE) -> list[str]:

@@ -1,7 +1,9 @@
 """Evaluation with a deterministic policy: the paper's Table II metrics (spec §7).
 
 Episodes use fresh seeds (``seed_offset + i``), distinct from training's, and the distribution's
-deterministic action. Metrics: successes, success rate, episodes touching an obstacle, time to
+deterministic action; by default the validation split of the run's own layouts
+(``configs/seeds.yaml`` ``evaluation.run.validation``): every evaluation a training makes uses it,
+never the sealed test split. Metrics: successes, success rate, episodes touching an obstacle, time to
 success (mean ± std over successes, s), cube travel (mean ± std, m), safety-filter interventions
 per episode and joint-limit violations.
 """
@@ -27,9 +29,10 @@ from ahrm_stack.env.torchrl_env import PushOffEnv
 from ahrm_stack.learning.checkpoint import load
 from ahrm_stack.learning.lane_frame import lane_mirror_for
 from ahrm_stack.learning.ppo import lean_actor, make_modules
-from ahrm_stack.seeds import seed_table
+from ahrm_stack.seeds import evaluation_range
 
-EVAL_SEED_OFFSET = seed_table()["evaluation"].start  # configs/seeds.yaml: disjoint from training
+# configs/seeds.yaml: the run's own layouts, validation split (disjoint from training and from test)
+VALIDATION_SEED_OFFSET = evaluation_range("run", "validation").start
 
 
 @dataclasses.dataclass
@@ -86,7 +89,8 @@ def load_policy(run_dir: Path, policy_file: Path | None = None,
     return config, lean_actor(modules.actor)
 
 
-def run_episodes(env: PushOffEnv, policy, episodes: int, seed_offset: int = EVAL_SEED_OFFSET) -> list[EpisodeSummary]:
+def run_episodes(env: PushOffEnv, policy, episodes: int,
+                 seed_offset: int = VALIDATION_SEED_OFFSET) -> list[EpisodeSummary]:
     """Deterministic episodes ``seed_offset + i``. An actor built by ``make_modules`` runs through
     its lean inference path (same action, cheaper); any other callable is used as it is."""
     policy = lean_actor(policy) or policy
@@ -113,14 +117,16 @@ def write_episodes_csv(path: Path, summaries: list[EpisodeSummary]) -> None:
 
 
 def evaluate_run(run_dir: Path, episodes: int) -> EvaluationTable:
-    """The run's final deterministic evaluation on its own distribution: ``evaluation.yaml`` (the
-    table) and ``evaluation.csv`` (per episode, as ``python -m ahrm_stack.evaluate RUN_DIR`` writes)."""
+    """The run's deterministic evaluation at the end of training, on its own distribution's
+    validation split: ``evaluation.yaml`` (the table, ``split: validation``) and ``evaluation.csv``
+    (per episode, as ``python -m ahrm_stack.evaluate RUN_DIR`` writes)."""
     config, policy = load_policy(run_dir)
-    env = PushOffEnv(nominal(config.task), config.safety, seed=EVAL_SEED_OFFSET)
+    env = PushOffEnv(nominal(config.task), config.safety, seed=VALIDATION_SEED_OFFSET)
     summaries = run_episodes(env, policy, episodes)
     table = EvaluationTable.from_summaries(summaries)
     if summaries:
         write_episodes_csv(Path(run_dir) / "evaluation.csv", summaries)
     (Path(run_dir) / "evaluation.yaml").write_text(yaml.safe_dump(
-        {**dataclasses.asdict(table), "success_rate": table.success_rate}, sort_keys=False))
+        {"split": "validation", "seed_offset": VALIDATION_SEED_OFFSET, **dataclasses.asdict(table),
+         "success_rate": table.success_rate}, sort_keys=False))
     return table
