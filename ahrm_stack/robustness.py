@@ -144,13 +144,26 @@ class Row:
                    sum(r["emergency_stops"] > 0 for r in records))
 
 
-def meets_goal(policy: Row, scripted: Row) -> bool:
-    """Issue 40's per-condition goal: success >= the scripted controller's - 1 per 30 episodes,
-    touching <= 1 per 30, mean time <= the scripted controller's."""
-    slack = policy.episodes / 30.0
-    time_ok = math.isnan(scripted.mean_time) or (not math.isnan(policy.mean_time)
-                                                  and policy.mean_time <= scripted.mean_time)
-    return (policy.successes >= scripted.successes - slack and policy.touching <= slack and time_ok)
+def paired_times(policy: list[dict[str, Any]], scripted: list[dict[str, Any]]) -> tuple[float, float, int]:
+    """(policy's, scripted controller's mean s to success, episodes) over the episodes (seeds)
+    both controllers won: the time comparison on the same episodes (nan, nan, 0 without one)."""
+    theirs = {r["seed"]: r["time"] for r in scripted if r["success"] and r["time"] is not None}
+    pairs = [(r["time"], theirs[r["seed"]]) for r in policy
+             if r["success"] and r["time"] is not None and r["seed"] in theirs]
+    if not pairs:
+        return math.nan, math.nan, 0
+    return (sum(p for p, _ in pairs) / len(pairs), sum(s for _, s in pairs) / len(pairs), len(pairs))
+
+
+def meets_goal(policy: list[dict[str, Any]], scripted: list[dict[str, Any]]) -> bool:
+    """Issue 40's per-condition goal on one condition's records of both controllers: success >=
+    the scripted controller's - 1 per 30 episodes, touching <= 1 per 30, and the mean time to
+    success <= the scripted controller's on the episodes both won (:func:`paired_times`)."""
+    mine, theirs = Row.of(policy), Row.of(scripted)
+    slack = mine.episodes / 30.0
+    p_time, s_time, common = paired_times(policy, scripted)
+    time_ok = common == 0 or p_time <= s_time
+    return mine.successes >= theirs.successes - slack and mine.touching <= slack and time_ok
 
 
 def table(data: dict[str, Any]) -> str:
@@ -158,16 +171,19 @@ def table(data: dict[str, Any]) -> str:
     lines = [f"Robustness of `{data['run']}` through the deploy loop (sim backend, `{data['profile']}` "
              f"imperfections; {data['episodes']} episodes per cell, seeds `robustness` "
              f"{data['seeds'][0]}–{data['seeds'][-1]}, the same for both controllers; counted in the "
-             "simulator; time: mean s to success over the successes; judged wrong: the loop's own "
-             "success verdict contradicted by the simulator).",
+             "simulator; time: mean s to success over each controller's successes; paired time: "
+             "policy / scripted mean s over the episodes both won (n), which the goal compares; judged "
+             "wrong: the loop's own success verdict contradicted by the simulator; goal: success ≥ "
+             "the scripted controller's − 1, touching ≤ 1 (per 30), paired time ≤ the scripted "
+             "controller's).",
              "",
              "| condition | policy: success | touching | time (s) | judged wrong | e-stops | scripted: success "
-             "| touching | time (s) | judged wrong | goal |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| touching | time (s) | judged wrong | paired time (s) | goal |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for name in data["conditions"]:
-        rows = {c: Row.of([r for r in data["records"] if r["condition"] == name and r["controller"] == c])
-                for c in CONTROLLERS}
-        p, s = rows["policy"], rows["scripted"]
+        records = {c: [r for r in data["records"] if r["condition"] == name and r["controller"] == c]
+                   for c in CONTROLLERS}
+        p, s = Row.of(records["policy"]), Row.of(records["scripted"])
         if not p.episodes:
             continue
         cells = [name]
@@ -176,7 +192,9 @@ def table(data: dict[str, Any]) -> str:
                       "–" if math.isnan(row.mean_time) else f"{row.mean_time:.2f}", str(row.judged_wrong)]
             if row is p:
                 cells.append(str(row.emergency_stops))
-        cells.append("met" if meets_goal(p, s) else "**missed**")
+        p_time, s_time, common = paired_times(records["policy"], records["scripted"])
+        cells.append("–" if not common else f"{p_time:.2f} / {s_time:.2f} ({common})")
+        cells.append("met" if meets_goal(records["policy"], records["scripted"]) else "**missed**")
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 

@@ -56,14 +56,25 @@ def test_an_episode_runs_through_the_deploy_loop_and_is_counted_in_the_simulator
     assert abs(record["cube_final"][0]) > 0.45 or abs(record["cube_final"][1]) > 0.45
 
 
+def _records(times: list[float | None], touched: int = 0) -> list[dict]:
+    """Episodes on seeds 0.. with these times to success (None: a failure)."""
+    return [{"seed": i, "success": t is not None, "time": t, "touched": i < touched, "judged_success": t is not None,
+             "emergency_stops": 0} for i, t in enumerate(times)]
+
+
 def test_the_goal_per_condition():
-    row = robustness.Row
-    scripted = row(30, 30, 0, 3.7, 0, 0)
-    assert robustness.meets_goal(row(30, 29, 1, 3.5, 0, 0), scripted)
-    assert not robustness.meets_goal(row(30, 28, 0, 3.5, 0, 0), scripted)  # 2 fewer successes
-    assert not robustness.meets_goal(row(30, 30, 2, 3.5, 0, 0), scripted)  # touching 2 > 1
-    assert not robustness.meets_goal(row(30, 30, 0, 3.8, 0, 0), scripted)  # slower
-    assert robustness.meets_goal(row(30, 0, 0, math.nan, 0, 0), row(30, 0, 0, math.nan, 0, 0))
+    scripted = _records([3.7] * 30)
+    assert robustness.meets_goal(_records([3.5] * 29 + [None], touched=1), scripted)
+    assert not robustness.meets_goal(_records([3.5] * 28 + [None] * 2), scripted)  # 2 fewer successes
+    assert not robustness.meets_goal(_records([3.5] * 30, touched=2), scripted)  # touching 2 > 1
+    assert not robustness.meets_goal(_records([3.8] * 30), scripted)  # slower
+    assert robustness.meets_goal(_records([None] * 30), _records([None] * 30))
+    # time on the episodes both won: a policy that also wins the scripted controller's failures
+    # (slowly) is compared where both won
+    hard = _records([3.0] * 15 + [9.0] * 15)
+    assert robustness.meets_goal(hard, _records([3.5] * 15 + [None] * 15))
+    assert robustness.paired_times(hard, _records([3.5] * 15 + [None] * 15)) == (3.0, 3.5, 15)
+    assert math.isnan(robustness.Row.of(_records([None] * 3)).mean_time)
 
 
 def _committed() -> list[Path]:
