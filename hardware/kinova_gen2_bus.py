@@ -78,7 +78,7 @@ class CallTimes:
     """Durations (s) of the SDK's calls, per function (the last ``keep`` of each), and of the last
     :data:`RECENT_CALLS` calls of any function (the bus's estimate of one call)."""
 
-    def __init__(self, keep: int = 4096) -> None:
+    def __init__(self, keep: int = 1 << 16) -> None:
         self.by_function: dict[str, Deque[float]] = collections.defaultdict(
             lambda: collections.deque(maxlen=keep))
         self.recent: Deque[float] = collections.deque(maxlen=RECENT_CALLS)
