@@ -13,7 +13,10 @@ resumed. Misses and late feedback are counted, never a stop.
 Figures (goals of issue 41 in brackets), from the loop's records, the USB thread's own timings and
 the fake's call log (CLOCK_MONOTONIC, the clock of ``time.perf_counter``):
 
-- missed command deadlines [0 in 10 minutes at 20 Hz] and the loop's tick latency;
+- missed command deadlines [0 in 10 minutes at 20 Hz] and the loop's tick latency; for the ticks
+  that missed, where their time went: the tick starting late (the OS ran something else when the
+  loop's sleep ended), the position read (the USB: waiting for the bus and the call), the rest
+  (checks, world model, controller, filter) and handing the command over;
 - the point rate the arm received while a command stood [>= 99 Hz]; the time its FIFO stood empty
   meanwhile (starved) and the FIFO's peak;
 - each SDK function's latency as the USB thread measured it (p50 / p99 / max), and how long a tick's
@@ -115,6 +118,23 @@ def budget_run(duration: float, rate_hz: float = 20.0, fault_every: float = 30.0
     segments: list[tuple[float, float]] = []  # (start, end) perf_counter s of motion
     problems: list[str] = []
     buses = [arm.bus]  # one per connection: their records
+    parts: list[tuple[float, float, float, float, float, bool]] = []  # per tick, see _timed
+    stamps: dict[str, float] = {}
+    refresh, send = arm.refresh_feedback, arm.send_joint_speeds
+
+    def timed_refresh():
+        stamps["asked"] = time.perf_counter()
+        frame = refresh()
+        stamps["read"] = time.perf_counter()
+        return frame
+
+    def timed_send(speeds):
+        stamps["sending"] = time.perf_counter()
+        sent = send(speeds)
+        stamps["sent"] = time.perf_counter()
+        return sent
+
+    arm.refresh_feedback, arm.send_joint_speeds = timed_refresh, timed_send
     collecting = gc.isenabled()
     try:
         loop = DeployLoop(arm, world, ScriptedController(world, config), config.safety, settings)
@@ -126,9 +146,14 @@ def budget_run(duration: float, rate_hz: float = 20.0, fault_every: float = 30.0
         segment_start = start
         next_fault = start + fault_every
         while time.perf_counter() < start + duration:
+            stamps.clear()
+            scheduled, misses = loop.next_tick_time, loop.deadline_misses
             if not loop.tick():
                 problems.append(f"the loop stopped by itself: {loop.stop_reason}")
                 break
+            if len(stamps) == 4:
+                parts.append((scheduled, stamps["asked"], stamps["read"], stamps["sending"],
+                              stamps["sent"], loop.deadline_misses > misses))
             if collecting:
                 DeployLoop._collect_garbage()
             if time.perf_counter() < next_fault:
@@ -191,7 +216,13 @@ def budget_run(duration: float, rate_hz: float = 20.0, fault_every: float = 30.0
     latencies = {name: times.of(name) * 1e3 for name in FUNCTIONS} if times is not None else {}
     waits = [w for bus in buses if bus is not None for w in bus.waits]
     ahead = np.array([w.calls_ahead for w in waits])
-    return {"duration": end - start, "rate_hz": rate_hz, "period": period, "ticks": loop.summary().ticks,
+    table = np.array([row[:5] for row in parts]).reshape(-1, 5)
+    missed = np.array([row[5] for row in parts], dtype=bool)
+    breakdown = {name: np.diff(table[:, k:k + 2], axis=1)[:, 0] * 1e3
+                 for k, name in enumerate(("late start", "position read", "checks to the filter",
+                                           "command handover"))}
+    return {"duration": end - start, "breakdown": breakdown, "missed": missed, "rate_hz": rate_hz,
+            "period": period, "ticks": loop.summary().ticks,
             "deadline_misses": loop.deadline_misses, "tick_ms": np.asarray(loop.latencies) * 1e3,
             "point_rate_hz": received / moving if moving else math.nan,
             "starved_ms_per_s": idle / moving * 1e3 if moving else math.nan,
@@ -232,6 +263,11 @@ def main() -> None:
           f"{load:.2f} on {os.cpu_count()} cores")
     print(f"deadlines: {r['ticks']} ticks, {r['deadline_misses']} missed (goal 0); tick latency "
           f"(feedback -> command, ms) {_spread(r['tick_ms'])}")
+    missed = r["missed"]
+    print(f"  where a tick's time went, ms, all ticks | the {int(missed.sum())} ticks that missed (median, max):")
+    for name, values in r["breakdown"].items():
+        tail = (f"{np.median(values[missed]):.2f}, {values[missed].max():.2f}" if missed.any() else "-")
+        print(f"    {name:22s} {_spread(values)} | {tail}")
     print(f"points: the arm received {r['point_rate_hz']:.2f} Hz while a command stood (goal >= 99 Hz; "
           f"{r['points']} points); its FIFO stood empty {r['starved_ms_per_s']:.2f} ms/s (longest "
           f"{r['longest_gap_ms']:.1f} ms); FIFO peak {r['fifo_peak']} points, {r['dropped']} dropped")
