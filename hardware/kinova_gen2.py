@@ -86,8 +86,8 @@ import numpy as np
 from pydantic import AfterValidator, PlainValidator
 
 from ahrm_stack.schema import ConfigError, Float, Int, Section, Str, count, fail, ge, gt, le
-from hardware.kinova_gen2_bus import (POINT_PERIOD, BusClosedError, CallTimes, UsbBus, WatchdogStop,
-                                      is_link_error)
+from hardware.kinova_gen2_bus import (POINT_PERIOD, BusClosedError, BusHeldError, CallTimes, UsbBus,
+                                      WatchdogStop, is_link_error)
 from hardware.kinova_gen2_loader import LoaderPathError, check_comm_layers
 from hardware.protocol import (DescribedArm, ArmFaultError, ArmState, CommandRefusedError,
                                ConnectionLostError, Fault, Feedback, HardwareError,
@@ -782,7 +782,7 @@ class KinovaGen2Arm(DescribedArm):
         stopped_at = None
         if bus is not None:
             try:
-                stopped_at = bus.halt()
+                stopped_at = bus.halt(hold=True)
             except Exception as error:  # noqa: BLE001 - the lost link surfaces at the next call
                 log.error("kinova_gen2: could not stop %s on its fault (%s)", self._serial, error)
                 if bus.on_thread() and is_link_error(error):
@@ -842,6 +842,11 @@ class KinovaGen2Arm(DescribedArm):
         sent = command * self.settings.speed_scale
         try:
             bus.command(kinova_velocities(sent, self._convention))
+        except BusHeldError:  # a fault latched since the check above (the status poll)
+            with self._status:
+                faults, reason = self._faults, self._fault_reason
+            raise ArmFaultError(f"Kinova arm {self._serial} in fault ({faults!r}: {reason}); "
+                                "clear_faults() first") from None
         except BusClosedError as error:
             raise self._lose(error.__cause__ or error) from None
         except SdkCallError as error:
@@ -849,11 +854,12 @@ class KinovaGen2Arm(DescribedArm):
         self._require()  # the first point's failure, if it failed
         return sent
 
-    def _halt(self, then=None) -> None:
-        """No standing command; zero velocity and an empty FIFO on the arm (then ``then(sdk)``)."""
+    def _halt(self, then=None, hold: bool = False) -> None:
+        """No standing command; zero velocity and an empty FIFO on the arm (then ``then(sdk)``);
+        ``hold``: commands refused until :meth:`clear_faults`."""
         bus = self._require()
         try:
-            bus.halt(then)
+            bus.halt(then, hold)
         except SdkCallError as error:
             if error.communication:
                 raise self._lose(error) from None
@@ -870,7 +876,7 @@ class KinovaGen2Arm(DescribedArm):
             self._faults |= Fault.EMERGENCY_STOP
             self._fault_reason = "emergency stop applied"
         # the arm ignores commands until StartControlAPI (clear_faults)
-        self._halt(lambda sdk: sdk.call("StopControlAPI"))
+        self._halt(lambda sdk: sdk.call("StopControlAPI"), hold=True)
         log.error("kinova_gen2: EMERGENCY STOP on %s: zero velocity, trajectories erased, "
                   "control API stopped", self._serial)
 
@@ -892,8 +898,10 @@ class KinovaGen2Arm(DescribedArm):
                 self._voltage = float(sensors.Voltage)
                 self._errors_seen = int(count.value)  # the logged errors are acknowledged
                 self._faults, self._fault_reason = Fault.NONE, ""
+            bus.release()
 
-        self._require().drop()
+        bus = self._require()
+        bus.drop()
         self._on_bus(clear)
         log.info("kinova_gen2: faults cleared on %s", self._serial)
 

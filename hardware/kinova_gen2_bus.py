@@ -147,6 +147,10 @@ class BusClosedError(RuntimeError):
     """The bus thread is not running (closed, or ended by a lost link: ``__cause__``)."""
 
 
+class BusHeldError(RuntimeError):
+    """A command while the bus holds the arm stopped (a fault's halt, until :meth:`UsbBus.release`)."""
+
+
 class UsbBus:
     """The USB-owning thread of one connected Gen2 adapter (see the module docstring).
 
@@ -189,6 +193,7 @@ class UsbBus:
         # the standing command and the FIFO model
         self._values = np.zeros(joints)  # deg/s
         self._active = False
+        self._held = False  # a fault's halt: commands refused until release()
         self._fresh_at = 0.0  # perf_counter s of the last fresh command
         self._fifo_end = 0.0  # perf_counter s at which the arm will have run every point sent
         self._last_point = -1e9  # perf_counter s the last point was sent
@@ -263,6 +268,8 @@ class UsbBus:
         (no standing command) it returns once the first point carrying it has gone out."""
         with self._cond:
             self._check_open()
+            if self._held:
+                raise BusHeldError("the arm is held stopped (a fault); release() first")
             self._values = np.array(kinova_deg_s, dtype=float)
             self._fresh_at = time.perf_counter()
             starting, self._active = not self._active, True
@@ -279,13 +286,21 @@ class UsbBus:
             self._active = False
             self._cond.notify_all()
 
-    def halt(self, then: Callable[[Any], None] | None = None) -> float:
+    def halt(self, then: Callable[[Any], None] | None = None, hold: bool = False) -> float:
         """Stop: no standing command, a zero-velocity point and ``EraseAllTrajectories`` (then
         ``then(sdk)``, e.g. ``StopControlAPI``), before any other call; returns when done
-        (perf_counter s of the erase). From the bus thread itself it runs inline."""
+        (perf_counter s of the erase). ``hold``: refuse commands from now until :meth:`release`
+        (a fault: no command slips in between the adapter's fault check and this stop). From the
+        bus thread itself it runs inline."""
         with self._cond:
             self._active = False
+            self._held = self._held or hold
         return self.call(lambda sdk: self._stop_calls(sdk, then), urgent=True)
+
+    def release(self) -> None:
+        """Commands are accepted again (the fault was cleared)."""
+        with self._cond:
+            self._held = False
 
     @property
     def standing(self) -> np.ndarray | None:

@@ -512,6 +512,21 @@ def test_a_fault_seen_by_the_status_poll_stops_the_arm_at_once(fake, make_arm):
     assert Fault.HARDWARE in frame.faults and frame.arm_state == ArmState.IN_FAULT
 
 
+def test_a_fault_halt_holds_off_commands_until_cleared(fake, make_arm):
+    """The status poll's stop holds the arm: a command that passed the adapter's fault check just
+    before it (the race) is refused by the USB thread instead of slipping in after the stop."""
+    arm = make_arm()
+    arm.connect()
+    arm.send_joint_speeds(np.array([0.2, 0, 0, 0, 0, 0]))
+    arm.bus.halt(hold=True)  # what the status poll does on a fault, here without the fault's flags
+    with pytest.raises(ArmFaultError, match="clear_faults"):
+        arm.send_joint_speeds(np.array([0.2, 0, 0, 0, 0, 0]))
+    assert arm.standing_command is None and fake.fifo_count() == 0
+    arm.clear_faults()
+    arm.send_joint_speeds(np.array([0.1, 0, 0, 0, 0, 0]))
+    assert arm.standing_command is not None
+
+
 def test_hardware_estop(fake, make_arm):
     arm = make_arm()
     arm.connect()
