@@ -14,9 +14,10 @@ Figures (goals of issue 41 in brackets), from the loop's records, the USB thread
 the fake's call log (CLOCK_MONOTONIC, the clock of ``time.perf_counter``):
 
 - missed command deadlines [0 in 10 minutes at 20 Hz] and the loop's tick latency; for the ticks
-  that missed, where their time went: the tick starting late (the OS ran something else when the
-  loop's sleep ended), the position read (the USB: waiting for the bus and the call), the rest
-  (checks, world model, controller, filter) and handing the command over;
+  that missed, where their time went: the garbage collection after the previous tick, the tick
+  starting late (the OS ran something else when the loop's sleep ended), the position read (the
+  USB: waiting for the bus and the call), the rest (checks, world model, controller, filter) and
+  handing the command over;
 - the point rate the arm received while a command stood [>= 99 Hz]; the time its FIFO stood empty
   meanwhile (starved) and the FIFO's peak;
 - each SDK function's latency as the USB thread measured it (p50 / p99 / max), and how long a tick's
@@ -118,7 +119,7 @@ def budget_run(duration: float, rate_hz: float = 20.0, fault_every: float = 30.0
     segments: list[tuple[float, float]] = []  # (start, end) perf_counter s of motion
     problems: list[str] = []
     buses = [arm.bus]  # one per connection: their records
-    parts: list[tuple[float, float, float, float, float, bool]] = []  # per tick, see _timed
+    parts: list[tuple[float, float, float, float, float, float, bool]] = []  # per tick
     stamps: dict[str, float] = {}
     refresh, send = arm.refresh_feedback, arm.send_joint_speeds
 
@@ -145,6 +146,7 @@ def budget_run(duration: float, rate_hz: float = 20.0, fault_every: float = 30.0
         start = time.perf_counter()
         segment_start = start
         next_fault = start + fault_every
+        collected = 0.0  # s the collection before this tick took
         while time.perf_counter() < start + duration:
             stamps.clear()
             scheduled, misses = loop.next_tick_time, loop.deadline_misses
@@ -152,10 +154,12 @@ def budget_run(duration: float, rate_hz: float = 20.0, fault_every: float = 30.0
                 problems.append(f"the loop stopped by itself: {loop.stop_reason}")
                 break
             if len(stamps) == 4:
-                parts.append((scheduled, stamps["asked"], stamps["read"], stamps["sending"],
+                parts.append((collected, scheduled, stamps["asked"], stamps["read"], stamps["sending"],
                               stamps["sent"], loop.deadline_misses > misses))
             if collecting:
+                began = time.perf_counter()
                 DeployLoop._collect_garbage()
+                collected = time.perf_counter() - began
             if time.perf_counter() < next_fault:
                 continue
             kind, inject, release = kinds[len(faults) % len(kinds)]
@@ -216,11 +220,12 @@ def budget_run(duration: float, rate_hz: float = 20.0, fault_every: float = 30.0
     latencies = {name: times.of(name) * 1e3 for name in FUNCTIONS} if times is not None else {}
     waits = [w for bus in buses if bus is not None for w in bus.waits]
     ahead = np.array([w.calls_ahead for w in waits])
-    table = np.array([row[:5] for row in parts]).reshape(-1, 5)
-    missed = np.array([row[5] for row in parts], dtype=bool)
-    breakdown = {name: np.diff(table[:, k:k + 2], axis=1)[:, 0] * 1e3
-                 for k, name in enumerate(("late start", "position read", "checks to the filter",
-                                           "command handover"))}
+    table = np.array([row[1:6] for row in parts]).reshape(-1, 5)
+    missed = np.array([row[6] for row in parts], dtype=bool)
+    breakdown = {"collection before": np.array([row[0] for row in parts]) * 1e3}
+    breakdown.update({name: np.diff(table[:, k:k + 2], axis=1)[:, 0] * 1e3
+                      for k, name in enumerate(("late start", "position read", "checks to the filter",
+                                                "command handover"))})
     return {"duration": end - start, "breakdown": breakdown, "missed": missed, "rate_hz": rate_hz,
             "period": period, "ticks": loop.summary().ticks,
             "deadline_misses": loop.deadline_misses, "tick_ms": np.asarray(loop.latencies) * 1e3,

@@ -50,7 +50,7 @@ import dataclasses
 import logging
 import threading
 import time
-from typing import Any, Callable, Deque, Protocol, Sequence, TypeVar
+from typing import Any, Callable, Deque, NamedTuple, Protocol, Sequence, TypeVar
 
 import numpy as np
 
@@ -133,11 +133,12 @@ class _Job:
         self.calls_at = calls_at  # SDK calls made before it was queued
 
 
-@dataclasses.dataclass(frozen=True)
-class JobWait:
+class JobWait(NamedTuple):
     """How long a caller's call waited on the bus: ``seconds`` from being queued to starting, and
     ``calls_ahead``, the SDK calls that ended in between (by design at most two: the one in progress
-    and an urgent point; more only behind a stop or the watchdog's)."""
+    and an urgent point; more only behind a stop or the watchdog's). A tuple of numbers, which
+    Python's garbage collector stops tracking: tens of thousands of them cost the loop's collections
+    nothing."""
 
     seconds: float
     calls_ahead: int

@@ -209,7 +209,7 @@ def test_connect_selects_the_serial_and_disconnect_stops(fake, make_arm):
     assert not fake.control_on and not fake.initialized
     mark = fake.call_count()
     time.sleep(0.05)
-    assert fake.call_count() == mark  # the sender is gone
+    assert fake.call_count() == mark  # the USB thread is gone
     arm.disconnect()  # idempotent
 
 
@@ -372,7 +372,7 @@ def test_sender_resends_at_100_hz_and_the_arm_keeps_full_speed(fake, make_arm):
     np.testing.assert_allclose(sends[-1].values, [math.degrees(speed), 0, 0, 0, 0, 0], rtol=1e-6)
     arm.disconnect()
 
-    # the same caller without the sender: each point moves the arm for 10 ms of every 50 ms
+    # the same caller without the USB thread: each point moves the arm for 10 ms of every 50 ms
     fake.reset(position_deg=np.zeros(6))
     raw = Sdk(fake.path)
     raw.call("InitAPI")
@@ -473,7 +473,7 @@ def test_system_error_faults_the_arm_until_cleared(fake, make_arm):
         arm.send_joint_speeds(np.zeros(6))
     mark = fake.call_count()
     time.sleep(0.05)
-    assert not fake.calls(mark, "SendAdvanceTrajectory")  # the sender holds nothing
+    assert not fake.calls(mark, "SendAdvanceTrajectory")  # no command stands
     arm.clear_faults()
     assert arm.refresh_feedback().healthy
     arm.send_joint_speeds(np.array([0.1, 0, 0, 0, 0, 0]))
@@ -566,7 +566,7 @@ def test_unplugged_is_a_lost_connection(fake, make_arm):
     arm.connect()
     arm.send_joint_speeds(np.array([0.2, 0, 0, 0, 0, 0]))
     fake.set_unplugged(True)
-    time.sleep(0.03)  # the sender's next resend fails
+    time.sleep(0.03)  # the USB thread's next point fails
     with pytest.raises(ConnectionLostError, match="JACO_COMM_FAILED|ERROR_NO_DEVICE_FOUND"):
         arm.refresh_feedback()
     assert not arm.is_connected
@@ -587,7 +587,7 @@ def test_a_missing_compiler_is_a_clear_skip_reason(monkeypatch, tmp_path):
 
 
 def _connected_raw(fake) -> Sdk:
-    """The fake's SDK driven directly (no sender thread): initialised, control started."""
+    """The fake's SDK driven directly (no USB thread): initialised, control started."""
     raw = Sdk(fake.path)
     raw.call("InitAPI")
     raw.call("SetActiveDevice", raw.devices()[0])
@@ -680,7 +680,7 @@ STOP_PATHS = {
     "servoing mode": lambda arm, fake: arm.set_servoing_mode(ServoingMode.LOW_LEVEL_SERVOING),
     "disconnect": lambda arm, fake: arm.disconnect(),
     "watchdog": lambda arm, fake: time.sleep(0.1 + 0.05),
-    "sender failure": lambda arm, fake: (fake.fail_next("SendAdvanceTrajectory", 2100),
+    "failed point": lambda arm, fake: (fake.fail_next("SendAdvanceTrajectory", 2100),
                                          time.sleep(0.05)),
 }
 
