@@ -71,6 +71,7 @@ real arm: see docs/hardware.md.
 from __future__ import annotations
 
 import atexit
+import collections
 import ctypes
 import dataclasses
 import logging
@@ -298,6 +299,8 @@ class Gen2Settings(Section):
     check_calls: Annotated[Int, ge(10), le(10000)]  # --check: calls of each SDK function timed, and
     # control ticks of its held-still loop
     speed_scale: Annotated[Float, gt(0), le(1.0)]  # every command is multiplied by this
+    velocity_window: Annotated[Float, gt(0), le(1.0)]  # s: velocities are the position difference to
+    # the latest read at least this much older (angle noise over a few ms would be tens of deg/s)
     velocity_feedback_scale: Annotated[Float, gt(0)]  # GetAngularVelocity reports 1/this of the real one
     min_supply_voltage: Annotated[Float, gt(0)]  # V; below it the actuators are unpowered (the e-stop)
     scene: FilePath  # the static scene layout (hardware/scene.py) deploy uses for perception
@@ -530,7 +533,8 @@ class KinovaGen2Arm(DescribedArm):
         # the control thread's: the last position read (velocity from position differences)
         self._frame = 0
         self._last_position: np.ndarray | None = None
-        self._last_stamp = 0.0
+        self._reads: collections.deque[tuple[float, np.ndarray]] = collections.deque(maxlen=64)  # (stamp,
+        # model rad) of recent position reads: the velocity's reference
         # shared with the USB thread (its status poll), under _status
         self._status = threading.Lock()
         self._faults = Fault.NONE
@@ -612,7 +616,8 @@ class KinovaGen2Arm(DescribedArm):
             raise
         self._last_position = None
         self._last_position = self._model_position(degrees)
-        self._last_stamp = stamp
+        self._reads.clear()
+        self._reads.append((stamp, self._last_position))
         self._mode = ServoingMode.SINGLE_LEVEL_SERVOING
         settings = self.settings
         self._bus = UsbBus(sdk, velocity_point, self.num_joints, 1.0 / settings.send_rate_hz,
@@ -795,17 +800,30 @@ class KinovaGen2Arm(DescribedArm):
         return unwrap_positions(model_positions(degrees, self._convention), self._last_position,
                                 ~self._robot.limited, self._range_centre)
 
+    def _velocity(self, q: np.ndarray, stamp: float) -> np.ndarray:
+        """rad/s: the position difference to the latest read at least ``velocity_window`` s older
+        (else the oldest kept) over the time between their stamps."""
+        window = self.settings.velocity_window
+        reference = None
+        for then, before in reversed(self._reads):
+            reference = (then, before)
+            if stamp - then >= window:
+                break
+        if reference is None or stamp <= reference[0]:
+            return np.zeros_like(q)
+        return (q - reference[1]) / (stamp - reference[0])
+
     def refresh_feedback(self) -> Feedback:
         """One position read (the frame's stamp: when it returned); velocities are the position
-        difference since the previous read over the time between their stamps (the firmware's
-        velocity feedback is noisy and not read here); torques and faults as of the last status
-        poll (``status_rate_hz``)."""
+        difference to an earlier read, at least ``velocity_window`` s older, over the time between
+        their stamps (:meth:`_velocity`: at 20 Hz the previous tick's; the firmware's velocity
+        feedback is noisy and not read here); torques and faults as of the last status poll
+        (``status_rate_hz``)."""
         degrees, stamp = self._on_bus(self._read_position)
         q = self._model_position(degrees)
-        previous, before = self._last_position, self._last_stamp
-        dq = (q - previous) / (stamp - before) if previous is not None and stamp > before \
-            else np.zeros_like(q)
-        self._last_position, self._last_stamp = q, stamp
+        dq = self._velocity(q, stamp)
+        self._last_position = q
+        self._reads.append((stamp, q))
         self._frame += 1
         with self._status:
             faults, torque = self._faults, self._torque.copy()

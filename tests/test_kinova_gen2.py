@@ -113,6 +113,7 @@ def test_settings_errors_name_the_key(tmp_path):
     assert "deploy.kinova_gen2.send_ahead must be <= 0.05 s" in bad(lambda d: d.update(send_ahead=0.1))
     assert "deploy.kinova_gen2.send_ahead" in bad(lambda d: d.pop("send_ahead"))
     assert "deploy.kinova_gen2.check_calls" in bad(lambda d: d.update(check_calls=5))
+    assert "deploy.kinova_gen2.velocity_window" in bad(lambda d: d.update(velocity_window=0))
 
 
 def test_missing_library_is_one_line_naming_the_path(tmp_path, task_config):
@@ -441,6 +442,7 @@ def test_feedback_is_one_stamped_read_and_velocity_its_position_difference(fake,
     mark = fake.call_count()
     second = arm.refresh_feedback()
     returned = time.perf_counter()
+    assert second.timestamp - first.timestamp >= arm.settings.velocity_window
     read = fake.calls(mark, "GetAngularPosition")
     assert len(read) == 1 and read[0].t <= second.timestamp <= returned
     np.testing.assert_allclose(np.degrees(second.position), read[0].values, atol=1e-3)  # float32
@@ -450,7 +452,7 @@ def test_feedback_is_one_stamped_read_and_velocity_its_position_difference(fake,
     np.testing.assert_allclose(second.velocity, command, rtol=0.15, atol=1e-9)
     arm.stop()
     arm.refresh_feedback()
-    time.sleep(0.02)
+    time.sleep(0.06)  # > velocity_window: the reference is the read after the stop
     still = arm.refresh_feedback()
     np.testing.assert_array_equal(still.velocity, 0.0)
     q_deg, _ = fake.state()  # the arm is still: the same angles (float32 in the SDK's structs)
@@ -458,6 +460,24 @@ def test_feedback_is_one_stamped_read_and_velocity_its_position_difference(fake,
 
 
 # ------------------------------------------------------------------ faults
+
+
+def test_back_to_back_reads_take_their_velocity_over_the_window(fake, make_arm):
+    """Two reads a few ms apart: the second's velocity is not their difference (a real arm's angle
+    noise over 3 ms would be tens of deg/s) but the difference to the latest read at least
+    velocity_window (40 ms) older."""
+    arm = make_arm(timeout=0.5)
+    arm.connect()
+    arm.send_joint_speeds(np.array([0.2, 0, 0, 0, 0, 0]))
+    early = arm.refresh_feedback()
+    time.sleep(0.06)
+    arm.send_joint_speeds(np.array([0.2, 0, 0, 0, 0, 0]))
+    middle = arm.refresh_feedback()
+    last = arm.refresh_feedback()  # right after the previous one (unless the OS held this thread)
+    window = arm.settings.velocity_window
+    reference = middle if last.timestamp - middle.timestamp >= window else early
+    np.testing.assert_allclose(last.velocity, (last.position - reference.position)
+                               / (last.timestamp - reference.timestamp))
 
 
 def test_system_error_faults_the_arm_until_cleared(fake, make_arm):
