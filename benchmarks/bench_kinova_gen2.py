@@ -54,7 +54,7 @@ def deploy_on_fake(duration: float, freezes: int, resume_ticks: int = 10) -> dic
     fake.reset(position_deg=np.degrees(config.task.arm.home))
     settings = load_deploy_settings(realtime=True, telemetry="")
     # a missed deadline or late feedback (a loaded machine) is counted, not a stop: the figures
-    # here are the sender's and the watchdog's
+    # here are the USB thread's and the watchdog's
     settings = dataclasses.replace(settings, watchdog=dataclasses.replace(
         settings.watchdog, max_deadline_misses=10**9, max_feedback_age=10.0),
         kinova_gen2=dataclasses.replace(
