@@ -4,7 +4,9 @@ limits and the command watchdog.
 The scripted controller drives the fake-SDK arm through :class:`~ahrm_stack.deploy.DeployLoop`
 (feedback → world model on a static scene → controller → safety filter → ``send_joint_speeds``)
 paced to the wall clock for ``--duration`` s. Then the loop freezes ``--freezes`` times (it stops
-ticking, as a hung process would); each time the sender must stop the arm by itself. Measured from
+ticking, as a hung process would); each time the USB thread's watchdog must stop the arm by itself.
+(``benchmarks/bench_gen2_budget.py`` measures the USB budget: deadlines, the point rate, per-call
+latency and fault stops over minutes.) Measured from
 the fake SDK's own call log (CLOCK_MONOTONIC timestamps):
 
 - every velocity command the arm received against the safety filter's velocity bound
@@ -52,7 +54,7 @@ def deploy_on_fake(duration: float, freezes: int, resume_ticks: int = 10) -> dic
     fake.reset(position_deg=np.degrees(config.task.arm.home))
     settings = load_deploy_settings(realtime=True, telemetry="")
     # a missed deadline or late feedback (a loaded machine) is counted, not a stop: the figures
-    # here are the sender's and the watchdog's
+    # here are the USB thread's and the watchdog's
     settings = dataclasses.replace(settings, watchdog=dataclasses.replace(
         settings.watchdog, max_deadline_misses=10**9, max_feedback_age=10.0),
         kinova_gen2=dataclasses.replace(
@@ -89,12 +91,11 @@ def deploy_on_fake(duration: float, freezes: int, resume_ticks: int = 10) -> dic
             give_up = time.perf_counter() + arm.command_timeout + 2.0
             while len(arm.watchdog_stops) == before:  # the loop is frozen
                 if time.perf_counter() > give_up:
-                    inner = arm.arm
+                    bus = arm.bus
                     raise RuntimeError(
                         f"the watchdog did not stop the arm (freeze {i}: standing "
-                        f"{inner.standing_command}, sender alive "
-                        f"{inner._thread is not None and inner._thread.is_alive()}, error "
-                        f"{inner._sender_error!r}, fresh {time.perf_counter() - inner._fresh_at:.3f} s ago)")
+                        f"{arm.standing_command}, USB thread alive "
+                        f"{bus is not None and bus.running})")
                 time.sleep(0.01)
             stop = arm.watchdog_stops[before]
             # the watchdog's zero: the last zero command recorded before it noted the time

@@ -3,15 +3,18 @@
 :data:`BACKENDS` maps a name to a :class:`Backend`: ``check(config, settings)`` validates the
 backend's settings before anything is written or contacted (a one-line ``ValueError`` naming the
 key or the file), ``make(config, settings)`` builds the adapter, not yet connected, with the
-``perception()`` method the deploy loop calls. ``config`` is the run's
-:class:`~ahrm_stack.config.Config` (its ``task.robot`` is the arm model), ``settings`` the
-:class:`~ahrm_stack.deploy.DeploySettings`. Backends are imported only when built.
+``perception()`` method the deploy loop calls; ``link_check(config, settings)``, for a backend
+with a link worth measuring (``--check``), connects, measures the link with the arm held still,
+disconnects and returns the lines to print and whether the budget fits (None: the backend has no
+such check). ``config`` is the run's :class:`~ahrm_stack.config.Config` (its ``task.robot`` is the
+arm model), ``settings`` the :class:`~ahrm_stack.deploy.DeploySettings`. Backends are imported only
+when built.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable
+from typing import Any, Callable, Optional
 
 from hardware.protocol import ArmAdapter
 
@@ -22,6 +25,7 @@ class Backend:
     help: str
     check: Callable[[Any, Any], None]
     make: Callable[[Any, Any], ArmAdapter]
+    link_check: Optional[Callable[[Any, Any], tuple[list[str], bool]]] = None
 
 
 def _check_sim(config, settings) -> None:
@@ -73,6 +77,20 @@ def _make_gen2(config, settings) -> ArmAdapter:
     return PerceivedArm(arm, scene)
 
 
+def _link_check_gen2(config, settings) -> tuple[list[str], bool]:
+    """The Gen2 USB budget on the arm (:mod:`hardware.kinova_gen2_check`), held still."""
+    from hardware.kinova_gen2 import KinovaGen2Arm
+    from hardware.kinova_gen2_check import Rates, check_link
+
+    gen2, robot, _ = _gen2_parts(config, settings)
+    arm = KinovaGen2Arm(robot, gen2, command_timeout_s=gen2.command_timeout * settings.period)
+    rates = Rates(control_hz=settings.rate_hz,
+                  command_deadline=settings.watchdog.command_deadline * settings.period,
+                  send_rate_hz=gen2.send_rate_hz, send_ahead=gen2.send_ahead,
+                  status_rate_hz=gen2.status_rate_hz)
+    return check_link(arm, rates, gen2.check_calls)
+
+
 def _check_kortex(config, settings) -> None:
     """Refused in one line, before anything is written or contacted: what is missing (address,
     credentials, real-time pacing, a scene source)."""
@@ -92,7 +110,7 @@ BACKENDS: dict[str, Backend] = {
     "sim": Backend("sim", "the training physics (dm_control), paced or --fast", _check_sim, _make_sim),
     "kinova-gen2": Backend("kinova-gen2", "a Kinova Gen2 / JACO2 over Kinova's C SDK "
                            "(configs/deploy.yaml kinova_gen2; docs/hardware.md)",
-                           _check_gen2, _make_gen2),
+                           _check_gen2, _make_gen2, _link_check_gen2),
     "kortex": Backend("kortex", "a Kinova Gen3 over kortex_api (configs/deploy.yaml kortex; it refuses "
                       "to run until a scene source exists, naming what is missing)",
                       _check_kortex, _make_kortex),

@@ -14,22 +14,28 @@ kinova-ros's headers (``kinova_driver/include/kinova/KinovaTypes.h``,
 ``Kinova.API.USBCommandLayerUbuntu.h``, ``Kinova.API.USBCommLayerUbuntu.h``) and match the vendor
 binary's debug information; C++ references (``int &``) are pointers in the C ABI.
 
-**Joint velocities must be resent at 100 Hz**: an ANGULAR_VELOCITY trajectory point moves the arm
-only briefly, so a slower sender moves it proportionally slower. The deploy loop runs at 20 Hz;
-:class:`KinovaGen2Arm` therefore runs a sender thread (``kinova_gen2.send_rate_hz``) that resends
-the latest command (already checked by :func:`~hardware.protocol.check_joint_speeds`). The arm
-executes one trajectory point per 10 ms from a FIFO of 2,000 points, so the rate is capped at 100 Hz:
-faster points would pile up and keep the arm moving after commands stop. Every stop erases the
-FIFO (``EraseAllTrajectories``). Its
-**command watchdog**: when no fresh command has come for ``kinova_gen2.command_timeout`` control
-periods, the sender sends zero velocity, then ``EraseAllTrajectories``, and records why
-(:attr:`KinovaGen2Arm.watchdog_stops`); the next fresh command moves the arm again. The thread
-wakes at the deadline itself, not at the next 100 Hz slot.
+**One thread owns the USB.** The SDK handles one call at a time, each a USB round trip of several
+ms, and an ANGULAR_VELOCITY trajectory point moves the arm for 10 ms only, so joint velocities must
+reach it at 100 Hz while the deploy loop runs at 20 Hz with a 25 ms command deadline. Once
+connected, every SDK call goes through :class:`~hardware.kinova_gen2_bus.UsbBus`'s thread, which
+orders them: stops first, then trajectory points before the arm's FIFO runs dry, then the callers'
+calls, then the status poll (see :mod:`hardware.kinova_gen2_bus`). A control tick costs one
+position read (:meth:`KinovaGen2Arm.refresh_feedback`, stamped when the read returned; velocities
+are position differences between reads); :meth:`~KinovaGen2Arm.send_joint_speeds` only makes the
+command the standing one, which the thread sends in its next point (at most 100 per second,
+``send_ahead`` s of motion queued: ``kinova_gen2.send_rate_hz`` is capped at 100 Hz since faster
+points pile up in the arm's 2,000-point FIFO and keep it moving after commands stop). Supply
+voltage, the system error log and the torques are polled at ``kinova_gen2.status_rate_hz`` (2 Hz).
+Every stop sends zero velocity and erases the FIFO (``EraseAllTrajectories``). The **command
+watchdog**: when no fresh command has come for ``kinova_gen2.command_timeout`` control periods, the
+thread sends zero velocity, then ``EraseAllTrajectories``, at that deadline, and records why
+(:attr:`KinovaGen2Arm.watchdog_stops`); the next fresh command moves the arm again.
 
 Units: the protocol speaks rad and rad/s; Gen2 degrees and deg/s. The model's joint angle is
 ``sign * kinova_angle + offset`` per joint (``kinova_gen2.joints.<arm>``; both arms: sign +1,
 offset 0, as kinova-ros's current driver publishes the raw angles for kinova_description's URDFs,
-which dm_control's JACO MJCF copies). ``GetAngularVelocity`` reports half the real velocity with
+which dm_control's JACO MJCF copies). ``GetAngularVelocity`` (read only by the ``--check``:
+the loop derives velocities from positions) reports half the real velocity with
 negative values as 360 - |v| (kinova-ros's ``kinova_comm.cpp`` multiplies by 2 and
 ``kinova_arm.cpp`` subtracts 360 above 180); :func:`model_velocities` undoes both.
 
@@ -39,31 +45,37 @@ is a :class:`~hardware.protocol.HardwareError` naming the function and the code.
 the arm's system error log (``GetSystemErrorCount`` / ``GetSystemError``) puts the adapter in
 fault (``Fault.HARDWARE``); a supply voltage below ``kinova_gen2.min_supply_voltage``
 (``GetSensorsInfo``) or a logged voltage error is the e-stop cutting the actuators' power
-(``Fault.EMERGENCY_STOP``). Gen2 has no software e-stop: :meth:`KinovaGen2Arm.apply_emergency_stop`
+(``Fault.EMERGENCY_STOP``). The status poll that sees a fault stops the arm at once, on the USB
+thread, whatever the control loop is doing (:attr:`KinovaGen2Arm.fault_stops`), and the next
+feedback frame carries the flags. Gen2 has no software e-stop: :meth:`KinovaGen2Arm.apply_emergency_stop`
 sends zero, erases the trajectory FIFO and calls ``StopControlAPI`` (the arm ignores commands
 until :meth:`~KinovaGen2Arm.clear_faults` calls ``StartControlAPI`` again). In fault, motion
 commands raise :class:`~hardware.protocol.ArmFaultError`.
 
 :meth:`KinovaGen2Arm.connect` selects the arm by its serial number (``kinova_gen2.serial``) from
-``GetDevices``; it never takes the first one found. Every exit path of connect (a failure
-included) and :meth:`~KinovaGen2Arm.disconnect` leave the arm stopped, calling only what is valid
-after what succeeded: once ``StartControlAPI`` has succeeded, zero velocity,
-``EraseAllTrajectories``, ``StopControlAPI``; then ``CloseAPI`` (valid in every state). Before that
-(``InitAPI`` failed, no arm) only ``CloseAPI``: the real SDK crashes in ``SendAdvanceTrajectory``
-when ``InitAPI`` could not load its communication layer. An ``atexit`` hook disconnects an
-adapter left connected. Only the serial number is ever logged.
+``GetDevices``; it never takes the first one found. It starts the control API, stops it and starts
+it again (as kinova-ros does: on a cold boot the arm may not respond to the first start). Every exit
+path of connect (a failure included) and :meth:`~KinovaGen2Arm.disconnect` leave the arm stopped,
+calling only what is valid after what succeeded: once ``StartControlAPI`` has succeeded, zero
+velocity, ``EraseAllTrajectories``, ``StopControlAPI``; then ``CloseAPI`` (valid in every state).
+Before that (``InitAPI`` failed, no arm) only ``CloseAPI``: the real SDK crashes in
+``SendAdvanceTrajectory`` when ``InitAPI`` could not load its communication layer. An ``atexit``
+hook disconnects an adapter left connected. Only the serial number is ever logged.
 
 Tested against the fake SDK in ``tests/fake_kinova_sdk/`` (same exports and layouts; per-call USB
-latency, the trajectory FIFO, noisy velocity feedback) and, without an arm, against Kinova's own
-binary (``tests/test_kinova_gen2_vendor.py``); never against a real arm: see docs/hardware.md.
+latency, one call at a time, the trajectory FIFO, noisy velocity feedback, a cold boot) and,
+without an arm, against Kinova's own binary (``tests/test_kinova_gen2_vendor.py``); never against a
+real arm: see docs/hardware.md.
 """
 
 from __future__ import annotations
 
 import atexit
+import collections
 import ctypes
 import dataclasses
 import logging
+import math
 import sys
 import threading
 import time
@@ -74,7 +86,9 @@ from typing import TYPE_CHECKING, Annotated, Any, Optional
 import numpy as np
 from pydantic import AfterValidator, PlainValidator
 
-from ahrm_stack.schema import ConfigError, Float, Int, Section, Str, count, fail, gt, le
+from ahrm_stack.schema import ConfigError, Float, Int, Section, Str, count, fail, ge, gt, le
+from hardware.kinova_gen2_bus import (POINT_PERIOD, BusClosedError, BusHeldError, CallTimes, UsbBus,
+                                      WatchdogStop, is_link_error)
 from hardware.kinova_gen2_loader import LoaderPathError, check_comm_layers
 from hardware.protocol import (DescribedArm, ArmFaultError, ArmState, CommandRefusedError,
                                ConnectionLostError, Fault, Feedback, HardwareError,
@@ -96,7 +110,7 @@ NO_ERROR_KINOVA = 1
 ERROR_NO_DEVICE_FOUND = 1015
 ERROR_LOAD_COMM_DLL = 2002
 ANGULAR_VELOCITY = 8  # POSITION_TYPE
-ARM_POINT_RATE_HZ = 100.0  # trajectory points the arm executes per second (one per 10 ms)
+ARM_POINT_RATE_HZ = 1.0 / POINT_PERIOD  # trajectory points the arm executes per second (100)
 SERIAL_LENGTH = 20
 MAX_KINOVA_DEVICE = 20
 ERROR_LAYER_COUNT = 7
@@ -271,12 +285,22 @@ class Gen2Settings(Section):
     serial: Annotated[Optional[str], PlainValidator(_serial)]  # the arm's serial; required to connect
     send_rate_hz: Annotated[Float, gt(0), le(ARM_POINT_RATE_HZ, " Hz: the arm executes one trajectory "
                                               "point per 10 ms; faster points pile up in its 2,000-point "
-                                              "FIFO and keep it moving after commands stop")]  # Hz, the
-    # sender thread's rate
+                                              "FIFO and keep it moving after commands stop")]  # Hz: at
+    # most this many trajectory points per second (100: the arm's own rate)
+    send_ahead: Annotated[Float, gt(0), le(0.05, " s: queued motion delays every command by as much and "
+                                           "keeps the arm moving that long after a lost link")]  # s of
+    # motion left in the arm's FIFO when the next point is sent
+    status_rate_hz: Annotated[Float, gt(0), le(10.0, " Hz: each poll is three USB calls of several ms "
+                                           "(kinova-ros polls at 10 Hz)")]  # Hz: supply voltage, error
+    # log and torques are read this often (a logged fault is seen within 1 / this)
     command_timeout: Annotated[Float, gt(1, " (a healthy loop sends one command per period)"),
                                le(100.0)]  # control periods without a fresh command before the
-    # sender stops
+    # USB thread stops the arm
+    check_calls: Annotated[Int, ge(10), le(10000)]  # --check: calls of each SDK function timed, and
+    # control ticks of its held-still loop
     speed_scale: Annotated[Float, gt(0), le(1.0)]  # every command is multiplied by this
+    velocity_window: Annotated[Float, gt(0), le(1.0)]  # s: velocities are the position difference to
+    # the latest read at least this much older (angle noise over a few ms would be tens of deg/s)
     velocity_feedback_scale: Annotated[Float, gt(0)]  # GetAngularVelocity reports 1/this of the real one
     min_supply_voltage: Annotated[Float, gt(0)]  # V; below it the actuators are unpowered (the e-stop)
     scene: FilePath  # the static scene layout (hardware/scene.py) deploy uses for perception
@@ -380,10 +404,12 @@ class SdkCallError(HardwareError):
 
 
 class Sdk:
-    """The loaded SDK: :meth:`call` runs one function under one lock (the SDK is not re-entrant)
-    and raises :class:`SdkCallError` for a code other than NO_ERROR_KINOVA. Loading it checks
-    first that the dynamic loader finds the communication layers it loads by name
-    (:func:`check_sdk_path`: :class:`Gen2ConfigError`); :attr:`comm_layers` says which files."""
+    """The loaded SDK: :meth:`call` runs one function under one lock (the SDK is not re-entrant),
+    times it (:attr:`times`) and raises :class:`SdkCallError` for a code other than
+    NO_ERROR_KINOVA. Loading it checks first that the dynamic loader finds the communication
+    layers it loads by name (:func:`check_sdk_path`: :class:`Gen2ConfigError`); :attr:`comm_layers`
+    says which files. Once an adapter is connected only its USB thread calls it
+    (:mod:`hardware.kinova_gen2_bus`)."""
 
     def __init__(self, library: Path) -> None:
         self.comm_layers = check_sdk_path(library)  # before InitAPI can ever run
@@ -400,10 +426,13 @@ class Sdk:
             function.argtypes = list(argtypes)
             function.restype = ctypes.c_int
         self.lock = threading.RLock()
+        self.times = CallTimes()
 
     def call(self, name: str, *args) -> int:
         with self.lock:
+            start = time.perf_counter()
             code = getattr(self.lib, name)(*args)
+            self.times.record(name, time.perf_counter() - start)
         if code != NO_ERROR_KINOVA:
             raise SdkCallError(name, code)
         return code
@@ -441,12 +470,13 @@ def _actuators(info: AngularInfo, n: int) -> np.ndarray:
 
 
 @dataclasses.dataclass(frozen=True)
-class WatchdogStop:
-    """One stop by the command watchdog: ``deadline`` (perf_counter s) the fresh command was due
-    by, ``sent_at`` when the zero command went out, ``reason``."""
+class FaultStop:
+    """A fault the adapter found by itself (the status poll, a failed call of the USB thread):
+    ``detected_at`` (perf_counter s) when the read that showed it returned, ``stopped_at`` when the
+    FIFO was erased after a zero-velocity point (None if the arm could not be reached), ``reason``."""
 
-    deadline: float
-    sent_at: float
+    detected_at: float
+    stopped_at: float | None
     reason: str
 
 
@@ -463,13 +493,14 @@ def _disconnect_all() -> None:  # pragma: no cover - runs at interpreter exit
 
 
 class KinovaGen2Arm(DescribedArm):
-    """A Kinova Gen2 arm (JACO2) over the C SDK, with a 100 Hz sender thread and a command
-    watchdog (see the module docstring).
+    """A Kinova Gen2 arm (JACO2) over the C SDK, every call through one USB thread
+    (:class:`~hardware.kinova_gen2_bus.UsbBus`: the 100 Hz points, the command watchdog, the status
+    poll; see the module docstring).
 
     Args:
         robot: the arm model the controller was trained on (its joint count must be the arm's).
         settings: the ``kinova_gen2`` section (library, serial, rates, joint conventions).
-        command_timeout_s: s without a fresh command before the sender stops the arm
+        command_timeout_s: s without a fresh command before the USB thread stops the arm
             (``settings.command_timeout`` control periods; the caller knows the period).
     """
 
@@ -483,38 +514,37 @@ class KinovaGen2Arm(DescribedArm):
         self._robot = robot
         self.settings = settings
         self._convention = joint_convention(settings, robot)
+        self._sign = np.asarray(self._convention.sign, dtype=float)
         self._library = check_library(settings)
         if settings.serial is None:
             raise Gen2ConfigError(f"{_key('serial')} is not set: the arm is chosen by its serial "
                                   "number, never the first one found")
         self._serial = settings.serial
         self._timeout = float(command_timeout_s)
-        self._send_period = 1.0 / settings.send_rate_hz
         self._clock = WallClock()
         self._sdk: Sdk | None = None
+        self._bus: UsbBus | None = None
         self._connected = False
         self._api_open = False  # InitAPI was called: CloseAPI is due (valid whatever InitAPI returned)
         self._control_started = False  # StartControlAPI succeeded: trajectory calls are valid
         self._mode = ServoingMode.SINGLE_LEVEL_SERVOING
-        self._faults = Fault.NONE
-        self._fault_reason = ""
+        self._range_centre = range_centres(robot)
+        self._switch_interval = sys.getswitchinterval()
+        # the control thread's: the last position read (velocity from position differences)
         self._frame = 0
         self._last_position: np.ndarray | None = None
-        self._range_centre = range_centres(robot)
+        self._reads: collections.deque[tuple[float, np.ndarray]] = collections.deque(maxlen=64)  # (stamp,
+        # model rad) of recent position reads: the velocity's reference
+        # shared with the USB thread (its status poll), under _status
+        self._status = threading.Lock()
+        self._faults = Fault.NONE
+        self._fault_reason = ""
         self._errors_seen = 0
-        # shared with the sender thread (under self._state)
-        self._state = threading.Lock()
-        self._wake = threading.Event()
-        self._quit = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._command_deg = np.zeros(robot.num_joints)  # Kinova deg/s
-        self._active = False  # a motion command stands and is being resent
-        self._fresh_at = 0.0  # perf_counter s of the last fresh command
-        self._next_send = 0.0
-        self._sender_error: BaseException | None = None
-        self._switch_interval = sys.getswitchinterval()
-        self.watchdog_stops: list[WatchdogStop] = []
-        self.sends = 0  # SendAdvanceTrajectory calls (fresh and resent)
+        self._voltage = math.nan  # V, the last GetSensorsInfo
+        self._torque = np.zeros(robot.num_joints)  # N·m (model signs), the last GetAngularForce
+        self.fault_stops: list[FaultStop] = []
+        self.watchdog_stops: list[WatchdogStop] = []  # the USB thread's, over every connection
+        self._points_before = 0  # points sent on earlier connections
 
     # ------------------------------------------------------------------ description
     @property
@@ -523,11 +553,31 @@ class KinovaGen2Arm(DescribedArm):
 
     @property
     def command_timeout(self) -> float:
-        """s without a fresh command before the sender stops the arm."""
+        """s without a fresh command before the USB thread stops the arm."""
         return self._timeout
+
+    @property
+    def bus(self) -> UsbBus | None:
+        """The USB thread while connected (its points, watchdog stops, call times)."""
+        return self._bus
+
+    @property
+    def sends(self) -> int:
+        """Trajectory points carrying a standing command (``SendAdvanceTrajectory`` calls by the
+        USB thread), over every connection."""
+        return self._points_before + (self._bus.points if self._bus is not None else 0)
+
+    @property
+    def call_times(self) -> CallTimes | None:
+        """Durations of every SDK call made (per function), or None before the first connect."""
+        return self._sdk.times if self._sdk is not None else None
 
     # ------------------------------------------------------------------ session
     def connect(self) -> None:
+        """Open the API, select the arm by serial, start control (start, stop, start: on a cold
+        boot the arm may not respond to the first StartControlAPI, as kinova-ros does it), angular
+        control, an empty FIFO and a zero point; read the error count, the sensors, the torques and
+        the position (the first velocity's reference); then start the USB thread."""
         if self._connected:
             raise HardwareError(f"KinovaGen2Arm({self._serial}) is already connected")
         if self._sdk is None:
@@ -548,33 +598,41 @@ class KinovaGen2Arm(DescribedArm):
             sdk.call("SetActiveDevice", chosen[0])
             sdk.call("StartControlAPI")
             self._control_started = True
+            sdk.call("StopControlAPI")  # the cold-boot kick (kinova-ros kinova_comm.cpp)
+            sdk.call("StartControlAPI")
             sdk.call("SetAngularControl")
             sdk.call("EraseAllTrajectories")
             sdk.call("SendAdvanceTrajectory", velocity_point(np.zeros(self.num_joints)))
             count = ctypes.c_uint(0)
             sdk.call("GetSystemErrorCount", ctypes.byref(count))
-            self._errors_seen = int(count.value)
+            with self._status:
+                self._errors_seen = int(count.value)
+                self._faults, self._fault_reason = Fault.NONE, ""
+            self._read_sensors(sdk)
+            self._read_torques(sdk)
+            degrees, stamp = self._read_position(sdk)
         except BaseException:
             self._close_sdk()  # every exit path leaves the arm stopped and the API closed
             raise
-        self._connected = True
-        self._mode = ServoingMode.SINGLE_LEVEL_SERVOING
         self._last_position = None
-        with self._state:
-            self._active = False
-            self._command_deg = np.zeros(self.num_joints)
-            self._sender_error = None
-        self._quit.clear()
-        self._thread = threading.Thread(target=self._sender, name=f"kinova-gen2-sender-{self._serial}",
-                                        daemon=True)
+        self._last_position = self._model_position(degrees)
+        self._reads.clear()
+        self._reads.append((stamp, self._last_position))
+        self._mode = ServoingMode.SINGLE_LEVEL_SERVOING
+        settings = self.settings
+        self._bus = UsbBus(sdk, velocity_point, self.num_joints, 1.0 / settings.send_rate_hz,
+                           settings.send_ahead, self._timeout, 1.0 / settings.status_rate_hz,
+                           (self._read_sensors, self._read_error_log, self._read_torques),
+                           f"kinova-gen2-usb-{self._serial}", self.watchdog_stops)
         self._switch_interval = sys.getswitchinterval()
-        sys.setswitchinterval(min(self._switch_interval, self.settings.switch_interval))
-        self._thread.start()
+        sys.setswitchinterval(min(self._switch_interval, settings.switch_interval))
+        self._bus.start()
+        self._connected = True
         _LIVE.add(self)
         comm = ", ".join(f"{path or name}" for name, path in sdk.comm_layers.items()) or "none named"
-        log.info("kinova_gen2: connected to the arm with serial %s (%s Hz sender, watchdog %.0f ms; "
-                 "communication layer: %s)", self._serial, f"{self.settings.send_rate_hz:g}",
-                 self._timeout * 1e3, comm)
+        log.info("kinova_gen2: connected to the arm with serial %s (%s Hz points, %s Hz status, "
+                 "watchdog %.0f ms; communication layer: %s)", self._serial,
+                 f"{settings.send_rate_hz:g}", f"{settings.status_rate_hz:g}", self._timeout * 1e3, comm)
 
     def _init_failure(self, error: SdkCallError) -> str:
         """One line for a failed ``InitAPI``: what the code means here and what to check."""
@@ -591,7 +649,8 @@ class KinovaGen2Arm(DescribedArm):
     def _close_sdk(self) -> None:
         """Leave the arm stopped and the API closed, calling only what is valid after what
         succeeded: zero velocity, erase the FIFO and StopControlAPI once StartControlAPI has
-        succeeded; CloseAPI once InitAPI was called. Each best effort."""
+        succeeded; CloseAPI once InitAPI was called. Each best effort. Only with the USB thread
+        ended (this thread then owns the USB)."""
         sdk = self._sdk
         if sdk is None:
             return
@@ -603,254 +662,315 @@ class KinovaGen2Arm(DescribedArm):
             sdk.call_quietly("CloseAPI")
         self._control_started = self._api_open = False
 
-    def _stop_thread(self) -> None:
-        self._quit.set()
-        self._wake.set()
-        thread, self._thread = self._thread, None
-        if thread is not None and thread is not threading.current_thread():
-            thread.join(timeout=1.0)
-        if thread is not None:
+    def _stop_bus(self) -> None:
+        bus, self._bus = self._bus, None
+        if bus is not None:
+            bus.close()
             sys.setswitchinterval(self._switch_interval)
+            self._points_before += bus.points
 
     def disconnect(self) -> None:
         if not self._connected:
             return
         try:
-            self._stop_thread()
-            with self._state:
-                self._active = False
+            self._stop_bus()
         finally:
             self._connected = False
             self._close_sdk()
             _LIVE.discard(self)
             log.info("kinova_gen2: disconnected from %s (arm stopped, API closed)", self._serial)
 
-    def _lose(self, error: SdkCallError) -> ConnectionLostError:
-        """The link is gone: stop the sender, close what can be closed, be disconnected."""
+    def _lose(self, error: BaseException) -> ConnectionLostError:
+        """The link is gone: end the USB thread, close what can be closed, be disconnected."""
         log.error("kinova_gen2: connection to %s lost (%s)", self._serial, error)
-        self._stop_thread()
+        bus = self._bus
+        failed_at = bus.closed_at if bus is not None and bus.closed_at is not None else time.perf_counter()
+        self._stop_bus()
         self._connected = False
         self._close_sdk()
         _LIVE.discard(self)
+        with self._status:
+            self.fault_stops.append(FaultStop(failed_at, None, f"link lost: {error}"))
         return ConnectionLostError(f"the link to the Kinova arm {self._serial} was lost ({error}); "
-                                   "the arm stops itself when velocity commands stop")
+                                   "the arm stops itself when velocity points stop")
 
-    def _require(self) -> Sdk:
-        """The SDK, or NotConnectedError; a failure of the sender thread surfaces here (a lost link
-        as ConnectionLostError, the adapter then disconnected; anything else as a fault)."""
-        if not self._connected or self._sdk is None:
+    def _require(self) -> UsbBus:
+        """The USB thread, or NotConnectedError; a failure of its own calls surfaces here (a lost
+        link as ConnectionLostError, the adapter then disconnected; anything else as a fault)."""
+        bus = self._bus
+        if not self._connected or bus is None:
             raise NotConnectedError(f"KinovaGen2Arm({self._serial}) is not connected; call connect()")
-        with self._state:
-            error, self._sender_error = self._sender_error, None
+        error = bus.take_error()
         if error is not None:
-            if isinstance(error, SdkCallError) and error.communication:
+            if is_link_error(error) or not bus.running:
                 raise self._lose(error)
-            self._latch(Fault.COMMUNICATION, f"the sender thread failed: {error}")
-        return self._sdk
+            self._latch(Fault.COMMUNICATION, f"a call of the USB thread failed: {error}",
+                        time.perf_counter())
+        return bus
 
-    def _call(self, name: str, *args) -> None:
+    def _on_bus(self, job):
+        """``job(sdk)`` on the USB thread; a lost link disconnects (ConnectionLostError)."""
+        bus = self._require()
         try:
-            self._sdk.call(name, *args)
+            return bus.call(job)
         except SdkCallError as error:
             if error.communication:
                 raise self._lose(error) from None
             raise
+        except BusClosedError as error:
+            raise self._lose(error.__cause__ or error) from None
 
-    # ------------------------------------------------------------------ the sender thread
-    def _sender(self) -> None:
-        """Resend the standing command every send period; stop the arm when it goes stale. The
-        state lock is held across each send, so a fresh command cannot slip between the watchdog's
-        check and its zero command."""
-        sdk = self._sdk
-        while not self._quit.is_set():
-            reason = None
-            try:
-                with self._state:
-                    now = time.perf_counter()
-                    active = self._active
-                    deadline = self._fresh_at + self._timeout
-                    if active and now >= deadline:
-                        sdk.call("SendAdvanceTrajectory", velocity_point(np.zeros(self.num_joints)))
-                        sent_at = time.perf_counter()
-                        sdk.call("EraseAllTrajectories")
-                        reason = (f"command watchdog: no fresh command for "
-                                  f"{(now - self._fresh_at) * 1e3:.1f} ms (timeout "
-                                  f"{self._timeout * 1e3:.0f} ms): zero velocity sent, "
-                                  "trajectories erased")
-                        self._active = active = False
-                        self._command_deg = np.zeros(self.num_joints)
-                        self.watchdog_stops.append(WatchdogStop(deadline, sent_at, reason))
-                    elif active and now >= self._next_send:
-                        sdk.call("SendAdvanceTrajectory", velocity_point(self._command_deg))
-                        self.sends += 1
-                        self._next_send = max(self._next_send + self._send_period, now)
-                    wake = min(self._next_send, deadline) if active else now + self._send_period
-            except BaseException as error:  # noqa: BLE001 - recorded; the caller's next call sees it
-                with self._state:
-                    self._sender_error = error
-                    self._active = False
-                log.error("kinova_gen2: the sender stopped: %s", error)
-                if sdk is not None:
-                    sdk.call_quietly("EraseAllTrajectories")
-                return
-            if reason is not None:
-                log.warning("kinova_gen2: %s", reason)
-            self._wake.wait(max(0.0, wake - time.perf_counter()))
-            self._wake.clear()
-
-    def _drop_command(self) -> None:
-        """No standing command: the sender stops resending."""
-        with self._state:
-            self._active = False
-            self._command_deg = np.zeros(self.num_joints)
-        self._wake.set()
-
-    def _halt_motion(self) -> None:
-        """No standing command; zero velocity and an empty FIFO on the arm."""
-        self._drop_command()
-        self._call("SendAdvanceTrajectory", velocity_point(np.zeros(self.num_joints)))
-        self._call("EraseAllTrajectories")
-
-    def _latch(self, fault: Fault, reason: str) -> None:
-        if Fault(fault) & ~self._faults:
-            log.error("kinova_gen2: arm %s in fault: %s", self._serial, reason)
-        self._faults |= fault
-        self._fault_reason = reason
-        self._drop_command()
-        if self._sdk is not None:
-            self._sdk.call_quietly("EraseAllTrajectories")
-
-    # ------------------------------------------------------------------ protocol
-    def refresh_feedback(self) -> Feedback:
-        self._require()
-        n = self.num_joints
-        position, velocity, force = AngularPosition(), AngularPosition(), AngularPosition()
-        sensors, count = SensorsInfo(), ctypes.c_uint(0)
-        self._call("GetAngularPosition", ctypes.byref(position))
-        self._call("GetAngularVelocity", ctypes.byref(velocity))
-        self._call("GetAngularForce", ctypes.byref(force))
-        self._call("GetSensorsInfo", ctypes.byref(sensors))
-        self._call("GetSystemErrorCount", ctypes.byref(count))
-        stamp = self._clock.now()
-        self._check_errors(int(count.value))
+    # ------------------------------------------------------------------ the status poll (USB thread)
+    def _read_sensors(self, sdk: Sdk) -> None:
+        """GetSensorsInfo: a supply voltage below ``min_supply_voltage`` is the e-stop."""
+        sensors = SensorsInfo()
+        sdk.call("GetSensorsInfo", ctypes.byref(sensors))
+        at = time.perf_counter()
+        with self._status:
+            self._voltage = float(sensors.Voltage)
         if sensors.Voltage < self.settings.min_supply_voltage:
             self._latch(Fault.EMERGENCY_STOP | Fault.HARDWARE,
                         f"supply voltage {sensors.Voltage:.1f} V below "
-                        f"{self.settings.min_supply_voltage:g} V (e-stop pressed or power lost)")
-        convention = self._convention
-        q = unwrap_positions(model_positions(_actuators(position.Actuators, n), convention),
-                             self._last_position, ~self._robot.limited, self._range_centre)
-        self._last_position = q
-        dq = model_velocities(_actuators(velocity.Actuators, n), convention,
-                              self.settings.velocity_feedback_scale)
-        torque = np.asarray(convention.sign, dtype=float) * _actuators(force.Actuators, n)
-        self._frame += 1
-        in_fault = self._faults != Fault.NONE
-        return Feedback(timestamp=stamp, frame_id=self._frame, position=q, velocity=dq,
-                        torque=torque,
-                        arm_state=ArmState.IN_FAULT if in_fault else ArmState.SERVOING_READY,
-                        faults=self._faults)
+                        f"{self.settings.min_supply_voltage:g} V (e-stop pressed or power lost)", at)
 
-    def _check_errors(self, count: int) -> None:
-        """New entries of the arm's system error log put the adapter in fault (the ``...OK``
-        entries, a condition ending, do not)."""
-        if count <= self._errors_seen:
-            self._errors_seen = min(self._errors_seen, count)
-            return
-        for index in range(self._errors_seen, count):
+    def _read_error_log(self, sdk: Sdk) -> None:
+        """GetSystemErrorCount, and GetSystemError for each new entry: new entries put the adapter
+        in fault (the ``...OK`` entries, a condition ending, do not)."""
+        count = ctypes.c_uint(0)
+        sdk.call("GetSystemErrorCount", ctypes.byref(count))
+        at = time.perf_counter()
+        with self._status:
+            seen = self._errors_seen
+            if count.value <= seen:
+                self._errors_seen = min(seen, int(count.value))
+                return
+        for index in range(seen, int(count.value)):
             entry = SystemError()
-            self._call("GetSystemError", ctypes.c_uint(index), ctypes.byref(entry))
+            sdk.call("GetSystemError", ctypes.c_uint(index), ctypes.byref(entry))
             kind = entry.ErrorType
             name = SYSTEM_ERROR_TYPES[kind] if 0 <= kind < len(SYSTEM_ERROR_TYPES) else f"type {kind}"
             if name.endswith("OK"):
                 log.info("kinova_gen2: arm %s reports %s", self._serial, name)
                 continue
             fault = Fault.HARDWARE | (Fault.EMERGENCY_STOP if kind == VOLTAGE_ERROR else Fault.NONE)
-            self._latch(fault, f"the arm logged system error {name}")
-        self._errors_seen = count
+            self._latch(fault, f"the arm logged system error {name}", at)
+        with self._status:
+            self._errors_seen = int(count.value)
+
+    def _read_torques(self, sdk: Sdk) -> None:
+        """GetAngularForce: the joint torques (N·m, model signs) of the next feedback frames."""
+        force = AngularPosition()
+        sdk.call("GetAngularForce", ctypes.byref(force))
+        torque = self._sign * _actuators(force.Actuators, self.num_joints)
+        with self._status:
+            self._torque = torque
+
+    def _read_position(self, sdk: Sdk) -> tuple[np.ndarray, float]:
+        """GetAngularPosition: Kinova's angles (deg) and when the read returned (perf_counter s)."""
+        position = AngularPosition()
+        sdk.call("GetAngularPosition", ctypes.byref(position))
+        return _actuators(position.Actuators, self.num_joints), time.perf_counter()
+
+    def _latch(self, fault: Fault, reason: str, detected_at: float) -> None:
+        """Enter fault: no standing command; on a new fault, zero velocity and an empty FIFO now
+        (on the USB thread, before any other call) and the stop recorded."""
+        with self._status:
+            new = Fault(fault) & ~self._faults
+            self._faults |= fault
+            self._fault_reason = reason
+        bus = self._bus
+        if not new:
+            if bus is not None:
+                bus.drop()
+            return
+        log.error("kinova_gen2: arm %s in fault: %s", self._serial, reason)
+        stopped_at = None
+        if bus is not None:
+            try:
+                stopped_at = bus.halt(hold=True)
+            except Exception as error:  # noqa: BLE001 - the lost link surfaces at the next call
+                log.error("kinova_gen2: could not stop %s on its fault (%s)", self._serial, error)
+                if bus.on_thread() and is_link_error(error):
+                    raise
+        with self._status:
+            self.fault_stops.append(FaultStop(detected_at, stopped_at, reason))
+
+    # ------------------------------------------------------------------ protocol
+    def _model_position(self, degrees: np.ndarray) -> np.ndarray:
+        return unwrap_positions(model_positions(degrees, self._convention), self._last_position,
+                                ~self._robot.limited, self._range_centre)
+
+    def _velocity(self, q: np.ndarray, stamp: float) -> np.ndarray:
+        """rad/s: the position difference to the latest read at least ``velocity_window`` s older
+        (else the oldest kept) over the time between their stamps."""
+        window = self.settings.velocity_window
+        reference = None
+        for then, before in reversed(self._reads):
+            reference = (then, before)
+            if stamp - then >= window:
+                break
+        if reference is None or stamp <= reference[0]:
+            return np.zeros_like(q)
+        return (q - reference[1]) / (stamp - reference[0])
+
+    def refresh_feedback(self) -> Feedback:
+        """One position read (the frame's stamp: when it returned); velocities are the position
+        difference to an earlier read, at least ``velocity_window`` s older, over the time between
+        their stamps (:meth:`_velocity`: at 20 Hz the previous tick's; the firmware's velocity
+        feedback is noisy and not read here); torques and faults as of the last status poll
+        (``status_rate_hz``)."""
+        degrees, stamp = self._on_bus(self._read_position)
+        q = self._model_position(degrees)
+        dq = self._velocity(q, stamp)
+        self._last_position = q
+        self._reads.append((stamp, q))
+        self._frame += 1
+        with self._status:
+            faults, torque = self._faults, self._torque.copy()
+        return Feedback(timestamp=stamp, frame_id=self._frame, position=q, velocity=dq,
+                        torque=torque,
+                        arm_state=ArmState.IN_FAULT if faults != Fault.NONE else ArmState.SERVOING_READY,
+                        faults=faults)
+
+    @property
+    def faults(self) -> Fault:
+        """The fault flags as of now (the status poll's and the adapter's own)."""
+        with self._status:
+            return self._faults
 
     def send_joint_speeds(self, speeds: np.ndarray) -> np.ndarray:
-        self._require()
-        if self._faults != Fault.NONE:
-            raise ArmFaultError(f"Kinova arm {self._serial} in fault ({self._faults!r}: "
-                                f"{self._fault_reason}); clear_faults() first")
+        """Check the command and make it the standing one: the USB thread sends it in the next
+        trajectory point (from rest, before this returns)."""
+        bus = self._require()
+        with self._status:
+            faults, reason = self._faults, self._fault_reason
+        if faults != Fault.NONE:
+            raise ArmFaultError(f"Kinova arm {self._serial} in fault ({faults!r}: {reason}); "
+                                "clear_faults() first")
         if self._mode != ServoingMode.SINGLE_LEVEL_SERVOING:
             raise ArmFaultError(f"joint speed commands need single-level servoing, not {self._mode}")
         try:
             command = check_joint_speeds(speeds, self._robot.velocity_limit)
         except CommandRefusedError as error:
             self.apply_emergency_stop()
-            self._faults |= Fault.LIMIT
-            self._fault_reason = f"refused command: {error}"
+            with self._status:
+                self._faults |= Fault.LIMIT
+                self._fault_reason = f"refused command: {error}"
             raise
         sent = command * self.settings.speed_scale
-        degrees = kinova_velocities(sent, self._convention)
-        failure = None
-        with self._state:  # the sender waits: the fresh command goes out first
-            try:
-                self._sdk.call("SendAdvanceTrajectory", velocity_point(degrees))
-            except SdkCallError as error:
-                failure = error
-            else:
-                self.sends += 1
-                now = time.perf_counter()
-                self._active, self._command_deg = True, degrees
-                self._fresh_at, self._next_send = now, now + self._send_period
-        if failure is not None:
-            if failure.communication:
-                raise self._lose(failure) from None
-            raise failure
-        self._wake.set()
+        try:
+            bus.command(kinova_velocities(sent, self._convention))
+        except BusHeldError:  # a fault latched since the check above (the status poll)
+            with self._status:
+                faults, reason = self._faults, self._fault_reason
+            raise ArmFaultError(f"Kinova arm {self._serial} in fault ({faults!r}: {reason}); "
+                                "clear_faults() first") from None
+        except BusClosedError as error:
+            raise self._lose(error.__cause__ or error) from None
+        except SdkCallError as error:
+            raise self._lose(error) from None
+        self._require()  # the first point's failure, if it failed
         return sent
 
+    def _halt(self, then=None, hold: bool = False) -> None:
+        """No standing command; zero velocity and an empty FIFO on the arm (then ``then(sdk)``);
+        ``hold``: commands refused until :meth:`clear_faults`."""
+        bus = self._require()
+        try:
+            bus.halt(then, hold)
+        except SdkCallError as error:
+            if error.communication:
+                raise self._lose(error) from None
+            raise
+        except BusClosedError as error:
+            raise self._lose(error.__cause__ or error) from None
+
     def stop(self) -> None:
-        self._require()
-        self._halt_motion()
+        self._halt()
 
     def apply_emergency_stop(self) -> None:
         self._require()
-        self._faults |= Fault.EMERGENCY_STOP
-        self._fault_reason = "emergency stop applied"
-        try:
-            self._halt_motion()
-        finally:
-            self._call("StopControlAPI")  # the arm ignores commands until StartControlAPI
+        with self._status:
+            self._faults |= Fault.EMERGENCY_STOP
+            self._fault_reason = "emergency stop applied"
+        # the arm ignores commands until StartControlAPI (clear_faults)
+        self._halt(lambda sdk: sdk.call("StopControlAPI"), hold=True)
         log.error("kinova_gen2: EMERGENCY STOP on %s: zero velocity, trajectories erased, "
                   "control API stopped", self._serial)
 
     def clear_faults(self) -> None:
-        self._require()
-        sensors, count = SensorsInfo(), ctypes.c_uint(0)
-        self._call("GetSensorsInfo", ctypes.byref(sensors))
-        if sensors.Voltage < self.settings.min_supply_voltage:
-            raise ArmFaultError(f"supply voltage {sensors.Voltage:.1f} V is below "
-                                f"{self.settings.min_supply_voltage:g} V: release the e-stop "
-                                "(restore the actuators' power) first")
-        self._call("StartControlAPI")
-        self._control_started = True
-        self._call("SetAngularControl")
-        self._halt_motion()
-        self._call("GetSystemErrorCount", ctypes.byref(count))
-        self._errors_seen = int(count.value)  # the logged errors are acknowledged
-        self._faults, self._fault_reason = Fault.NONE, ""
+        def clear(sdk: Sdk) -> None:
+            sensors, count = SensorsInfo(), ctypes.c_uint(0)
+            sdk.call("GetSensorsInfo", ctypes.byref(sensors))
+            if sensors.Voltage < self.settings.min_supply_voltage:
+                raise ArmFaultError(f"supply voltage {sensors.Voltage:.1f} V is below "
+                                    f"{self.settings.min_supply_voltage:g} V: release the e-stop "
+                                    "(restore the actuators' power) first")
+            sdk.call("StartControlAPI")
+            self._control_started = True
+            sdk.call("SetAngularControl")
+            sdk.call("SendAdvanceTrajectory", velocity_point(np.zeros(self.num_joints)))
+            sdk.call("EraseAllTrajectories")
+            sdk.call("GetSystemErrorCount", ctypes.byref(count))
+            with self._status:
+                self._voltage = float(sensors.Voltage)
+                self._errors_seen = int(count.value)  # the logged errors are acknowledged
+                self._faults, self._fault_reason = Fault.NONE, ""
+            bus.release()
+
+        bus = self._require()
+        bus.drop()
+        self._on_bus(clear)
         log.info("kinova_gen2: faults cleared on %s", self._serial)
 
     def set_servoing_mode(self, mode: ServoingMode) -> None:
         """Gen2 has no Kortex servoing modes: single-level is angular control with joint velocity
         commands; any other mode holds the arm stopped and refuses joint speed commands."""
-        self._require()
         mode = ServoingMode(mode)
-        self._halt_motion()
-        if mode == ServoingMode.SINGLE_LEVEL_SERVOING:
-            self._call("SetAngularControl")
+        self._halt((lambda sdk: sdk.call("SetAngularControl"))
+                   if mode == ServoingMode.SINGLE_LEVEL_SERVOING else None)
         self._mode = mode
 
     # ------------------------------------------------------------------ inspection
     @property
     def standing_command(self) -> np.ndarray | None:
-        """The command the sender resends (model rad/s), or None when stopped."""
-        with self._state:
-            if not self._active:
-                return None
-            degrees = self._command_deg.copy()
-        return np.asarray(self._convention.sign, dtype=float) * np.radians(degrees)
+        """The command the USB thread resends (model rad/s), or None when stopped."""
+        bus = self._bus
+        degrees = bus.standing if bus is not None else None
+        return None if degrees is None else self._sign * np.radians(degrees)
+
+    def time_calls(self, rounds: int) -> CallTimes:
+        """``rounds`` calls of each function the loop uses, on the USB thread between its own
+        (the arm held still: zero-velocity points, each followed by EraseAllTrajectories);
+        :attr:`call_times` then holds their durations (also returned)."""
+        n = self.num_joints
+
+        def one_round(sdk: Sdk) -> None:
+            buffer, sensors, count = AngularPosition(), SensorsInfo(), ctypes.c_uint(0)
+            sdk.call("GetAngularPosition", ctypes.byref(buffer))
+            sdk.call("GetAngularVelocity", ctypes.byref(buffer))
+            sdk.call("GetAngularForce", ctypes.byref(buffer))
+            sdk.call("GetSensorsInfo", ctypes.byref(sensors))
+            sdk.call("GetSystemErrorCount", ctypes.byref(count))
+            sdk.call("SendAdvanceTrajectory", velocity_point(np.zeros(n)))
+            sdk.call("EraseAllTrajectories")
+
+        for _ in range(rounds):
+            self._on_bus(one_round)
+        assert self._sdk is not None
+        return self._sdk.times
+
+    def raw_velocities(self, reads: int) -> np.ndarray:
+        """``reads`` GetAngularVelocity readings decoded to model rad/s
+        (:func:`model_velocities`), shape (reads, joints): the firmware's velocity feedback, which
+        the control loop does not use (its noise, for the ``--check``)."""
+        n = self.num_joints
+
+        def read(sdk: Sdk) -> np.ndarray:
+            velocity = AngularPosition()
+            sdk.call("GetAngularVelocity", ctypes.byref(velocity))
+            return _actuators(velocity.Actuators, n)
+
+        return np.array([model_velocities(self._on_bus(read), self._convention,
+                                          self.settings.velocity_feedback_scale)
+                         for _ in range(reads)])

@@ -25,6 +25,7 @@ RATIO_LINE = {  # a line each benchmark prints when it got to its figures
     "bench_deploy.py": "share of the summed tick time",
     "bench_distance_rows.py": "ratio reference/fast",
     "bench_env_step.py": "ratio full/bare",
+    "bench_gen2_budget.py": "ratio arm points per policy tick",
     "bench_kinova_gen2.py": "ratio sends per policy tick",
     "bench_loss.py": "ratio ClipPPOLoss/lean",
     "bench_phases.py": "ratio reference/fast",

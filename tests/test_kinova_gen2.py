@@ -1,10 +1,12 @@
 """The Kinova Gen2 backend (hardware/kinova_gen2.py) against the fake SDK (tests/fake_kinova_sdk),
 compiled here with the system C compiler: settings, struct layouts, unit and joint conventions,
-device selection, the 100 Hz sender, the command watchdog, faults, the e-stop, a lost link, and
-every exit path leaving the arm stopped (the FIFO empty, only valid calls after a failed
+device selection, the cold-boot start, the USB thread (one position read per tick, the 100 Hz
+points, the status poll, the order of calls), the command watchdog, faults, the e-stop, a lost
+link, and every exit path leaving the arm stopped (the FIFO empty, only valid calls after a failed
 connect). The fake itself: the real SDK's codes without an arm, USB latency, the trajectory FIFO,
-noisy velocity feedback. Real time (the sender is a thread). Kinova's own binary:
-tests/test_kinova_gen2_vendor.py."""
+noisy velocity feedback, a cold boot. Real time (the USB thread is a thread); timing claims are
+checked from the fake's call log and the bus's own records, with bounds a loaded machine meets.
+Kinova's own binary: tests/test_kinova_gen2_vendor.py."""
 
 from __future__ import annotations
 
@@ -106,6 +108,12 @@ def test_settings_errors_name_the_key(tmp_path):
     assert "deploy.kinova_gen2.joints.jaco.offset_deg" in bad(
         lambda d: d["joints"]["jaco"].update(offset_deg=[0] * 5))
     assert "deploy.kinova_gen2.switch_interval" in bad(lambda d: d.update(switch_interval=1.0))
+    assert "deploy.kinova_gen2.status_rate_hz must be <= 10.0 Hz" in bad(lambda d: d.update(status_rate_hz=20))
+    assert "deploy.kinova_gen2.status_rate_hz" in bad(lambda d: d.update(status_rate_hz=0))
+    assert "deploy.kinova_gen2.send_ahead must be <= 0.05 s" in bad(lambda d: d.update(send_ahead=0.1))
+    assert "deploy.kinova_gen2.send_ahead" in bad(lambda d: d.pop("send_ahead"))
+    assert "deploy.kinova_gen2.check_calls" in bad(lambda d: d.update(check_calls=5))
+    assert "deploy.kinova_gen2.velocity_window" in bad(lambda d: d.update(velocity_window=0))
 
 
 def test_missing_library_is_one_line_naming_the_path(tmp_path, task_config):
@@ -202,7 +210,7 @@ def test_connect_selects_the_serial_and_disconnect_stops(fake, make_arm):
     assert not fake.control_on and not fake.initialized
     mark = fake.call_count()
     time.sleep(0.05)
-    assert fake.call_count() == mark  # the sender is gone
+    assert fake.call_count() == mark  # the USB thread is gone
     arm.disconnect()  # idempotent
 
 
@@ -247,10 +255,31 @@ def test_a_failure_after_start_control_stops_the_arm_and_closes(fake, make_arm):
     with pytest.raises(HardwareError, match="SetAngularControl failed: ERROR_OPERATION_INCOMPLETED"):
         make_arm().connect()
     names = [c.function for c in fake.calls()]
-    assert names == ["InitAPI", "GetDevices", "SetActiveDevice", "StartControlAPI",
-                     "SetAngularControl", "SendAdvanceTrajectory", "EraseAllTrajectories",
-                     "StopControlAPI", "CloseAPI"]
+    assert names == ["InitAPI", "GetDevices", "SetActiveDevice", "StartControlAPI", "StopControlAPI",
+                     "StartControlAPI", "SetAngularControl", "SendAdvanceTrajectory",
+                     "EraseAllTrajectories", "StopControlAPI", "CloseAPI"]
     assert fake.fifo_count() == 0 and not fake.control_on and fake.crashes() == 0
+
+
+def test_connect_kick_starts_the_control_api_after_a_cold_boot(fake, make_arm):
+    """After power-up the arm may ignore the first StartControlAPI (kinova-ros starts, stops and
+    starts it); the fake models that (a lone start leaves control off), connect() does the three."""
+    fake.set_cold_boot(True)
+    raw = Sdk(fake.path)
+    raw.call("InitAPI")
+    raw.call("SetActiveDevice", raw.devices()[0])
+    raw.call("StartControlAPI")
+    assert not fake.control_on  # ignored: the cold boot
+    raw.call("CloseAPI")
+    fake.reset(position_deg=fake.state()[0])
+    fake.set_cold_boot(True)
+    arm = make_arm()
+    arm.connect()
+    assert [c.function for c in fake.calls()][3:6] == ["StartControlAPI", "StopControlAPI",
+                                                       "StartControlAPI"]
+    assert fake.control_on
+    arm.send_joint_speeds(np.array([0.1, 0, 0, 0, 0, 0]))  # from rest: returns once the point is out
+    assert fake.state()[1][0] == pytest.approx(math.degrees(0.1), rel=1e-5)
 
 
 @pytest.mark.parametrize("name", sorted(no_arm.SEQUENCES))
@@ -277,12 +306,54 @@ def test_the_fake_counts_where_the_real_sdk_crashes(fake, name):
         assert fake.crashes() == (1 if index == len(calls) - 1 else 0)
 
 
-# ------------------------------------------------------------------ 100 Hz and the watchdog
+# ------------------------------------------------------------------ the USB thread and the watchdog
+
+
+def _until(predicate, timeout: float = 3.0, what: str = "") -> None:
+    """Wait (polling every 5 ms) until ``predicate()``; fail after ``timeout`` s."""
+    give_up = time.perf_counter() + timeout
+    while not predicate():
+        assert time.perf_counter() < give_up, f"timed out waiting for {what or predicate}"
+        time.sleep(0.005)
+
+
+def _loop(arm, ticks: int, speed: float = 0.1, period: float = 0.05) -> float:
+    """A 20 Hz control loop's adapter calls (one feedback, one command per tick); its s."""
+    t0 = time.perf_counter()
+    for k in range(ticks):
+        time.sleep(max(0.0, t0 + k * period - time.perf_counter()))
+        arm.refresh_feedback()
+        arm.send_joint_speeds(np.array([speed, 0, 0, 0, 0, 0]))
+    return time.perf_counter() - t0
+
+
+def test_a_tick_costs_one_position_read_and_the_arm_gets_its_points(fake, make_arm):
+    """A 20 Hz loop over 3 ms calls: one GetAngularPosition per tick and no velocity read; the status
+    (sensors, error log, torques) at status_rate_hz; trajectory points at up to 100 Hz that never pile
+    up in the arm's FIFO (a running point and at most two waiting); every caller's call waited for at
+    most two calls (the one in progress and an urgent point). Structural, so a loaded machine holds
+    it; only the points' count has slack for resends the OS delayed (and the watchdog is set far
+    off: a stop, which goes first, would be two more calls)."""
+    arm = make_arm(timeout=1.0)
+    arm.connect()
+    mark, polls, waits = fake.call_count(), arm.bus.status_polls, len(arm.bus.waits)
+    elapsed = _loop(arm, 40)
+    arm.stop()
+    calls = fake.calls(mark)
+    names = [c.function for c in calls]
+    assert names.count("GetAngularPosition") == 40 and "GetAngularVelocity" not in names
+    polled = arm.bus.status_polls - polls
+    assert abs(polled - elapsed * 2.0) <= 1.5, (polled, elapsed)
+    assert names.count("GetSensorsInfo") in (polled - 1, polled)  # the last poll may be under way
+    points = [c for c in calls if c.function == "SendAdvanceTrajectory" and c.values.any()]
+    assert 0.75 * 100 * elapsed <= len(points) <= 100 * elapsed + 2
+    assert fake.fifo_peak() <= 3 and fake.dropped() == 0
+    assert max(w.calls_ahead for w in list(arm.bus.waits)[waits:]) <= 2
 
 
 def test_sender_resends_at_100_hz_and_the_arm_keeps_full_speed(fake, make_arm):
-    """A 20 Hz caller; the fake's command expires after 25 ms. With the sender the joint moves at
-    the commanded speed; sending only at 20 Hz (no sender) it moves at ~25/50 of it."""
+    """A 20 Hz caller: with the USB thread's points the joint moves at the commanded speed; sending
+    only at 20 Hz (no thread) it moves at a fifth of it (each point is 10 ms of motion)."""
     arm = make_arm(timeout=0.1)
     arm.connect()
     speed = 0.3  # rad/s, joint 1
@@ -302,7 +373,7 @@ def test_sender_resends_at_100_hz_and_the_arm_keeps_full_speed(fake, make_arm):
     np.testing.assert_allclose(sends[-1].values, [math.degrees(speed), 0, 0, 0, 0, 0], rtol=1e-6)
     arm.disconnect()
 
-    # the same caller without the sender: each point moves the arm for 10 ms of every 50 ms
+    # the same caller without the USB thread: each point moves the arm for 10 ms of every 50 ms
     fake.reset(position_deg=np.zeros(6))
     raw = Sdk(fake.path)
     raw.call("InitAPI")
@@ -355,24 +426,58 @@ def test_speed_scale_reduces_what_is_sent(fake, make_arm):
     np.testing.assert_allclose(recorded, np.degrees([0.1, 0, 0, 0, 0, -0.1]), rtol=1e-6)
 
 
-def test_feedback_converts_units(fake, make_arm):
-    """Exact velocities (no noise), read right after the command (the arm executes each point for
-    10 ms: a resend delayed by a loaded machine would show the arm stopping in between)."""
-    fake.set_velocity_noise(0.0)
+def test_feedback_is_one_stamped_read_and_velocity_its_position_difference(fake, make_arm):
+    """Each frame is one GetAngularPosition, stamped when it returned (between the call's end in the
+    fake's log and refresh_feedback returning), in rad; its velocity is the position difference
+    since the previous read over the stamps' difference: the commanded speed while moving (no
+    latency here, so the arm is fed without gaps), zero at rest."""
     fake.set_latency(0.0)
-    arm = make_arm()
+    arm = make_arm(timeout=0.5)
     arm.connect()
-    time.sleep(0.02)  # connect's zero-velocity point (10 ms) has run: the FIFO is empty
-    arm.send_joint_speeds(np.array([0.2, -0.3, 0, 0, 0.1, 0]))
-    frame = arm.refresh_feedback()
-    np.testing.assert_allclose(frame.velocity, [0.2, -0.3, 0, 0, 0.1, 0], atol=1e-6)
+    command = np.array([0.2, -0.3, 0, 0, 0.1, 0])
+    arm.send_joint_speeds(command)
+    first = arm.refresh_feedback()
+    time.sleep(0.1)
+    arm.send_joint_speeds(command)
+    mark = fake.call_count()
+    second = arm.refresh_feedback()
+    returned = time.perf_counter()
+    assert second.timestamp - first.timestamp >= arm.settings.velocity_window
+    read = fake.calls(mark, "GetAngularPosition")
+    assert len(read) == 1 and read[0].t <= second.timestamp <= returned
+    np.testing.assert_allclose(np.degrees(second.position), read[0].values, atol=1e-3)  # float32
+    assert second.frame_id == first.frame_id + 1
+    np.testing.assert_allclose(second.velocity, (second.position - first.position)
+                               / (second.timestamp - first.timestamp))
+    np.testing.assert_allclose(second.velocity, command, rtol=0.15, atol=1e-9)
     arm.stop()
-    frame = arm.refresh_feedback()
+    arm.refresh_feedback()
+    time.sleep(0.06)  # > velocity_window: the reference is the read after the stop
+    still = arm.refresh_feedback()
+    np.testing.assert_array_equal(still.velocity, 0.0)
     q_deg, _ = fake.state()  # the arm is still: the same angles (float32 in the SDK's structs)
-    np.testing.assert_allclose(np.degrees(frame.position), q_deg, atol=1e-3)
+    np.testing.assert_allclose(np.degrees(still.position), q_deg, atol=1e-3)
 
 
 # ------------------------------------------------------------------ faults
+
+
+def test_back_to_back_reads_take_their_velocity_over_the_window(fake, make_arm):
+    """Two reads a few ms apart: the second's velocity is not their difference (a real arm's angle
+    noise over 3 ms would be tens of deg/s) but the difference to the latest read at least
+    velocity_window (40 ms) older."""
+    arm = make_arm(timeout=0.5)
+    arm.connect()
+    arm.send_joint_speeds(np.array([0.2, 0, 0, 0, 0, 0]))
+    early = arm.refresh_feedback()
+    time.sleep(0.06)
+    arm.send_joint_speeds(np.array([0.2, 0, 0, 0, 0, 0]))
+    middle = arm.refresh_feedback()
+    last = arm.refresh_feedback()  # right after the previous one (unless the OS held this thread)
+    window = arm.settings.velocity_window
+    reference = middle if last.timestamp - middle.timestamp >= window else early
+    np.testing.assert_allclose(last.velocity, (last.position - reference.position)
+                               / (last.timestamp - reference.timestamp))
 
 
 def test_system_error_faults_the_arm_until_cleared(fake, make_arm):
@@ -380,6 +485,7 @@ def test_system_error_faults_the_arm_until_cleared(fake, make_arm):
     arm.connect()
     arm.send_joint_speeds(np.array([0.2, 0, 0, 0, 0, 0]))
     fake.inject_error(SYSTEM_ERROR_TYPES.index("errorlog_current_Actuators"))
+    _until(lambda: arm.faults != Fault.NONE, what="the status poll")  # within 1 / status_rate_hz
     frame = arm.refresh_feedback()
     assert frame.arm_state == ArmState.IN_FAULT and Fault.HARDWARE in frame.faults
     assert not frame.healthy and arm.standing_command is None
@@ -387,7 +493,7 @@ def test_system_error_faults_the_arm_until_cleared(fake, make_arm):
         arm.send_joint_speeds(np.zeros(6))
     mark = fake.call_count()
     time.sleep(0.05)
-    assert not fake.calls(mark, "SendAdvanceTrajectory")  # the sender holds nothing
+    assert not fake.calls(mark, "SendAdvanceTrajectory")  # no command stands
     arm.clear_faults()
     assert arm.refresh_feedback().healthy
     arm.send_joint_speeds(np.array([0.1, 0, 0, 0, 0, 0]))
@@ -397,7 +503,48 @@ def test_ok_entries_are_not_faults(fake, make_arm):
     arm = make_arm()
     arm.connect()
     fake.inject_error(SYSTEM_ERROR_TYPES.index("errorlog_voltageOK"))
-    assert arm.refresh_feedback().healthy
+    polls = arm.bus.status_polls
+    _until(lambda: arm.bus.status_polls >= polls + 2, what="two status polls")
+    assert arm.refresh_feedback().healthy and not arm.fault_stops
+
+
+def test_a_fault_seen_by_the_status_poll_stops_the_arm_at_once(fake, make_arm):
+    """The control thread makes no call (busy elsewhere): the USB thread's status poll sees the logged
+    error and stops the arm itself. By design the zero point and the erase are the very next calls
+    after the read that saw it (and the entry's GetSystemError), whatever the load."""
+    arm = make_arm(timeout=5.0)  # the command watchdog out of the way
+    arm.connect()
+    arm.send_joint_speeds(np.array([0.2, 0, 0, 0, 0, 0]))
+    mark = fake.call_count()
+    fake.inject_error(SYSTEM_ERROR_TYPES.index("errorlog_Actuator_Temperature"))
+    _until(lambda: arm.fault_stops, what="the status poll's stop")
+    stop = arm.fault_stops[0]
+    assert "errorlog_Actuator_Temperature" in stop.reason and stop.stopped_at is not None
+    calls = fake.calls(mark)
+    seen = next(i for i, c in enumerate(calls) if c.function == "GetSystemErrorCount" and c.type == 1)
+    assert [c.function for c in calls[seen + 1:seen + 4]] == ["GetSystemError", "SendAdvanceTrajectory",
+                                                              "EraseAllTrajectories"]
+    assert not calls[seen + 2].values.any()
+    assert calls[seen].t <= stop.detected_at <= stop.stopped_at
+    assert fake.fifo_count() == 0 and fake.state()[1][0] == 0.0
+    assert arm.standing_command is None
+    frame = arm.refresh_feedback()
+    assert Fault.HARDWARE in frame.faults and frame.arm_state == ArmState.IN_FAULT
+
+
+def test_a_fault_halt_holds_off_commands_until_cleared(fake, make_arm):
+    """The status poll's stop holds the arm: a command that passed the adapter's fault check just
+    before it (the race) is refused by the USB thread instead of slipping in after the stop."""
+    arm = make_arm()
+    arm.connect()
+    arm.send_joint_speeds(np.array([0.2, 0, 0, 0, 0, 0]))
+    arm.bus.halt(hold=True)  # what the status poll does on a fault, here without the fault's flags
+    with pytest.raises(ArmFaultError, match="clear_faults"):
+        arm.send_joint_speeds(np.array([0.2, 0, 0, 0, 0, 0]))
+    assert arm.standing_command is None and fake.fifo_count() == 0
+    arm.clear_faults()
+    arm.send_joint_speeds(np.array([0.1, 0, 0, 0, 0, 0]))
+    assert arm.standing_command is not None
 
 
 def test_hardware_estop(fake, make_arm):
@@ -405,6 +552,7 @@ def test_hardware_estop(fake, make_arm):
     arm.connect()
     arm.send_joint_speeds(np.array([0.2, 0, 0, 0, 0, 0]))
     fake.set_estop(True)
+    _until(lambda: arm.faults != Fault.NONE, what="the status poll")
     frame = arm.refresh_feedback()
     assert Fault.EMERGENCY_STOP in frame.faults and frame.arm_state == ArmState.IN_FAULT
     with pytest.raises(ArmFaultError):
@@ -438,7 +586,7 @@ def test_unplugged_is_a_lost_connection(fake, make_arm):
     arm.connect()
     arm.send_joint_speeds(np.array([0.2, 0, 0, 0, 0, 0]))
     fake.set_unplugged(True)
-    time.sleep(0.03)  # the sender's next resend fails
+    time.sleep(0.03)  # the USB thread's next point fails
     with pytest.raises(ConnectionLostError, match="JACO_COMM_FAILED|ERROR_NO_DEVICE_FOUND"):
         arm.refresh_feedback()
     assert not arm.is_connected
@@ -459,7 +607,7 @@ def test_a_missing_compiler_is_a_clear_skip_reason(monkeypatch, tmp_path):
 
 
 def _connected_raw(fake) -> Sdk:
-    """The fake's SDK driven directly (no sender thread): initialised, control started."""
+    """The fake's SDK driven directly (no USB thread): initialised, control started."""
     raw = Sdk(fake.path)
     raw.call("InitAPI")
     raw.call("SetActiveDevice", raw.devices()[0])
@@ -517,21 +665,28 @@ def test_every_sdk_call_takes_a_usb_round_trip_one_at_a_time(fake):
 
 def test_velocity_feedback_is_noisy_and_decodes_around_zero(fake, make_arm):
     """At rest the fake reports N(0, 1 deg/s) through the firmware's encoding (half, negatives as
-    360 - |v|); the adapter decodes it to small values of both signs, never ~360 deg/s."""
+    360 - |v|); the adapter decodes it (``raw_velocities``, the --check's reading: the loop itself
+    derives velocities from positions) to small values of both signs, never ~360 deg/s."""
     fake.set_latency(0.0)
     arm = make_arm()
     arm.connect()
-    readings = np.array([arm.refresh_feedback().velocity for _ in range(150)])
-    degrees = np.degrees(readings)
+    degrees = np.degrees(arm.raw_velocities(150))
     assert np.abs(degrees).max() < 6.0  # 6 sigma: no wrapped 360 slipped through
     assert 0.7 < degrees.std() < 1.3 and abs(degrees.mean()) < 0.3
     assert (degrees < 0).any() and (degrees > 0).any()
 
 
 def _fill(arm, fake, count: int = 30) -> None:
+    """A standing command, and ``count`` more points in the arm's FIFO (sent past the adapter, as a
+    FIFO that piled up would hold them)."""
+    arm.send_joint_speeds(np.array([0.2, 0, 0, 0, 0, 0]))
     for _ in range(count):
-        arm.send_joint_speeds(np.array([0.2, 0, 0, 0, 0, 0]))
+        fake.lib.SendAdvanceTrajectory(velocity_point([10.0, 0, 0, 0, 0, 0]))
     assert fake.fifo_count() >= count // 2  # the points pile up (no latency here)
+
+
+def _fault_stop(arm) -> None:
+    _until(lambda: arm.fault_stops, what="the status poll's stop")
 
 
 STOP_PATHS = {
@@ -540,12 +695,12 @@ STOP_PATHS = {
     "refused command": lambda arm, fake: pytest.raises(CommandRefusedError, arm.send_joint_speeds,
                                                        np.full(6, np.nan)),
     "system error": lambda arm, fake: (fake.inject_error(
-        SYSTEM_ERROR_TYPES.index("errorlog_current_Actuators")), arm.refresh_feedback()),
-    "e-stop pressed": lambda arm, fake: (fake.set_estop(True), arm.refresh_feedback()),
+        SYSTEM_ERROR_TYPES.index("errorlog_current_Actuators")), _fault_stop(arm)),
+    "e-stop pressed": lambda arm, fake: (fake.set_estop(True), _fault_stop(arm)),
     "servoing mode": lambda arm, fake: arm.set_servoing_mode(ServoingMode.LOW_LEVEL_SERVOING),
     "disconnect": lambda arm, fake: arm.disconnect(),
     "watchdog": lambda arm, fake: time.sleep(0.1 + 0.05),
-    "sender failure": lambda arm, fake: (fake.fail_next("SendAdvanceTrajectory", 2100),
+    "failed point": lambda arm, fake: (fake.fail_next("SendAdvanceTrajectory", 2100),
                                          time.sleep(0.05)),
 }
 
@@ -564,9 +719,9 @@ def test_every_stop_empties_the_fifo(fake, make_arm, path):
 
 
 def test_a_lost_link_leaves_at_most_a_few_points_at_100_hz(fake, make_arm):
-    """The stop path that cannot reach the arm: with the sender at <= 100 Hz the arm holds only a
-    few points (10 ms each) when the link goes, so it stops by itself within tens of ms (1-2 points
-    over 10 s at 20 Hz on an idle machine; a loaded one delays resends, then catches up by one)."""
+    """The stop path that cannot reach the arm: the USB thread keeps send_ahead (10 ms) of motion
+    queued behind the running point, so the arm holds at most 2-3 points (10 ms each) when the link
+    goes and stops by itself within tens of ms."""
     arm = make_arm(timeout=0.1)
     arm.connect()
     for _ in range(8):

@@ -2,8 +2,8 @@
 without an arm, always in a child process so that a crash shows as a return code, never takes
 pytest down: the codes it returns (fake_kinova_sdk/no_arm.py, which the fake matches), the calls
 that crash it, and the documented set-up end to end: without the loader path, one line saying what
-to set (exit 2); with it, ``connect()`` ends in the one-line "no arm found" error (exit 3), on every
-failure path reachable without an arm, never a signal."""
+to set (exit 2); with it, ``connect()`` (and ``--check``) ends in the one-line "no arm found" error
+(exit 3), on every failure path reachable without an arm, never a signal."""
 
 from __future__ import annotations
 
@@ -124,6 +124,15 @@ def test_deploy_without_an_arm_ends_in_one_line(libusb, tmp_path):
     assert done.returncode == 3, (done.returncode, done.stderr[-3000:])  # a start-up fault, no signal
     assert "no Kinova arm found on USB" in line and "ERROR_NO_DEVICE_FOUND (1015)" in line
     assert '"summary"' in telemetry.read_text().splitlines()[-1]
+
+
+def test_check_without_an_arm_ends_in_one_line(libusb, tmp_path):
+    """`--check` (the USB budget) on Kinova's binary without an arm: the same one line, exit 3."""
+    done = _run(["-m", "ahrm_stack.deploy", "--backend", "kinova-gen2", "--config",
+                 str(_config(tmp_path)), "--check"], str(VENDOR_DIR))
+    line = _error_line(done)
+    assert done.returncode == 3, (done.returncode, done.stderr[-3000:])
+    assert "no Kinova arm found on USB" in line and "ERROR_NO_DEVICE_FOUND (1015)" in line
 
 
 CONNECT = """

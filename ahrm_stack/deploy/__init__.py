@@ -21,8 +21,10 @@ the full one.
 
 Exit status: 0 success; 1 the run ended without success (duration, watchdog, hardware stop);
 2 bad input (settings, command line, checkpoint, a refused pickle: a one-line error, nothing
-written, the arm never touched); 3 a software fault stopped the arm (:class:`DeployFault`);
-130 Ctrl-C / SIGTERM.
+written, the arm never touched; or the arm not near the posture the policy was trained from:
+one line, nothing moved, :mod:`~ahrm_stack.deploy.start_check`); 3 a software fault stopped the
+arm (:class:`DeployFault`); 130 Ctrl-C / SIGTERM. ``--check`` measures the arm's link instead
+(the Gen2 USB budget, the arm held still): 0 fits, 1 does not, 2 bad input, 3 no arm.
 
 Every control period (``1 / rate_hz`` s) :class:`DeployLoop` does, in this order:
 
@@ -67,6 +69,7 @@ The package, one idea per module:
 * :mod:`~ahrm_stack.deploy.policy` — :class:`~ahrm_stack.deploy.policy.NumpyPolicy`, the policy's
   forward pass in NumPy on preallocated arrays (the policy controller's fast path);
 * :mod:`~ahrm_stack.deploy.judging` — how a run went, from perception: success, touching, progress;
+* :mod:`~ahrm_stack.deploy.start_check` — does the arm start where the policy was trained to start;
 * :mod:`~ahrm_stack.deploy.loop` — :class:`DeployLoop`, its summary and faults;
 * :mod:`~ahrm_stack.deploy.run` — building one run (config, telemetry, adapter, loop);
 * :mod:`~ahrm_stack.deploy.cli` — the command line (:func:`main`; the backend is chosen in
@@ -83,14 +86,15 @@ from ahrm_stack.deploy.run import deploy, deploy_sim, load_controller_config, op
 from ahrm_stack.deploy.safety_settings import SafetyNote, merge_safety, require_filter, safety_directions
 from ahrm_stack.deploy.settings import (DEPLOY_CONFIG, DeployConfigError, DeploySettings,
                                         KortexSection, ProgressSettings, SimSettings,
-                                        SuccessSettings, TouchSettings, WatchdogSettings,
+                                        StartPostureSettings, SuccessSettings, TouchSettings,
+                                        WatchdogSettings,
                                         control_periods, deploy_settings_from_dict,
                                         load_deploy_settings)
 from ahrm_stack.deploy.world import WorldModel
 
 __all__ = ["DEPLOY_CONFIG", "DeployConfigError", "DeployFault", "DeployLoop", "DeploySettings", "DeploySummary",
            "KortexSection", "PolicyController", "ProgressSettings", "SafetyNote", "ScriptedController",
-           "SimSettings", "SuccessSettings", "TouchSettings", "WatchdogSettings", "WorldModel",
+           "SimSettings", "StartPostureSettings", "SuccessSettings", "TouchSettings", "WatchdogSettings", "WorldModel",
            "control_periods", "deploy_settings_from_dict", "deploy", "deploy_sim",
            "load_controller_config", "load_deploy_settings", "main", "make_controller", "merge_safety",
            "open_telemetry", "require_filter", "run_backend", "safety_directions"]

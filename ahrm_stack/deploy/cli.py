@@ -15,6 +15,7 @@ from ahrm_stack.deploy.loop import DeployFault, DeployLoop
 from ahrm_stack.deploy.run import deploy
 from ahrm_stack.deploy.settings import (DEPLOY_CONFIG, DeployConfigError, DeploySettings,
                                         load_deploy_settings)
+from ahrm_stack.deploy.start_check import StartPostureError
 from hardware.backends import BACKENDS
 
 
@@ -62,9 +63,47 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
                              "configs/perception.yaml)")
     parser.add_argument("--layout-file", type=Path, help="with --scene camera: the measured obstacle "
                         "layout (default: perception.layout_file, else surveyed from the sim)")
+    parser.add_argument("--check", action="store_true",
+                        help="measure the link to the arm and say whether its budget fits at the "
+                             "configured rates, with the arm held still, then exit (kinova-gen2: each "
+                             "SDK call's USB latency; exit 0 fits, 1 does not, 3 no arm)")
     parser.add_argument("overrides", nargs="*", metavar="key=value",
                         help="config overrides without --checkpoint, e.g. task.robot=j2s6s200")
     return parser.parse_args(argv)
+
+
+def check_link(backend: str, settings: DeploySettings, checkpoint: Path | None,
+               overrides: Sequence[str], policy_file: Path | None = None) -> int:
+    """``--check``: the backend's link check (:data:`hardware.backends.BACKENDS`), the arm held
+    still; prints its lines. Exit status: 0 the budget fits, 1 it does not, 2 bad input (one line,
+    the arm never contacted), 3 the arm could not be reached (one line, e.g. no arm found), 130
+    Ctrl-C."""
+    from ahrm_stack.deploy.run import load_controller_config
+    from ahrm_stack.learning.checkpoint import CheckpointError
+    from hardware import backends
+    from hardware.protocol import HardwareError
+
+    prog = "python -m ahrm_stack.deploy"
+    try:
+        config, _ = load_controller_config(checkpoint, overrides, policy_file=policy_file)
+        chosen = backends.get(backend)
+        if chosen.link_check is None:
+            raise DeployConfigError(f"--check measures an arm's link (the kinova-gen2 backend's USB "
+                                    f"budget); --backend {backend} has none")
+        chosen.check(config, settings)
+    except (ConfigError, DeployConfigError, CheckpointError, ValueError) as error:
+        print(f"{prog}: error: {error}", file=sys.stderr)
+        return 2
+    try:
+        lines, fits = chosen.link_check(config, settings)
+    except (HardwareError, ValueError) as error:
+        print(f"{prog}: error: {(str(error).splitlines() or [''])[0]}", file=sys.stderr)
+        return 3
+    except KeyboardInterrupt:
+        print("interrupted: the check stopped (the arm was held still)", file=sys.stderr)
+        return 130
+    print("\n".join(lines))
+    return 0 if fits else 1
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -85,6 +124,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     def terminate(signum, frame):  # SIGTERM stops the arm like Ctrl-C
         raise KeyboardInterrupt
 
+    if args.check:
+        previous = signal.signal(signal.SIGTERM, terminate)
+        try:
+            return check_link(args.backend, settings, args.checkpoint, args.overrides, args.policy_file)
+        finally:
+            signal.signal(signal.SIGTERM, previous)
+
     from ahrm_stack.learning.checkpoint import CheckpointError
 
     if args.scene == "camera":  # offscreen rendering: MUJOCO_GL must be chosen before mujoco loads
@@ -104,6 +150,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"python -m ahrm_stack.deploy: error: {error}", file=sys.stderr)
         return 2
     except DeployFault as error:  # the arm was stopped; the stop and the summary are recorded
+        if isinstance(error.__cause__, StartPostureError):  # refused before any command
+            print(f"python -m ahrm_stack.deploy: error: {error.__cause__}", file=sys.stderr)
+            return 2
         print(error.summary)
         print(f"python -m ahrm_stack.deploy: error: the arm was stopped on a fault: {error}",
               file=sys.stderr)

@@ -16,6 +16,7 @@ import numpy as np
 from ahrm_stack.deploy.judging import ProgressWatchdog, SuccessJudge, TouchEstimator
 from ahrm_stack.deploy.safety_settings import require_filter
 from ahrm_stack.deploy.settings import DeploySettings, control_periods
+from ahrm_stack.deploy.start_check import StartPostureError, start_refusal
 from ahrm_stack.deploy.world import WorldModel
 from hardware.protocol import (ArmFaultError, CommandRefusedError, ConnectionLostError,
                                FeedbackTimeoutError, HardwareError, ServoingMode)
@@ -346,14 +347,21 @@ class DeployLoop:
 
     # ------------------------------------------------------------------ the loop
     def start(self) -> None:
-        """Synchronise with the arm: first feedback, plan, warm the controller and filter (so
-        their first-call costs do not hit a deadline), then schedule tick 0 at the clock's now."""
+        """Synchronise with the arm: first feedback, a check that the arm starts near the posture
+        the policy was trained from (:class:`StartPostureError` otherwise, nothing moved), plan,
+        warm the controller and filter (so their first-call costs do not hit a deadline), then
+        schedule tick 0 at the clock's now."""
         self._stage = "start-up"
         self._t0 = self.clock.now()
         if self.arm.servoing_mode != ServoingMode.SINGLE_LEVEL_SERVOING:
             self.arm.set_servoing_mode(ServoingMode.SINGLE_LEVEL_SERVOING)
         self.arm.stop()
         feedback = self.arm.refresh_feedback()
+        start = self.settings.start_posture
+        refusal = start_refusal(self.world, feedback.position, math.radians(start.joint_tolerance_deg),
+                                start.region_margin, math.radians(start.tilt_tolerance_deg))
+        if refusal is not None:
+            raise StartPostureError(refusal)
         self._last_frame = feedback.frame_id - 1
         self._t0 = self.clock.now()
         self.world.begin_run()

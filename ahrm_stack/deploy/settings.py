@@ -69,6 +69,18 @@ class ProgressSettings(Section):
 
 
 @dataclasses.dataclass(frozen=True)
+class StartPostureSettings(Section):
+    """How near the trained start the arm must be before the loop's first command
+    (:func:`~ahrm_stack.deploy.start_check.start_refusal`)."""
+
+    joint_tolerance_deg: Annotated[Float, ge(0), le(90)]  # deg beyond task.arm.joint_jitter, per joint
+    # (task.arm.start: home)
+    region_margin: Annotated[Float, ge(0), le(0.5)]  # m the start region is grown by (start: random)
+    tilt_tolerance_deg: Annotated[Float, ge(0), le(90)]  # deg of the pusher from straight down
+    # (start: random)
+
+
+@dataclasses.dataclass(frozen=True)
 class SimSettings(Section):
     command_delay: NonNeg  # s
     realism: RealismConfig  # the simulated arm's and camera's imperfections (a set of
@@ -113,6 +125,7 @@ class DeploySettings(Section):
     success: SuccessSettings
     touch: TouchSettings
     progress: ProgressSettings
+    start_posture: StartPostureSettings
     sim: SimSettings
     kortex: KortexSection
     kinova_gen2: Gen2Settings

@@ -108,6 +108,16 @@ class WorldModel:
         """The command actually sent (rad/s): the next observation's previous action."""
         self.task.before_step(self.physics, command, self.random_state)
 
+    def tip_pose(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The pusher tip's position (m, world) and axis (unit, world; straight down is (0, 0, -1))
+        with the arm at ``q`` (rad), by MuJoCo's forward kinematics on the mirror (its joints are
+        left at ``q`` until the next :meth:`update`)."""
+        data = self.physics.data
+        data.qpos[self._addresses.arm_qpos] = q
+        self._kinematics(self._model_ptr, self._data_ptr)
+        site = self.task._tip_site_id
+        return data.site_xpos[site].copy(), data.site_xmat[site].reshape(3, 3)[:, 2].copy()
+
     def make_collision_scene(self):
         return self.task.make_collision_scene(self.physics)
 

@@ -5,8 +5,9 @@
 the same file (the dynamic loader returns the same handle, so it shares the adapter's state) and
 exposes the test-only functions and the call log. :meth:`FakeSdk.reset` gives a fake that behaves
 like the arm (fake_kinova.c's header: USB latency per call, the 2,000-point trajectory FIFO,
-the real SDK's return codes without an arm, noisy velocity feedback); ``latency=0`` and
-``velocity_noise=0`` make it instant and exact where a test checks logic, not timing.
+the real SDK's return codes without an arm, noisy velocity feedback; a cold boot on request);
+``latency=0`` and ``velocity_noise=0`` make it instant and exact where a test checks logic, not
+timing.
 """
 
 from __future__ import annotations
@@ -109,6 +110,7 @@ class FakeSdk:
         lib.FakeKinova_InjectError.argtypes = [ctypes.c_int]
         lib.FakeKinova_SetEStop.argtypes = [ctypes.c_int]
         lib.FakeKinova_SetUnplugged.argtypes = [ctypes.c_int]
+        lib.FakeKinova_SetColdBoot.argtypes = [ctypes.c_int]
         lib.FakeKinova_CallCount.restype = ctypes.c_long
         lib.FakeKinova_GetCall.argtypes = [ctypes.c_long, ctypes.POINTER(_Call)]
         lib.FakeKinova_Sizeof.restype = ctypes.c_long
@@ -157,6 +159,10 @@ class FakeSdk:
         """Trajectory points the arm holds (the executing one included)."""
         return int(self.lib.FakeKinova_FifoCount())
 
+    def fifo_peak(self) -> int:
+        """The most points the FIFO held at once since :meth:`reset` (the executing one included)."""
+        return int(self.lib.FakeKinova_FifoPeak())
+
     def dropped(self) -> int:
         """Points dropped because the FIFO was full."""
         return int(self.lib.FakeKinova_Dropped())
@@ -174,6 +180,10 @@ class FakeSdk:
 
     def set_unplugged(self, value: bool) -> None:
         self.lib.FakeKinova_SetUnplugged(int(bool(value)))
+
+    def set_cold_boot(self, value: bool) -> None:
+        """As after power-up: the next StartControlAPI is ignored until a StopControlAPI."""
+        self.lib.FakeKinova_SetColdBoot(int(bool(value)))
 
     @property
     def control_on(self) -> bool:

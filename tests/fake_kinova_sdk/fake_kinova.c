@@ -27,6 +27,11 @@
  *   `sdk_state`. SendAdvanceTrajectory and RefresDevicesList before InitAPI has loaded the
  *   communication layer crash the real SDK (SIGSEGV); the fake counts them (FakeKinova_Crashes) and,
  *   in a process that did not call FakeKinova_Reset or with FAKE_KINOVA_CRASH=1, crashes too.
+ * - A cold boot (FAKE_KINOVA_COLD_BOOT=1, FakeKinova_SetColdBoot): the arm ignores the first
+ *   StartControlAPI after power-up (control stays off) until StopControlAPI and StartControlAPI again,
+ *   which is how this fake reads kinova-ros's "on a cold boot the arm may not respond to commands from
+ *   the API right away" (kinova_comm.cpp, which starts, stops and starts the control API); the real
+ *   symptom is not documented further.
  * - Noisy velocity feedback. GetAngularVelocity reports the true velocity plus Gaussian noise
  *   (`velocity_noise` deg/s, FAKE_KINOVA_VELOCITY_NOISE, default 1 deg/s: an assumption; kinova-ros
  *   issues 366 and 381 report readings far from zero at rest and spiky in motion, without a figure),
@@ -131,13 +136,14 @@ static int crash_for_real = 1;
 static KinovaDevice devices[MAX_KINOVA_DEVICE];
 static int ndevices = 0;
 static int active = -1;
-static bool control_on = false, angular = false, estop = false, unplugged = false;
+static bool control_on = false, angular = false, estop = false, unplugged = false, cold = false;
 static double latency = DEFAULT_LATENCY, velocity_noise = DEFAULT_VELOCITY_NOISE;
 static double q[NJ], last_time = -1.0;
 static double fifo[FIFO_SIZE][NJ];
 static int fifo_head = 0, fifo_count = 0;
 static double head_start = 0.0;  /* when the point at the head began (valid while fifo_count > 0) */
 static long dropped = 0;
+static int fifo_peak = 0;  /* the most points the FIFO held since FakeKinova_Reset */
 static double voltage = 24.0;
 static SystemError errors[64];
 static unsigned int nerrors = 0;
@@ -192,6 +198,7 @@ static void push_point(const double *v, double t) {
     int tail = (fifo_head + fifo_count) % FIFO_SIZE;
     for (int i = 0; i < NJ; i++) fifo[tail][i] = v[i];
     fifo_count++;
+    if (fifo_count > fifo_peak) fifo_peak = fifo_count;
 }
 
 static void log_error(int type) {
@@ -263,6 +270,8 @@ __attribute__((constructor)) static void read_environment(void) {
     if (text != NULL) comm_missing = atoi(text) != 0;
     text = getenv("FAKE_KINOVA_CRASH");
     if (text != NULL) crash_for_real = atoi(text) != 0;
+    text = getenv("FAKE_KINOVA_COLD_BOOT");
+    if (text != NULL) cold = atoi(text) != 0;
 }
 
 /* ---------------------------------------------------------------- the SDK's functions */
@@ -329,12 +338,12 @@ int SetActiveDevice(KinovaDevice device) {
 int StartControlAPI(void) {
     ENTER;
     int result = COMMAND;
-    if (ARM) control_on = true;
+    if (ARM && !cold) control_on = true;  /* after a cold boot the first start is ignored */
     LEAVE(F_START_CONTROL, result, 0, NULL);
 }
 
 int StopControlAPI(void) {
-    ENTER; int result = COMMAND; if (ARM) control_on = false;
+    ENTER; int result = COMMAND; if (ARM) { control_on = false; cold = false; }
     LEAVE(F_STOP_CONTROL, result, 0, NULL);
 }
 
@@ -431,9 +440,9 @@ void FakeKinova_Reset(void) {
     pthread_mutex_lock(&bus);
     pthread_mutex_lock(&lock);
     ndevices = 0; active = -1; sdk_state = CLOSED;
-    control_on = angular = estop = unplugged = comm_loaded = comm_missing = devices_listed = false;
+    control_on = angular = estop = unplugged = comm_loaded = comm_missing = devices_listed = cold = false;
     for (int i = 0; i < NJ; i++) q[i] = 0.0;
-    erase_fifo(); dropped = 0; last_time = -1.0; voltage = 24.0; nerrors = 0; ncalls = 0;
+    erase_fifo(); dropped = 0; fifo_peak = 0; last_time = -1.0; voltage = 24.0; nerrors = 0; ncalls = 0;
     latency = DEFAULT_LATENCY; velocity_noise = DEFAULT_VELOCITY_NOISE; rng = 0x9E3779B97F4A7C15ULL;
     crashes = 0; crash_for_real = 0; fail_function = 0;
     pthread_mutex_unlock(&lock);
@@ -480,10 +489,15 @@ void FakeKinova_SetVelocityNoise(double deg_s, unsigned long long seed) {
     pthread_mutex_unlock(&lock);
 }
 
-/* The points waiting in the FIFO, the executing one included; the points dropped when it was full. */
+/* The points waiting in the FIFO, the executing one included; the most it held since the reset; the
+ * points dropped when it was full. */
 int FakeKinova_FifoCount(void) {
     pthread_mutex_lock(&lock); advance(now()); int n = fifo_count; pthread_mutex_unlock(&lock);
     return n;
+}
+
+int FakeKinova_FifoPeak(void) {
+    pthread_mutex_lock(&lock); int n = fifo_peak; pthread_mutex_unlock(&lock); return n;
 }
 
 long FakeKinova_Dropped(void) {
@@ -519,6 +533,11 @@ void FakeKinova_SetEStop(int pressed) {
     if (pressed && !estop) log_error(errorlog_voltage);
     estop = pressed != 0;
     pthread_mutex_unlock(&lock);
+}
+
+/* A cold boot: the next StartControlAPI is ignored until StopControlAPI (see the header). */
+void FakeKinova_SetColdBoot(int value) {
+    pthread_mutex_lock(&lock); cold = value != 0; pthread_mutex_unlock(&lock);
 }
 
 /* The USB cable pulled (the arm answers nothing; it finishes the points it holds) or put back. */
