@@ -86,7 +86,8 @@ def test_the_suite_is_every_family_marked_suite_and_evaluates_with_the_scripted_
     assert "fixed" not in names and "random" not in names
     assert {"default", "heldout", "heldout_far", "edge_plus_x", "edge_minus_x", "toward_arm"} <= set(names)
     # the committed policy (an older run folder: its missing keys keep the old behaviour)
-    suite = evaluate_suite("docs/policies/ahrm-default-seed0", 1, tmp_path, families=["default", "mirrored"],
+    # the fixed-layout policy: its training support holds the default family ("inside")
+    suite = evaluate_suite("docs/policies/ahrm-fixed-layout-seed0", 1, tmp_path, families=["default", "mirrored"],
                            quiet=True)
     assert set(suite["results"]) == set(suite["scripted"]) == {"default", "mirrored"}
     assert suite["scripted"]["default"]["successes"] == 1

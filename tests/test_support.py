@@ -12,7 +12,7 @@ from ahrm_stack.env.support import as_dict, box_status, combine, training_suppor
 @pytest.fixture(scope="module")
 def task():
     """configs/task.yaml: random layouts, cube_region [[-0.2, 0.2], [-0.05, 0.15]], radial_range
-    [0.14, 0.22], random starts, realism jaco2 (cube mass x [0.5, 2], friction x [0.5, 1.5])."""
+    [0.14, 0.22], random starts, realism ideal (cube mass and friction x 1)."""
     return config_from_dict(load_raw()).task
 
 
@@ -51,7 +51,7 @@ def test_the_training_distribution_is_inside_itself_and_each_quantity_moves_alon
     rows = training_support(task, heavy)
     assert verdict(rows) == "outside: cube_mass"
     assert as_dict(rows)["quantities"]["cube_mass"] == {"status": "outside", "evaluation": "× [2.5, 4]",
-                                                         "training": "× [0.5, 2]"}
+                                                         "training": "× 1"}
 
 
 def test_a_fixed_layout_against_random_training_by_the_obstacles_distances(task):
