@@ -51,13 +51,13 @@ from pydantic_core import PydanticCustomError
 
 from ahrm_stack.env.realism import RealismConfig, resolve_realism
 from ahrm_stack.schema import _float  # the Float rule, for values inside a custom validator
+from ahrm_stack.names import OBJECTIVE_NAMES
 from ahrm_stack.schema import (MISSING, Bool, ConfigError, Float, FrozenDict, Int, Section, Source, Str, apply_override,
                                count, derived, fail, fill_legacy, ge, gt, le, legacy, legacy_rule, load_file,
                                override_keys, read_yaml, show_path, source_note, stricter, validate, within)
 
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
-OBJECTIVE_NAMES = ("avoid", "manipulate", "time")
 _read_yaml = read_yaml  # the earlier name, still imported by a few modules
 
 # Upper bounds: values past these would run (nearly) forever or exhaust the machine. They are
