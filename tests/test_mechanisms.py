@@ -262,3 +262,54 @@ def test_state_survives_save_and_restore_exactly():
 def test_bad_order_is_named():
     with pytest.raises(ValueError, match=r"mechanism\.fixed_order.*permutation"):
         make("fhrm", fixed_order=("avoid", "avoid", "time"))
+
+
+def _level_one_episode(total: int) -> tuple[np.ndarray, np.ndarray]:
+    """A phase-1 episode whose level-1 sum (avoid first: the sum of f_avoid) is ``total``:
+    |total| steps of sign(total), or a +1/-1 pair for 0."""
+    column = [1.0, -1.0] if total == 0 else [float(np.sign(total))] * abs(total)
+    f = np.ones((len(column), 3))
+    f[:, 0] = column
+    return f, np.ones(len(column), int)
+
+
+def test_level_advance_compares_the_last_w_episodes_with_the_w_before_them():
+    """W = 2, level-1 sums 0, 4, 6, 5, 5. After 4 episodes the last two (6, 5: mean 5.5) differ
+    from the two before (0, 4: mean 2); after 5 the last two (5, 5) equal the two before them
+    (4, 6): the level advances at episode 5. Comparing with the first W episodes (0, 4) instead,
+    or with all the earlier ones, would not advance; neither would the last W + 1."""
+    fhrm = make("fhrm", convergence_window=2, convergence_tolerance=0.01)
+    levels = []
+    for total in (0, 4, 6, 5, 5):
+        fhrm.end_episode(*_level_one_episode(total))
+        levels.append(fhrm.levels[0])
+    assert levels == [1, 1, 1, 1, 2]
+    assert fhrm._level_sums[0] == []  # the sums of the new level start afresh
+    [event] = [e for e in fhrm.events if e.kind == "level_advanced"]
+    assert (event.episode, event.phase) == (5, 1)
+    assert event.detail == "level 1 -> 2 (episode-sum mean 5.000 vs 5.000)"
+
+
+def test_level_advance_tolerance_is_relative_to_the_recent_mean_with_a_floor_of_one():
+    """|recent - before| <= tolerance x max(1, |recent|): 10 vs 10.4 is within 5 % of 10; 0 vs 0.4
+    is not within 5 % of max(1, 0) = 1, nor 0 vs 0.06; 0 vs 0.04 is."""
+    for sums, advanced in [((10.4, 10.4, 10, 10), True), ((0.4, 0.4, 0, 0), False), ((0.06, 0.06, 0, 0), False),
+                           ((0.04, 0.04, 0, 0), True), ((-10.4, -10.4, -10, -10), True),
+                           ((10.6, 10.6, 10, 10), False)]:
+        fhrm = make("fhrm", convergence_window=2, convergence_tolerance=0.05)
+        fhrm._level_sums[0] = list(sums)
+        events = fhrm._advance_level(0)
+        assert (fhrm.levels[0] == 2) is advanced and bool(events) is advanced, sums
+
+
+def test_the_last_level_never_advances_and_ls_keeps_every_level():
+    fhrm = make("fhrm", convergence_window=1)
+    fhrm.levels = [3, 1, 1]
+    for _ in range(4):
+        fhrm.end_episode(*_level_one_episode(5))
+    assert fhrm.levels[0] == 3
+    ls = make("ls", convergence_window=1)
+    assert ls.levels == [3, 3, 3] and ls.locked == [True, True, True]
+    for _ in range(4):
+        assert ls.end_episode(*_level_one_episode(5)) == []
+    assert ls.levels == [3, 3, 3] and ls._level_sums == [[], [], []] and ls.visits == [4, 0, 0]
