@@ -193,6 +193,7 @@ def test_workspace_rows_keep_each_point_inside_the_box_over_the_horizon():
     ([0.0, 0.0, 0.0], [1.0, 1.0], "workspace corners must be 3-vectors"),
     ([0.0, 0.5, 0.0], [1.0, 0.5, 1.0], "workspace needs finite lower < upper"),  # an empty y range
     ([0.0, 0.0, 0.0], [1.0, 1.0, math.inf], "workspace needs finite lower < upper"),
+    ([-math.inf, 0.0, 0.0], [1.0, 1.0, 1.0], "workspace needs finite lower < upper"),  # ordered, not finite
     ([math.nan, 0.0, 0.0], [1.0, 1.0, 1.0], "workspace needs finite lower < upper"),
 ])
 def test_workspace_corners_must_be_finite_ordered_three_vectors(lower, upper, message):

@@ -5,7 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from ahrm_stack.learning.mechanisms import (ConstraintMonitor, MechanismConfig, RewardMechanism,
+from ahrm_stack.learning.mechanisms import (ConstraintMonitor, EpisodeStats, MechanismConfig, RewardMechanism,
                                             blend_weight)
 
 BASE = MechanismConfig(
@@ -313,3 +313,82 @@ def test_the_last_level_never_advances_and_ls_keeps_every_level():
     for _ in range(4):
         assert ls.end_episode(*_level_one_episode(5)) == []
     assert ls.levels == [3, 3, 3] and ls._level_sums == [[], [], []] and ls.visits == [4, 0, 0]
+
+
+def test_level_advance_at_exactly_the_tolerance_advances():
+    """|recent - before| = 1 = 0.25 x |recent| (all exact in binary): within tolerance."""
+    fhrm = make("fhrm", convergence_window=1, convergence_tolerance=0.25)
+    fhrm._level_sums[0] = [5.0, 4.0]
+    assert fhrm._advance_level(0) and fhrm.levels[0] == 2
+
+
+def test_episode_stats_have_one_row_per_phase():
+    f = np.array([[1, -1, 1], [-1, -1, 1], [1, 1, -1], [1, 1, 1]], float)
+    stats = EpisodeStats.from_steps(f, np.array([1, 1, 3, 3]))
+    np.testing.assert_array_equal(stats.steps, [2, 0, 2])
+    np.testing.assert_array_equal(stats.sums, [[0, -2, 2], [0, 0, 0], [2, 2, 0]])
+
+
+def test_thresholds_need_a_second_level_and_a_full_window():
+    """tau_k is nan at level 1 (no higher level to protect), and before W episodes visited k."""
+    fhrm = make("fhrm", constraint_window=3)
+    fhrm.levels = [1, 2, 2]
+    for k, episodes in ((0, 3), (1, 2), (2, 4)):
+        for _ in range(episodes):
+            fhrm._history[k].append((4.0, np.array([2.0, 4.0, -4.0])))
+    fhrm._history[2].append((2.0, np.array([-2.0, 2.0, 2.0])))  # the last of phase 3's five
+    tau = fhrm.constraint_thresholds()
+    assert np.isnan(tau[0]) and np.isnan(tau[1])
+    assert tau[2] == pytest.approx((0.5 + 0.5 - 1.0) / 3)  # the last three: 2/4, 2/4, -2/2
+    assert fhrm.constraint_monitor().prefixes == [[], [0], [0]]
+    assert make("ls").constraint_thresholds().tolist() == [pytest.approx(np.nan, nan_ok=True)] * 3
+
+
+def test_priority_determination_reads_the_last_p_episodes_even_when_w_is_shorter():
+    """P = 4, W = 2: the history keeps max(W, P) = 4 episodes. Two episodes with sums (0, 10, 0),
+    then two with (4, 0, 2): over all four the mean sums are (2, 5, 1) -> manipulate, avoid, time;
+    over only the last two (W) they would be (4, 0, 2) -> avoid, time, manipulate."""
+    ahrm = make("ahrm", priority_period=4, constraint_window=2)
+    manipulating = np.array([[1, 1, 1], [-1, 1, -1]] * 5, float)  # sums (0, 10, 0)
+    avoiding = np.ones((10, 3))
+    avoiding[:3, 0] = -1  # avoid: 7 - 3 = 4
+    avoiding[::2, 1] = -1  # manipulate: 5 - 5 = 0
+    avoiding[:4, 2] = -1  # time: 6 - 4 = 2
+    for f in (manipulating, manipulating, avoiding, avoiding):
+        ahrm.end_episode(f, np.ones(10, int))
+    assert ahrm.orders[0] == (1, 0, 2)
+    assert len(ahrm._history[0]) == 4
+
+
+def test_a_constraint_terminated_episode_is_an_event_naming_its_phase():
+    fhrm = make("fhrm")
+    f, phase = _level_one_episode(3)
+    [event] = fhrm.end_episode(f, phase, constraint_terminated=True, terminated_phase=2)
+    assert (event.episode, event.kind, event.phase) == (1, "constraint_termination", 2)
+    [event] = fhrm.end_episode(f, phase, constraint_terminated=True)
+    assert (event.episode, event.phase) == (2, 0)
+    assert fhrm.events[-1] is event
+
+
+def test_a_locked_order_is_an_event_of_its_phase_with_the_order_named():
+    ahrm = make("ahrm", priority_period=1, initial_orders=(("time", "avoid", "manipulate"),) * 3)
+    f = np.tile([1.0, -1.0, 1.0], (4, 1))  # sums (4, -4, 4): |means| tie avoid/time, then manipulate
+    events = ahrm.end_episode(f, np.full(4, 2)) + ahrm.end_episode(f, np.full(4, 2))
+    assert [(e.kind, e.phase) for e in events] == [("order_changed", 2), ("order_locked", 2)]
+    assert events[0].detail.startswith("time>avoid>manipulate -> avoid>manipulate>time (|mean| [4.0, 4.0, 4.0])")
+    assert events[1].detail == "avoid>manipulate>time" and ahrm.locked == [False, True, False]
+
+
+def test_the_constraint_monitor_ignores_a_phase_without_threshold_and_ends_only_below_tau_minus_margin():
+    monitor = ConstraintMonitor(np.array([np.nan, 0.75, np.nan]), [[], [0], []], 2, 0.25)
+    assert monitor.step(np.array([-1.0, -1.0, -1.0]), 1) is False and monitor.steps.tolist() == [0, 0, 0]
+    # per-step average of f_avoid in phase 2: 1, then (1 + 0) / 2 = 0.5 = tau - margin: not below
+    assert monitor.step(np.array([1.0, -1.0, -1.0]), 2) is False
+    assert monitor.step(np.array([0.0, -1.0, -1.0]), 2) is False
+    assert monitor.violated_phase is None
+    assert monitor.step(np.array([-0.1, 1.0, 1.0]), 2) is True and monitor.violated_phase == 2
+
+
+def test_one_order_per_phase_is_required():
+    with pytest.raises(ValueError, match=r"^mechanism\.manual_orders: expected 3 orders \(one per phase\), got 2"):
+        make("mhrm", manual_orders=(("avoid", "manipulate", "time"),) * 2)

@@ -310,3 +310,32 @@ def test_a_described_arm_answers_from_its_description_and_a_context_manager_clos
 
 def test_the_adapter_base_defaults_to_the_wall_clock():
     assert type(ArmAdapter.clock.fget(_Arm())) is WallClock  # type: ignore[attr-defined]
+
+
+def test_fault_flags_are_distinct_bits_so_that_any_combination_reads_back():
+    assert [flag.value for flag in (Fault.EMERGENCY_STOP, Fault.LIMIT, Fault.HARDWARE, Fault.COMMUNICATION)] == \
+        [1, 2, 4, 8]
+    both = Fault.EMERGENCY_STOP | Fault.LIMIT
+    assert Fault.EMERGENCY_STOP in both and Fault.LIMIT in both and Fault.HARDWARE not in both
+    assert not Fault.NONE
+
+
+def test_frames_and_poses_cannot_be_changed():
+    import dataclasses
+
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        _frame().faults = Fault.LIMIT  # type: ignore[misc]
+    poses = ObjectPoses(0.0, np.zeros(3), np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros((0, 3)),
+                        np.zeros((0, 4)), np.zeros((0, 3)))
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        poses.timestamp = 1.0  # type: ignore[misc]
+
+
+def test_a_refused_command_is_shown_whole_up_to_80_characters():
+    for length, shown in ((80, 80), (81, 80)):
+        text = "x" * (length - 2)  # repr adds the quotes
+        with pytest.raises(CommandRefusedError) as refused:
+            check_joint_speeds(text, LIMIT)
+        message = str(refused.value)
+        assert len(message.split(": ", 1)[1].split(" (NumPy")[0]) == shown
+        assert message.count("...") == (length > 80)
