@@ -49,7 +49,9 @@ import yaml
 from pydantic import AfterValidator, PlainValidator
 from pydantic_core import PydanticCustomError
 
+from ahrm_stack.env.layout_rules import Layout, LayoutError, validate_layout
 from ahrm_stack.env.realism import RealismConfig, resolve_realism
+from ahrm_stack.names import OBJECTIVE_NAMES
 from ahrm_stack.schema import _float  # the Float rule, for values inside a custom validator
 from ahrm_stack.schema import (MISSING, Bool, ConfigError, Float, FrozenDict, Int, Section, Source, Str, apply_override,
                                count, derived, fail, fill_legacy, ge, gt, le, legacy, legacy_rule, load_file,
@@ -57,7 +59,6 @@ from ahrm_stack.schema import (MISSING, Bool, ConfigError, Float, FrozenDict, In
 
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
-OBJECTIVE_NAMES = ("avoid", "manipulate", "time")
 _read_yaml = read_yaml  # the earlier name, still imported by a few modules
 
 # Upper bounds: values past these would run (nearly) forever or exhaust the machine. They are
@@ -395,8 +396,6 @@ class TaskConfig(Section):
             raise ConfigError(f"{key}.arm.home_deg has no entry for robot {self.robot!r} (task.robot); "
                               f"entries: {sorted(self.arm.home_deg)}")
         import numpy as np
-
-        from ahrm_stack.env.layout import Layout, LayoutError, validate_layout  # imports this module
 
         layout = Layout(np.asarray(self.cube.position, float),
                         np.asarray(self.obstacles.fixed_layout, float).reshape(-1, 2))

@@ -23,8 +23,9 @@ import numpy as np
 
 from ahrm_stack.cli import quiet_argv
 from ahrm_stack.config import ConfigError, ExperimentConfig, PaperRow, load_extra
+from ahrm_stack.names import OBJECTIVE_NAMES, PHASE_NAMES
 
-OBJECTIVE_LETTERS = {"A": "avoid", "M": "manipulate", "T": "time"}
+OBJECTIVE_LETTERS = {name[0].upper(): name for name in OBJECTIVE_NAMES}  # A: avoid, M: manipulate, T: time
 METHOD_NAMES = {"ahrm": "AHRM", "mhrm": "MHRM", "fhrm": "FHRM", "ls": "LS"}
 
 
@@ -420,7 +421,7 @@ def write_report(out: Path | str, experiment: ExperimentConfig | None = None) ->
               "order changes and where the orders were locked. Only AHRM determines its orders; "
               "MHRM's are set per phase, FHRM's fixed, LS has none (its column shows the unused "
               "default).", ""]
-    lines += _table(["Run", "Phase 1 (approach)", "Phase 2 (pre-manipulate)", "Phase 3 (manipulate)",
+    lines += _table(["Run", *(f"Phase {k} ({name})" for k, name in enumerate(PHASE_NAMES, 1)),
                      "Order changes", "Locked"], _order_rows(runs))
     lines += ["", f"## Episodes to reach {experiment.success_threshold:.0%} success", "",
               f"Training episodes played before the first window of {experiment.success_window} consecutive "

@@ -15,9 +15,10 @@ from pathlib import Path
 import numpy as np
 
 from ahrm_stack.learning.diagnostics import moving_average, pyplot, save_figure
+from ahrm_stack.names import OBJECTIVE_NAMES as OBJECTIVES
 
-OBJECTIVES = ("avoid", "manipulate", "time")
-ORDER_CODES = ["".join(p) for p in permutations("AMT")]  # the six priority orders
+#: the six priority orders as codes of the objectives' initials ("AMT", "ATM", ...)
+ORDER_CODES = ["".join(p) for p in permutations("".join(name[0].upper() for name in OBJECTIVES))]
 
 
 def seed_band(curves: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

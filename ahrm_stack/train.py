@@ -40,6 +40,7 @@ import numpy as np
 
 from ahrm_stack.cli import add_verbose_flag, quiet
 from ahrm_stack.config import Config, ConfigError, load_config
+from ahrm_stack.names import NUM_PHASES, OBJECTIVE_NAMES
 from ahrm_stack.run_config import load_run_config, run_config_text
 
 # torchrl announces its own deprecations at import, and dm_control turns every DeprecationWarning
@@ -250,9 +251,9 @@ class RunLog:
         for key in ("success", "learning_return", "touched_steps", "closest_approach",
                     "cube_displacement", "interventions"):
             self.tb.add_scalar(f"episode/{key}", float(row[key]), n)
-        for k in range(3):
+        for k in range(NUM_PHASES):
             self.tb.add_scalar(f"phase{k + 1}/steps", row["phase_steps"][k], n)
-            for i, name in enumerate(("avoid", "manipulate", "time")):
+            for i, name in enumerate(OBJECTIVE_NAMES):
                 self.tb.add_scalar(f"phase{k + 1}/{name}", row["component_sums"][k][i], n)
             self.tb.add_scalar(f"phase{k + 1}/level", row["levels"][k], n)
 

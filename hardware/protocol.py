@@ -21,8 +21,9 @@ torques in N·m, times in s. Only the Kortex backend converts to degrees, at its
 
 Every method but :meth:`ArmAdapter.connect` and the description properties raises
 :class:`NotConnectedError` when the adapter is not connected. Commands are re-checked against the
-robot's limits here, at the adapter (:func:`check_joint_speeds`): a command that is non-finite, of
-the wrong size, or beyond a velocity limit is refused and the arm is e-stopped.
+robot's limits here, at the adapter (:func:`check_joint_speeds`): a command that is not real
+numbers, non-finite, of the wrong size, or beyond a velocity limit is refused and the arm is
+e-stopped.
 """
 
 from __future__ import annotations
@@ -185,17 +186,29 @@ class FastClock(WallClock):
         self._now = max(self._now, float(deadline))
 
 
-def check_joint_speeds(speeds, velocity_limit: np.ndarray) -> np.ndarray:
-    """The command as a float array if it is safe to send, else :class:`CommandRefusedError`.
+def check_joint_speeds(speeds: Any, velocity_limit: np.ndarray) -> np.ndarray:
+    """The command as a float array if it is safe to send, else :class:`CommandRefusedError` —
+    for every bad command, so that every backend e-stops on it.
 
-    ``speeds``: joint velocities, rad/s, one per joint. Refused: wrong size, any non-finite entry,
-    or any ``|speed| > velocity_limit`` (rad/s). The message names the first bad joint.
+    ``speeds``: joint velocities, rad/s, one per joint. Refused: anything that is not an array of
+    real numbers (strings, booleans, complex numbers, objects, integers too large for a float,
+    anything NumPy cannot read), anything but one flat vector with one entry per joint, any
+    non-finite entry, or any ``|speed| > velocity_limit`` (rad/s). A speed exactly at its limit is
+    accepted (the safety filter commands the limit itself when it saturates); the next float
+    beyond it is refused. The message names the first bad joint.
     """
     limit = np.asarray(velocity_limit, dtype=float)
     try:
-        command = np.asarray(speeds, dtype=float).reshape(-1)
-    except (TypeError, ValueError) as error:
+        raw = np.asarray(speeds)
+    except Exception as error:  # any failure to read the command refuses it
         raise CommandRefusedError(f"joint speeds are not numbers: {error}") from None
+    if raw.dtype.kind not in "iuf":
+        raise CommandRefusedError(f"joint speeds are not real numbers: {_shown(speeds)} "
+                                  f"(NumPy dtype {raw.dtype})")
+    if raw.ndim != 1:
+        raise CommandRefusedError(f"joint speeds must be one flat vector of {limit.size} entries, got "
+                                  f"shape {raw.shape}")
+    command = raw.astype(float)
     if command.shape != limit.shape:
         raise CommandRefusedError(f"joint speeds have {command.size} entries; the arm has "
                                   f"{limit.size} joints")
@@ -208,6 +221,12 @@ def check_joint_speeds(speeds, velocity_limit: np.ndarray) -> np.ndarray:
         raise CommandRefusedError(f"joint speed [{i}] is {command[i]:.6g} rad/s, beyond its "
                                   f"limit {limit[i]:.6g} rad/s")
     return command
+
+
+def _shown(value: Any) -> str:
+    """A short repr of a refused command for a message (at most 80 characters)."""
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
 
 
 def unwrap_positions(measured: np.ndarray, reference: np.ndarray | None,

@@ -5,7 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from ahrm_stack.learning.mechanisms import (ConstraintMonitor, MechanismConfig, RewardMechanism,
+from ahrm_stack.learning.mechanisms import (ConstraintMonitor, EpisodeStats, MechanismConfig, RewardMechanism,
                                             blend_weight)
 
 BASE = MechanismConfig(
@@ -262,3 +262,133 @@ def test_state_survives_save_and_restore_exactly():
 def test_bad_order_is_named():
     with pytest.raises(ValueError, match=r"mechanism\.fixed_order.*permutation"):
         make("fhrm", fixed_order=("avoid", "avoid", "time"))
+
+
+def _level_one_episode(total: int) -> tuple[np.ndarray, np.ndarray]:
+    """A phase-1 episode whose level-1 sum (avoid first: the sum of f_avoid) is ``total``:
+    |total| steps of sign(total), or a +1/-1 pair for 0."""
+    column = [1.0, -1.0] if total == 0 else [float(np.sign(total))] * abs(total)
+    f = np.ones((len(column), 3))
+    f[:, 0] = column
+    return f, np.ones(len(column), int)
+
+
+def test_level_advance_compares_the_last_w_episodes_with_the_w_before_them():
+    """W = 2, level-1 sums 0, 4, 6, 5, 5. After 4 episodes the last two (6, 5: mean 5.5) differ
+    from the two before (0, 4: mean 2); after 5 the last two (5, 5) equal the two before them
+    (4, 6): the level advances at episode 5. Comparing with the first W episodes (0, 4) instead,
+    or with all the earlier ones, would not advance; neither would the last W + 1."""
+    fhrm = make("fhrm", convergence_window=2, convergence_tolerance=0.01)
+    levels = []
+    for total in (0, 4, 6, 5, 5):
+        fhrm.end_episode(*_level_one_episode(total))
+        levels.append(fhrm.levels[0])
+    assert levels == [1, 1, 1, 1, 2]
+    assert fhrm._level_sums[0] == []  # the sums of the new level start afresh
+    [event] = [e for e in fhrm.events if e.kind == "level_advanced"]
+    assert (event.episode, event.phase) == (5, 1)
+    assert event.detail == "level 1 -> 2 (episode-sum mean 5.000 vs 5.000)"
+
+
+def test_level_advance_tolerance_is_relative_to_the_recent_mean_with_a_floor_of_one():
+    """|recent - before| <= tolerance x max(1, |recent|): 10 vs 10.4 is within 5 % of 10; 0 vs 0.4
+    is not within 5 % of max(1, 0) = 1, nor 0 vs 0.06; 0 vs 0.04 is."""
+    for sums, advanced in [((10.4, 10.4, 10, 10), True), ((0.4, 0.4, 0, 0), False), ((0.06, 0.06, 0, 0), False),
+                           ((0.04, 0.04, 0, 0), True), ((-10.4, -10.4, -10, -10), True),
+                           ((10.6, 10.6, 10, 10), False)]:
+        fhrm = make("fhrm", convergence_window=2, convergence_tolerance=0.05)
+        fhrm._level_sums[0] = list(sums)
+        events = fhrm._advance_level(0)
+        assert (fhrm.levels[0] == 2) is advanced and bool(events) is advanced, sums
+
+
+def test_the_last_level_never_advances_and_ls_keeps_every_level():
+    fhrm = make("fhrm", convergence_window=1)
+    fhrm.levels = [3, 1, 1]
+    for _ in range(4):
+        fhrm.end_episode(*_level_one_episode(5))
+    assert fhrm.levels[0] == 3
+    ls = make("ls", convergence_window=1)
+    assert ls.levels == [3, 3, 3] and ls.locked == [True, True, True]
+    for _ in range(4):
+        assert ls.end_episode(*_level_one_episode(5)) == []
+    assert ls.levels == [3, 3, 3] and ls._level_sums == [[], [], []] and ls.visits == [4, 0, 0]
+
+
+def test_level_advance_at_exactly_the_tolerance_advances():
+    """|recent - before| = 1 = 0.25 x |recent| (all exact in binary): within tolerance."""
+    fhrm = make("fhrm", convergence_window=1, convergence_tolerance=0.25)
+    fhrm._level_sums[0] = [5.0, 4.0]
+    assert fhrm._advance_level(0) and fhrm.levels[0] == 2
+
+
+def test_episode_stats_have_one_row_per_phase():
+    f = np.array([[1, -1, 1], [-1, -1, 1], [1, 1, -1], [1, 1, 1]], float)
+    stats = EpisodeStats.from_steps(f, np.array([1, 1, 3, 3]))
+    np.testing.assert_array_equal(stats.steps, [2, 0, 2])
+    np.testing.assert_array_equal(stats.sums, [[0, -2, 2], [0, 0, 0], [2, 2, 0]])
+
+
+def test_thresholds_need_a_second_level_and_a_full_window():
+    """tau_k is nan at level 1 (no higher level to protect), and before W episodes visited k."""
+    fhrm = make("fhrm", constraint_window=3)
+    fhrm.levels = [1, 2, 2]
+    for k, episodes in ((0, 3), (1, 2), (2, 4)):
+        for _ in range(episodes):
+            fhrm._history[k].append((4.0, np.array([2.0, 4.0, -4.0])))
+    fhrm._history[2].append((2.0, np.array([-2.0, 2.0, 2.0])))  # the last of phase 3's five
+    tau = fhrm.constraint_thresholds()
+    assert np.isnan(tau[0]) and np.isnan(tau[1])
+    assert tau[2] == pytest.approx((0.5 + 0.5 - 1.0) / 3)  # the last three: 2/4, 2/4, -2/2
+    assert fhrm.constraint_monitor().prefixes == [[], [0], [0]]
+    assert make("ls").constraint_thresholds().tolist() == [pytest.approx(np.nan, nan_ok=True)] * 3
+
+
+def test_priority_determination_reads_the_last_p_episodes_even_when_w_is_shorter():
+    """P = 4, W = 2: the history keeps max(W, P) = 4 episodes. Two episodes with sums (0, 10, 0),
+    then two with (4, 0, 2): over all four the mean sums are (2, 5, 1) -> manipulate, avoid, time;
+    over only the last two (W) they would be (4, 0, 2) -> avoid, time, manipulate."""
+    ahrm = make("ahrm", priority_period=4, constraint_window=2)
+    manipulating = np.array([[1, 1, 1], [-1, 1, -1]] * 5, float)  # sums (0, 10, 0)
+    avoiding = np.ones((10, 3))
+    avoiding[:3, 0] = -1  # avoid: 7 - 3 = 4
+    avoiding[::2, 1] = -1  # manipulate: 5 - 5 = 0
+    avoiding[:4, 2] = -1  # time: 6 - 4 = 2
+    for f in (manipulating, manipulating, avoiding, avoiding):
+        ahrm.end_episode(f, np.ones(10, int))
+    assert ahrm.orders[0] == (1, 0, 2)
+    assert len(ahrm._history[0]) == 4
+
+
+def test_a_constraint_terminated_episode_is_an_event_naming_its_phase():
+    fhrm = make("fhrm")
+    f, phase = _level_one_episode(3)
+    [event] = fhrm.end_episode(f, phase, constraint_terminated=True, terminated_phase=2)
+    assert (event.episode, event.kind, event.phase) == (1, "constraint_termination", 2)
+    [event] = fhrm.end_episode(f, phase, constraint_terminated=True)
+    assert (event.episode, event.phase) == (2, 0)
+    assert fhrm.events[-1] is event
+
+
+def test_a_locked_order_is_an_event_of_its_phase_with_the_order_named():
+    ahrm = make("ahrm", priority_period=1, initial_orders=(("time", "avoid", "manipulate"),) * 3)
+    f = np.tile([1.0, -1.0, 1.0], (4, 1))  # sums (4, -4, 4): |means| tie avoid/time, then manipulate
+    events = ahrm.end_episode(f, np.full(4, 2)) + ahrm.end_episode(f, np.full(4, 2))
+    assert [(e.kind, e.phase) for e in events] == [("order_changed", 2), ("order_locked", 2)]
+    assert events[0].detail.startswith("time>avoid>manipulate -> avoid>manipulate>time (|mean| [4.0, 4.0, 4.0])")
+    assert events[1].detail == "avoid>manipulate>time" and ahrm.locked == [False, True, False]
+
+
+def test_the_constraint_monitor_ignores_a_phase_without_threshold_and_ends_only_below_tau_minus_margin():
+    monitor = ConstraintMonitor(np.array([np.nan, 0.75, np.nan]), [[], [0], []], 2, 0.25)
+    assert monitor.step(np.array([-1.0, -1.0, -1.0]), 1) is False and monitor.steps.tolist() == [0, 0, 0]
+    # per-step average of f_avoid in phase 2: 1, then (1 + 0) / 2 = 0.5 = tau - margin: not below
+    assert monitor.step(np.array([1.0, -1.0, -1.0]), 2) is False
+    assert monitor.step(np.array([0.0, -1.0, -1.0]), 2) is False
+    assert monitor.violated_phase is None
+    assert monitor.step(np.array([-0.1, 1.0, 1.0]), 2) is True and monitor.violated_phase == 2
+
+
+def test_one_order_per_phase_is_required():
+    with pytest.raises(ValueError, match=r"^mechanism\.manual_orders: expected 3 orders \(one per phase\), got 2"):
+        make("mhrm", manual_orders=(("avoid", "manipulate", "time"),) * 2)

@@ -684,12 +684,13 @@ def test_nonfinite_request_is_a_request_for_zero(bad):
 
 @pytest.mark.parametrize("where", ["q", "dq"])
 @pytest.mark.parametrize("bad", [np.nan, np.inf])
-def test_nonfinite_state_brakes_within_the_acceleration_limit(where, bad):
+@pytest.mark.parametrize("sign", [1.0, -1.0])  # moving forwards the lower bound brakes, backwards the upper
+def test_nonfinite_state_brakes_within_the_acceleration_limit(where, bad, sign):
     safety = cached(solver="daqp")
-    q, dq, u_prev = HOME.copy(), np.zeros(6), 0.5 * V_MAX
+    q, dq, u_prev = HOME.copy(), np.zeros(6), sign * 0.5 * V_MAX
     (q if where == "q" else dq)[3] = bad
     result = safety(q, dq, V_MAX, u_prev=u_prev)
-    np.testing.assert_allclose(result.command, np.maximum(u_prev - STEP, 0.0), atol=HARD)
+    np.testing.assert_allclose(result.command, sign * np.maximum(0.5 * V_MAX - STEP, 0.0), atol=HARD)
     assert result.status == "nonfinite_input" and result.fallback and np.isnan(result.worst_margin)
 
 

@@ -133,3 +133,54 @@ def test_a_checkpoint_vector_of_another_length_is_ignored(ours, key, change):
     assert merged == ours
     assert [(n.key, n.kind) for n in notes] == [(key, "weaker")]
     assert f"has {len(theirs)} entries, deploy's {len(value)}: ignored" in notes[0].text
+
+
+def test_a_vector_stricter_in_some_entries_and_weaker_in_others_takes_the_stricter_per_entry(ours):
+    """acceleration_limit is 'lower': entry 0 lowered (stricter, taken), entry 1 raised (weaker,
+    ignored), the rest equal."""
+    theirs = (ours.acceleration_limit[0] - 1.0, ours.acceleration_limit[1] + 1.0) + ours.acceleration_limit[2:]
+    merged, notes = merge_safety(ours, dataclasses.replace(ours, acceleration_limit=theirs))
+    expected = (theirs[0],) + ours.acceleration_limit[1:]
+    assert merged == dataclasses.replace(ours, acceleration_limit=expected)
+    assert [(n.key, n.kind) for n in notes] == [("acceleration_limit", "weaker")]
+    assert notes[0].text == (f"safety.acceleration_limit: the checkpoint's {list(theirs)} is weaker than "
+                             f"deploy's {list(ours.acceleration_limit)} in entries [1] (ignored there) and "
+                             f"stricter in entries [0]: using {list(expected)}")
+
+
+@pytest.mark.parametrize("where", [0, -1])
+def test_a_checkpoint_vector_with_a_non_finite_entry_is_ignored_whole(ours, where):
+    strict = [v - 1.0 for v in ours.acceleration_limit]  # stricter in every finite entry ...
+    strict[where] = float("nan")  # ... but one entry is not a number
+    merged, notes = merge_safety(ours, dataclasses.replace(ours, acceleration_limit=tuple(strict)))
+    assert merged == ours
+    assert [(n.key, n.kind) for n in notes] == [("acceleration_limit", "weaker")]
+    assert notes[0].text.endswith(f"is not finite: ignored, using {list(ours.acceleration_limit)}")
+
+
+def test_a_safety_note_cannot_be_changed():
+    _, [note] = merge_safety(load_config().safety, dataclasses.replace(load_config().safety, table_margin=1.0))
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        note.kind = "stricter"  # type: ignore[misc]
+
+
+def test_tightened_workspace_boxes_must_still_overlap(ours):
+    """Deploy's box x in [-0.8, 0.8]; a checkpoint box whose x range ends at -0.8 (an empty
+    overlap, lo == hi) or before it is refused; one that ends just after -0.8 is kept."""
+    for end in (-0.8, -0.9):
+        upper = (end,) + ours.workspace_upper[1:]
+        with pytest.raises(DeployConfigError, match=rf"do not overlap on axis 0 \(\[-0\.8, {end}\] after"):
+            merge_safety(ours, dataclasses.replace(ours, workspace_upper=upper))
+    upper = (-0.79,) + ours.workspace_upper[1:]
+    merged, _ = merge_safety(ours, dataclasses.replace(ours, workspace_upper=upper))
+    assert merged.workspace_upper == upper
+
+
+def test_the_activation_distance_must_stay_above_the_safe_distance_after_tightening(ours):
+    """obstacle_safe_distance is 'higher' (a larger distance is stricter): a checkpoint's safe
+    distance equal to deploy's activation distance is refused, just below it is kept."""
+    activation = ours.obstacle_activation_distance
+    with pytest.raises(DeployConfigError, match=r"^safety\.obstacle_activation_distance .* must exceed"):
+        merge_safety(ours, dataclasses.replace(ours, obstacle_safe_distance=activation))
+    merged, _ = merge_safety(ours, dataclasses.replace(ours, obstacle_safe_distance=activation - 1e-3))
+    assert merged.obstacle_safe_distance == activation - 1e-3

@@ -8,7 +8,7 @@ import numpy as np
 from ahrm_stack.config import TaskConfig
 from ahrm_stack.env.layout import lane_clearance
 from ahrm_stack.env.realism import VelocityEstimator, nominal
-from ahrm_stack.env.rewards import NUM_PHASES
+from ahrm_stack.names import NUM_PHASES
 
 
 class WorldModel:

@@ -32,16 +32,16 @@ table and pusher sites): the one place the filter's constructor arguments are sp
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Any, Callable, Protocol
 
 import numpy as np
 
-from ahrm_stack.config import ActionConfig, SafetyConfig
+from ahrm_stack.config import ActionConfig, SafetyConfig, TaskConfig
 from ahrm_stack.robot import RobotDescription
 from ahrm_stack.safety import FilterResult, SafetyFilter, make_filter
 
-if TYPE_CHECKING:  # the task imports this module (the observation's previous action)
-    from ahrm_stack.env.task import PushOffTask
+if TYPE_CHECKING:
+    from ahrm_stack.kinematics.model import ArmKinematics
     from ahrm_stack.kinematics.scene import CollisionScene
 
 JOINT = "joint"
@@ -178,7 +178,30 @@ class ControlStep:
         return filter_call(safety_filter, self.cartesian)
 
 
-def make_task_filter(task: PushOffTask, safety: SafetyConfig, *,
+class FilterTask(Protocol):
+    """What :func:`make_task_filter` reads of a task: :class:`~ahrm_stack.env.task.PushOffTask`
+    has it. (Named here, not imported: the task imports this module, for the observation's
+    previous action.)"""
+
+    @property
+    def config(self) -> TaskConfig: ...
+
+    @property
+    def robot(self) -> RobotDescription: ...
+
+    @property
+    def kinematics(self) -> ArmKinematics: ...
+
+    @property
+    def pusher(self) -> Any:
+        """The pusher entity: its ``tip_site`` (an MJCF site) is the filter's tip point."""
+
+    @property
+    def arm(self) -> Any:
+        """The arm entity: its ``wrist_site`` (an MJCF site) is the filter's wrist point."""
+
+
+def make_task_filter(task: FilterTask, safety: SafetyConfig, *,
                      scene: CollisionScene | None = None,
                      control_period: float | None = None) -> SafetyFilter:
     """The safety filter for ``task``'s arm: its robot description and Pinocchio model, the
@@ -193,5 +216,5 @@ def make_task_filter(task: PushOffTask, safety: SafetyConfig, *,
                        wrist_site=task.arm.wrist_site, scene=scene)
 
 
-__all__ = ["CARTESIAN", "JOINT", "ControlStep", "action_to_command", "check_action_shape",
+__all__ = ["CARTESIAN", "JOINT", "ControlStep", "FilterTask", "action_to_command", "check_action_shape",
            "command_to_action", "filter_call", "make_task_filter", "request_size"]

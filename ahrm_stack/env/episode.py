@@ -10,7 +10,7 @@ import dataclasses
 
 import numpy as np
 
-from ahrm_stack.env.rewards import NUM_PHASES
+from ahrm_stack.names import NUM_PHASES
 from ahrm_stack.env.task import StepInfo
 
 

@@ -1,62 +1,20 @@
-"""Layouts of the cube and the obstacles on the table: validation and seeded sampling.
+"""Layouts of the cube and the obstacles on the table: seeded sampling, lane clearance and the
+choice of lane.
 
-All positions are (x, y) centres on the table top, in metres, in the world frame. A layout is
-valid when every box lies on the table, no two footprints come closer than ``min_gap``, and a free
-lane at least ``lane_width`` wide runs from behind the cube to a reachable table edge (spec §1).
+All positions are (x, y) centres on the table top, in metres, in the world frame. What makes a
+layout valid (every box on the table, no two footprints closer than ``min_gap``, a free lane at
+least ``lane_width`` wide from behind the cube to a reachable table edge; spec §1) is
+:mod:`ahrm_stack.env.layout_rules`, whose names are re-exported here.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
 
-from ahrm_stack.config import ConfigError, CubeConfig, LayoutConfig, ObstacleConfig, TableConfig
-
-
-@dataclasses.dataclass(frozen=True)
-class Layout:
-    cube_xy: np.ndarray  # (2,)
-    obstacle_xy: np.ndarray  # (n, 2)
-
-
-class LayoutError(ConfigError):
-    """A layout violates the task's placement rules; the message says which rule and which box."""
-
-
-def _footprint_gap(center_a: np.ndarray, half_a: np.ndarray, center_b: np.ndarray,
-                   half_b: np.ndarray) -> float:
-    """Signed gap between two axis-aligned rectangles (negative when they overlap), m."""
-    sep = np.abs(center_a - center_b) - (half_a + half_b)
-    if np.all(sep < 0):
-        return float(sep.max())
-    return float(np.linalg.norm(np.maximum(sep, 0.0)))
-
-
-def free_lanes(layout: Layout, cube_half: float, obstacle_half: np.ndarray, table: TableConfig,
-               rules: LayoutConfig) -> list[str]:
-    """The directions in ``rules.lane_directions`` whose lane is free of obstacles.
-
-    The lane toward ``+x`` is the strip |y - cube_y| <= lane_width / 2 from ``approach_room``
-    behind the cube's face (room for the pusher) to the table edge; likewise for ``-x``.
-    """
-    half_w = rules.lane_width / 2
-    cx, cy = layout.cube_xy
-    free = []
-    for direction in rules.lane_directions:
-        sign = 1.0 if direction == "+x" else -1.0
-        x_from, x_to = cx - sign * (cube_half + rules.approach_room), sign * table.half_extent[0]
-        lo, hi = min(x_from, x_to), max(x_from, x_to)
-        blocked = False
-        for ox, oy in layout.obstacle_xy:
-            if (ox + obstacle_half[0] > lo and ox - obstacle_half[0] < hi
-                    and oy + obstacle_half[1] > cy - half_w and oy - obstacle_half[1] < cy + half_w):
-                blocked = True
-                break
-        if not blocked:
-            free.append(direction)
-    return free
+from ahrm_stack.config import CubeConfig, LayoutConfig, ObstacleConfig, TableConfig
+from ahrm_stack.env.layout_rules import Layout, LayoutError, free_lanes, validate_layout
 
 
 def lane_clearance(cube_xy: np.ndarray, obstacle_xy: np.ndarray, cube_half: float,
@@ -119,31 +77,6 @@ def choose_lane(layout: Layout, tip_xy: np.ndarray, cube_half: float, obstacle_h
     return best[1]
 
 
-def validate_layout(layout: Layout, table: TableConfig, cube: CubeConfig, obstacles: ObstacleConfig,
-                    rules: LayoutConfig) -> None:
-    """Raise :class:`LayoutError` naming the first rule that ``layout`` breaks."""
-    cube_half = np.full(2, cube.size / 2)
-    obstacle_half = np.asarray(obstacles.size[:2]) / 2
-    table_half = np.asarray(table.half_extent)
-    boxes = [("cube", layout.cube_xy, cube_half)] + [
-        (f"obstacle {i}", xy, obstacle_half) for i, xy in enumerate(layout.obstacle_xy)]
-    for name, xy, half in boxes:
-        if np.any(np.abs(xy) + half > table_half):
-            raise LayoutError(f"{name} at {np.round(xy, 4).tolist()} is not fully on the table "
-                              f"(half-extent {table_half.tolist()})")
-    for i in range(len(boxes)):
-        for j in range(i + 1, len(boxes)):
-            gap = _footprint_gap(boxes[i][1], boxes[i][2], boxes[j][1], boxes[j][2])
-            if gap < rules.min_gap:
-                what = "overlaps" if gap < 0 else "is closer than min_gap to"
-                raise LayoutError(f"{boxes[j][0]} at {np.round(boxes[j][1], 4).tolist()} {what} "
-                                  f"{boxes[i][0]} at {np.round(boxes[i][1], 4).tolist()} "
-                                  f"(gap {gap:.4f} m, min_gap {rules.min_gap} m)")
-    if not free_lanes(layout, cube.size / 2, obstacle_half, table, rules):
-        raise LayoutError(f"no free lane {rules.lane_width} m wide from the cube to a reachable edge "
-                          f"({list(rules.lane_directions)}) in layout {layout.obstacle_xy.tolist()}")
-
-
 class LayoutSampler:
     """Seeded per-episode layouts: the fixed layout with cube jitter (``mode: fixed``), or the cube
     uniform in ``rules.cube_region`` with random obstacle positions around it (``mode: random``).
@@ -195,3 +128,7 @@ class LayoutSampler:
             return layout
         raise LayoutError(f"no valid random layout in {self.rules.max_tries} tries; widen "
                           "layout.radial_range or reduce the number of obstacles")
+
+
+__all__ = ["Layout", "LayoutError", "LayoutSampler", "choose_lane", "free_lanes", "lane_clearance",
+           "validate_layout"]

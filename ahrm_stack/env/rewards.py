@@ -9,8 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-OBJECTIVES = ("avoid", "manipulate", "time")
-NUM_PHASES = 3
+from ahrm_stack.names import NUM_PHASES
 
 
 def penalty_form(f: np.ndarray) -> np.ndarray:

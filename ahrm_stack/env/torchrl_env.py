@@ -30,13 +30,13 @@ from ahrm_stack.config import SafetyConfig, TaskConfig
 from ahrm_stack.env.control_step import action_to_command, check_action_shape  # noqa: F401 (re-exported)
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.episode import EpisodeRecorder, EpisodeSummary
-from ahrm_stack.env.rewards import OBJECTIVES
+from ahrm_stack.names import NUM_OBJECTIVES
 from ahrm_stack.env.task import PushOffTask, StepInfo
 
 _END_ORDER = itertools.count()  # episodes ended in this process, in order (EpisodeSummary.end_order)
 
 
-def touch_penalty(touch_end: bool, gamma: float, objectives: int = len(OBJECTIVES)) -> float:
+def touch_penalty(touch_end: bool, gamma: float, objectives: int = NUM_OBJECTIVES) -> float:
     """The reward lost by a touch that ends a training episode (``train.touch_end``):
     ``objectives / (1 - gamma)``, the discounted value of every objective's penalty (-1 each per
     step) forever. No continuation is worth less, so ending an episode by a touch is never an

@@ -41,6 +41,7 @@ from ahrm_stack.kinematics.cylinder_box import (
 )
 from ahrm_stack.kinematics.cylinder_box import UPRIGHT_TOL, cylinder_box_distance
 from ahrm_stack.kinematics.shapes import Bounds, Box, Cylinder, _as_array, _as_scalar, _require_positive
+from ahrm_stack.names import PHASE_NAMES
 
 # Kept importable from here for older call sites (the distances now live in cylinder_box).
 from ahrm_stack.kinematics.cylinder_box import POLISH_TOL as POLISH_TOL
@@ -62,8 +63,6 @@ __all__ = [
     "phase_from_distances",
 ]
 
-PHASE_NAMES = ("approach", "pre-manipulate", "manipulate")
-"""Name of phase k is ``PHASE_NAMES[k - 1]``."""
 
 # --------------------------------------------------------------------------- scene
 

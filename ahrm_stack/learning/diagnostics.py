@@ -18,9 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ahrm_stack.names import OBJECTIVE_NAMES as OBJECTIVES
+
 FAILURE_MODES = ("success", "touched", "never reached the cube", "reached the cube, could not push",
                  "hit obstacles", "stalled")
-OBJECTIVES = ("avoid", "manipulate", "time")
 REQUIRED = ("episode", "success", "constraint_terminated", "failure_mode", "learning_return",
             "closest_approach", "cube_displacement", "phase_steps", "touched_steps", "interventions",
             "component_sums", "levels")  # the columns the plot reads

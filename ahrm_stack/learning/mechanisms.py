@@ -23,13 +23,12 @@ from typing import Literal
 
 import numpy as np
 
-from ahrm_stack.config import OBJECTIVE_NAMES as OBJECTIVES
 from ahrm_stack.config import MechanismConfig
+from ahrm_stack.names import NUM_OBJECTIVES, NUM_PHASES
+from ahrm_stack.names import OBJECTIVE_NAMES as OBJECTIVES
 
 __all__ = ["MechanismConfig", "RewardMechanism", "ConstraintMonitor", "Event", "EpisodeStats",
            "blend_weight", "parse_order"]
-NUM_OBJECTIVES = 3
-NUM_PHASES = 3
 
 
 def parse_order(names: tuple[str, ...], where: str) -> tuple[int, ...]:

@@ -43,7 +43,7 @@ from ahrm_stack.config import Config, ConfigError
 from ahrm_stack.env.torchrl_env import PushOffEnv, touch_penalty
 from ahrm_stack.learning.demonstrations import (bc_loss, collect_corrections, collect_demonstrations,
                                                 warm_start)
-from ahrm_stack.learning.mechanisms import OBJECTIVES, RewardMechanism
+from ahrm_stack.learning.mechanisms import RewardMechanism
 from ahrm_stack.learning import workers
 from ahrm_stack.learning.collection import LeanCollector
 from ahrm_stack.learning.lane_frame import lane_mirror_for
@@ -52,6 +52,7 @@ from ahrm_stack.learning.pool import EnvPool
 from ahrm_stack.learning.ppo import (anchor_coeff, lean_collection_actor, make_buffer, make_loss,
                                      make_modules, scheduled_std)
 from ahrm_stack.learning.start_states import ScriptedStartStates, record_trajectories
+from ahrm_stack.names import OBJECTIVE_NAMES
 from ahrm_stack.seeds import training_seeds
 
 
@@ -366,8 +367,8 @@ class Trainer:
         return rows, events
 
     def mechanism_orders(self) -> str:
-        short = {name: name[0].upper() for name in OBJECTIVES}
-        return " ".join("".join(short[OBJECTIVES[i]] for i in order) for order in self.mechanism.orders)
+        short = {name: name[0].upper() for name in OBJECTIVE_NAMES}
+        return " ".join("".join(short[OBJECTIVE_NAMES[i]] for i in order) for order in self.mechanism.orders)
 
     # ------------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict:

@@ -360,7 +360,8 @@ class SafetyFilter:
         # The hard box. Velocity and acceleration always intersect (|u_prev| <= v_max); where the
         # position bound lies beyond them the joint is pinned to the closest value they allow, and
         # the problem as posed is infeasible.
-        # (The same values as the families' ``bounds``, written into the preallocated work space.)
+        # (The velocity and acceleration families' ``bounds``, and the position family's limits
+        # as (limit - q) / horizon, written into the preallocated work space.)
         box = self._box
         velocity, acceleration, position = self._box_families
         np.add(previous, self._step, out=self._box_acceleration)

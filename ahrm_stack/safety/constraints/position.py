@@ -5,12 +5,16 @@ from __future__ import annotations
 import numpy as np
 
 from ahrm_stack.robot import RobotDescription
-from ahrm_stack.safety.constraints.base import ConstraintDefinitionError, JointBounds
+from ahrm_stack.safety.constraints.base import ConstraintDefinitionError
 
 
 class PositionLimit:
     """``q_min + margin <= q + horizon * u <= q_max - margin`` for every joint with finite limits
     (continuous joints get -inf / +inf).
+
+    This family holds the margined limits (:attr:`lower`, :attr:`upper`, rad) and the horizon; the
+    filter turns them into the bounds ``(lower - q) / horizon <= u <= (upper - q) / horizon`` (rad/s)
+    at each call, in its own work space (:class:`~ahrm_stack.safety.filter.SafetyFilter`).
 
     Args:
         robot: the joint limits (rad) are read from here, never restated.
@@ -37,11 +41,5 @@ class PositionLimit:
         self.names = tuple(f"position[{i}]" for i in range(robot.num_joints))
         self.lower = np.where(limited, robot.position_lower + margin, -np.inf)  # rad
         self.upper = np.where(limited, robot.position_upper - margin, np.inf)  # rad
-        self.margin = float(margin)
-        self.horizon = float(horizon)
-        self._rate = 1.0 / self.horizon  # 1/s
-
-    def bounds(self, q: np.ndarray) -> JointBounds:
-        """Bounds on u (rad/s) at joint positions ``q`` (rad, finite, |q| <= 1e300 so that
-        nothing overflows)."""
-        return JointBounds((self.lower - q) * self._rate, (self.upper - q) * self._rate)
+        self.margin = float(margin)  # rad
+        self.horizon = float(horizon)  # s
