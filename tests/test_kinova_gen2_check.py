@@ -6,6 +6,7 @@ tests/test_kinova_gen2_vendor.py."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -77,7 +78,11 @@ def test_check_measures_the_fake_arm_held_still(library, tmp_path, task_config, 
     assert f"serial {fake_module.SERIAL} (held still" in out
     for name in TIMED:
         assert f"  {name}" in out
-    assert "  fits: bus load 3" in out  # 38-39 %
+    # the fake spends at least 3 ms per call: (100 + 20 + 2 x 3) x 3 ms = 37.8 % of each second at the
+    # least; a loaded machine stretches the medians (and may then push the load past its limit)
+    load = re.search(r"  (fits|DOES NOT FIT): bus load (\d+) %", out)
+    assert load is not None, out
+    assert int(load.group(2)) >= 38
     if code == 0:
         assert "the USB budget fits at 20 Hz" in out and "DOES NOT FIT" not in out
     else:
