@@ -156,7 +156,7 @@ def run_one(spec: dict) -> dict:
             suites = {}
             if spec.get("suite"):
                 from ahrm_stack.evaluate import evaluate_suite
-                from ahrm_stack.train import CLONE_POLICY
+                from ahrm_stack.learning.run_folder import CLONE_POLICY
                 suites["policy"] = evaluate_suite(run_dir, spec["eval_episodes"], run_dir / "suite",
                                                   with_scripted=False, quiet=True, split=split)["results"]
                 if spec.get("suite_clone") and (run_dir / CLONE_POLICY).is_file():

@@ -26,11 +26,7 @@ checked, and the environments built, before anything is written.
 from __future__ import annotations
 
 import argparse
-import csv
-import dataclasses
-import json
 import os
-import shutil
 import sys
 import time
 import warnings
@@ -40,8 +36,7 @@ import numpy as np
 
 from ahrm_stack.cli import add_verbose_flag, quiet
 from ahrm_stack.config import Config, ConfigError, load_config
-from ahrm_stack.names import NUM_PHASES, OBJECTIVE_NAMES
-from ahrm_stack.run_config import load_run_config, run_config_text
+from ahrm_stack.run_config import load_run_config
 
 # torchrl announces its own deprecations at import, and dm_control turns every DeprecationWarning
 # on (warnings.simplefilter('always')): on stderr they would bury a one-line error. The warnings
@@ -52,26 +47,14 @@ with warnings.catch_warnings(record=True):
 
     from ahrm_stack.env.realism import nominal
     from ahrm_stack.env.torchrl_env import PushOffEnv
-    from ahrm_stack.learning.checkpoint import CheckpointError, CheckpointManager, Restored
+    from ahrm_stack.learning.checkpoint import CheckpointError, CheckpointManager
     from ahrm_stack.learning.diagnostics import plot_run
+    from ahrm_stack.learning.run_folder import CLONE_POLICY, RunLog, start_run
     from ahrm_stack.learning.rollouts import VALIDATION_SEED_OFFSET, EvaluationTable, run_episodes
     from ahrm_stack.learning.pool import WorkerError
     from ahrm_stack.learning.trainer import DemonstrationsFailed, Trainer, TrainingDiverged
     from ahrm_stack.safety.constraints.base import ConstraintDefinitionError
     from ahrm_stack.safety.filter import SafetyFilterError
-
-EPISODE_FIELDS = ["episode", "frames", "steps", "duration", "success", "time_to_success",
-                  "touched_steps", "learning_return", "phase_steps", "phases_visited",
-                  "component_sums", "closest_approach", "cube_displacement", "cube_travel",
-                  "constraint_terminated", "interventions", "joint_limit_violations", "failure_mode",
-                  "orders", "levels"]
-BATCH_FIELDS = ["batch", "frames", "episodes", "loss_objective", "loss_critic", "loss_entropy",
-                "entropy", "kl_approx", "bc_loss", "std", "updates", "grad_norm", "seconds",
-                "curriculum_level"]
-
-CLONE_POLICY = "policies/clone.pt"  # the warm-started policy before any PPO update (warm_start: bc)
-EVALUATION_FIELDS = ["episode", "frames", "episodes", "successes", "success_rate", "touched_episodes",
-                     "time_mean", "time_std", "interventions_per_episode", "joint_limit_violations"]
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -105,256 +88,6 @@ def resolve_config(args: argparse.Namespace) -> tuple[Config, Path]:
     return config, run_dir
 
 
-# ----------------------------------------------------------------------------------------------
-# Logs that always match the checkpoint: written atomically when repaired, cut back on resume.
-# ----------------------------------------------------------------------------------------------
-
-LOGS = {"episodes.csv": (EPISODE_FIELDS, "episode"), "batches.csv": (BATCH_FIELDS, "batch"),
-        "evaluations.csv": (EVALUATION_FIELDS, "episode")}  # file: (columns, the row's number)
-
-
-def _write_atomically(path: Path, text: str) -> None:
-    """Replace ``path`` by ``text`` so that a kill at any moment leaves the old or the new file."""
-    tmp = path.with_name(f".{path.name}.tmp")  # one writer per run folder
-    with open(tmp, "w", newline="") as handle:
-        handle.write(text)
-        handle.flush()
-        os.fsync(handle.fileno())
-    os.replace(tmp, path)
-
-
-def _complete_lines(path: Path) -> tuple[list[str], int]:
-    """The file's lines that end in a newline, and 1 when a last line cut off by a kill was
-    dropped (else 0)."""
-    if not path.is_file():
-        return [], 0
-    lines = path.read_text(errors="replace").splitlines(keepends=True)
-    if lines and not lines[-1].endswith("\n"):
-        lines.pop()
-        return lines, 1
-    return lines, 0
-
-
-def _number(value: object) -> int | None:
-    try:
-        return int(str(value))
-    except ValueError:
-        return None
-
-
-def repair_csv(path: Path, fields: list[str], key: str, limit: int) -> tuple[int, int]:
-    """Rewrite ``path`` as its header and the rows whose ``key`` is 1..``limit`` (0..``limit`` for
-    evaluations, whose first row is episode 0), each number once (the last row written wins: it
-    came from the run that continued), in order. A missing header (a file created empty and then
-    appended to) is restored, a row cut off by a kill dropped. Returns (rows kept, rows dropped)."""
-    lines, dropped = _complete_lines(path)
-    rows = list(csv.reader(lines))
-    header = fields
-    if rows and rows[0] and _number(rows[0][0]) is None:  # a header line (ours or an older one)
-        header, rows = rows[0], rows[1:]
-    kept: dict[int, dict] = {}
-    for cells in rows:
-        row = dict(zip(header, cells))
-        number = _number(row.get(key))
-        if len(cells) != len(header) or number is None or number < 0 or number > limit:
-            dropped += 1
-            continue
-        if number in kept:
-            dropped += 1
-        kept[number] = row
-    buffer = _LineBuffer()  # the dialect RunLog appends with
-    writer = csv.DictWriter(buffer, fieldnames=fields, restval="", extrasaction="ignore")
-    writer.writeheader()
-    for number in sorted(kept):
-        writer.writerow(kept[number])
-    _write_atomically(path, "".join(buffer.lines))
-    return len(kept), dropped
-
-
-class _LineBuffer:
-    """A file-like sink for ``csv.writer`` that keeps what it writes."""
-
-    def __init__(self) -> None:
-        self.lines: list[str] = []
-
-    def write(self, text: str) -> int:
-        self.lines.append(text)
-        return len(text)
-
-
-def repair_events(path: Path, limit: int) -> tuple[int, int]:
-    """Keep the reward-mechanism events of episodes 1..``limit`` (complete JSON lines only)."""
-    lines, dropped = _complete_lines(path)
-    kept = []
-    for line in lines:
-        try:
-            episode = json.loads(line).get("episode")
-        except (json.JSONDecodeError, AttributeError):
-            episode = None
-        if isinstance(episode, int) and 1 <= episode <= limit:
-            kept.append(line)
-        else:
-            dropped += 1
-    _write_atomically(path, "".join(kept))
-    return len(kept), dropped
-
-
-def repair_logs(run_dir: Path, episodes: int, batches: int) -> dict[str, int]:
-    """Cut the run's logs back to a checkpoint of ``episodes`` episodes and ``batches`` batches
-    (0, 0: a run that starts over); returns the rows dropped per file. Interim policies past it
-    are removed with their evaluations."""
-    dropped = {}
-    limits = {"episodes.csv": episodes, "batches.csv": batches,
-              "evaluations.csv": episodes if batches else -1}  # before the first batch: none kept
-    for name, (fields, key) in LOGS.items():
-        kept, dropped[name] = repair_csv(run_dir / name, fields, key, limits[name])
-        if name == "episodes.csv" and kept != episodes:
-            print(f"warning: {run_dir / name} holds {kept} of the {episodes} episodes of the "
-                  "checkpoint (rows were removed by hand?); the missing ones cannot be rebuilt",
-                  file=sys.stderr)
-    _, dropped["events.jsonl"] = repair_events(run_dir / "events.jsonl", episodes)
-    for policy in sorted((run_dir / "policies").glob("episode-*.pt")):
-        number = _number(policy.stem.removeprefix("episode-"))
-        if number is not None and (number > episodes or not batches):
-            policy.unlink()
-    return dropped
-
-
-class RunLog:
-    """CSV, JSONL and TensorBoard logs of one run (appending on resume, after
-    :func:`repair_logs` has cut them back to the checkpoint)."""
-
-    def __init__(self, run_dir: Path) -> None:
-        self.episodes = self._csv(run_dir / "episodes.csv", EPISODE_FIELDS)
-        self.batches = self._csv(run_dir / "batches.csv", BATCH_FIELDS)
-        self.evaluations = self._csv(run_dir / "evaluations.csv", EVALUATION_FIELDS)
-        self.events = open(run_dir / "events.jsonl", "a")
-        from torch.utils.tensorboard import SummaryWriter
-        self.tb = SummaryWriter(str(run_dir / "tb"))
-
-    @staticmethod
-    def _csv(path: Path, fields: list[str]):
-        new = not path.exists() or path.stat().st_size == 0
-        if not new:  # a resumed run keeps the columns it was started with
-            with open(path, newline="") as existing:
-                fields = next(csv.reader(existing), None) or fields
-        handle = open(path, "a", newline="")
-        writer = csv.DictWriter(handle, fieldnames=fields, extrasaction="ignore", restval="")
-        if new:
-            writer.writeheader()
-            handle.flush()
-        return handle, writer
-
-    def episode(self, row: dict) -> None:
-        self.episodes[1].writerow({k: row[k] for k in EPISODE_FIELDS})
-        n = row["episode"]
-        for key in ("success", "learning_return", "touched_steps", "closest_approach",
-                    "cube_displacement", "interventions"):
-            self.tb.add_scalar(f"episode/{key}", float(row[key]), n)
-        for k in range(NUM_PHASES):
-            self.tb.add_scalar(f"phase{k + 1}/steps", row["phase_steps"][k], n)
-            for i, name in enumerate(OBJECTIVE_NAMES):
-                self.tb.add_scalar(f"phase{k + 1}/{name}", row["component_sums"][k][i], n)
-            self.tb.add_scalar(f"phase{k + 1}/level", row["levels"][k], n)
-
-    def batch(self, row: dict) -> None:
-        self.batches[1].writerow({k: row.get(k, "") for k in BATCH_FIELDS})
-        for key in BATCH_FIELDS[3:]:
-            if isinstance(row.get(key), float):
-                self.tb.add_scalar(f"train/{key}", row[key], row["frames"])
-
-    def evaluation(self, trainer, table) -> None:
-        """One interim deterministic evaluation (``train.eval_every`` / ``eval_every_frames``)."""
-        row = {"episode": trainer.episodes, "frames": trainer.frames, **dataclasses.asdict(table),
-               "success_rate": table.success_rate}
-        self.evaluations[1].writerow({k: row[k] for k in EVALUATION_FIELDS})
-        self.evaluations[0].flush()
-        self.tb.add_scalar("evaluation/success_rate", table.success_rate, trainer.episodes)
-
-    def event(self, event) -> None:
-        self.events.write(json.dumps({"episode": event.episode, "kind": event.kind,
-                                      "phase": event.phase, "detail": event.detail}) + "\n")
-
-    def flush(self) -> None:
-        """Everything logged so far, on disk (before a checkpoint that counts it is written)."""
-        for handle in (*(h for h, _ in (self.episodes, self.batches, self.evaluations)), self.events):
-            handle.flush()
-            os.fsync(handle.fileno())
-        self.tb.flush()
-
-    def close(self) -> None:
-        self.flush()
-        for handle, _ in (self.episodes, self.batches, self.evaluations):
-            handle.close()
-        self.events.close()
-        self.tb.close()
-
-
-# ----------------------------------------------------------------------------------------------
-# The run.
-# ----------------------------------------------------------------------------------------------
-
-
-def _write_config(run_dir: Path, config: Config) -> None:
-    """``run_dir/config.yaml`` (the resolved configuration, :func:`run_config_text`), atomically; a new
-    folder appears only once it holds it, so a run folder without a config.yaml is never left
-    behind by a kill."""
-    text = run_config_text(config)
-    if run_dir.is_dir():
-        _write_atomically(run_dir / "config.yaml", text)
-        return
-    run_dir.parent.mkdir(parents=True, exist_ok=True)
-    for stale in run_dir.parent.glob(f".{run_dir.name}.*.tmp"):  # left by a start killed here
-        shutil.rmtree(stale, ignore_errors=True)
-    staging = run_dir.with_name(f".{run_dir.name}.{os.getpid()}.tmp")
-    staging.mkdir()
-    _write_atomically(staging / "config.yaml", text)
-    try:
-        os.rename(staging, run_dir)
-    except OSError:  # created meanwhile by someone else
-        (staging / "config.yaml").unlink()
-        staging.rmdir()
-        _write_atomically(run_dir / "config.yaml", text)
-
-
-def _start_run(config: Config, run_dir: Path, resume: bool, rewrite_config: bool,
-               checkpoints: CheckpointManager, trainer: Trainer) -> Restored:
-    """Everything a run checks before it writes, then the writes: config.yaml, corrupt
-    checkpoints moved aside, the logs cut back to the checkpoint. Says what it did."""
-    if run_dir.exists() and not run_dir.is_dir():
-        raise ConfigError(f"--run-dir {run_dir}: exists and is not a folder")
-    if not resume and checkpoints.paths():
-        raise ConfigError(f"{run_dir} already holds checkpoints; use --resume {run_dir}")
-    restored = checkpoints.restore() if resume else Restored(None, None, [])
-    if restored.state is not None:
-        try:
-            trainer.load_state_dict(restored.state)
-        except (RuntimeError, KeyError, ValueError, TypeError) as error:
-            first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-            raise CheckpointError(f"{restored.path} does not fit this run's configuration (changed "
-                                  f"by an override?): {first}") from None
-    # validated: from here on the run folder is written
-    if not resume or rewrite_config:
-        _write_config(run_dir, config)
-    for path, reason in restored.skipped:
-        print(f"warning: {reason}; moved aside to {path.name}.corrupt", file=sys.stderr)
-    checkpoints.discard(restored.skipped)
-    leftovers = any((run_dir / name).exists() for name in (*LOGS, "events.jsonl"))
-    dropped = repair_logs(run_dir, trainer.episodes, trainer.batches)
-    dropped_text = ", ".join(f"{n} {name}" for name, n in dropped.items() if n)
-    if restored.state is not None:
-        print(f"resumed {run_dir} from {restored.path.name}: episode {trainer.episodes}, batch "
-              f"{trainer.batches}, {trainer.frames} frames"
-              + (f"; dropped the rows logged after it ({dropped_text})" if dropped_text else ""))
-    elif resume:
-        print(f"resume: {run_dir} has no checkpoint (stopped before its first one); starting it "
-              "from scratch" + (f", logs reset ({dropped_text} rows dropped)" if dropped_text else ""))
-    elif leftovers:
-        print(f"note: {run_dir} held the logs of a run stopped before its first checkpoint; starting "
-              "from scratch" + (f", logs reset ({dropped_text} rows dropped)" if dropped_text else ""))
-    return restored
-
-
 def train(config: Config, run_dir: Path, resume: bool, progress: bool = True,
           rewrite_config: bool = False) -> Path:
     """Run (or continue) training; returns the run folder.
@@ -385,7 +118,7 @@ def _train(config: Config, run_dir: Path, resume: bool, progress: bool, rewrite_
     except (SafetyFilterError, ConstraintDefinitionError) as error:
         raise ConfigError(f"safety: {error}") from None
     try:
-        restored = _start_run(config, run_dir, resume, rewrite_config, checkpoints, trainer)
+        restored = start_run(config, run_dir, resume, rewrite_config, checkpoints, trainer)
         trainer.collect_demos()
         if restored.state is not None:  # exactly the state saved, whatever the demos drew
             torch.set_rng_state(restored.state["torch_rng"])

@@ -135,10 +135,10 @@ def test_the_written_config_keeps_the_yaml_keys_and_the_per_robot_home():
 
 
 def test_train_writes_the_typed_config_back(tmp_path):
-    from ahrm_stack.train import _write_config
+    from ahrm_stack.learning.run_folder import write_config
 
     config = load_config(["train.episodes=7", "profile=paper"])
-    _write_config(tmp_path / "run", config)
+    write_config(tmp_path / "run", config)
     assert config_from_dict(yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())) == config
 
 

@@ -13,7 +13,8 @@ import pytest
 import yaml
 
 from ahrm_stack.config import apply_overrides, load_raw
-from ahrm_stack.train import EPISODE_FIELDS, main, repair_csv, repair_events
+from ahrm_stack.learning.run_folder import EPISODE_FIELDS, repair_csv, repair_events
+from ahrm_stack.train import main
 
 ROOT = Path(__file__).resolve().parent.parent
 _spec = importlib.util.spec_from_file_location("resume_kill", ROOT / "benchmarks" / "resume_kill.py")

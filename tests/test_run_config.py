@@ -101,10 +101,10 @@ def test_a_run_config_records_its_version_and_reads_back(tmp_path):
 
 
 def test_training_writes_the_versioned_file(tmp_path):
-    from ahrm_stack.train import _write_config
+    from ahrm_stack.learning.run_folder import write_config
 
     config = load_config()
-    _write_config(tmp_path / "run", config)
+    write_config(tmp_path / "run", config)
     assert (tmp_path / "run" / "config.yaml").read_text() == run_config_text(config)
     assert load_run_config(tmp_path / "run") == config
 

@@ -177,7 +177,7 @@ def test_old_run_configs_get_the_neutral_values():
 
 
 def test_a_resumed_log_keeps_its_columns(tmp_path):
-    from ahrm_stack.train import RunLog
+    from ahrm_stack.learning.run_folder import RunLog
     path = tmp_path / "batches.csv"
     path.write_text("batch,frames\n1,64\n")
     log = RunLog(tmp_path)
