@@ -63,7 +63,8 @@ def run_layout(config: Config, episodes: int, seed: int) -> dict:
 
     Returns the counts and times (s) of the summary.
     """
-    from ahrm_stack.env.runner import TaskRunner  # heavy imports only once the CLI is valid
+    from ahrm_stack.env.episode_loop import scripted_episode  # heavy imports only once the CLI is valid
+    from ahrm_stack.env.runner import TaskRunner
     from ahrm_stack.env.scripted import ScriptedPusher
     from ahrm_stack.env.task import PushOffTask
 
@@ -75,16 +76,12 @@ def run_layout(config: Config, episodes: int, seed: int) -> dict:
     print(f"== {mode} layout: {episodes} episodes, seeds {seed}..{seed + episodes - 1}")
     successes, clean, times = 0, 0, []
     for episode_seed in range(seed, seed + episodes):
-        runner.seed(episode_seed)
-        transition = runner.reset()
-        pusher.reset(runner.physics)
-        phases, stages, touches = [transition.info.phase], [pusher.stage], 0
-        terminated = truncated = False
-        while not (terminated or truncated):
-            info, terminated, truncated = runner.step_only(pusher(runner.physics))
+        phases, stages, touches = [], [], 0
+        for step in scripted_episode(runner, pusher, episode_seed):
+            info, terminated = step.info, step.terminated
             phases.append(info.phase)
             stages.append(pusher.stage)
-            touches += int(info.touched)
+            touches += int(step.sent is not None and info.touched)
         successes += int(terminated)
         clean += int(terminated and touches == 0)
         if terminated:

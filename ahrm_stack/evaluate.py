@@ -140,6 +140,7 @@ def scripted_summaries(config: Config, episodes: int, seed_offset: int, camera_f
     ``config.task`` as it is (:func:`evaluate` passes the evaluation's task); with
     ``camera_for(physics)``, the episodes in ``filmed`` are rendered."""
     from ahrm_stack.env.episode import EpisodeRecorder
+    from ahrm_stack.env.episode_loop import scripted_episode
     from ahrm_stack.env.runner import TaskRunner
     from ahrm_stack.env.scripted import ScriptedPusher
     from ahrm_stack.env.task import PushOffTask
@@ -150,22 +151,18 @@ def scripted_summaries(config: Config, episodes: int, seed_offset: int, camera_f
     camera = camera_for(runner.physics) if camera_for and filmed else None
     summaries = []
     for i in range(episodes):
-        runner.seed(seed_offset + i)
-        transition = runner.reset()
-        controller.reset(runner.physics)
-        recorder = EpisodeRecorder(transition.info)
         film = camera if i in filmed else None
-        if film:
-            film.start_episode()
-        terminated = truncated = False
-        while not (terminated or truncated):
+        for step in scripted_episode(runner, controller, seed_offset + i):
+            if step.sent is None:
+                recorder = EpisodeRecorder(step.info)
+                if film:
+                    film.start_episode()
+            else:
+                result = runner.last_filter_result
+                recorder.step(step.info, float(step.info.g.sum()),
+                              intervened=result is not None and result.modified)
             if film:
-                film.capture()
-            info, terminated, truncated = runner.step_only(controller(runner.physics))
-            result = runner.last_filter_result
-            recorder.step(info, float(info.g.sum()), intervened=result is not None and result.modified)
-        if film:
-            film.capture(final=True)
+                film.capture(final=step.done)
         summaries.append(recorder.summary(joint_limit_violations=runner.limit_violations))
     return summaries, camera
 

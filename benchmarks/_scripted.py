@@ -41,6 +41,7 @@ class Episode:
 
 def record(config: Config, episodes: int, seed: int = 0) -> list[Episode]:
     """``episodes`` scripted episodes (seeds ``seed``, ``seed + 1``, ...) in the config's action mode."""
+    from ahrm_stack.env.episode_loop import scripted_episode
     from ahrm_stack.env.runner import TaskRunner
     from ahrm_stack.env.scripted import ScriptedPusher
     from ahrm_stack.env.task import PushOffTask
@@ -51,24 +52,15 @@ def record(config: Config, episodes: int, seed: int = 0) -> list[Episode]:
     cartesian = runner.control.cartesian  # the request the learner's actions map to
     out = []
     for episode_seed in range(seed, seed + episodes):
-        runner.seed(episode_seed)
-        runner.reset()
-        pusher.reset(runner.physics)
         requests, commands, phases = [], [], []
-        done = success = False
-        while not done:
-            if cartesian:
-                request = pusher.tip_velocity(runner.physics)
-                info, success, truncated = runner.step_cartesian(request)
-            else:
-                request = pusher(runner.physics)
-                info, success, truncated = runner.step_only(request)
-            requests.append(np.array(request, dtype=float))
+        for step in scripted_episode(runner, pusher, episode_seed, cartesian=cartesian):
+            if step.sent is None:
+                continue
+            requests.append(np.array(step.sent, dtype=float))
             commands.append(task.command.copy())
-            phases.append(info.phase)
-            done = success or truncated
+            phases.append(step.info.phase)
         out.append(Episode(episode_seed, np.array(requests), np.array(commands), np.array(phases),
-                           bool(success)))
+                           bool(step.terminated)))
     return out
 
 

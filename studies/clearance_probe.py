@@ -29,12 +29,12 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import torch
 
+from ahrm_stack.env.episode_loop import episode, scripted_episode
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.scripted import ScriptedPusher
 from ahrm_stack.env.task import PushOffTask
-from ahrm_stack.learning.rollouts import VALIDATION_SEED_OFFSET, load_policy
+from ahrm_stack.learning.rollouts import VALIDATION_SEED_OFFSET, load_policy, policy_act
 from ahrm_stack.run_config import load_run_config
 
 MARGINS = (0.005, 0.01, 0.02, 0.03)  # m, the near-miss thresholds reported
@@ -47,25 +47,19 @@ def probe(run_dir: Path, episodes: int, policy_file: Path | None, scripted: bool
     task = PushOffTask(config.task)
     runner = TaskRunner(task, seed=VALIDATION_SEED_OFFSET, safety=config.safety)
     controller = ScriptedPusher(task, config.scripted) if scripted else None
-    physics = runner.physics
     rows = []
     for i in range(episodes):
-        runner.seed(VALIDATION_SEED_OFFSET + i)
-        runner.reset()
-        if controller is not None:
-            controller.reset(physics)
+        seed = VALIDATION_SEED_OFFSET + i
+        steps = (scripted_episode(runner, controller, seed) if controller is not None
+                 else episode(runner, seed, policy_act(runner, policy)))
         cube_min = pusher_min = math.inf
         touched = 0
-        while True:
-            if controller is not None:
-                info, terminated, truncated = runner.step_only(controller(physics))
-            else:
-                observation = torch.as_tensor(runner.flat_observation(), dtype=torch.float32)
-                info, terminated, truncated = runner.step_action(policy.act(observation).numpy())
+        for step in steps:
+            if step.sent is None:
+                continue
+            info = step.info
             touched += int(info.touched)
             cube_min, pusher_min = min(cube_min, info.cube_clearance), min(pusher_min, info.pusher_clearance)
-            if terminated or truncated:
-                break
         rows.append({"episode": i, "success": int(info.success), "touched_steps": touched,
                      "cube_clearance": cube_min, "pusher_clearance": pusher_min})
     return rows

@@ -21,30 +21,32 @@ import argparse
 import csv
 from collections import Counter
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
-import torch
 
+from ahrm_stack.env.episode_loop import Step, episode
 from ahrm_stack.env.layout_catalog import run_config_in_layout
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.scripted import ScriptedPusher
 from ahrm_stack.env.task import PushOffTask
-from ahrm_stack.learning.rollouts import VALIDATION_SEED_OFFSET, load_policy
+from ahrm_stack.learning.rollouts import VALIDATION_SEED_OFFSET, load_policy, policy_act
 from ahrm_stack.run_config import load_run_config
 
 
-def _first_touch(runner: TaskRunner, policy, task: PushOffTask) -> dict | None:
-    """Run the episode already reset in ``runner`` until its first touching step (None: none)."""
+def _first_touch(runner: TaskRunner, steps: Iterator[Step], task: PushOffTask) -> dict | None:
+    """Run the episode ``steps`` (of a policy on ``runner``) until its first touching step (None:
+    none)."""
     physics = runner.physics
     obstacles = {int(physics.bind(o.geom).element_id) for o in task.obstacles}
     cube = int(physics.bind(task.cube.geom).element_id)
     pusher = {int(g) for g in physics.bind(task.pusher.mjcf_model.find_all("geom")).element_id}
     table = {int(g) for g in physics.bind(task.root_entity.mjcf_model.find_all("geom")).element_id}
     cube_body = int(physics.bind(task.cube.geom).bodyid)
+    next(steps)  # the reset
     start = physics.data.xpos[cube_body, :2].copy()
-    while True:
-        observation = torch.as_tensor(runner.flat_observation(), dtype=torch.float32)
-        info, terminated, truncated = runner.step_action(policy.act(observation).numpy())
+    for step in steps:
+        info = step.info
         if info.touched:
             kinds = set()
             for contact in physics.data.contact[:physics.data.ncon]:
@@ -65,8 +67,7 @@ def _first_touch(runner: TaskRunner, policy, task: PushOffTask) -> dict | None:
             moved = physics.data.xpos[cube_body, :2] - start
             return {"kinds": ",".join(sorted(kinds)) or "none", "moved": moved,
                     "lane": "+x" if moved[0] > 0 else "-x", "time": info.elapsed}
-        if terminated or truncated:
-            return None
+    return None
 
 
 def _replay(name: str, config, offset: int, episodes, policy, counts: Counter, lanes: Counter,
@@ -76,10 +77,8 @@ def _replay(name: str, config, offset: int, episodes, policy, counts: Counter, l
     runner = TaskRunner(task, seed=offset, safety=config.safety)
     planner = ScriptedPusher(task, config.scripted)
     for i in episodes:
-        runner.seed(offset + i)
-        runner.reset()
-        planner.reset(runner.physics)
-        touch = _first_touch(runner, policy, task)
+        steps = episode(runner, offset + i, policy_act(runner, policy), planner.reset)
+        touch = _first_touch(runner, steps, task)
         if touch is None:
             if not quiet_clean:
                 print(f"{name} episode {i}: no touch on replay")

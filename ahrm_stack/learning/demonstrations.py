@@ -27,14 +27,18 @@ the reward mechanism's initial state. The same data serves as the anchor of the 
 
 from __future__ import annotations
 
+from typing import Callable, Iterator
+
 import numpy as np
 import torch
 from tensordict import TensorDict
 
 from ahrm_stack.config import Config
+from ahrm_stack.env.episode_loop import Step
+from ahrm_stack.env.episode_loop import episode as episode_steps
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.scripted import ScriptedPusher
-from ahrm_stack.env.task import PushOffTask
+from ahrm_stack.env.task import PushOffTask, StepInfo
 from ahrm_stack.learning.mechanisms import RewardMechanism
 from ahrm_stack.seeds import seed_table
 
@@ -70,12 +74,28 @@ class _Teacher:
                    else self.controller(physics, stateless))
         return np.clip(self.control.action(request), -ACTION_LIMIT, ACTION_LIMIT)
 
+    def episode(self, episode: int, choose: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> Iterator[Step]:
+        """Demonstration episode ``episode`` (seed ``DEMO_SEED_OFFSET + episode``): in each state,
+        ``choose(observation, label)`` gives the normalised action executed (:meth:`label`: the
+        controller's); the steps as :func:`~ahrm_stack.env.episode_loop.episode` yields them."""
+
+        def act() -> tuple[np.ndarray, StepInfo, bool, bool]:
+            observation = self.runner.flat_observation()
+            action = choose(observation, self.label())
+            return (action, *self.runner.step_action(action))
+
+        return episode_steps(self.runner, DEMO_SEED_OFFSET + episode, act, self.controller.reset)
+
+    def reward(self, info: StepInfo) -> float:
+        """The reward mechanism's reward for a step (in its initial state)."""
+        return float(self.mechanism.reward(info.g, info.distances))
+
     def execute(self, action: np.ndarray) -> tuple[float, bool, bool]:
         """One control step with the normalised ``action``, exactly as the learner's actions are
         executed (:meth:`TaskRunner.step_action`: clipped to [-1, 1], through the safety filter);
         returns the mechanism's reward, terminated (success) and truncated."""
         info, terminated, truncated = self.runner.step_action(action)
-        return float(self.mechanism.reward(info.g, info.distances)), terminated, truncated
+        return self.reward(info), terminated, truncated
 
 
 def _dataset(observations: list, actions: list, returns: list) -> TensorDict:
@@ -94,6 +114,25 @@ def _discounted(rewards: list[float], gamma: float) -> list[float]:
     return discounted[::-1]
 
 
+def _demonstrate(teacher: _Teacher, episode: int, noise: np.random.Generator,
+                 noise_std: float) -> tuple[list[np.ndarray], list[np.ndarray], list[float], bool]:
+    """One demonstration episode: the observations, the controller's labels, the rewards and
+    whether it succeeded; the executed action is the label plus ``noise_std`` Gaussian noise."""
+    observations: list[np.ndarray] = []
+    labels: list[np.ndarray] = []
+    rewards: list[float] = []
+
+    def choose(observation: np.ndarray, label: np.ndarray) -> np.ndarray:
+        observations.append(observation)
+        labels.append(label)
+        return label + noise.normal(0.0, noise_std, label.shape) if noise_std > 0 else label
+
+    for step in teacher.episode(episode, choose):
+        if step.sent is not None:
+            rewards.append(teacher.reward(step.info))
+    return observations, labels, rewards, step.terminated
+
+
 def collect_demonstrations(config: Config, episodes: int) -> TensorDict:
     """Run the scripted controller for ``episodes`` seeded episodes; successful episodes only.
 
@@ -105,17 +144,8 @@ def collect_demonstrations(config: Config, episodes: int) -> TensorDict:
     noise = np.random.default_rng(DEMO_SEED_OFFSET)
     observations, actions, returns = [], [], []
     for episode in range(episodes):
-        teacher.reset(episode)
-        obs, act, rewards = [], [], []
-        terminated = truncated = False
-        while not (terminated or truncated):
-            obs.append(teacher.runner.flat_observation())
-            action = teacher.label()
-            act.append(action)
-            executed = action + noise.normal(0.0, noise_std, action.shape) if noise_std > 0 else action
-            reward, terminated, truncated = teacher.execute(executed)
-            rewards.append(reward)
-        if not terminated:
+        obs, act, rewards, success = _demonstrate(teacher, episode, noise, noise_std)
+        if not success:
             continue
         observations += obs
         actions += act

@@ -24,7 +24,9 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from ahrm_stack.config import Config
 from ahrm_stack.run_config import load_run_config
 from ahrm_stack.env.episode import EpisodeSummary
+from ahrm_stack.env.episode_loop import Act
 from ahrm_stack.env.realism import nominal
+from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.torchrl_env import PushOffEnv
 from ahrm_stack.learning.checkpoint import load
 from ahrm_stack.learning.lane_frame import lane_mirror_for
@@ -87,6 +89,19 @@ def load_policy(run_dir: Path, policy_file: Path | None = None,
     modules.actor.load_state_dict(saved["actor"])
     modules.actor.eval()
     return config, lean_actor(modules.actor)
+
+
+def policy_act(runner: TaskRunner, policy) -> Act:
+    """A deterministic policy's control step on ``runner`` for
+    :func:`~ahrm_stack.env.episode_loop.episode`: the runner's observation vector in, the policy's
+    normalised action (``policy.act``, e.g. from :func:`load_policy`) executed through the filter."""
+
+    def act():
+        observation = torch.as_tensor(runner.flat_observation(), dtype=torch.float32)
+        action = policy.act(observation).numpy()
+        return (action, *runner.step_action(action))
+
+    return act
 
 
 def run_episodes(env: PushOffEnv, policy, episodes: int,

@@ -18,6 +18,7 @@ import numpy as np
 from ahrm_stack.config import Config, ConfigError
 from ahrm_stack.env.layout import Layout
 from ahrm_stack.env.runner import TaskRunner
+from ahrm_stack.env.episode_loop import scripted_episode
 from ahrm_stack.env.scripted import ScriptedPusher
 from ahrm_stack.env.task import PushOffTask
 from ahrm_stack.seeds import seed_table
@@ -49,16 +50,12 @@ def record_trajectories(config: Config, episodes: int) -> list[Trajectory]:
     controller = ScriptedPusher(task, config.scripted)
     trajectories = []
     for episode in range(episodes):
-        runner.seed(first + episode)
-        runner.reset()
-        controller.reset(runner.physics)
         qpos, qvel = [], []
-        terminated = truncated = False
-        while not (terminated or truncated):
-            qpos.append(runner.physics.data.qpos.copy())
-            qvel.append(runner.physics.data.qvel.copy())
-            _, terminated, truncated = runner.step_only(controller(runner.physics))
-        if terminated:
+        for step in scripted_episode(runner, controller, first + episode):
+            if not step.done:  # the state before each control step
+                qpos.append(runner.physics.data.qpos.copy())
+                qvel.append(runner.physics.data.qvel.copy())
+        if step.terminated:
             assert task.layout is not None  # set by the reset
             layout = Layout(task.layout.cube_xy.copy(), task.layout.obstacle_xy.copy())
             trajectories.append(Trajectory(layout, np.array(qpos), np.array(qvel)))
