@@ -61,7 +61,7 @@ from hardware.kortex.backend import import_kortex_api, kortex_deploy_blocker, ma
 from hardware.kortex.child_link import ChildLink
 from hardware.kortex.codec import (arm_state_from_kortex, degrees_to_radians, faults_from_banks,
                                    feedback_from_values, joint_speeds_message, radians_to_degrees,
-                                   servoing_mode_name)
+                                   servoing_mode_name, unwrap_positions)
 from hardware.kortex.credentials import (CREDENTIALS_FILE_ENV, PASSWORD_ENV, REPOSITORY_ROOT,
                                          USERNAME_ENV, Credentials, CredentialsError,
                                          load_credentials, scrub, secret_variants)
@@ -80,5 +80,5 @@ __all__ = [
     "import_kortex_api", "joint_speeds_message", "kortex_deploy_blocker", "kortex_options",
     "load_credentials", "make_kortex_backend", "model_name", "model_refusal", "radians_to_degrees",
     "scrub", "secret_variants", "servoing_mode_name", "task_workspace", "zone_report",
-    "zones_in_workspace",
+    "unwrap_positions", "zones_in_workspace",
 ]

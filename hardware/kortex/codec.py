@@ -15,6 +15,9 @@ import numpy as np
 
 from hardware.protocol import ArmState, Fault, Feedback, ServoingMode, unwrap_positions
 
+__all__ = ["arm_state_from_kortex", "degrees_to_radians", "faults_from_banks", "feedback_from_values",
+           "joint_speeds_message", "radians_to_degrees", "servoing_mode_name", "unwrap_positions"]
+
 
 def radians_to_degrees(values) -> np.ndarray:
     """rad (or rad/s) -> deg (or deg/s)."""

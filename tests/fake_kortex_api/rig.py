@@ -60,6 +60,29 @@ def options(**changes):
     return dataclasses.replace(_configured(), **{"models": test_models(), **changes})
 
 
+def standin_frame(actuators: int):
+    """A BaseCyclic feedback frame for hand-made stand-ins of the vendor API: ``actuators`` at
+    rest, the arm ready (the fake's message classes)."""
+    api = fake_api()
+    frame = api["_fake_arm"].BaseCyclic_pb2.Feedback()
+    frame.base.active_state = api["Common_pb2"].ARMSTATE_SERVOING_READY
+    for _ in range(actuators):
+        frame.actuators.append(api["_fake_arm"].BaseCyclic_pb2.ActuatorFeedback())
+    return frame
+
+
+def standin_reply(name: str, actuators: int):
+    """The answer of a stand-in Base RPC ``name`` for a ``actuators``-joint Gen3 (model 1, no
+    protection zones, 1000 deg/s hard limits); None for the others (Stop, SetServoingMode...)."""
+    arm = fake_api()["_fake_arm"].FakeArm(np.zeros(actuators), np.zeros(actuators, dtype=bool),
+                                           product={"model": 1, "dof": actuators})
+    method = getattr(arm, "_" + name, None)
+    if name in ("GetProductConfiguration", "GetAllJointsSpeedHardLimitation",
+                "ReadAllProtectionZones"):
+        return method()
+    return None
+
+
 def start_degrees(robot) -> np.ndarray:
     """A posture inside every limit: the centre of each limited joint's range, 0 elsewhere, deg."""
     limited = robot.limited
