@@ -1,8 +1,9 @@
 """The Kortex backend over the fake ``kortex_api`` (tests/fake_kortex_api): explicit per-call
 timeouts, staleness from the adapter's clock and repeated frames (never from ``frame_id``), the
-command watchdog against a frozen client, ArmFaultError in fault, ros2_kortex's fault-reset sequence, the deploy wiring and the
-deploy.yaml numbers. The contract suite (tests/test_hardware_contract.py) and the fault suite
-(tests/test_hardware_faults.py) run this backend too.
+command watchdog against a frozen client, ArmFaultError in fault, ros2_kortex's fault-reset
+sequence, the deploy wiring and the deploy.yaml numbers. The contract suite
+(tests/test_hardware_contract.py) and the fault suite (tests/test_hardware_faults.py) run this
+backend too.
 
 ``python tests/test_kortex_backend.py --trials 200`` measures the watchdog's stop time at full size
 (the test runs 12 trials)."""

@@ -29,7 +29,7 @@ def degrees_to_radians(values) -> np.ndarray:
     return np.radians(np.asarray(values, dtype=float))
 
 
-def joint_speeds_message(speeds_rad_s: Sequence[float]) -> list[dict]:
+def joint_speeds_message(speeds_rad_s: Sequence[float] | np.ndarray) -> list[dict]:
     """The ``Base_pb2.JointSpeeds`` content, as plain values: one entry per joint with
     ``joint_identifier`` (0-based), ``value`` (deg/s) and ``duration`` 0 (hold until the next)."""
     degrees = radians_to_degrees(speeds_rad_s)

@@ -129,6 +129,11 @@ class VendorLink:
 
     @property
     def api(self) -> dict:
+        """The vendor modules (imported on first use)."""
+        return self.import_api()
+
+    def import_api(self) -> dict:
+        """Import the vendor modules unless given; ``LinkError('not_installed')`` without them."""
         if self._api is None:
             self._api = import_modules()
         return self._api
@@ -294,7 +299,7 @@ def serve(read_line: Callable[[], str] | None = None, channel=None) -> int:
     read_line = read_line or sys.stdin.readline
     link = VendorLink()
     try:
-        link.api
+        link.import_api()
     except LinkError as error:
         _answer(channel, {"error": error.kind, "message": error.message})
         return 1
