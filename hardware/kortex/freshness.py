@@ -4,7 +4,9 @@ Kortex feedback carries no timestamp, and ``Feedback.frame_id`` is not the arm's
 echoes the ``frame_id`` of the client's last ``BaseCyclic.Command`` (Kinova's
 api_python/examples/108-Gen3_torque_control/01-torque_control_cyclic.py sets
 ``base_command.frame_id += 1`` itself, wrapping at 65535, and copies it into each actuator's
-``command_id``). An adapter that sends joint speeds through ``Base`` (single-level servoing) sends
+``command_id``; Kinovarobotics/ros2_kortex, kortex_driver/src/hardware_interface.cpp, does the same
+with ``base_command_.set_frame_id(base_command_.frame_id() + 1)`` and judges no freshness at all:
+it takes each synchronous ``RefreshFeedback`` answer as current). An adapter that sends joint speeds through ``Base`` (single-level servoing) sends
 no cyclic command, so ``frame_id`` never moves; an arm counter built on it calls every frame stale.
 
 So each frame is stamped on the adapter's clock when its request was sent (the arm measured it
