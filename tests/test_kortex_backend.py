@@ -170,6 +170,24 @@ def test_a_hung_rpc_fails_within_its_timeout(rig):
 # ---------------------------------------------------------------------------------------------
 
 
+def test_frame_freshness_by_hand():
+    from hardware.kortex import FrameFreshness
+
+    fresh = FrameFreshness()
+    from hardware.kortex import fingerprint
+
+    def frame(*position):  # each call builds new float objects, as each decoded answer does
+        return fingerprint({"position": [float(str(p)) for p in position], "torque": [0.5]})
+
+    assert fresh.update(frame(1.0, 2.0), sent=10.0) == (1, 10.0)
+    assert fresh.update(frame(1.0, 2.0), sent=10.5) == (1, 10.0)  # the same readings: a repeat
+    assert fresh.update(frame(1.0, 2.5), sent=11.0) == (2, 11.0) and fresh.repeats == 1
+    assert fresh.update(frame("nan", 2.5), sent=12.0) == (3, 12.0)
+    assert fresh.update(frame("nan", 2.5), sent=13.0) == (3, 12.0)  # NaN repeated: a repeat too
+    assert fresh.update(frame(-0.0, 2.5), sent=14.0) == (4, 14.0)
+    assert fresh.update(frame(0.0, 2.5), sent=15.0) == (5, 15.0)  # a sign bit differs: new
+
+
 def test_frame_id_is_not_read_as_the_arms_counter(rig):
     """The fake, like the real arm, leaves Feedback.frame_id at the client's value (0: no cyclic
     command is sent); fresh frames still get increasing ids and fresh stamps."""

@@ -134,8 +134,9 @@ def test_a_hung_child_is_killed_within_the_calls_timeout_plus_the_margin(robot, 
 
 
 def test_the_child_stops_the_arm_when_the_adapters_process_dies(robot, tmp_path):
-    """The adapter's process exits mid-motion without a word; the child reads the end of its input
-    and sends Stop and CloseSession before it exits."""
+    """The adapter's process (a fresh interpreter, which never imported kortex_api or protobuf)
+    exits mid-motion without a word; the child reads the end of its input and sends Stop and
+    CloseSession before it exits."""
     log = tmp_path / "calls.jsonl"
     script = textwrap.dedent(f"""
         import os, sys
@@ -152,13 +153,15 @@ def test_the_child_stops_the_arm_when_the_adapters_process_dies(robot, tmp_path)
                              opts=options(watchdog_timeout=60.0, watchdog_poll=1.0))
         adapter.connect()
         adapter.send_joint_speeds(np.array([0.2, 0, 0, 0, 0, 0]))
-        print(adapter.link.pid, flush=True)
+        loaded = sorted(m for m in sys.modules if m.startswith(("kortex_api", "google.protobuf")))
+        print(loaded, flush=True)
         os._exit(0)
     """)
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True,
                           timeout=60)
     assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip() == "[]"  # that process never imported kortex_api or protobuf
     deadline = time.monotonic() + 5.0
     while time.monotonic() < deadline and [c["name"] for c in _calls(log)][-1] != "CloseSession":
         time.sleep(0.05)

@@ -51,6 +51,7 @@ class ChildLink:
         self._stderr: Any = None
         self._buffer = b""
         self._lock = threading.Lock()
+        self._ended = False  # shut down: no new child is started behind the adapter's back
         self.dead_reason = ""
 
     @property
@@ -83,6 +84,9 @@ class ChildLink:
     def call(self, method: str, **args: Any) -> Any:
         """``method(**args)`` in the child (``args`` must hold ``timeout_ms``); its answer."""
         with self._lock:
+            if self._ended:
+                raise LinkError("dead", f"{method}: the kortex_api process was ended "
+                                        f"({self.dead_reason or 'shut down'})")
             if self._process is None or self._process.poll() is not None:
                 if self._process is not None:
                     raise self._died("before " + method)
@@ -119,7 +123,16 @@ class ChildLink:
                 raise self._died(what)
             self._buffer += chunk
         line, self._buffer = self._buffer.split(b"\n", 1)
-        return json.loads(line)
+        try:
+            answer = json.loads(line)
+        except ValueError:
+            answer = None
+        if not isinstance(answer, dict):
+            self._kill()
+            self.dead_reason = (f"the kortex_api process (pid {process.pid}) answered {what} with "
+                                f"something that is not an answer ({line[:80]!r}): killed")
+            raise LinkError("dead", self.dead_reason)
+        return answer
 
     def _died(self, what: str) -> LinkError:
         process = self._process
@@ -145,6 +158,7 @@ class ChildLink:
 
     def shutdown(self) -> None:
         """Ask the child to exit (then kill it if it does not); idempotent."""
+        self._ended = True
         process = self._process
         if process is None:
             return

@@ -6,8 +6,9 @@ api_python/examples/108-Gen3_torque_control/01-torque_control_cyclic.py sets
 ``base_command.frame_id += 1`` itself, wrapping at 65535, and copies it into each actuator's
 ``command_id``; Kinovarobotics/ros2_kortex, kortex_driver/src/hardware_interface.cpp, does the same
 with ``base_command_.set_frame_id(base_command_.frame_id() + 1)`` and judges no freshness at all:
-it takes each synchronous ``RefreshFeedback`` answer as current). An adapter that sends joint speeds through ``Base`` (single-level servoing) sends
-no cyclic command, so ``frame_id`` never moves; an arm counter built on it calls every frame stale.
+it takes each synchronous ``RefreshFeedback`` answer as current). An adapter that sends joint
+speeds through ``Base`` (single-level servoing) sends no cyclic command, so ``frame_id`` never
+moves; an arm counter built on it calls every frame stale.
 
 So each frame is stamped on the adapter's clock when its request was sent (the arm measured it
 after that, within one 1 kHz cycle: the stamp is never younger than the measurement by more than
@@ -30,10 +31,9 @@ FINGERPRINT_KEYS = ("position", "velocity", "torque", "current_motor", "voltage"
 
 
 def fingerprint(frame: dict) -> Hashable:
-    """The frame's analogue readings as one comparable value (floats compared exactly, as
-    received)."""
-    return tuple(tuple(v) if isinstance(v, list) else v
-                 for v in (frame.get(key) for key in FINGERPRINT_KEYS))
+    """The frame's analogue readings as one comparable value: their exact text (``repr`` of a
+    float round-trips), so equal readings compare equal whatever the objects, NaN included."""
+    return repr([frame.get(key) for key in FINGERPRINT_KEYS])
 
 
 class FrameFreshness:
