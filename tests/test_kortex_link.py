@@ -107,6 +107,21 @@ def test_a_lost_link_through_the_child_sends_stop_then_disconnects(robot, monkey
     assert seen[2]["timeout_ms"] == options().lost_link_stop_timeout_ms
 
 
+def test_ctrl_c_does_not_take_the_child_away(robot, monkeypatch):
+    """SIGINT to the child (as a terminal's Ctrl-C would send to a process group) leaves it
+    answering: the adapter's loop can still stop the arm through it."""
+    adapter = make_child(robot, monkeypatch)
+    adapter.connect()
+    try:
+        os.kill(adapter.link.pid, signal.SIGINT)
+        time.sleep(0.1)
+        assert adapter.refresh_feedback().healthy
+        adapter.stop()
+        assert os.getpgid(adapter.link.pid) != os.getpgid(0)  # not in the terminal's group
+    finally:
+        adapter.disconnect()
+
+
 def test_a_dead_child_is_a_lost_link(robot, monkeypatch, caplog):
     adapter = make_child(robot, monkeypatch)
     adapter.connect()

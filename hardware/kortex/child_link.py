@@ -9,7 +9,9 @@ never imports ``kortex_api`` or ``protobuf``. It has the same :meth:`call` as
 A child that exits, or does not answer a call within the call's own timeout plus
 ``margin_ms``, is killed and the call fails with ``LinkError('dead', ...)``: no Stop can be sent
 through it any more; the arm's own ``connection_inactivity_timeout`` (deploy.yaml) is then the only
-guard, and the child's socket closing with it ends the session on the arm.
+guard, and the child's socket closing with it ends the session on the arm. The child runs in a
+session of its own and ignores SIGINT: a Ctrl-C stops the adapter's loop, which then stops the arm
+through a child that is still there.
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ class ChildLink:
 
     def __init__(self, python: str | None = None, *, start_timeout_ms: int = 20000,
                  margin_ms: int = 250, path: Sequence[str | Path] = ()) -> None:
-        self.python = python or sys.executable
+        self.python = os.path.expanduser(python) if python else sys.executable
         self.start_timeout_ms, self.margin_ms = int(start_timeout_ms), int(margin_ms)
         self._path = [str(p) for p in path]
         self._process: subprocess.Popen | None = None
@@ -70,7 +72,8 @@ class ChildLink:
         try:
             self._process = subprocess.Popen(
                 [self.python, "-c", _BOOT, str(VENDOR_LINK)], stdin=subprocess.PIPE,
-                stdout=subprocess.PIPE, stderr=self._stderr, env=env, close_fds=True)
+                stdout=subprocess.PIPE, stderr=self._stderr, env=env, close_fds=True,
+                start_new_session=True)  # Ctrl-C at the terminal reaches the adapter, not the child
         except OSError as error:
             raise LinkError("dead", f"cannot start the kortex_api process with kortex.python "
                                     f"{self.python!r}: {error.strerror}") from None

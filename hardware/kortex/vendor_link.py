@@ -24,6 +24,7 @@ from __future__ import annotations
 import importlib
 import json
 import os
+import signal
 import sys
 from typing import Any, Callable
 
@@ -290,12 +291,14 @@ def _answer(channel, message: dict) -> None:
 def serve(read_line: Callable[[], str] | None = None, channel=None) -> int:
     """The child's loop: import ``kortex_api``, say ``ready`` (or why not), then answer each
     request ``{"method": ..., "args": {...}}`` with ``{"result": ...}`` or ``{"error": kind,
-    "message": ...}``. ``{"method": "exit"}`` ends it. When the parent goes away (end of input)
+    "message": ...}``. ``{"method": "exit"}`` ends it; SIGINT is ignored (the adapter stops the
+    arm through the child on Ctrl-C). When the parent goes away (end of input)
     while a session is open, the child sends ``Base.Stop`` and closes the session before it ends:
     a crashed adapter does not leave the arm moving."""
     if channel is None:  # answers go to the real stdout; anything the vendor prints, to stderr
         channel = os.fdopen(os.dup(1), "w")
         os.dup2(2, 1)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # the adapter decides when to stop
     read_line = read_line or sys.stdin.readline
     link = VendorLink()
     try:
