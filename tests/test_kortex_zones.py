@@ -75,6 +75,35 @@ def test_prism_and_cylinder_zones_are_never_missed(shape_type):
     assert hits > 5  # the draw did test overlapping cases
 
 
+def test_the_bounding_sphere_is_the_tightest_for_either_origin_convention():
+    """Its radius is the farthest point of the shape from the origin, over both conventions
+    (prism: centred or cornered at the origin; cylinder: centred or standing on it), from the
+    shapes' vertices / rims computed here; a zone it does not reach is not reported."""
+    rng = np.random.default_rng(7)
+    for _ in range(50):
+        d, envelope = rng.uniform(0.01, 0.5, 3), rng.uniform(0.0, 0.05)
+        signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
+        vertices = np.vstack([signs * d / 2, (signs + 1) / 2 * d])
+        prism = _zone(3, [0, 0, 0], d, envelope)
+        assert prism.bounding_radius == pytest.approx(
+            np.linalg.norm(vertices, axis=1).max() + envelope)
+        angles = np.linspace(0.0, 2 * np.pi, 64)
+        rim = np.stack([d[0] * np.cos(angles), d[0] * np.sin(angles)], axis=1)
+        heights = [-d[1] / 2, d[1] / 2, 0.0, d[1]]
+        points = np.array([[x, y, h] for x, y in rim for h in heights])
+        cylinder = _zone(1, [0, 0, 0], d[:2], envelope)
+        assert cylinder.bounding_radius == pytest.approx(
+            np.linalg.norm(points, axis=1).max() + envelope)
+        sphere = _zone(2, [0, 0, 0], d[:1], envelope)
+        assert sphere.bounding_radius == pytest.approx(d[0] + envelope)
+    box = np.array([[1.0, 2.0], [0.0, 1.0], [0.0, 1.0]])
+    for shape_type, dims in ((1, [0.3, 0.4]), (2, [0.5]), (3, [0.3, 0.3, 0.3])):
+        zone = _zone(shape_type, [0.0, 0.5, 0.5], dims)
+        reaches = _coal_distance(coal.Sphere(zone.bounding_radius), zone.origin, box) <= 0.0
+        assert bool(zones_in_workspace([zone], box)) == reaches
+    assert _zone(3, [0, 0, 0], [0.1, 0.2]).bounding_radius == np.inf  # too few dimensions
+
+
 def test_disabled_and_unknown_zones():
     box = np.array([[0.0, 1.0], [0.0, 1.0], [0.0, 1.0]])
     inside = [0.5, 0.5, 0.5]
@@ -85,12 +114,14 @@ def test_disabled_and_unknown_zones():
         zone_report([_zone(2, inside, [0.1])])
 
 
-@pytest.mark.parametrize("yaw_deg", [0.0, 90.0, 30.0])
-def test_task_workspace_in_the_base_frame(task_config, yaw_deg):
+@pytest.mark.parametrize("yaw_deg, base_x", [(0.0, 0.0), (90.0, 0.0), (30.0, 0.0), (90.0, 0.3),
+                                             (-60.0, -0.2)])
+def test_task_workspace_in_the_base_frame(task_config, yaw_deg, base_x):
     import dataclasses
 
-    task = dataclasses.replace(task_config, arm=dataclasses.replace(task_config.arm,
-                                                                    base_yaw_deg=yaw_deg))
+    base = (base_x, *task_config.arm.base_position[1:])
+    task = dataclasses.replace(task_config, arm=dataclasses.replace(
+        task_config.arm, base_yaw_deg=yaw_deg, base_position=base))
     box = task_workspace(task, 0.3)
     hx, hy = task.table.half_extent
     top = task.table.height
@@ -99,7 +130,7 @@ def test_task_workspace_in_the_base_frame(task_config, yaw_deg):
         corners - np.asarray(task.arm.base_position))
     np.testing.assert_allclose(box[:, 0], local.min(axis=0), atol=1e-12)
     np.testing.assert_allclose(box[:, 1], local.max(axis=0), atol=1e-12)
-    if yaw_deg == 0.0:  # the task as configured: the table lies in front of the base (-y)
+    if yaw_deg == 0.0 and base_x == 0.0:  # the task as configured: the table lies in front of the base (-y)
         np.testing.assert_allclose(box, [[-hx, hx], [-hy - 0.5, hy - 0.5], [0.0, 0.3]], atol=1e-12)
 
 
