@@ -77,6 +77,21 @@ def test_slower_joint_hard_limits_are_refused(robot):
     adapter.disconnect()
 
 
+def test_a_dof_that_differs_from_the_descriptions_joints_is_refused(robot):
+    """kortex.models itself says 7 DoF for the 6-joint description (a config mistake): the arm
+    matches the entry, yet not the description."""
+    opts = options(models={"jaco": KortexModel("MODEL_ID_L53", 7)})
+    text = _refusal(robot, opts=opts, product={"model": 1, "dof": 7})
+    assert "has 6 actuators (MODEL_ID_L53 (Gen3), 7 DoF); the policy's robot 'jaco' (6 joints)" in text
+
+
+def test_a_joint_without_a_hard_limit_is_refused(robot):
+    limits = np.degrees(robot.velocity_limit)[:5]  # the arm reports joints 0..4 only
+    text = _refusal(robot, speed_hard_limit_deg_s=limits)
+    assert f"reports no speed hard limit for joint 5; the policy's robot 'jaco' (6 joints) needs " \
+        f"{np.degrees(robot.velocity_limit[5]):.1f} deg/s on {robot.joint_names[5]}" in text
+
+
 def test_models_come_from_the_config(robot):
     opts = options(models={"jaco": KortexModel("MODEL_ID_L31", 6)})
     adapter, _ = make_for(robot, opts=opts, product={"model": 2, "dof": 6})

@@ -22,8 +22,6 @@ from hardware.kortex.settings import KortexModel
 MODEL_IDS = {0: "MODEL_ID_UNSPECIFIED", 1: "MODEL_ID_L53", 2: "MODEL_ID_L31", 3: "MODEL_ID_HDK"}
 MODEL_TITLES = {"MODEL_ID_L53": "Gen3", "MODEL_ID_L31": "PICO", "MODEL_ID_HDK": "HDK",
                 "MODEL_ID_UNSPECIFIED": "unspecified model"}
-#: ``Base.LimitationType.VELOCITY_LIMITATION`` (enums/Base/LimitationType.md).
-VELOCITY_LIMITATION = 3
 
 
 def model_name(model_id: int) -> str:
@@ -65,8 +63,9 @@ def model_refusal(robot: RobotDescription, product: Mapping, speed_limits: Seque
     if actuators != robot.num_joints or int(product["dof"]) != robot.num_joints:
         return (f"the arm at {where} has {actuators} actuators ({arm}); {ours}: the trained arm "
                 "model must match the arm")
-    velocity = {int(e["joint"]): float(e["value"]) for e in speed_limits
-                if int(e["type"]) in (VELOCITY_LIMITATION, 0)}
+    # Every entry of GetAllJointsSpeedHardLimitation is a speed limit (``type`` is
+    # Base.LimitationType VELOCITY_LIMITATION, 3, there; not filtered on, so that an unset type cannot hide a limit).
+    velocity = {int(e["joint"]): float(e["value"]) for e in speed_limits}
     ours_deg = np.degrees(robot.velocity_limit)
     for i, (name, limit) in enumerate(zip(robot.joint_names, ours_deg)):
         # Joint identifiers are 0-based as in Base.JointSpeed (api_python/examples/102-*/04-*).
