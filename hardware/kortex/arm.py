@@ -219,6 +219,11 @@ class KortexArm(DescribedArm):
             self.disconnect()
             raise
         self._watchdog.disarm()  # its thread starts with the first moving command
+        hello = getattr(self._link, "hello", {})
+        if hello:
+            log.info("kortex: kortex_api runs in process %s (%s, python %s, protobuf %s)",
+                     hello.get("pid"), getattr(self._link, "python", "?"), hello.get("python"),
+                     hello.get("protobuf") or "none")
         log.info("kortex: connected to %s:%d (%s) as %s", self._address, self._port,
                  self.arm_description, self._credentials.username)
 

@@ -54,6 +54,7 @@ class ChildLink:
         self._buffer = b""
         self._lock = threading.Lock()
         self._ended = False  # shut down: no new child is started behind the adapter's back
+        self.hello: dict = {}  # the child's first answer: pid, python and protobuf versions
         self.dead_reason = ""
 
     @property
@@ -83,6 +84,7 @@ class ChildLink:
             self.shutdown()
             raise LinkError(hello["error"], f"{hello.get('message', '')} (kortex.python "
                                             f"{self.python!r})")
+        self.hello = hello
 
     def call(self, method: str, **args: Any) -> Any:
         """``method(**args)`` in the child (``args`` must hold ``timeout_ms``); its answer."""

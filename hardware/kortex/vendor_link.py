@@ -288,6 +288,15 @@ def _answer(channel, message: dict) -> None:
     channel.flush()
 
 
+def _protobuf_version() -> str:
+    """The child environment's protobuf version ('' without one; the real kortex_api needs it)."""
+    try:
+        from google import protobuf
+    except ImportError:
+        return ""
+    return str(getattr(protobuf, "__version__", "?"))
+
+
 def serve(read_line: Callable[[], str] | None = None, channel=None) -> int:
     """The child's loop: import ``kortex_api``, say ``ready`` (or why not), then answer each
     request ``{"method": ..., "args": {...}}`` with ``{"result": ...}`` or ``{"error": kind,
@@ -306,7 +315,8 @@ def serve(read_line: Callable[[], str] | None = None, channel=None) -> int:
     except LinkError as error:
         _answer(channel, {"error": error.kind, "message": error.message})
         return 1
-    _answer(channel, {"ready": True, "pid": os.getpid(), "python": sys.version.split()[0]})
+    _answer(channel, {"ready": True, "pid": os.getpid(), "python": sys.version.split()[0],
+                      "protobuf": _protobuf_version()})
     while True:
         line = read_line()
         if not line:  # the parent is gone
