@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import platform
 import signal
 import subprocess
 import sys
@@ -49,6 +50,7 @@ def test_the_fake_api_works_through_the_child_process(robot, monkeypatch, tmp_pa
     adapter.connect()
     try:
         assert adapter.link.pid not in (None, os.getpid())
+        assert adapter.link.hello["python"] == platform.python_version()  # kortex.python: null
         assert "kortex_api" not in sys.modules  # this process never imported it
         first = adapter.refresh_feedback()
         adapter.send_joint_speeds(_speeds(0.2))

@@ -52,7 +52,7 @@ class ChildLink:
         self._process: subprocess.Popen | None = None
         self._stderr: Any = None
         self._buffer = b""
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()  # calls and shutdown, from the loop and the watchdog thread
         self._ended = False  # shut down: no new child is started behind the adapter's back
         self.hello: dict = {}  # the child's first answer: pid, python and protobuf versions
         self.dead_reason = ""
@@ -162,7 +162,12 @@ class ChildLink:
             self._process.wait(timeout=5.0)
 
     def shutdown(self) -> None:
-        """Ask the child to exit (then kill it if it does not); idempotent."""
+        """Ask the child to exit (then kill it if it does not); idempotent. Waits for a call in
+        flight on another thread (at most its timeout plus the margin)."""
+        with self._lock:
+            self._shutdown()
+
+    def _shutdown(self) -> None:
         self._ended = True
         process = self._process
         if process is None:
