@@ -101,9 +101,10 @@ def _check_kortex(config, settings) -> None:
 
 def _make_kortex(config, settings) -> ArmAdapter:
     from ahrm_stack.robot import describe, make_arm
-    from hardware.kortex import make_kortex_backend
+    from hardware.kortex import make_kortex_backend, task_workspace
 
-    return make_kortex_backend(settings, describe(config.task.robot, make_arm(config.task.robot)))
+    return make_kortex_backend(settings, describe(config.task.robot, make_arm(config.task.robot)),
+                               workspace=task_workspace(config.task, settings.kortex.workspace_height))
 
 
 BACKENDS: dict[str, Backend] = {

@@ -1,8 +1,9 @@
 """The Kortex backend over the fake ``kortex_api`` (tests/fake_kortex_api): explicit per-call
-timeouts, staleness measured on the arm's own frame counter, the command watchdog against a frozen
-client, ArmFaultError in fault, ros2_kortex's fault-reset sequence, the deploy wiring and the
-deploy.yaml numbers. The contract suite (tests/test_hardware_contract.py) and the fault suite
-(tests/test_hardware_faults.py) run this backend too.
+timeouts, staleness from the adapter's clock and repeated frames (never from ``frame_id``), the
+command watchdog against a frozen client, ArmFaultError in fault, ros2_kortex's fault-reset
+sequence, the deploy wiring and the deploy.yaml numbers. The contract suite
+(tests/test_hardware_contract.py) and the fault suite (tests/test_hardware_faults.py) run this
+backend too.
 
 ``python tests/test_kortex_backend.py --trials 200`` measures the watchdog's stop time at full size
 (the test runs 12 trials)."""
@@ -22,7 +23,7 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from fake_kortex_api.rig import PASSWORD, fake_api, make_for, options  # noqa: E402
-from hardware.kortex import (ArmClock, CommandWatchdog, Credentials,  # noqa: E402
+from hardware.kortex import (CommandWatchdog, Credentials,  # noqa: E402
                              KortexArm, kortex_deploy_blocker, kortex_options,
                              make_kortex_backend)
 from hardware.protocol import (ArmFaultError, ArmState, ConnectionLostError,  # noqa: E402
@@ -75,7 +76,8 @@ def test_the_numbers_come_from_deploy_yaml():
     assert opts.watchdog_timeout == pytest.approx(k.watchdog_periods * PERIOD)
     assert opts.watchdog_poll == pytest.approx(k.watchdog_poll_periods * PERIOD)
     assert opts.reset_wait == pytest.approx(k.reset_wait_ms / 1e3)
-    assert opts.feedback_tick == pytest.approx(k.feedback_tick_ms / 1e3)
+    assert opts.lost_link_stop_timeout_ms == k.lost_link_stop_timeout_ms
+    assert opts.lost_link_stop_timeout_ms < k.connection_inactivity_timeout_ms
     # the watchdog stops within its timeout plus one poll: under two periods
     assert k.watchdog_periods + k.watchdog_poll_periods < 2.0
 
@@ -91,8 +93,15 @@ def test_the_numbers_come_from_deploy_yaml():
     ("reset_wait_ms", -1, "deploy.kortex.reset_wait_ms must be > 0"),
     ("reset_poll_ms", 5000, "deploy.kortex.reset_poll_ms must be <= deploy.kortex.reset_wait_ms"),
     ("reset_estop_repeats", True, "deploy.kortex.reset_estop_repeats: expected an integer, got True"),
-    ("feedback_tick_ms", float("nan"), "deploy.kortex.feedback_tick_ms: must be finite, got nan"),
-    ("frame_id_modulus", 1, "deploy.kortex.frame_id_modulus must be >= 2"),
+    ("lost_link_stop_timeout_ms", 0, "deploy.kortex.lost_link_stop_timeout_ms must be > 0"),
+    ("python", "  ", "deploy.kortex.python must be null (this interpreter) or a path"),
+    ("process_margin_ms", -5, "deploy.kortex.process_margin_ms must be > 0"),
+    ("models", {"gen3": {"model": "MODEL_ID_GEN9", "dof": 7}}, "deploy.kortex.models.gen3.model"),
+    ("models", {"gen3": {"model": "MODEL_ID_L53", "dof": 9}}, "deploy.kortex.models.gen3.dof must be <= 7"),
+    ("speed_limit_tolerance", 1.5, "deploy.kortex.speed_limit_tolerance must be <= 1"),
+    ("refuse_zones_in_workspace", "yes",
+     "deploy.kortex.refuse_zones_in_workspace: expected true/false, got 'yes'"),
+    ("workspace_height", 0.0, "deploy.kortex.workspace_height must be > 0"),
 ])
 def test_bad_kortex_numbers_are_one_line_errors_naming_the_key(tmp_path, key, value, expected):
     import yaml
@@ -134,8 +143,9 @@ def test_every_rpc_carries_an_explicit_timeout(rig):
     assert {"CreateSession", "RefreshFeedback", "SendJointSpeedsCommand", "Stop",
             "SetServoingMode", "ApplyEmergencyStop", "ClearFaults", "CloseSession"} <= names
     for call in arm.calls:
-        expected = (opts.session_rpc_timeout_ms if call.name in ("CreateSession", "CloseSession")
-                    else opts.rpc_timeout_ms)
+        slow = ("CreateSession", "CloseSession", "GetProductConfiguration",
+                "GetAllJointsSpeedHardLimitation", "ReadAllProtectionZones")  # once, on connect
+        expected = opts.session_rpc_timeout_ms if call.name in slow else opts.rpc_timeout_ms
         assert call.timeout_ms == expected, call  # never None (the vendor's 10 s default)
     assert adapter.watchdog.trips == 1
 
@@ -154,60 +164,74 @@ def test_a_hung_rpc_fails_within_its_timeout(rig):
     assert adapter.refresh_feedback().healthy  # the link itself is fine
 
 
+
 # ---------------------------------------------------------------------------------------------
-# Staleness from the arm's own clock (BaseCyclic Feedback.frame_id)
+# Staleness without an arm clock (hardware/kortex/freshness.py)
 # ---------------------------------------------------------------------------------------------
 
 
-def test_arm_clock_by_hand():
-    clock = ArmClock(tick=0.001, modulus=65536)
-    assert clock.update(65530, now=100.0) == (0, 100.0)  # first frame: offset 100 s
-    frame, stamp = clock.update(4, now=100.0105)  # wrapped: 65530 -> 4 is 10 ticks
-    assert frame == 10 and stamp == pytest.approx(100.010)  # arm time, not arrival (100.0105)
-    frame, stamp = clock.update(4, now=100.5)  # the same frame again, half a second later
-    assert frame == 10 and stamp == pytest.approx(100.010)  # age 0.49 s: stale
-    frame, stamp = clock.update(65535, now=100.6)  # older than the last (5 ticks back)
-    assert frame == 5 and stamp == pytest.approx(100.005)
-    frame, stamp = clock.update(100, now=100.2)  # moves on: 96 ticks after frame 10
-    assert frame == 106 and stamp == pytest.approx(100.106)
-    frame, stamp = clock.update(200, now=100.1995)  # arrives faster than ever: offset shrinks
-    assert frame == 206 and clock.offset == pytest.approx(100.1995 - 0.206)
-    assert stamp == pytest.approx(100.1995)
+def test_frame_freshness_by_hand():
+    from hardware.kortex import FrameFreshness
+
+    fresh = FrameFreshness()
+    from hardware.kortex import fingerprint
+
+    def frame(*position):  # each call builds new float objects, as each decoded answer does
+        return fingerprint({"position": [float(str(p)) for p in position], "torque": [0.5]})
+
+    assert fresh.update(frame(1.0, 2.0), sent=10.0) == (1, 10.0)
+    assert fresh.update(frame(1.0, 2.0), sent=10.5) == (1, 10.0)  # the same readings: a repeat
+    assert fresh.update(frame(1.0, 2.5), sent=11.0) == (2, 11.0) and fresh.repeats == 1
+    assert fresh.update(frame("nan", 2.5), sent=12.0) == (3, 12.0)
+    assert fresh.update(frame("nan", 2.5), sent=13.0) == (3, 12.0)  # NaN repeated: a repeat too
+    assert fresh.update(frame(-0.0, 2.5), sent=14.0) == (4, 14.0)
+    assert fresh.update(frame(0.0, 2.5), sent=15.0) == (5, 15.0)  # a sign bit differs: new
 
 
-def test_stale_and_late_frames_are_stamped_with_the_arms_time(rig):
+def test_frame_id_is_not_read_as_the_arms_counter(rig):
+    """The fake, like the real arm, leaves Feedback.frame_id at the client's value (0: no cyclic
+    command is sent); fresh frames still get increasing ids and fresh stamps."""
     adapter, arm = rig
     first = adapter.refresh_feedback()
-    time.sleep(0.1)
+    time.sleep(0.02)
+    second = adapter.refresh_feedback()
+    assert arm._previous.frame_id == 0
+    assert second.frame_id == first.frame_id + 1 and second.timestamp > first.timestamp
+    assert adapter.clock.now() - second.timestamp < 0.01
+
+
+def test_a_repeated_frame_keeps_its_id_and_stamp(rig):
+    adapter, arm = rig
     fresh = adapter.refresh_feedback()
-    now = adapter.clock.now()
-    assert fresh.frame_id - first.frame_id == pytest.approx(100, abs=40)  # 1 ms ticks
-    assert now - fresh.timestamp < 0.01
     arm.freeze_next()  # the arm answers with the previous frame
     time.sleep(0.05)
     repeated = adapter.refresh_feedback()
     assert repeated.frame_id == fresh.frame_id and repeated.timestamp == fresh.timestamp
     assert adapter.clock.now() - repeated.timestamp >= 0.05
-    time.sleep(0.1)
-    arm.lag_next(0.04)  # a new frame, but measured 40 ms ago
-    late = adapter.refresh_feedback()
-    age = adapter.clock.now() - late.timestamp
-    assert late.frame_id > fresh.frame_id and 0.04 <= age < 0.06
-    # The deploy loop's threshold is watchdog.max_feedback_age (0.5 periods = 25 ms): stale.
+    assert adapter.freshness.repeats == 1
+    assert adapter.refresh_feedback().frame_id == fresh.frame_id + 1  # a new frame again
+
+
+def test_a_slow_answer_is_stamped_when_it_was_asked_for(rig):
+    """The frame was measured after its request left: its age includes the whole round trip."""
+    adapter, arm = rig
+    arm.delay_next("RefreshFeedback", 0.03)  # within rpc_timeout_ms (40)
+    frame = adapter.refresh_feedback()
+    assert adapter.clock.now() - frame.timestamp >= 0.03
 
 
 def test_the_deploy_loop_stops_on_a_late_frame(config):
-    """Through DeployLoop on the fake arm (virtual clock): a frame 40 ms old, with a new frame id,
-    is stale by the arm's clock; the loop stops in that tick."""
+    """Through DeployLoop on the fake arm (virtual clock): a frame whose answer took 40 ms is
+    older than watchdog.max_feedback_age (25 ms) when it arrives; the loop stops in that tick."""
     from fake_kortex_api.rig import DeployRig
 
     rig = DeployRig(config)
     try:
         for _ in range(5):
             assert rig.loop.tick(), rig.loop.stop_reason
-        rig.fake.lag_next(0.04)
+        rig.fake.delay_next("RefreshFeedback", 0.035)  # within rpc_timeout_ms (40)
         assert not rig.loop.tick()
-        assert "stale feedback" in rig.loop.stop_reason and "age 40.0 ms" in rig.loop.stop_reason
+        assert "stale feedback" in rig.loop.stop_reason and "age 35.0 ms" in rig.loop.stop_reason
         np.testing.assert_array_equal(rig.command, 0.0)
     finally:
         rig.adapter.disconnect()
@@ -416,7 +440,23 @@ def test_make_kortex_backend(monkeypatch):
     arm = FakeArm.register("192.0.2.77", settings.kortex.port,
                            FakeArm(np.zeros(6), ~_robot().limited))
     arm.positions[1:3] = 180.0
+    # configs/deploy.yaml maps no robot to a Kortex arm: the JACO policy is refused, naming both
+    with pytest.raises(HardwareError) as refused:
+        adapter.connect()
+    assert str(refused.value) == (
+        "the arm at 192.0.2.77 is a MODEL_ID_L53 (Gen3), 6 DoF; the policy's robot 'jaco' (6 "
+        "joints) is not a Kortex arm (configs/deploy.yaml kortex.models has no entry for 'jaco'): "
+        "the trained arm model must match the arm")
+    assert not adapter.is_connected and arm.sessions == 0
+    assert [c.name for c in arm.calls[-2:]] == ["Stop", "CloseSession"]
+    from ahrm_stack.deploy.settings import KortexModelSection
+
+    settings = _settings(address="192.0.2.77",
+                         models={"jaco": KortexModelSection(model="MODEL_ID_L53", dof=6)})
+    adapter = make_kortex_backend(settings, _robot(), api=fake_api(),
+                                  env={"KORTEX_USERNAME": "admin", "KORTEX_PASSWORD": PASSWORD})
     adapter.connect()
+    assert adapter.arm_description == "MODEL_ID_L53 (Gen3), 6 DoF"
     assert arm.session_info.username == "admin" and arm.session_info.connection_inactivity_timeout \
         == settings.kortex.connection_inactivity_timeout_ms
     adapter.disconnect()

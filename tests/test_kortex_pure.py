@@ -15,7 +15,7 @@ from hardware.kortex import (INSTALL_HINT, Credentials, CredentialsError, Kortex
                              faults_from_banks, feedback_from_values, import_kortex_api,
                              joint_speeds_message, load_credentials, radians_to_degrees, scrub,
                              servoing_mode_name, unwrap_positions)
-from fake_kortex_api.rig import options
+from fake_kortex_api.rig import fake_api, options, standin_frame, standin_reply
 from hardware.protocol import ArmState, Fault, HardwareError, NotConnectedError, ServoingMode
 
 PASSWORD = "s3cr3t-Pa55word!"
@@ -208,14 +208,14 @@ def _fake_api(fail_with: Exception | None = None, actuators: int = 6) -> dict:
             self.calls = []
 
         def __getattr__(self, name):
-            return lambda *args, **options: None
+            return lambda *args, **options: standin_reply(name, 6)
 
     class Cyclic:
         def __init__(self, router):
             pass
 
         def RefreshFeedback(self, **options):
-            return types.SimpleNamespace(frame_id=0, actuators=[object()] * actuators)
+            return standin_frame(actuators)
 
     return {"TCPTransport": types.SimpleNamespace(TCPTransport=Transport),
             "RouterClient": types.SimpleNamespace(RouterClient=lambda t, cb: object(),
@@ -226,7 +226,7 @@ def _fake_api(fail_with: Exception | None = None, actuators: int = 6) -> dict:
             "Session_pb2": types.SimpleNamespace(CreateSessionInfo=Info),
             "Base_pb2": types.SimpleNamespace(ServoingModeInformation=Info, SINGLE_LEVEL_SERVOING=2,
                                               LOW_LEVEL_SERVOING=3),
-            "Common_pb2": types.SimpleNamespace()}
+            "Common_pb2": fake_api()["Common_pb2"]}
 
 
 def test_password_never_appears_in_errors_or_logs(task_config, caplog):

@@ -16,7 +16,7 @@ import urllib.parse
 import pytest
 from google.protobuf import text_format, wrappers_pb2
 
-from fake_kortex_api.rig import options
+from fake_kortex_api.rig import fake_api, options, standin_frame, standin_reply
 from hardware.kortex import Credentials, KortexArm, scrub, secret_variants
 from hardware.protocol import HardwareError
 
@@ -157,7 +157,7 @@ def _api(fail_session=None, fail_feedback=None, healthy_frames: int = 1) -> dict
             pass
 
         def __getattr__(self, name):
-            return lambda *args, **options: None
+            return lambda *args, **options: standin_reply(name, 6)
 
     class Cyclic:
         calls = 0
@@ -169,7 +169,7 @@ def _api(fail_session=None, fail_feedback=None, healthy_frames: int = 1) -> dict
             Cyclic.calls += 1
             if fail_feedback is not None and Cyclic.calls > healthy_frames:
                 raise fail_feedback
-            return types.SimpleNamespace(frame_id=0, actuators=[object()] * 6)
+            return standin_frame(6)
 
     return {"TCPTransport": types.SimpleNamespace(TCPTransport=Transport),
             "RouterClient": types.SimpleNamespace(RouterClient=lambda t, cb: object(),
@@ -180,7 +180,7 @@ def _api(fail_session=None, fail_feedback=None, healthy_frames: int = 1) -> dict
             "Session_pb2": types.SimpleNamespace(CreateSessionInfo=Info),
             "Base_pb2": types.SimpleNamespace(ServoingModeInformation=Info, SINGLE_LEVEL_SERVOING=2,
                                               LOW_LEVEL_SERVOING=3),
-            "Common_pb2": types.SimpleNamespace()}
+            "Common_pb2": fake_api()["Common_pb2"]}
 
 
 def test_no_password_reaches_an_exception_or_the_log(task_config, caplog):

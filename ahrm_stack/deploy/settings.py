@@ -13,12 +13,12 @@ from __future__ import annotations
 import dataclasses
 import re
 from pathlib import Path
-from typing import Annotated, Any, Optional
+from typing import Annotated, Any, Literal, Optional
 
 from ahrm_stack.config import CONFIG_DIR
 from ahrm_stack.env.realism import RealismConfig, resolve_realism
 from ahrm_stack.schema import (Bool, ConfigError, Float, Int, Section, Str, ge, gt, le, read_yaml,
-                               show_path, validate)
+                               show_path, stricter, validate)
 from hardware.kinova_gen2 import Gen2Settings
 
 DEPLOY_CONFIG = CONFIG_DIR / "deploy.yaml"
@@ -87,6 +87,16 @@ class SimSettings(Section):
     # configs/realism.yaml by name, e.g. ideal or jaco2, or the values)
 
 
+
+
+@dataclasses.dataclass(frozen=True)
+class KortexModelSection(Section):
+    """The Kortex arm a robot description is (hardware/kortex/arm_model.py)."""
+
+    model: Literal["MODEL_ID_L53", "MODEL_ID_L31", "MODEL_ID_HDK"]  # ProductConfiguration.ModelId
+    dof: Annotated[Int, ge(1), le(7)]  # ProductConfiguration.degree_of_freedom
+
+
 @dataclasses.dataclass(frozen=True)
 class KortexSection(Section):
     address: Optional[Str]  # the arm's IP address: required, never defaulted
@@ -95,15 +105,24 @@ class KortexSection(Section):
     connection_inactivity_timeout_ms: PosInt
     credentials_file: Optional[Str]
     rpc_timeout_ms: PosInt  # every feedback / motion / mode RPC
-    session_rpc_timeout_ms: PosInt  # CreateSession / CloseSession
+    session_rpc_timeout_ms: PosInt  # CreateSession / CloseSession and the reads on connect
+    # the best-effort Base.Stop (and CloseSession) after a lost link
+    lost_link_stop_timeout_ms: Annotated[Int, gt(0), stricter("lower")]
     # control periods without a fresh command before Stop
     watchdog_periods: Annotated[Float, gt(1, " (a healthy loop sends one command per period)")]
     watchdog_poll_periods: Pos  # control periods between two watchdog checks
     reset_wait_ms: PosInt  # clear_faults waits this long for the arm to leave fault
     reset_poll_ms: PosInt  # feedback polls during that wait
     reset_estop_repeats: PosInt  # ApplyEmergencyStop calls before ClearFaults
-    feedback_tick_ms: Pos  # the arm's cyclic period: one step of Feedback.frame_id
-    frame_id_modulus: Annotated[Int, ge(2)]  # Feedback.frame_id wraps at this value
+    python: Optional[Str]  # the interpreter that runs kortex_api in its own process; null: this one
+    process_start_timeout_ms: PosInt  # it must import kortex_api and answer within this
+    process_margin_ms: PosInt  # ... and answer each call within the call's timeout plus this
+    models: dict[Str, KortexModelSection]  # robot description (task.robot) -> the Kortex arm it is
+    speed_limit_tolerance: Annotated[Float, ge(0), le(1), stricter("lower")]  # description's
+    # velocity limit over the arm's joint speed hard limit, as a fraction
+    refuse_zones_in_workspace: Annotated[Bool, stricter("on")]  # a protection zone in the task
+    # workspace refuses the connection (false: it is reported only)
+    workspace_height: Annotated[Float, gt(0), le(2.0), stricter("higher")]  # m above the table top
 
     def check(self, key: str) -> None:
         if self.watchdog_poll_periods > 0.5 * self.watchdog_periods:
@@ -112,6 +131,9 @@ class KortexSection(Section):
         if self.reset_poll_ms > self.reset_wait_ms:
             raise ConfigError(f"{key}.reset_poll_ms must be <= {key}.reset_wait_ms, got "
                               f"{self.reset_poll_ms!r}")
+        if self.python is not None and not self.python.strip():
+            raise ConfigError(f"{key}.python must be null (this interpreter) or a path, got "
+                              f"{self.python!r}")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -45,9 +45,42 @@ def _configured():
     return kortex_options(load_deploy_settings())
 
 
+def test_models() -> dict:
+    """Test-only ``kortex.models``: the project's (Gen2) descriptions taken as 6-DoF Gen3 arms, so
+    that the adapter can connect to a fake arm that reports itself as one (configs/deploy.yaml
+    maps none: no description in the project is a Kortex arm)."""
+    from hardware.kortex import KortexModel
+
+    return {name: KortexModel("MODEL_ID_L53", 6) for name in ("jaco", "j2s6s200")}
+
+
 def options(**changes):
-    """The backend's numbers from configs/deploy.yaml (20 Hz; read once), with ``changes``."""
-    return dataclasses.replace(_configured(), **changes)
+    """The backend's numbers from configs/deploy.yaml (20 Hz; read once), with :func:`test_models`
+    and ``changes``."""
+    return dataclasses.replace(_configured(), **{"models": test_models(), **changes})
+
+
+def standin_frame(actuators: int):
+    """A BaseCyclic feedback frame for hand-made stand-ins of the vendor API: ``actuators`` at
+    rest, the arm ready (the fake's message classes)."""
+    api = fake_api()
+    frame = api["_fake_arm"].BaseCyclic_pb2.Feedback()
+    frame.base.active_state = api["Common_pb2"].ARMSTATE_SERVOING_READY
+    for _ in range(actuators):
+        frame.actuators.append(api["_fake_arm"].BaseCyclic_pb2.ActuatorFeedback())
+    return frame
+
+
+def standin_reply(name: str, actuators: int):
+    """The answer of a stand-in Base RPC ``name`` for a ``actuators``-joint Gen3 (model 1, no
+    protection zones, 1000 deg/s hard limits); None for the others (Stop, SetServoingMode...)."""
+    arm = fake_api()["_fake_arm"].FakeArm(np.zeros(actuators), np.zeros(actuators, dtype=bool),
+                                           product={"model": 1, "dof": actuators})
+    method = getattr(arm, "_" + name, None)
+    if name in ("GetProductConfiguration", "GetAllJointsSpeedHardLimitation",
+                "ReadAllProtectionZones"):
+        return method()
+    return None
 
 
 def start_degrees(robot) -> np.ndarray:
@@ -74,6 +107,30 @@ def make(robot, *, positions_deg=None, opts=None, password: str = PASSWORD, cloc
                            FakeArm(positions, ~robot.limited, clock=clock, **arm_kwargs))
     adapter = KortexArm(robot, address, Credentials("admin", password), opts, api=api, clock=clock)
     return adapter, arm
+
+
+def child_spec(robot, positions_deg=None, **arm_kwargs) -> str:
+    """``$FAKE_KORTEX_ARM`` for a fake arm in a child process (plain values; see the fake arm's
+    docstring): ``robot``'s start posture, continuous joints and velocity limits."""
+    import json
+
+    positions = start_degrees(robot) if positions_deg is None else positions_deg
+    spec = {"positions_deg": np.asarray(positions, dtype=float).tolist(),
+            "continuous": (~robot.limited).tolist(),
+            "velocity_limit_deg_s": np.degrees(robot.velocity_limit).tolist(), **arm_kwargs}
+    return json.dumps(spec)
+
+
+def make_child(robot, monkeypatch, *, opts=None, password: str = PASSWORD, **arm_kwargs):
+    """A :class:`KortexArm` whose ``kortex_api`` is the fake, run in a child process (this
+    interpreter, the fake on its ``PYTHONPATH``), with the arm ``arm_kwargs`` describe (set in
+    ``$FAKE_KORTEX_ARM`` through ``monkeypatch``). Not yet connected."""
+    from hardware.kortex import Credentials, KortexArm
+
+    monkeypatch.setenv("FAKE_KORTEX_ARM", child_spec(robot, **arm_kwargs))
+    address = f"192.0.2.{next(_addresses) % 250 + 1}"
+    return KortexArm(robot, address, Credentials("admin", password), opts or options(),
+                     child_path=[HERE])
 
 
 def make_for(robot, **kwargs):

@@ -2,13 +2,24 @@
 
 Kinematics only: each joint follows its commanded speed exactly (deg/s, integrated against
 ``time.perf_counter``), and a joint-speed command holds until the next one — Kortex's
-``JointSpeed.duration`` is not implemented by the arm, so speeds never expire. The arm counts its
-cyclic frames in ``Feedback.frame_id`` at ``tick_s`` (1 ms: the base's 1 kHz loop) modulo
-``frame_modulus``. Positions are reported as Kortex does: continuous joints in [0, 360) deg,
-limited joints in (-180, 180] deg.
+``JointSpeed.duration`` is not implemented by the arm, so speeds never expire. ``Feedback.frame_id``
+is client-set on the real arm (it echoes the last ``BaseCyclic.Command``'s; Kinova's
+api_python/examples/108-Gen3_torque_control sets it itself): nothing here sends a cyclic command, so
+it stays 0. Torques, motor currents, voltages and temperatures carry sensor noise (a seeded
+generator), as a powered arm's do. Positions are reported as Kortex does: continuous joints in
+[0, 360) deg, limited joints in (-180, 180] deg. The arm also answers GetProductConfiguration
+(``product``: model, DoF), GetAllJointsSpeedHardLimitation (its velocity limit, deg/s) and
+ReadAllProtectionZones (``zones``, plain values as hardware.kortex.vendor_link returns them).
+
+In a child process (``hardware.kortex.child_link``) the test cannot reach the arm object: there
+:meth:`at` builds the arm from ``$FAKE_KORTEX_ARM`` (JSON: the constructor's arguments, plus
+``events``: ``[call number, action, argument]`` with action ``lose_connection``, ``drop`` (the
+argument names the RPC), ``hang`` or ``exit``, and ``log``: a file each call is appended to, one JSON
+line with its name and timeout).
 
 A test drives the faults: :meth:`delay_next` (an RPC that takes longer; past its timeout it raises
 ``concurrent.futures.TimeoutError`` like the vendor's ``future.result(timeout)``),
+:meth:`drop_next` (the next such RPC fails with a transport error, the link itself holds),
 :meth:`freeze_next`
 (the next feedback repeats the previous frame), :meth:`lag_next` (the next feedback is a frame
 measured ``lag`` s ago), :meth:`nan_next`, :meth:`fault`, :meth:`lose_connection`. Every RPC is
@@ -20,11 +31,14 @@ from __future__ import annotations
 import concurrent.futures
 import copy
 import dataclasses
+import json
+import os
 import threading
 import time
 
 import numpy as np
-from kortex_api.autogen.messages import Base_pb2, BaseCyclic_pb2, Common_pb2, Errors_pb2
+from kortex_api.autogen.messages import (Base_pb2, BaseCyclic_pb2, Common_pb2, Errors_pb2,
+                                         ProductConfiguration_pb2)
 from kortex_api.Exceptions.KClientException import KClientException
 from kortex_api.Exceptions.KServerException import KServerException
 
@@ -55,9 +69,10 @@ class FakeArm:
 
     _registry: dict[tuple[str, int], "FakeArm"] = {}
 
-    def __init__(self, positions_deg, continuous, *, tick_s: float = 1e-3,
-                 frame_modulus: int = 65536, clear_delay_s: float = 0.05,
-                 frame_start: int = 0, velocity_limit_deg_s=None, clock=None) -> None:
+    def __init__(self, positions_deg, continuous, *, clear_delay_s: float = 0.05,
+                 velocity_limit_deg_s=None, clock=None,
+                 product: dict | None = None, zones: list | None = None,
+                 speed_hard_limit_deg_s=None, seed: int = 0, events=(), log: str = "") -> None:
         self._lock = threading.RLock()
         self.clock = clock if clock is not None else _Wall()
         self.positions = np.asarray(positions_deg, dtype=float).copy()  # deg, unwrapped
@@ -66,8 +81,7 @@ class FakeArm:
         self.velocity_limit = (None if velocity_limit_deg_s is None
                                else np.asarray(velocity_limit_deg_s, dtype=float))
         self.violations = 0  # commands that reached the joints beyond the velocity limit
-        self.tick_s, self.frame_modulus, self.clear_delay_s = tick_s, frame_modulus, clear_delay_s
-        self._t0 = self.clock.now() - frame_start * tick_s
+        self.clear_delay_s = clear_delay_s
         self._last = self.clock.now()
         self.mode = Base_pb2.SINGLE_LEVEL_SERVOING
         self.estopped = False
@@ -85,6 +99,16 @@ class FakeArm:
         self._lag = 0.0
         self._history: list[tuple[float, np.ndarray]] = []  # (time, positions) for lagged frames
         self._previous: BaseCyclic_pb2.Feedback | None = None
+        self.product = dict(product or {"model": 1, "dof": int(self.positions.size)})
+        self.zones = list(zones or [])
+        hard = (speed_hard_limit_deg_s if speed_hard_limit_deg_s is not None
+                else velocity_limit_deg_s if velocity_limit_deg_s is not None
+                else np.full(self.positions.size, 1000.0))
+        self.speed_hard_limit = np.asarray(hard, dtype=float)
+        self._rng = np.random.default_rng(seed)
+        self._drops: set[str] = set()
+        self.events = {int(n): (action, arg) for n, action, arg in events}
+        self.log = log
 
     # ------------------------------------------------------------------ registry
     @classmethod
@@ -95,6 +119,9 @@ class FakeArm:
     @classmethod
     def at(cls, address: str, port: int) -> "FakeArm":
         arm = cls._registry.get((address, int(port)))
+        spec = os.environ.get("FAKE_KORTEX_ARM")
+        if arm is None and spec:  # in a child process: the arm the test described
+            arm = cls.register(address, port, cls(**json.loads(spec)))
         if arm is None:
             raise KClientException(2, f"connection refused: no arm at {address}:{port}")
         arm.lost = False  # a new connection: the link is back
@@ -109,6 +136,11 @@ class FakeArm:
         """The next ``name`` RPC takes ``seconds`` (past its timeout: TimeoutError)."""
         with self._lock:
             self._delays[name] = float(seconds)
+
+    def drop_next(self, name: str) -> None:
+        """The next ``name`` RPC fails with a transport error (KClientException); the link holds."""
+        with self._lock:
+            self._drops.add(name)
 
     def freeze_next(self) -> None:
         """The next RefreshFeedback returns the previous frame again (same frame_id)."""
@@ -161,6 +193,10 @@ class FakeArm:
         with self._lock:
             self.calls.append(Call(name, None if options is None else options.timeout_ms, start))
             delay = self._delays.pop(name, 0.0)
+            self._scripted(name, None if options is None else options.timeout_ms)
+            if name in self._drops:
+                self._drops.discard(name)
+                raise KClientException(2, f"{name}: connection reset (transport error)")
         if delay:
             limit = 10.0 if timeout_s is None else timeout_s
             self.clock.sleep(min(delay, limit))
@@ -171,6 +207,21 @@ class FakeArm:
                 raise KClientException(2, f"{name}: connection lost (transport error)")
             self._advance()
             return getattr(self, "_" + name)(*args)
+
+    def _scripted(self, name: str, timeout_ms) -> None:
+        """The child-process controls: log the call, then run the event of its number."""
+        if self.log:
+            with open(self.log, "a") as file:
+                file.write(json.dumps({"name": name, "timeout_ms": timeout_ms}) + "\n")
+        action, arg = self.events.pop(len(self.calls), (None, None))
+        if action == "lose_connection":
+            self.lose_connection()
+        elif action == "drop":
+            self._drops.add(arg)
+        elif action == "hang":
+            time.sleep(3600)
+        elif action == "exit":
+            os._exit(3)
 
     # ------------------------------------------------------------------ services
     def _CreateSession(self, info):
@@ -191,18 +242,23 @@ class FakeArm:
 
     def _frame(self, when: float, positions: np.ndarray) -> BaseCyclic_pb2.Feedback:
         frame = BaseCyclic_pb2.Feedback()
-        frame.frame_id = int((when - self._t0) / self.tick_s) % self.frame_modulus
+        frame.frame_id = 0  # client-set (the last cyclic command's): none was sent
         frame.base.active_state = self._state()
         frame.base.fault_bank_a = self.base_bank_a
+        frame.base.arm_voltage = 24.0 + float(self._rng.normal(0.0, 0.05))
+        frame.base.arm_current = 1.2 + float(self._rng.normal(0.0, 0.01))
         reported = np.where(self.continuous, np.mod(positions, 360.0),
                             180.0 - np.mod(180.0 - positions, 360.0))  # (-180, 180]
         for i, (position, speed) in enumerate(zip(reported, self.speeds)):
             actuator = BaseCyclic_pb2.ActuatorFeedback()
             actuator.position = float(position)
             actuator.velocity = float(speed)
-            actuator.torque = 0.5
+            actuator.torque = 0.5 + float(self._rng.normal(0.0, 0.02))
+            actuator.current_motor = 0.3 + float(self._rng.normal(0.0, 0.005))
+            actuator.voltage = 24.0 + float(self._rng.normal(0.0, 0.05))
+            actuator.temperature_core = 35.0 + float(self._rng.normal(0.0, 0.1))
             actuator.fault_bank_a = int(self.actuator_banks[i])
-            actuator.command_id = frame.frame_id
+            actuator.command_id = 0
             frame.actuators.append(actuator)
         return frame
 
@@ -252,6 +308,34 @@ class FakeArm:
     def _SetServoingMode(self, info):
         self.mode = info.servoing_mode
         self._set_speeds(np.zeros_like(self.speeds))
+
+    def _GetProductConfiguration(self):
+        config = ProductConfiguration_pb2.CompleteProductConfiguration()
+        config.model = int(self.product["model"])
+        config.degree_of_freedom = int(self.product["dof"])
+        return config
+
+    def _GetAllJointsSpeedHardLimitation(self):
+        limits = Base_pb2.JointsLimitationsList()
+        for i, value in enumerate(self.speed_hard_limit):
+            item = limits.joints_limitations.add()
+            item.joint_identifier, item.type, item.value = i, Base_pb2.VELOCITY_LIMITATION, float(value)
+        return limits
+
+    def _ReadAllProtectionZones(self):
+        out = Base_pb2.ProtectionZoneList()
+        for values in self.zones:
+            zone = out.protection_zones.add()
+            zone.name, zone.is_enabled = values["name"], values["enabled"]
+            shape = zone.shape
+            shape.shape_type = values["shape_type"]
+            shape.origin.x, shape.origin.y, shape.origin.z = values["origin"]
+            rows = (shape.orientation.row1, shape.orientation.row2, shape.orientation.row3)
+            for row, got in zip(rows, values.get("orientation", np.eye(3).tolist())):
+                row.column1, row.column2, row.column3 = got
+            shape.dimensions.extend(values["dimensions"])
+            shape.envelope_thickness = values["envelope"]
+        return out
 
     def _GetServoingMode(self):
         info = Base_pb2.ServoingModeInformation()

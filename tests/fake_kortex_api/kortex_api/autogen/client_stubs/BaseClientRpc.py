@@ -19,3 +19,12 @@ class BaseClient:
 
     def GetServoingMode(self, deviceId=0, options=None):
         return self.router.arm.rpc("GetServoingMode", options)
+
+    def GetProductConfiguration(self, deviceId=0, options=None):
+        return self.router.arm.rpc("GetProductConfiguration", options)
+
+    def GetAllJointsSpeedHardLimitation(self, deviceId=0, options=None):
+        return self.router.arm.rpc("GetAllJointsSpeedHardLimitation", options)
+
+    def ReadAllProtectionZones(self, deviceId=0, options=None):
+        return self.router.arm.rpc("ReadAllProtectionZones", options)

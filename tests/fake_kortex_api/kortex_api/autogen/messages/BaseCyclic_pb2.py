@@ -1,5 +1,6 @@
-"""BaseCyclic's Feedback as documented: frame_id, base, actuators, interconnect. There is no
-timestamp field; frame_id counts the arm's cyclic frames."""
+"""BaseCyclic's Feedback as documented (api_python/doc/markdown/messages/BaseCyclic/*.md): frame_id,
+base, actuators, interconnect. There is no timestamp field; frame_id is the client's (it echoes the
+last BaseCyclic.Command's frame_id)."""
 
 
 class ActuatorFeedback:
@@ -24,6 +25,8 @@ class BaseFeedback:
     def __init__(self) -> None:
         self.active_state_connection_identifier = 0
         self.active_state = 0
+        self.arm_voltage = 0.0  # V
+        self.arm_current = 0.0  # A
         self.fault_bank_a = 0
         self.fault_bank_b = 0
         self.warning_bank_a = 0
