@@ -149,7 +149,8 @@ def calibrate_intrinsics(images: Iterable[np.ndarray], board: BoardSettings) -> 
     if size is None or len(objects) < board.min_views:
         raise CalibrationError(f"the {board.kind} board was found in {len(objects)} of {seen} views; "
                                f"perception.calibration.board.min_views is {board.min_views}")
-    rms, K, dist, _, _ = cv2.calibrateCamera(objects, points, size, None, None)
+    rms, K, dist, _, _ = cv2.calibrateCamera(objects, points, size, None, None,
+                                             flags=cv2.CALIB_FIX_K3)  # k3: see the docstring
     return Intrinsic(K, np.asarray(dist, dtype=float).ravel()[:5], float(rms), len(objects), size)
 
 

@@ -119,7 +119,7 @@ def main(argv: Sequence[str] | None = None) -> int:
           f"{settings.tag.family} {settings.tag.size * 100:g} cm; quad_decimate "
           f"{settings.detector.quad_decimate:g}")
     print("distance_m  tag_px  detected  position_error_mm  tilt_error_deg")
-    distances = np.arange(args.start, args.stop + 1e-9, args.step)
+    distances = [float(d) for d in np.arange(args.start, args.stop + 1e-9, args.step)]
     rows = measure_range(config.task, settings, distances)
     for row in rows:
         print(f"{row.distance:10.2f}  {row.tag_px:6.1f}  {str(row.detected):8s}  "
