@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -63,8 +64,12 @@ def board():
 
 
 @pytest.fixture(scope="module")
-def calibrated(board):
-    views, _ = synthesise_views(board, 20)
+def views(board):
+    return synthesise_views(board, 20)[0]
+
+
+@pytest.fixture(scope="module")
+def calibrated(views, board):
     return calibrate_intrinsics(views, board)
 
 
@@ -103,6 +108,34 @@ def test_undistorter_maps_a_distorted_point_to_the_pinhole():
     K = camera_matrix(intrinsics)
     pinhole = (K @ (point[0] / point[0, 2]))[:2]
     assert np.linalg.norm(centre - pinhole) < 0.5, (centre, pinhole)
+
+
+def test_calibrate_command_writes_the_file_only_from_good_input(tmp_path, views, calibrated, capsys):
+    from ahrm_stack.perception.calibrate import main
+
+    paths = []
+    for i, view in enumerate(views):
+        paths.append(tmp_path / f"view{i:02d}.png")
+        cv2.imwrite(str(paths[-1]), view)
+    out = tmp_path / "camera.yaml"
+    assert main(["intrinsics", "--out", str(out), *map(str, paths)]) == 0
+    written = read_calibration(out)
+    assert (written.width, written.height, written.views) == (WIDTH, HEIGHT, calibrated.views)
+    np.testing.assert_allclose(written.intrinsics, calibrated.intrinsics, atol=1e-3)
+    assert "RMS" in capsys.readouterr().out
+    # bad input: one line, exit 2, nothing written
+    other = tmp_path / "other.yaml"
+    (tmp_path / "notes.png").write_text("not an image")
+    for bad in ([str(tmp_path / "missing.png")], [str(tmp_path / "notes.png")]):
+        assert main(["intrinsics", "--out", str(other), *map(str, paths[:3]), *bad]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and Path(bad[0]).name in err, err
+    cv2.imwrite(str(tmp_path / "small.png"), views[0][:240, :320])
+    assert main(["intrinsics", "--out", str(other), *map(str, paths), str(tmp_path / "small.png")]) == 1
+    assert "320 x 240" in capsys.readouterr().err
+    assert main(["intrinsics", "--out", str(other), *map(str, paths[:2])]) == 1  # board in 2 views
+    assert "min_views" in capsys.readouterr().err
+    assert not other.exists()
 
 
 def test_too_few_views_is_one_line(board):
