@@ -187,3 +187,32 @@ def test_deploy_scene_camera_runs_on_a_video_source(video, tmp_path, capsys, mon
     lines = [json.loads(line) for line in telemetry.read_text().splitlines()]
     assert lines[-1]["summary"]["fault"] == ""
     assert not [t for t in threading.enumerate() if t.name == "camera-detection"]
+
+
+def test_camera_check_reports_the_tag_size_and_distance_of_the_video(video, capsys, monkeypatch):
+    """The bring-up check on the rendered video: every frame's tag seen, its edge and distance as
+    the rendered camera's geometry gives them (f * size / distance)."""
+    import ahrm_stack.perception.settings as perception_settings
+    from ahrm_stack.perception.camera_check import main
+    from ahrm_stack.perception.geometry import CameraPose, Intrinsics
+
+    path, truth, settings, _ = video
+    played = _with_source(settings, kind="video", video_file=str(path), loop=True)
+    monkeypatch.setattr(perception_settings, "load_perception_settings", lambda *a, **k: played)
+    assert main(["--seconds", "1.2"]) == 0
+    rows = [line.split() for line in capsys.readouterr().out.splitlines()[1:]]
+    seen = [row for row in rows if row[3] != "-"]
+    assert seen, rows
+    camera = CameraPose.from_settings(settings.camera)
+    intrinsics = Intrinsics.from_settings(settings.camera)
+    for row in seen:
+        # the measured cube is one of the video's (its frames loop): nearest of the true centres
+        distance = float(row[4])
+        centre = min((t for t in truth if t is not None),
+                     key=lambda t: abs(np.linalg.norm(t - camera.position) - distance))
+        assert np.linalg.norm(centre - camera.position) == pytest.approx(distance, abs=0.004)
+        s = settings.tag.size / 2  # the tag's true corners on the upright cube's top face
+        corners = centre + np.array([[-s, -s, 0.025], [s, -s, 0.025], [s, s, 0.025], [-s, s, 0.025]])
+        px = intrinsics.project(camera.to_camera(corners))
+        edge = np.mean(np.linalg.norm(px - np.roll(px, 1, axis=0), axis=1))
+        assert float(row[3]) == pytest.approx(edge, abs=1.0)

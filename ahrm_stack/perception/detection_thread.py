@@ -22,6 +22,8 @@ the arm on both (a perception fault).
 from __future__ import annotations
 
 import dataclasses
+import os
+import sys
 import threading
 import time
 from typing import Callable
@@ -51,13 +53,17 @@ class DetectionThread:
     """``frames`` → (``undistort``) → ``detector`` in a daemon thread (the module docstring).
 
     ``clock``: the adapter's clock (its ``now`` only: never slept on here). ``history``: how many
-    of the newest results :meth:`since` can return."""
+    of the newest results :meth:`since` can return. ``nice``: the thread's own niceness (Linux:
+    +10, so that the OS runs the control thread first when the CPUs are busy). ``switch_interval``
+    (s): the interpreter's GIL switch interval is lowered to it at :meth:`start` (Python's default
+    5 ms is how long the control thread may wait for the GIL while this thread runs Python code;
+    a process-wide setting, never raised here)."""
 
     def __init__(self, frames: FrameSource, detector: TagDetector, clock,
                  undistort: Callable[[np.ndarray], np.ndarray] | None = None,
-                 history: int = 64) -> None:
+                 history: int = 64, nice: int = 10, switch_interval: float = 0.0005) -> None:
         self.frames, self.detector, self.clock, self.undistort = frames, detector, clock, undistort
-        self.history = history
+        self.history, self.nice, self.switch_interval = history, nice, switch_interval
         self._lock = threading.Lock()
         self._results: list[StampedMeasurement] = []
         self._stop = threading.Event()
@@ -67,12 +73,19 @@ class DetectionThread:
         self.latencies: list[float] = []  # s, every frame's capture to pose
 
     def start(self) -> None:
+        if sys.getswitchinterval() > self.switch_interval:
+            sys.setswitchinterval(self.switch_interval)  # the control thread waits less for the GIL
         self._thread = threading.Thread(target=self._run, name="camera-detection", daemon=True)
         self._thread.start()
 
     def _run(self) -> None:
         up = None
         try:
+            if self.nice and hasattr(os, "setpriority"):  # this thread only (Linux: per-thread nice)
+                try:
+                    os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), self.nice)
+                except OSError:
+                    pass  # not allowed: it runs at the process's priority
             while not self._stop.is_set():
                 stamp, gray = self.frames.grab()
                 if self.undistort is not None:
