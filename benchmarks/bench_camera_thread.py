@@ -1,4 +1,4 @@
-"""The control tick with the camera thread running on a video against the tick without a camera.
+"""The control tick with the camera thread (or process) running on a video against the tick without a camera.
 
 The scripted controller drives the sim backend through the deploy loop on the wall clock
 (``DeployLoop``, safety filter with obstacle rows) at the deploy rate (configs/deploy.yaml), in
@@ -9,13 +9,16 @@ rounds that alternate two scene sources, same seed and duration:
   configs/perception.yaml, 1920 x 1080, written as MJPG and read back by ``cv2.VideoCapture`` at
   30 frames/s, looped) captured and detected in the detection thread
   (``ahrm_stack.perception.detection_thread``), the obstacles from a surveyed layout file: the
-  tick only reads the newest pose (``--scene camera`` with ``source.kind video``).
+  tick only reads the newest pose (``--scene camera`` with ``source.kind video``,
+  ``source.isolation thread``);
+* ``process``: the same in a child process (``ahrm_stack.perception.detection_process``,
+  ``source.isolation process``, the default).
 
 The tick is the loop's latency window (feedback received -> command sent, wall clock). Printed per
 scene: tick p50 / p99 / max (ms) and missed deadlines; for the thread its frames/s and its
 latency (capture -> pose, ms); and, once, the old in-tick path's cost (render + detection of one
 frame inside the tick, as ``source.kind sim`` still does) for comparison. The last line is the
-ratio of the two tick p99s (thread / none).
+ratio of the tick p99s (thread / none; the line before it process / none).
 
     MUJOCO_GL=egl python benchmarks/bench_camera_thread.py [--duration 10] [--rounds 2] [--quick]
 """
@@ -86,7 +89,8 @@ def in_tick_cost(task_config, settings, frames: int) -> np.ndarray:
 
 
 def run_scene(kind: str, duration: float, config, deploy_settings, perception, layout: Path) -> dict:
-    """One round of ``duration`` s with scene ``kind`` (none or thread)."""
+    """One round of ``duration`` s with scene ``kind``: none (``perception`` None), or the camera
+    of ``perception`` (its ``source.isolation``: thread or process)."""
     from ahrm_stack.deploy import DeployLoop, WorldModel
     from ahrm_stack.deploy.controllers import make_controller
     from ahrm_stack.perception.camera_scene import camera_scene
@@ -97,7 +101,7 @@ def run_scene(kind: str, duration: float, config, deploy_settings, perception, l
     world = WorldModel(config.task)
     controller = make_controller(world, config, None)
     arm.connect()
-    scene = camera_scene(arm, config.task, perception, layout) if kind == "thread" else None
+    scene = camera_scene(arm, config.task, perception, layout) if perception is not None else None
     latencies, misses, left = [], 0, duration
     try:
         while left > 1e-9:
@@ -110,6 +114,8 @@ def run_scene(kind: str, duration: float, config, deploy_settings, perception, l
                 raise RuntimeError(f"{kind}: {summary.fault}")
             arm.reset_scene(seed=0)
         thread = None if scene is None else scene.cube_source.thread
+        if thread is not None:
+            thread.since(0)  # the results that arrived
         return dict(latencies=latencies, misses=misses,
                     frames=0 if thread is None else thread.frames_done,
                     detection=[] if thread is None else list(thread.latencies))
@@ -154,8 +160,9 @@ def main() -> None:
     folder = Path(tempfile.mkdtemp(prefix="bench-camera-"))
     video = folder / "rendered.avi"
     render_video(video, config.task, settings, 30 if args.quick else 60)
-    perception = dataclasses.replace(settings, source=dataclasses.replace(
-        settings.source, kind="video", video_file=str(video), loop=True))
+    perception = {isolation: dataclasses.replace(settings, source=dataclasses.replace(
+        settings.source, kind="video", video_file=str(video), loop=True, isolation=isolation))
+        for isolation in ("thread", "process")}
     arm = SimArm(config.task, seed=0, clock=FastClock())
     arm.connect()
     poses = arm.perception()
@@ -166,11 +173,11 @@ def main() -> None:
     print(f"deploy loop at {deploy_settings.rate_hz:g} Hz, sim backend, scripted controller, wall clock; "
           f"{args.rounds} round(s) of {args.duration:g} s per scene; camera {settings.camera.width} x "
           f"{settings.camera.height}, {os.cpu_count()} CPUs")
-    results: dict[str, dict] = {"none": dict(latencies=[], misses=0, frames=0, detection=[]),
-                                "thread": dict(latencies=[], misses=0, frames=0, detection=[])}
+    kinds = ("none", "thread", "process")
+    results: dict[str, dict] = {kind: dict(latencies=[], misses=0, frames=0, detection=[]) for kind in kinds}
     for _ in range(args.rounds):
-        for kind in ("none", "thread"):
-            r = run_scene(kind, args.duration, config, deploy_settings, perception, layout)
+        for kind in kinds:
+            r = run_scene(kind, args.duration, config, deploy_settings, perception.get(kind), layout)
             for key in ("latencies", "detection"):
                 results[kind][key] += r[key]
             results[kind]["misses"] += r["misses"]
@@ -184,6 +191,7 @@ def main() -> None:
     print(f"the old in-tick path (render + detect one frame inside the tick): {_ms(in_tick)} ms "
           f"(p50 / p99 / max over {len(in_tick)})")
     p99 = {kind: float(np.percentile(r["latencies"], 99)) for kind, r in results.items()}
+    print(f"ratio process/none tick p99: {p99['process'] / p99['none']:.2f}")
     print(f"ratio thread/none tick p99: {p99['thread'] / p99['none']:.2f}")
 
 

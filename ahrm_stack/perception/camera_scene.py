@@ -4,7 +4,8 @@ run, and built after the arm connected.
 ``perception.source.kind``: ``sim`` renders the sim backend's physics inside the control tick
 (:func:`~ahrm_stack.perception.sim_camera.sim_camera_scene`; deterministic on the sim's clock,
 the sim backend only); ``video``, ``uvc`` and ``realsense`` are real frame sources
-(:mod:`~ahrm_stack.perception.frames`) captured and detected in their own thread
+(:mod:`~ahrm_stack.perception.frames`) captured and detected in their own process
+(:mod:`~ahrm_stack.perception.detection_process`, ``source.isolation: process``) or thread
 (:mod:`~ahrm_stack.perception.detection_thread`), on the wall clock, for every backend. The
 obstacles come from a measured layout file; only the sim backend can survey one at the start.
 """
@@ -50,15 +51,20 @@ def camera_scene(arm, task_config: TaskConfig, settings: PerceptionSettings,
         return sim_camera_scene(arm, task_config, settings, layout_file)
     from ahrm_stack.perception.apriltag import TagDetector
     from ahrm_stack.perception.calibration import undistorter
-    from ahrm_stack.perception.detection_thread import DetectionThread, ThreadedCubeSource
+    from ahrm_stack.perception.detection_process import DetectionProcess
+    from ahrm_stack.perception.detection_thread import DetectionRunner, DetectionThread, ThreadedCubeSource
     from ahrm_stack.perception.frames import open_frame_source
     from ahrm_stack.perception.tracker import CubeTracker
 
     obstacles = LayoutFileObstacles(layout_file, count=len(task_config.obstacles.fixed_layout))
-    frames = open_frame_source(settings, arm.clock)
-    detector = TagDetector(settings, task_config.cube.size)
-    thread = DetectionThread(frames, detector, arm.clock, undistorter(settings))
-    cube = ThreadedCubeSource(thread, CubeTracker(settings.tracker, detector.label), arm.clock)
+    label = f"tag {settings.tag.family} id {settings.tag.id}"
+    runner: DetectionRunner
+    if settings.source.isolation == "process":
+        runner = DetectionProcess(settings, task_config.cube.size, label)
+    else:
+        runner = DetectionThread(open_frame_source(settings, arm.clock),
+                                 TagDetector(settings, task_config.cube.size), arm.clock, undistorter(settings))
+    cube = ThreadedCubeSource(runner, CubeTracker(settings.tracker, label), arm.clock)
     try:
         cube.start()
     except BaseException:

@@ -26,7 +26,7 @@ import os
 import sys
 import threading
 import time
-from typing import Callable
+from typing import Callable, Protocol
 
 import numpy as np
 
@@ -69,10 +69,12 @@ class DetectionThread:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.error: str = ""  # the first line of the error that stopped the thread
+        self._closed = False
         self.frames_done = 0
         self.latencies: list[float] = []  # s, every frame's capture to pose
 
-    def start(self) -> None:
+    def start(self, clock=None) -> None:
+        """Start the thread (``clock``: unused, the thread stamps with the one it was given)."""
         if sys.getswitchinterval() > self.switch_interval:
             sys.setswitchinterval(self.switch_interval)  # the control thread waits less for the GIL
         self._thread = threading.Thread(target=self._run, name="camera-detection", daemon=True)
@@ -122,23 +124,57 @@ class DetectionThread:
         raise CameraThreadError(f"camera thread: no frame measured within {timeout:g} s")
 
     def stop(self, timeout: float = 2.0) -> None:
+        """Stop the thread, then close the frame source and the detector (left to the process's
+        end when the thread is stuck in a read after ``timeout`` s)."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout)
+        if self.alive or self._closed:
+            return
+        self._closed = True
+        close = getattr(self.frames, "close", None)
+        if close is not None:
+            close()
+        self.detector.detector.close()
+
+    @property
+    def started(self) -> bool:
+        return self._thread is not None
 
     @property
     def alive(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
 
 
+class DetectionRunner(Protocol):
+    """What :class:`ThreadedCubeSource` reads: a :class:`DetectionThread` or a
+    :class:`~ahrm_stack.perception.detection_process.DetectionProcess`."""
+
+    error: str
+    frames_done: int
+    latencies: list[float]
+
+    def start(self, clock=None) -> None: ...
+
+    def wait_first(self, timeout: float) -> None: ...
+
+    def since(self, index: int) -> list[StampedMeasurement]: ...
+
+    def stop(self, timeout: float = ...) -> None: ...
+
+    @property
+    def started(self) -> bool: ...
+
+
 class ThreadedCubeSource:
     """A :class:`~ahrm_stack.perception.apriltag.CubePoseSource` on a :class:`DetectionThread`
-    (the module docstring). :meth:`start` starts the thread and waits up to ``start_timeout`` s
-    (wall time) for its first frame."""
+    or a :class:`~ahrm_stack.perception.detection_process.DetectionProcess` (the module
+    docstring). :meth:`start` starts it and waits up to ``start_timeout`` s (wall time) for its
+    first frame."""
 
-    def __init__(self, thread: DetectionThread, tracker: CubeTracker, clock,
-                 start_timeout: float = 10.0) -> None:
-        self.thread, self.tracker, self.clock = thread, tracker, clock
+    def __init__(self, runner: DetectionRunner, tracker: CubeTracker, clock,
+                 start_timeout: float = 20.0) -> None:
+        self.thread, self.tracker, self.clock = runner, tracker, clock
         self.start_timeout = start_timeout
         self._next = 0  # the next result index to feed the tracker
         self._latency = 0.0
@@ -146,20 +182,14 @@ class ThreadedCubeSource:
         self.misses = 0  # frames without it
         self.ambiguous = 0
 
-    @property
-    def detector(self) -> TagDetector:
-        return self.thread.detector
-
     def start(self) -> None:
-        self.thread.start()
+        self.thread.start(self.clock)
         self.thread.wait_first(self.start_timeout)
 
     def cube(self) -> CubeState:
         """The cube at the clock's now (non-blocking); raises :class:`CameraThreadError` or
         :class:`~ahrm_stack.perception.tracker.TagLostError` (one line) as the module says."""
-        if self.thread.error:
-            raise CameraThreadError(self.thread.error)
-        if self.thread._thread is None:
+        if not self.thread.started:
             raise CameraThreadError("camera thread not started (ThreadedCubeSource.start)")
         for result in self.thread.since(self._next):
             self._next = result.index + 1
@@ -171,13 +201,9 @@ class ThreadedCubeSource:
             self.ambiguous += int(found.ambiguous)
             self.tracker.update(result.capture_time, found.position, found.quaternion)
             self._latency = result.latency
+        if self.thread.error:
+            raise CameraThreadError(self.thread.error)
         return self.tracker.at(self.clock.now(), self._latency)
 
     def close(self) -> None:
         self.thread.stop()
-        if self.thread.alive:  # stuck in a read: leave its resources to the process's end
-            return
-        close = getattr(self.thread.frames, "close", None)
-        if close is not None:
-            close()
-        self.thread.detector.detector.close()

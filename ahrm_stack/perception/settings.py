@@ -120,6 +120,7 @@ class SourceSettings(Section):
     device: Annotated[Int, ge(0)]  # kind uvc: the /dev/videoN index
     fps: Pos  # frames/s requested from a camera; a video file is played at this rate
     loop: Bool  # kind video: start over at the end (else the end is a perception fault)
+    isolation: Literal["process", "thread"]  # where a real source's capture and detection run
 
     def check(self, key: str) -> None:
         if self.kind == "video" and not self.video_file:
