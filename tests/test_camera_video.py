@@ -59,6 +59,21 @@ def video(tmp_path_factory):
     return path, truth, settings, config.task
 
 
+@pytest.fixture(scope="module")
+def seen_video(video):
+    """The video's frames with the cube in view only (to be looped)."""
+    path, _, settings, _ = video
+    seen = path.with_name("seen.avi")
+    capture = cv2.VideoCapture(str(path))
+    writer = cv2.VideoWriter(str(seen), cv2.VideoWriter_fourcc(*"MJPG"), 30.0,
+                             (settings.camera.width, settings.camera.height))
+    for _ in range(SEEN):
+        writer.write(capture.read()[1])
+    writer.release()
+    capture.release()
+    return seen
+
+
 def test_rendered_video_through_the_detection_thread_matches_the_truth(video):
     path, truth, settings, task = video
     camera = settings.camera
@@ -159,7 +174,7 @@ def test_camera_scene_checks_name_the_key(video, tmp_path):
     check_camera_scene(_with_source(settings, kind="uvc"), "kortex", task, layout, True)  # fine
 
 
-def test_deploy_scene_camera_runs_on_a_video_source(video, tmp_path, capsys, monkeypatch):
+def test_deploy_scene_camera_runs_on_a_video_source(video, seen_video, tmp_path, capsys, monkeypatch):
     """``deploy --scene camera --realtime`` with ``source.kind video``: the loop runs on poses
     from the detection thread (the sim backend here; the same path serves every backend) and ends
     on the duration, no fault; the thread is stopped at the end."""
@@ -168,16 +183,8 @@ def test_deploy_scene_camera_runs_on_a_video_source(video, tmp_path, capsys, mon
     import ahrm_stack.perception.settings as perception_settings
     from ahrm_stack.deploy import main
 
-    path, _, settings, _ = video
-    seen = tmp_path / "seen.avi"  # the frames with the cube, looped
-    capture = cv2.VideoCapture(str(path))
-    writer = cv2.VideoWriter(str(seen), cv2.VideoWriter_fourcc(*"MJPG"), 30.0,
-                             (settings.camera.width, settings.camera.height))
-    for _ in range(SEEN):
-        writer.write(capture.read()[1])
-    writer.release()
-    capture.release()
-    played = _with_source(settings, kind="video", video_file=str(seen), loop=True)
+    _, _, settings, _ = video
+    played = _with_source(settings, kind="video", video_file=str(seen_video), loop=True)
     monkeypatch.setattr(perception_settings, "load_perception_settings", lambda *a, **k: played)
     telemetry = tmp_path / "run" / "telemetry.jsonl"
     code = main(["--backend", "sim", "--realtime", "--scene", "camera", "--duration", "0.4",
@@ -189,15 +196,15 @@ def test_deploy_scene_camera_runs_on_a_video_source(video, tmp_path, capsys, mon
     assert not [t for t in threading.enumerate() if t.name == "camera-detection"]
 
 
-def test_camera_check_reports_the_tag_size_and_distance_of_the_video(video, capsys, monkeypatch):
+def test_camera_check_reports_the_tag_size_and_distance_of_the_video(video, seen_video, capsys, monkeypatch):
     """The bring-up check on the rendered video: every frame's tag seen, its edge and distance as
     the rendered camera's geometry gives them (f * size / distance)."""
     import ahrm_stack.perception.settings as perception_settings
     from ahrm_stack.perception.camera_check import main
     from ahrm_stack.perception.geometry import CameraPose, Intrinsics
 
-    path, truth, settings, _ = video
-    played = _with_source(settings, kind="video", video_file=str(path), loop=True)
+    _, truth, settings, _ = video
+    played = _with_source(settings, kind="video", video_file=str(seen_video), loop=True)
     monkeypatch.setattr(perception_settings, "load_perception_settings", lambda *a, **k: played)
     assert main(["--seconds", "1.2"]) == 0
     rows = [line.split() for line in capsys.readouterr().out.splitlines()[1:]]
@@ -216,3 +223,45 @@ def test_camera_check_reports_the_tag_size_and_distance_of_the_video(video, caps
         px = intrinsics.project(camera.to_camera(corners))
         edge = np.mean(np.linalg.norm(px - np.roll(px, 1, axis=0), axis=1))
         assert float(row[3]) == pytest.approx(edge, abs=1.0)
+
+
+def test_camera_scene_feeds_the_deploy_loop_on_the_kortex_backend(video, seen_video, tmp_path):
+    """A real backend (the Kortex adapter over the fake ``kortex_api``, wall clock): the camera
+    scene of a video source (child process) is the loop's perception; the loop runs on the
+    video's cube, every tick's cube pose stamped within max_hold of the tick, and ends on the
+    duration with the arm stopped."""
+    from fake_kortex_api.rig import make_for
+
+    from ahrm_stack.config import load_config
+    from ahrm_stack.deploy import DeployLoop, ScriptedController, WorldModel, load_deploy_settings
+    from ahrm_stack.perception.camera_scene import camera_scene
+    from ahrm_stack.perception.scene_source import write_layout_file
+
+    _, truth, settings, _ = video
+    config = load_config()
+    world = WorldModel(config.task, seed=0)
+    data, at = world.physics.data, world.task.addresses
+    clock = WallClock()
+    adapter, fake = make_for(world.robot, positions_deg=np.degrees(data.qpos[at.arm_qpos]), clock=clock)
+    layout = write_layout_file(tmp_path / "layout.yaml", data.qpos[at.obstacle_qpos[:, :3]],
+                               data.qpos[at.obstacle_qpos[:, 3:]])
+    played = _with_source(settings, kind="video", video_file=str(seen_video), loop=True)
+    deploy = load_deploy_settings(telemetry="")
+    deploy = dataclasses.replace(deploy, watchdog=dataclasses.replace(deploy.watchdog, max_deadline_misses=10**6))
+    adapter.connect()
+    scene = camera_scene(adapter, config.task, played, layout)
+    try:
+        loop = DeployLoop(adapter, world, ScriptedController(world, config), config.safety, deploy, None, scene)
+        seen = []
+        loop.start()
+        while loop.tick() and len(seen) < 8:
+            poses = scene.poses()
+            seen.append(poses.cube_position)
+        assert len(seen) == 8, loop.stop_reason
+        first = truth[0]
+        for position in seen:  # the video's cube (moving along -x), not the fake arm's static one
+            assert abs(position[1] - first[1]) < 0.005 and -0.08 < position[0] - first[0] < 0.005
+        assert loop.fault == ""
+    finally:
+        adapter.disconnect()
+        scene.close()
