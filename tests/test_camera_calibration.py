@@ -171,13 +171,13 @@ def test_calibration_file_round_trip_and_errors(tmp_path, calibrated):
     assert not (tmp_path / "never.yaml").exists()
 
 
-def test_extrinsics_from_a_reference_tag_match_the_rendered_camera():
-    """The cube's top-face tag in a MuJoCo frame is the reference tag at a surveyed pose (the
-    simulator's); the camera pose measured from it matches MuJoCo's camera (``cam_xpos``,
-    ``cam_xmat``)."""
+@pytest.fixture(scope="module")
+def rendered():
+    """A MuJoCo frame of the sim's start scene from the configured camera: (task config,
+    settings, grey frame, the cube's top-face tag as a reference tag at its true pose, the true
+    camera position and rotation (optical) from MuJoCo's ``cam_xpos`` / ``cam_xmat``)."""
     pytest.importorskip("mujoco")
     from ahrm_stack.config import load_config
-    from ahrm_stack.perception.extrinsics import measure_extrinsics
     from ahrm_stack.perception.geometry import OPTICAL_TO_MUJOCO, quaternion_to_matrix
     from ahrm_stack.perception.settings import ReferenceTagSettings
     from ahrm_stack.perception.sim_camera import SimCamera
@@ -196,19 +196,76 @@ def test_extrinsics_from_a_reference_tag_match_the_rendered_camera():
         top = truth.cube_position + R @ np.array([0.0, 0.0, config.task.cube.size / 2])
         yaw = math.degrees(math.atan2(R[1, 0], R[0, 0]))
         tag = ReferenceTagSettings(family=settings.tag.family, id=settings.tag.id, size=settings.tag.size,
-                                   position=tuple(top), yaw_deg=yaw)  # type: ignore[arg-type]
-        pose, spread, used = measure_extrinsics([gray], tag, camera.intrinsics.params, None, 1)
+                                   position=tuple(float(v) for v in top), yaw_deg=yaw)  # type: ignore[arg-type]
         data = camera.physics.data
-        true_position = data.cam_xpos[camera.camera_id]
-        true_rotation = data.cam_xmat[camera.camera_id].reshape(3, 3) @ OPTICAL_TO_MUJOCO
-        angle = math.degrees(math.acos(np.clip((np.trace(pose.rotation.T @ true_rotation) - 1) / 2, -1, 1)))
-        distance = np.linalg.norm(true_position - top)
-        # a 3 cm tag 0.85 m away, 50 px: its tilt is known to ~0.5 deg, which moves the camera
-        # by distance * tilt, but hardly its distance from the tag
-        assert used == 1 and spread == 0.0
-        assert angle < 1.0, angle
-        assert np.linalg.norm(pose.position - true_position) < distance * math.radians(1.0), pose.position
-        assert abs(np.linalg.norm(pose.position - top) - distance) < 0.005
+        position = data.cam_xpos[camera.camera_id].copy()
+        rotation = data.cam_xmat[camera.camera_id].reshape(3, 3) @ OPTICAL_TO_MUJOCO
+        return config.task, settings, gray, tag, position, rotation, truth
     finally:
         camera.close()
         arm.disconnect()
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    return math.degrees(math.acos(np.clip((np.trace(a.T @ b) - 1) / 2, -1, 1)))
+
+
+def test_extrinsics_from_a_reference_tag_match_the_rendered_camera(rendered):
+    """The cube's top-face tag in a MuJoCo frame is the reference tag at a surveyed pose (the
+    simulator's); the camera pose measured from it matches MuJoCo's camera."""
+    from ahrm_stack.perception.extrinsics import measure_extrinsics
+    from ahrm_stack.perception.geometry import Intrinsics
+
+    _, settings, gray, tag, true_position, true_rotation, _ = rendered
+    intrinsics = Intrinsics.from_settings(settings.camera).params
+    pose, spread, used = measure_extrinsics([gray], tag, intrinsics, None, 1)
+    distance = np.linalg.norm(true_position - np.asarray(tag.position))
+    # a 3 cm tag 0.85 m away, 40 px: its tilt is known to ~0.5 deg, which moves the camera
+    # by distance * tilt, but hardly its distance from the tag
+    assert used == 1 and spread == 0.0
+    assert _angle_deg(pose.rotation, true_rotation) < 1.0
+    assert np.linalg.norm(pose.position - true_position) < distance * math.radians(1.0), pose.position
+    assert abs(np.linalg.norm(pose.position - np.asarray(tag.position)) - distance) < 0.005
+
+
+def test_extrinsics_command_writes_the_pose_the_deploy_camera_then_uses(rendered, tmp_path, capsys):
+    """``calibrate extrinsics`` on a rendered view (its reference tag the cube's, in a settings
+    file of its own): the file's pose is MuJoCo's camera's, and the calibrated settings measure
+    the cube within a centimetre of the simulator's."""
+    import yaml
+
+    from ahrm_stack.perception.apriltag import TagDetector
+    from ahrm_stack.perception.calibrate import main
+    from ahrm_stack.perception.geometry import Intrinsics
+    from ahrm_stack.perception.settings import PERCEPTION_CONFIG
+
+    task, settings, gray, tag, true_position, true_rotation, truth = rendered
+    data = yaml.safe_load(PERCEPTION_CONFIG.read_text())
+    data["calibration"]["reference_tag"] = dict(family=tag.family, id=tag.id, size=tag.size,
+                                                position=list(tag.position), yaw_deg=tag.yaw_deg)
+    data["calibration"]["frames"] = 1
+    config = tmp_path / "perception.yaml"
+    config.write_text(yaml.safe_dump(data))
+    view = tmp_path / "view.png"
+    cv2.imwrite(str(view), gray)
+    calibration = tmp_path / "camera.yaml"
+    camera = settings.camera
+    write_calibration(calibration, CalibrationFile(
+        width=camera.width, height=camera.height, intrinsics=Intrinsics.from_settings(camera).params,
+        distortion=(0.0, 0.0, 0.0, 0.0, 0.0), rms_px=0.0, views=1, extrinsics=None))
+    assert main(["--config", str(tmp_path / "missing.yaml"), "extrinsics", "--calibration",
+                 str(calibration), str(view)]) == 2
+    assert "missing.yaml" in capsys.readouterr().err and read_calibration(calibration).extrinsics is None
+    assert main(["--config", str(config), "extrinsics", "--calibration", str(calibration), str(view)]) == 0
+    written = read_calibration(calibration).extrinsics
+    assert written is not None and written.frames == 1
+    assert np.linalg.norm(np.array(written.position) - true_position) < 0.015
+    calibrated = apply_calibration(settings, calibration)
+    assert calibrated.camera.look_at is None and calibrated.camera.quaternion == written.quaternion
+    from ahrm_stack.perception.geometry import CameraPose
+
+    assert _angle_deg(CameraPose.from_settings(calibrated.camera).rotation, true_rotation) < 1.0
+    detector = TagDetector(calibrated, task.cube.size)
+    found = detector.measure(gray)
+    detector.detector.close()
+    assert found is not None and np.linalg.norm(found.position - truth.cube_position) < 0.01
