@@ -28,14 +28,24 @@ def _rotation(rx: float, ry: float, rz: float) -> np.ndarray:
     return cv2.Rodrigues(np.array([rx, ry, rz]))[0]
 
 
+def board_image(board_settings, px_per_m: float) -> np.ndarray:
+    """The printed board (grey, uint8; (0, 0) its top-left corner): OpenCV's ChArUco drawing, or
+    a chessboard (black top-left square; the views put white around it)."""
+    nx, ny = board_settings.squares
+    size = (int(nx * board_settings.square_size * px_per_m), int(ny * board_settings.square_size * px_per_m))
+    if board_settings.kind == "charuco":
+        return charuco_board(board_settings).generateImage(size, marginSize=0)
+    square = int(round(board_settings.square_size * px_per_m))
+    cells = (np.indices((ny, nx)).sum(axis=0) % 2).astype(np.uint8) * 255
+    return np.kron(cells, np.ones((square, square), dtype=np.uint8))
+
+
 def synthesise_views(board_settings, count: int, seed: int = 0) -> tuple[list[np.ndarray], list]:
-    """Grey views of the ChArUco board seen by the true camera (TRUE_K, TRUE_DIST) at random
-    poses; and the poses (R, t) board-to-camera."""
-    board = charuco_board(board_settings)
+    """Grey views of the board seen by the true camera (TRUE_K, TRUE_DIST) at random poses; and
+    the poses (R, t) board-to-camera."""
     nx, ny = board_settings.squares
     px_per_m = 2000.0
-    image = board.generateImage((int(nx * board_settings.square_size * px_per_m),
-                                 int(ny * board_settings.square_size * px_per_m)), marginSize=0)
+    image = board_image(board_settings, px_per_m)
     u, v = np.meshgrid(np.arange(WIDTH, dtype=np.float64), np.arange(HEIGHT, dtype=np.float64))
     pixels = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)  # to convergence
@@ -136,6 +146,17 @@ def test_calibrate_command_writes_the_file_only_from_good_input(tmp_path, views,
     assert main(["intrinsics", "--out", str(other), *map(str, paths[:2])]) == 1  # board in 2 views
     assert "min_views" in capsys.readouterr().err
     assert not other.exists()
+
+
+def test_chessboard_calibration_recovers_the_known_camera(board):
+    chessboard = dataclasses.replace(board, kind="chessboard", squares=(9, 7), square_size=0.03)
+    views, _ = synthesise_views(chessboard, 14, seed=1)
+    found = calibrate_intrinsics(views, chessboard)
+    fx, fy, cx, cy = found.intrinsics
+    assert found.rms < 0.5 and found.views >= chessboard.min_views
+    assert fx == pytest.approx(TRUE_K[0, 0], rel=5e-3) and fy == pytest.approx(TRUE_K[1, 1], rel=5e-3)
+    assert cx == pytest.approx(TRUE_K[0, 2] + 0.5, abs=2.0) and cy == pytest.approx(TRUE_K[1, 2] + 0.5, abs=2.0)
+    assert found.distortion[0] == pytest.approx(TRUE_DIST[0], abs=0.03)
 
 
 def test_too_few_views_is_one_line(board):
@@ -269,3 +290,52 @@ def test_extrinsics_command_writes_the_pose_the_deploy_camera_then_uses(rendered
     found = detector.measure(gray)
     detector.detector.close()
     assert found is not None and np.linalg.norm(found.position - truth.cube_position) < 0.01
+
+
+@pytest.mark.parametrize("section, key, value, expected", [
+    ("source", "kind", "webcam", "perception.source.kind"),
+    ("source", "isolation", "fiber", "perception.source.isolation"),
+    ("source", "fps", 0, "perception.source.fps"),
+    ("source", "video_file", "", "perception.source.video_file: give the video file with kind video"),
+    ("calibration", "frames", 0, "perception.calibration.frames"),
+    ("camera", "distortion", [0.1, 0.0], "perception.camera.distortion"),
+    ("camera", "calibration_file", "nowhere/camera.yaml", "calibration file nowhere/camera.yaml: no such file"),
+])
+def test_camera_keys_are_validated_in_one_line(tmp_path, section, key, value, expected):
+    import yaml
+
+    from ahrm_stack.perception.settings import PERCEPTION_CONFIG
+
+    data = yaml.safe_load(PERCEPTION_CONFIG.read_text())
+    data[section][key] = value
+    if key == "video_file":
+        data["source"]["kind"] = "video"
+    path = tmp_path / "perception.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(PerceptionConfigError) as error:
+        load_perception_settings(path)
+    assert expected in str(error.value) and "\n" not in str(error.value)
+
+
+@pytest.mark.parametrize("key, value, expected", [
+    ("squares", [2, 5], "perception.calibration.board.squares"),
+    ("marker_size", 0.05, "marker_size 0.05 must be below square_size"),
+    ("kind", "circles", "perception.calibration.board.kind"),
+])
+def test_board_keys_are_validated_in_one_line(tmp_path, key, value, expected):
+    import yaml
+
+    from ahrm_stack.perception.settings import PERCEPTION_CONFIG
+
+    data = yaml.safe_load(PERCEPTION_CONFIG.read_text())
+    data["calibration"]["board"][key] = value
+    path = tmp_path / "perception.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(PerceptionConfigError) as error:
+        load_perception_settings(path)
+    assert expected in str(error.value) and "\n" not in str(error.value)
+
+
+def test_an_unknown_aruco_dictionary_names_the_key(board):
+    with pytest.raises(PerceptionConfigError, match=r"perception.calibration.board.dictionary 'DICT_9X9_1'"):
+        charuco_board(dataclasses.replace(board, dictionary="DICT_9X9_1"))
