@@ -156,7 +156,7 @@ def main() -> None:
     deploy_settings = load_deploy_settings(realtime=True, telemetry="")
     deploy_settings = dataclasses.replace(deploy_settings, watchdog=dataclasses.replace(
         deploy_settings.watchdog, max_deadline_misses=10**9))
-    settings = load_perception_settings(calibrated=False)
+    settings = load_perception_settings()
     folder = Path(tempfile.mkdtemp(prefix="bench-camera-"))
     video = folder / "rendered.avi"
     render_video(video, config.task, settings, 30 if args.quick else 60)

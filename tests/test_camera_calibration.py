@@ -16,7 +16,8 @@ cv2 = pytest.importorskip("cv2")
 
 from ahrm_stack.perception.calibration import (CalibrationFile, Undistorter,  # noqa: E402
                                                apply_calibration, calibrate_intrinsics, camera_matrix,
-                                               charuco_board, read_calibration, write_calibration)
+                                               charuco_board, load_calibrated_settings, read_calibration,
+                                               write_calibration)
 from ahrm_stack.perception.settings import PerceptionConfigError, load_perception_settings  # noqa: E402
 
 WIDTH, HEIGHT = 640, 480
@@ -70,7 +71,7 @@ def synthesise_views(board_settings, count: int, seed: int = 0) -> tuple[list[np
 
 @pytest.fixture(scope="module")
 def board():
-    return load_perception_settings(calibrated=False).calibration.board
+    return load_perception_settings().calibration.board
 
 
 @pytest.fixture(scope="module")
@@ -166,7 +167,7 @@ def test_too_few_views_is_one_line(board):
 
 
 def test_calibration_file_round_trip_and_errors(tmp_path, calibrated):
-    settings = load_perception_settings(calibrated=False)
+    settings = load_perception_settings()
     entry = CalibrationFile(width=settings.camera.width, height=settings.camera.height,
                             intrinsics=calibrated.intrinsics,
                             distortion=tuple(float(x) for x in calibrated.distortion),  # type: ignore[arg-type]
@@ -175,6 +176,14 @@ def test_calibration_file_round_trip_and_errors(tmp_path, calibrated):
     assert read_calibration(path) == entry
     applied = apply_calibration(settings, path)
     assert applied.camera.intrinsics == entry.intrinsics and applied.camera.distortion == entry.distortion
+    import yaml
+
+    from ahrm_stack.perception.settings import PERCEPTION_CONFIG
+
+    data = yaml.safe_load(PERCEPTION_CONFIG.read_text())
+    data["camera"]["calibration_file"] = str(path)  # what a run loads
+    (tmp_path / "perception.yaml").write_text(yaml.safe_dump(data))
+    assert load_calibrated_settings(tmp_path / "perception.yaml").camera == applied.camera
     small = dataclasses.replace(entry, width=WIDTH, height=HEIGHT)
     wrong = write_calibration(tmp_path / "small.yaml", small)
     with pytest.raises(PerceptionConfigError, match=r"is for 640 x 480 px; perception.camera is"):
@@ -206,7 +215,7 @@ def rendered():
     from hardware.sim import SimArm
 
     config = load_config()
-    settings = load_perception_settings(calibrated=False)
+    settings = load_perception_settings()
     arm = SimArm(config.task, seed=0, clock=FastClock())
     arm.connect()
     camera = SimCamera(config.task, settings)
@@ -313,7 +322,7 @@ def test_camera_keys_are_validated_in_one_line(tmp_path, section, key, value, ex
     path = tmp_path / "perception.yaml"
     path.write_text(yaml.safe_dump(data))
     with pytest.raises(PerceptionConfigError) as error:
-        load_perception_settings(path)
+        load_calibrated_settings(path)  # the settings, then the calibration file
     assert expected in str(error.value) and "\n" not in str(error.value)
 
 

@@ -36,7 +36,7 @@ def video(tmp_path_factory):
     from hardware.sim import SimArm
 
     config = load_config()
-    settings = load_perception_settings(calibrated=False)
+    settings = load_perception_settings()
     arm = SimArm(config.task, seed=0, clock=FastClock())
     arm.connect()
     camera = SimCamera(config.task, settings)

@@ -140,7 +140,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         from ahrm_stack.perception.settings import load_perception_settings
 
         try:
-            if load_perception_settings(calibrated=False).source.kind == "sim":
+            if load_perception_settings().source.kind == "sim":
                 select_gl_backend(load_extra(VideoConfig, "video").gl_backends)
         except (RenderError, ConfigError) as error:
             print(f"python -m ahrm_stack.deploy: error: {error}", file=sys.stderr)

@@ -146,10 +146,10 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
         raise DeployConfigError(str(error)) from None
     perception = None
     if scene == "camera":  # bad settings, frame source or layout file: one line, nothing written
+        from ahrm_stack.perception.calibration import load_calibrated_settings
         from ahrm_stack.perception.camera_scene import check_camera_scene
-        from ahrm_stack.perception.settings import load_perception_settings
 
-        perception = load_perception_settings()
+        perception = load_calibrated_settings()
         layout_file = layout_file or perception.layout_file or None
         check_camera_scene(perception, backend, config.task, layout_file, settings.realtime)
     elif scene != "sim":

@@ -170,7 +170,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     start = time.perf_counter()
     try:
-        settings = load_perception_settings(args.config or PERCEPTION_CONFIG, calibrated=False)
+        settings = load_perception_settings(args.config or PERCEPTION_CONFIG)
         if args.command == "intrinsics" and not args.views and args.capture < settings.calibration.board.min_views:
             raise InputError(f"give VIEW files or --capture N (N >= perception.calibration.board.min_views "
                              f"{settings.calibration.board.min_views})")

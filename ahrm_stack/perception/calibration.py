@@ -196,6 +196,18 @@ def apply_calibration(settings: PerceptionSettings, path: Path | str) -> Percept
     return dataclasses.replace(settings, camera=dataclasses.replace(camera, **changes))
 
 
+def load_calibrated_settings(path: Path | str | None = None) -> PerceptionSettings:
+    """The perception settings (``path``, default ``configs/perception.yaml``) with the camera's
+    ``calibration_file`` applied when one is set (:func:`apply_calibration`); what a run uses."""
+    from ahrm_stack.perception import settings as perception_settings
+
+    settings = (perception_settings.load_perception_settings() if path is None
+                else perception_settings.load_perception_settings(path))
+    if settings.camera.calibration_file:
+        settings = apply_calibration(settings, settings.camera.calibration_file)
+    return settings
+
+
 def camera_matrix(intrinsics: tuple[float, float, float, float]) -> np.ndarray:
     """OpenCV's 3 × 3 camera matrix of (fx, fy, cx, cy) in the project's pixel convention."""
     fx, fy, cx, cy = intrinsics

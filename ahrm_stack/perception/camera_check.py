@@ -32,11 +32,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     from ahrm_stack.perception.calibration import undistorter
     from ahrm_stack.perception.detection_thread import CameraThreadError, DetectionThread
     from ahrm_stack.perception.frames import FrameError, open_frame_source
-    from ahrm_stack.perception.settings import load_perception_settings
+    from ahrm_stack.perception.calibration import load_calibrated_settings
     from hardware.protocol import WallClock
 
     try:
-        settings = load_perception_settings()
+        settings = load_calibrated_settings()
         if settings.source.kind == "sim":
             raise ConfigError("perception.source.kind is sim: choose uvc, realsense or video to check "
                               "a real camera (the sim's range: python -m ahrm_stack.perception.detection_range)")

@@ -109,7 +109,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from ahrm_stack.perception.settings import load_perception_settings
 
     try:
-        settings = load_perception_settings(calibrated=False)
+        settings = load_perception_settings()
         config = load_config()
     except ConfigError as error:
         print(f"{parser.prog}: error: {error}", file=sys.stderr)

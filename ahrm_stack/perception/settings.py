@@ -180,15 +180,8 @@ def perception_settings_from_dict(data: Any) -> PerceptionSettings:
     return validate(PerceptionSettings, data, "perception", error=PerceptionConfigError)
 
 
-def load_perception_settings(path: Path | str = PERCEPTION_CONFIG,
-                             calibrated: bool = True) -> PerceptionSettings:
-    """Read and validate ``path``; errors are one line naming the key and the file. With
-    ``calibrated``, the camera's ``calibration_file`` (when set) replaces its intrinsics,
-    distortion and, when the file has them, its extrinsics
-    (:func:`ahrm_stack.perception.calibration.apply_calibration`)."""
-    settings = load_file(PerceptionSettings, path, "perception", error=PerceptionConfigError)
-    if calibrated and settings.camera.calibration_file:
-        from ahrm_stack.perception.calibration import apply_calibration
-
-        settings = apply_calibration(settings, settings.camera.calibration_file)
-    return settings
+def load_perception_settings(path: Path | str = PERCEPTION_CONFIG) -> PerceptionSettings:
+    """Read and validate ``path``; errors are one line naming the key and the file. The camera's
+    ``calibration_file`` is applied by
+    :func:`ahrm_stack.perception.calibration.load_calibrated_settings`."""
+    return load_file(PerceptionSettings, path, "perception", error=PerceptionConfigError)
