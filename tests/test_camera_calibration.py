@@ -183,7 +183,8 @@ def test_calibration_file_round_trip_and_errors(tmp_path, calibrated):
     data = yaml.safe_load(PERCEPTION_CONFIG.read_text())
     data["camera"]["calibration_file"] = str(path)  # what a run loads
     (tmp_path / "perception.yaml").write_text(yaml.safe_dump(data))
-    assert load_calibrated_settings(tmp_path / "perception.yaml").camera == applied.camera
+    loaded = load_calibrated_settings(tmp_path / "perception.yaml").camera
+    assert loaded == dataclasses.replace(applied.camera, calibration_file=str(path))
     small = dataclasses.replace(entry, width=WIDTH, height=HEIGHT)
     wrong = write_calibration(tmp_path / "small.yaml", small)
     with pytest.raises(PerceptionConfigError, match=r"is for 640 x 480 px; perception.camera is"):
