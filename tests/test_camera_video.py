@@ -93,8 +93,9 @@ def test_rendered_video_through_the_detection_thread_matches_the_truth(video):
             errors.append(np.linalg.norm(result.measurement.position - true))
     capture = [r.capture_time for r in results]
     assert np.all(np.diff(capture) > 0)
-    # the cube's centre from an MJPG-compressed 1920 x 1080 frame, its tag 50 px: within 3 mm
-    assert np.median(errors) < 0.003 and max(errors) < 0.005, np.round(np.array(errors) * 1e3, 2)
+    # the cube's centre from an MJPG-compressed 1920 x 1080 frame 1.0 m away, its tag 36 px: a few
+    # mm (docs/camera.md: median 1.4 mm, max 6.6 mm over the table's middle)
+    assert np.median(errors) < 0.003 and max(errors) < 0.008, np.round(np.array(errors) * 1e3, 2)
     frames.close()
     thread.detector.detector.close()
 
@@ -217,7 +218,7 @@ def test_camera_check_reports_the_tag_size_and_distance_of_the_video(video, seen
         distance = float(row[4])
         centre = min((t for t in truth if t is not None),
                      key=lambda t: abs(np.linalg.norm(t - camera.position) - distance))
-        assert np.linalg.norm(centre - camera.position) == pytest.approx(distance, abs=0.004)
+        assert np.linalg.norm(centre - camera.position) == pytest.approx(distance, abs=0.008)  # as above
         s = settings.tag.size / 2  # the tag's true corners on the upright cube's top face
         corners = centre + np.array([[-s, -s, 0.025], [s, -s, 0.025], [s, s, 0.025], [-s, s, 0.025]])
         px = intrinsics.project(camera.to_camera(corners))
