@@ -7,9 +7,11 @@ interface (``start``, ``since``, ``wait_first``, ``stop``, ``error``), so
 (``spawn``: a fresh interpreter, nothing of the parent's MuJoCo or GL state) opens the frame
 source of ``perception.source`` and runs the same loop as the thread (grab, undistort, measure) at
 niceness +10; each result (:class:`StampedMeasurement`, a few hundred bytes) comes back through a
-pipe that :meth:`since` drains without waiting. A thread inside a process that runs Python code
-holds the GIL for up to the switch interval whenever the control thread needs it, which showed
-in the control tick's p99 (``benchmarks/bench_camera_thread.py``).
+pipe that a receiver thread empties as results come (waiting in ``recv`` without the GIL), so the
+child never waits on a full pipe; :meth:`since` returns what arrived without waiting. A thread
+inside a process that runs Python code holds the GIL for up to the switch interval whenever the
+control thread needs it, which showed in the control tick's p99
+(``benchmarks/bench_camera_thread.py``).
 
 Time base: the child stamps frames with ``time.perf_counter`` (CLOCK_MONOTONIC, one clock for
 every process on Linux), which is the adapter's clock when that is the wall clock
@@ -20,6 +22,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import threading
 import time
 from collections import deque
 from typing import Any
@@ -85,12 +88,15 @@ class DetectionProcess:
         self.error = ""
         self.frames_done = 0
         self.latencies: list[float] = []
+        self._lock = threading.Lock()
+        self._receiver: threading.Thread | None = None
         self._process: Any = None  # multiprocessing's spawn Process once started
         self._conn: Any = None  # the receiving end of the pipe
         self._stop: Any = None  # the spawn context's Event
 
     def start(self, clock=None) -> None:
-        """Start the child; ``clock`` (the adapter's): must read ``time.perf_counter``."""
+        """Start the child and the receiver thread; ``clock`` (the adapter's): must read
+        ``time.perf_counter``."""
         if clock is not None and abs(clock.now() - time.perf_counter()) > 0.05:
             raise CameraThreadError("the camera process stamps frames with the wall clock "
                                     "(time.perf_counter); the adapter's clock is another")
@@ -102,36 +108,38 @@ class DetectionProcess:
                                               self.nice))
         self._process.start()
         child_conn.close()
+        self._receiver = threading.Thread(target=self._receive, name="camera-receiver", daemon=True)
+        self._receiver.start()
 
-    def _drain(self) -> None:
+    def _receive(self) -> None:
+        """Empty the pipe as results come (so the child never waits on a full pipe and the
+        newest result is always the newest frame's); ends at the child's end."""
         conn = self._conn
-        if conn is None:
-            return
         try:
-            while conn.poll():
-                item = conn.recv()
-                if isinstance(item, str):
-                    self.error = item
-                    continue
-                self._results.append(item)
-                self.latencies.append(item.latency)
-                self.frames_done += 1
+            while True:
+                item = conn.recv()  # waits without the GIL
+                with self._lock:
+                    if isinstance(item, str):
+                        self.error = item
+                        continue
+                    self._results.append(item)
+                    self.latencies.append(item.latency)
+                    self.frames_done += 1
         except (EOFError, OSError):
-            if not self.error:
-                self.error = "camera process stopped: it ended without a word (killed?)"
-            self._conn = None
+            with self._lock:
+                if not self.error and not self._stop.is_set():
+                    self.error = "camera process stopped: it ended without a word (killed?)"
 
     def since(self, index: int) -> list[StampedMeasurement]:
-        """The results with ``index`` or later that arrived (oldest first); never waits."""
-        self._drain()
-        return [r for r in self._results if r.index >= index]
+        """The results with ``index`` or later that arrived (oldest first); never waits for one."""
+        with self._lock:
+            return [r for r in self._results if r.index >= index]
 
     def wait_first(self, timeout: float) -> None:
         """Block (before a run) until the first frame was measured; :class:`CameraThreadError`
         when the child failed or ``timeout`` s passed."""
         end = time.monotonic() + timeout
         while time.monotonic() < end:
-            self._drain()
             if self.error:
                 raise CameraThreadError(self.error)
             if self.frames_done:
@@ -155,6 +163,7 @@ class DetectionProcess:
         if self._process.is_alive():
             self._process.terminate()
             self._process.join(1.0)
-        if self._conn is not None:
+        if self._receiver is not None:
+            self._receiver.join(1.0)  # the child's end closed the pipe: it has returned
+        if self._receiver is None or not self._receiver.is_alive():
             self._conn.close()
-            self._conn = None
