@@ -266,3 +266,26 @@ def test_camera_scene_feeds_the_deploy_loop_on_the_kortex_backend(video, seen_vi
     finally:
         adapter.disconnect()
         scene.close()
+
+
+def test_the_camera_process_keeps_its_newest_pose_fresh_while_nobody_reads(video, seen_video):
+    """The control process busy elsewhere (building the loop; 4 s here, more than the ~3 s of
+    results a 64 KiB pipe holds at 30 frames/s): the child's results keep arriving, so the newest
+    one is a frame of the last few hundred ms, not one the child waited to send on a full pipe
+    (as it did before the receiver thread: 1.3 s old)."""
+    from ahrm_stack.perception.detection_process import DetectionProcess
+
+    _, _, settings, task = video
+    played = _with_source(settings, kind="video", video_file=str(seen_video), loop=True)
+    runner = DetectionProcess(played, task.cube.size, "tag tag36h11 id 0")
+    runner.start(WallClock())
+    try:
+        runner.wait_first(20.0)
+        time.sleep(4.0)
+        newest = runner.since(0)[-1]
+        assert time.perf_counter() - newest.capture_time < 0.3
+        assert newest.measurement is not None and runner.error == ""
+        assert runner.frames_done > 60  # frames went on meanwhile (30/s)
+    finally:
+        runner.stop()
+    assert not runner.alive
