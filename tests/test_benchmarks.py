@@ -18,6 +18,7 @@ ROOT = Path(__file__).resolve().parents[1]
 BENCHMARKS = sorted((ROOT / "benchmarks").glob("bench_*.py"))
 RATIO_LINE = {  # a line each benchmark prints when it got to its figures
     "bench_camera_scene.py": "ratio camera/true successes",
+    "bench_camera_thread.py": "ratio thread/none tick p99",
     "bench_collection.py": "ratio lean/TorchRL",
     "bench_concurrent_training.py": "parallel speed-up of runs",
     "bench_cores.py": "parallel speed-up",

@@ -178,7 +178,7 @@ def test_perception_settings_load_and_errors_name_the_key(tmp_path):
     assert "perception.camera.quaternion must be a unit" in _bad(
         tmp_path, lambda d: d["camera"].update(look_at=None, quaternion=[1, 1, 0, 0]))
     assert "perception.camera.look_at" in _bad(
-        tmp_path, lambda d: d["camera"].update(look_at=[0.0, -0.9, 0.2]))  # straight below
+        tmp_path, lambda d: d["camera"].update(look_at=[*d["camera"]["position"][:2], 0.2]))  # below
     assert "perception.camera.position" in _bad(tmp_path, lambda d: d["camera"].update(position=[0, 1]))
     assert "perception.tag.family: 'tag99h1'" in _bad(tmp_path, lambda d: d["tag"].update(family="tag99h1"))
     assert "perception.tag.size" in _bad(tmp_path, lambda d: d["tag"].update(size=-0.03))

@@ -60,7 +60,8 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--scene", choices=["sim", "camera"], default="sim",
                         help="object poses: the simulator's (sim) or the AprilTag camera's for the "
                              "cube and a measured layout file for the obstacles (camera; "
-                             "configs/perception.yaml)")
+                             "configs/perception.yaml: source.kind sim renders the simulator, "
+                             "video/uvc/realsense a real frame source, any backend)")
     parser.add_argument("--layout-file", type=Path, help="with --scene camera: the measured obstacle "
                         "layout (default: perception.layout_file, else surveyed from the sim)")
     parser.add_argument("--check", action="store_true",
@@ -136,9 +137,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.scene == "camera":  # offscreen rendering: MUJOCO_GL must be chosen before mujoco loads
         from ahrm_stack.config import VideoConfig, load_extra
         from ahrm_stack.env.video import RenderError, select_gl_backend
+        from ahrm_stack.perception.settings import load_perception_settings
 
         try:
-            select_gl_backend(load_extra(VideoConfig, "video").gl_backends)
+            if load_perception_settings().source.kind == "sim":
+                select_gl_backend(load_extra(VideoConfig, "video").gl_backends)
         except (RenderError, ConfigError) as error:
             print(f"python -m ahrm_stack.deploy: error: {error}", file=sys.stderr)
             return 2

@@ -125,10 +125,11 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
     policy of the checkpoint's run (:func:`load_controller_config`).
 
     ``scene``: ``sim`` (the adapter's own ``perception()``: the simulator's exact object poses, or a
-    backend's static layout) or ``camera`` (:mod:`ahrm_stack.perception`: the cube from the
-    AprilTag on MuJoCo frames of the perception camera, ``configs/perception.yaml``; the obstacles
-    from ``layout_file``, or ``perception.layout_file``, or else surveyed from the simulator at the
-    start into ``layout.yaml`` beside the telemetry; sim backend only).
+    backend's static layout) or ``camera`` (:mod:`ahrm_stack.perception.camera_scene`: the cube from
+    the AprilTag on frames of ``perception.source``, MuJoCo renders on the sim backend or a real
+    camera or video file in its own thread on any backend, ``configs/perception.yaml``; the
+    obstacles from ``layout_file``, or ``perception.layout_file``, or else, on the sim backend,
+    surveyed from the simulator at the start into ``layout.yaml`` beside the telemetry).
 
     Bad input (the settings, the checkpoint, its safety settings, the backend's settings, the
     telemetry path) raises a one-line error before anything is written or the arm is touched. From
@@ -143,20 +144,14 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
         chosen.check(config, settings)
     except ValueError as error:
         raise DeployConfigError(str(error)) from None
-    if scene == "camera" and backend != "sim":
-        raise DeployConfigError(f"--scene camera renders the simulator's table: it runs with --backend "
-                                f"sim only (no frame source for a real camera exists), got {backend}")
     perception = None
-    if scene == "camera":  # bad settings or a bad layout file: one line, nothing written
-        from ahrm_stack.perception.scene_source import LayoutFileObstacles
-        from ahrm_stack.perception.settings import load_perception_settings
-        from ahrm_stack.perception.sim_camera import check_sim_camera
+    if scene == "camera":  # bad settings, frame source or layout file: one line, nothing written
+        from ahrm_stack.perception.calibration import load_calibrated_settings
+        from ahrm_stack.perception.camera_scene import check_camera_scene
 
-        perception = load_perception_settings()
-        check_sim_camera(perception, config.task.cube.size)
+        perception = load_calibrated_settings()
         layout_file = layout_file or perception.layout_file or None
-        if layout_file:
-            LayoutFileObstacles(layout_file, count=len(config.task.obstacles.fixed_layout))
+        check_camera_scene(perception, backend, config.task, layout_file, settings.realtime)
     elif scene != "sim":
         raise DeployConfigError(f"--scene {scene!r}: choose sim or camera")
     control_period = config.task.episode.control_period
@@ -176,7 +171,8 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
             controller = make_controller(world, config, actor)
             arm.connect()
             if perception is not None:
-                from ahrm_stack.perception.sim_camera import sim_camera_scene, survey_obstacles
+                from ahrm_stack.perception.camera_scene import camera_scene
+                from ahrm_stack.perception.sim_camera import survey_obstacles
 
                 if not layout_file:  # a survey of the simulated table stands in for a measurement
                     import tempfile
@@ -184,7 +180,7 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
                     folder = (Path(settings.telemetry).parent if settings.telemetry
                               else Path(tempfile.mkdtemp(prefix="deploy-layout-")))
                     layout_file = survey_obstacles(arm, folder / "layout.yaml")
-                source = sim_camera_scene(arm, config.task, perception, layout_file)
+                source = camera_scene(arm, config.task, perception, layout_file)
             loop = DeployLoop(arm, world, controller, config.safety, settings, telemetry, source)
         except Exception as error:  # noqa: BLE001 - recorded, then raised as a fault
             raise _start_up_fault(arm, telemetry, error) from error

@@ -49,6 +49,10 @@ class CameraSettings(Section):
     fovy_deg: Annotated[Float, within(0, 180, "()")]  # vertical field of view, degrees
     # fx, fy, cx, cy (px); None: from fovy
     intrinsics: Annotated[Optional[Vec4], AfterValidator(_focal_lengths)]
+    # OpenCV (k1, k2, p1, p2, k3) of a calibrated camera; None: none (a pinhole)
+    distortion: Optional[tuple[Float, Float, Float, Float, Float]]
+    # a calibration command's file (intrinsics, distortion; extrinsics when measured); '' none
+    calibration_file: Str
     position: Vec3  # optical centre, m, world frame
     look_at: Optional[Vec3]  # m, world frame
     # camera-to-world (w, x, y, z), optical frame; normalised when read
@@ -105,13 +109,68 @@ class SimCameraSettings(Section):
     offscreen_samples: Annotated[Int, within(0, 16)]
 
 
+#: Where ``--scene camera`` takes its frames from (:mod:`ahrm_stack.perception.frames`).
+SourceKind = Literal["sim", "video", "uvc", "realsense"]
+
+
+@dataclasses.dataclass(frozen=True)
+class SourceSettings(Section):
+    kind: SourceKind
+    video_file: Str  # kind video: a file or image-sequence pattern (frame_%04d.png) OpenCV reads
+    device: Annotated[Int, ge(0)]  # kind uvc: the /dev/videoN index
+    fps: Pos  # frames/s requested from a camera; a video file is played at this rate
+    loop: Bool  # kind video: start over at the end (else the end is a perception fault)
+    isolation: Literal["process", "thread"]  # where a real source's capture and detection run
+
+    def check(self, key: str) -> None:
+        if self.kind == "video" and not self.video_file:
+            raise ConfigError(f"{key}.video_file: give the video file with kind video")
+
+
+#: The calibration board's kinds and OpenCV's predefined ArUco dictionaries it may use.
+BoardKind = Literal["charuco", "chessboard"]
+
+
+@dataclasses.dataclass(frozen=True)
+class BoardSettings(Section):
+    kind: BoardKind
+    squares: tuple[Annotated[Int, ge(3)], Annotated[Int, ge(3)]]  # squares along x, y
+    square_size: Pos  # m, edge of one square
+    marker_size: Pos  # m, edge of a ChArUco marker (< square_size)
+    dictionary: Str  # cv2.aruco predefined dictionary name, e.g. DICT_4X4_50
+    min_views: Annotated[Int, ge(3)]  # views with the board found, at least
+
+    def check(self, key: str) -> None:
+        if self.kind == "charuco" and self.marker_size >= self.square_size:
+            raise ConfigError(f"{key}.marker_size {self.marker_size} must be below square_size "
+                              f"{self.square_size}")
+
+
+@dataclasses.dataclass(frozen=True)
+class ReferenceTagSettings(Section):
+    family: TagFamily
+    id: Annotated[Int, ge(0)]
+    size: Pos  # m, black-square edge
+    position: Vec3  # m, world frame: the tag's centre, surveyed on the table
+    yaw_deg: Float  # degrees about world z; 0: the tag image's right along world +x, up along +y
+
+
+@dataclasses.dataclass(frozen=True)
+class CalibrationSettings(Section):
+    board: BoardSettings
+    reference_tag: ReferenceTagSettings
+    frames: Annotated[Int, ge(1)]  # extrinsics: frames averaged
+
+
 @dataclasses.dataclass(frozen=True)
 class PerceptionSettings(Section):
     camera: CameraSettings
+    source: SourceSettings
     tag: TagSettings
     detector: DetectorSettings
     tracker: TrackerSettings
     sim: SimCameraSettings
+    calibration: CalibrationSettings
     layout_file: Str  # '' for none
 
 
@@ -122,5 +181,7 @@ def perception_settings_from_dict(data: Any) -> PerceptionSettings:
 
 
 def load_perception_settings(path: Path | str = PERCEPTION_CONFIG) -> PerceptionSettings:
-    """Read and validate ``path``; errors are one line naming the key and the file."""
+    """Read and validate ``path``; errors are one line naming the key and the file. The camera's
+    ``calibration_file`` is applied by
+    :func:`ahrm_stack.perception.calibration.load_calibrated_settings`."""
     return load_file(PerceptionSettings, path, "perception", error=PerceptionConfigError)

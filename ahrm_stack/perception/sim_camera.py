@@ -57,6 +57,10 @@ def check_sim_camera(settings: PerceptionSettings, cube_size: float | None = Non
     """Raise :class:`PerceptionConfigError` (one line) where ``settings`` cannot drive the sim
     camera: intrinsics given (MuJoCo renders a centred pinhole from ``camera.fovy_deg``), and, with
     ``cube_size`` (m), a tag that cannot be drawn on the cube's face (family, id, size)."""
+    if settings.camera.distortion is not None or settings.camera.calibration_file:
+        raise PerceptionConfigError(
+            "perception.camera.distortion and calibration_file must be null / '' for the sim "
+            "camera: MuJoCo renders an exact pinhole (a calibration is a real camera's)")
     if settings.camera.intrinsics is not None:
         raise PerceptionConfigError(
             "perception.camera.intrinsics must be null for the sim camera: MuJoCo renders a "

@@ -31,7 +31,9 @@ class CubeState:
 
     ``timestamp`` s (the frame's, on the adapter's clock); ``position`` (3,) m; ``quaternion`` (4,)
     (w, x, y, z), the last measured orientation; ``velocity`` (3,) m/s; ``measured``: this frame
-    had a detection (False: a prediction); ``since_measured``: s since the last detection."""
+    had a detection (False: a prediction); ``since_measured``: s since the last detection's frame
+    was captured; ``latency``: s from that capture to its pose (a detection thread's; 0 in the
+    control tick)."""
 
     timestamp: float
     position: np.ndarray
@@ -39,6 +41,7 @@ class CubeState:
     velocity: np.ndarray
     measured: bool
     since_measured: float
+    latency: float = 0.0  # s, the last measurement's frame capture to its pose (detection time)
 
 
 class ConstantVelocityFilter:
@@ -131,3 +134,19 @@ class CubeTracker:
                          quaternion=self.quaternion.copy(), velocity=self.filter.velocity,
                          measured=position is not None,
                          since_measured=float(time) - self.last_measured)
+
+    def at(self, time: float, latency: float = 0.0) -> CubeState:
+        """The state predicted to ``time`` s (not after a measurement: the filter is left as it
+        is), ``latency`` s recorded with it. The staleness rule of :meth:`update`:
+        :class:`TagLostError` when the last measurement's frame is more than ``max_hold`` s older
+        than ``time`` (or there was none)."""
+        if self.last_measured is None:
+            raise TagLostError(f"{self.label} is not in the camera image at the start")
+        gap = float(time) - self.last_measured
+        if gap > self.settings.max_hold + 1e-9:
+            raise TagLostError(f"{self.label} not seen for {gap:.3f} s > tracker.max_hold "
+                               f"{self.settings.max_hold:g} s")
+        ahead = max(0.0, float(time) - float(self.filter.time))
+        return CubeState(timestamp=float(time), position=self.filter.position + ahead * self.filter.velocity,
+                         quaternion=self.quaternion.copy(), velocity=self.filter.velocity,
+                         measured=gap <= 0.0, since_measured=gap, latency=float(latency))
