@@ -37,6 +37,7 @@ from ahrm_stack.kinematics.phases import (
     obstacle_region,
     phase_and_x,
     phase_from_distances,
+    phase_geometry,
     region_distances,
     target_region,
     upright_cylinder_box_distance,
@@ -95,6 +96,27 @@ def pusher(center, rotation=np.eye(3), radius=R_P, half_length=H_P) -> Cylinder:
 
 
 # --------------------------------------------------------------------------- regions
+
+
+def test_a_scene_holds_float_copies_of_what_it_was_given_and_cannot_be_changed():
+    import dataclasses
+
+    target = [0, 0, 1]
+    centers = np.array([[-0.25, 0.125, 0.5625]])
+    scene = PhaseScene(table_height=1, target_center=target, obstacle_centers=centers,
+                       obstacle_half_sizes=[[0.0625, 0.0625, 0.0625]], params=HAND_PARAMS)
+    assert type(scene.table_height) is float
+    for name in ("target_center", "obstacle_centers", "obstacle_half_sizes"):
+        value = getattr(scene, name)
+        assert isinstance(value, np.ndarray) and value.dtype == np.float64, name
+    centers[0, 0] = 9.0  # the caller's array: not the scene's
+    assert scene.obstacle_centers[0, 0] == -0.25
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        scene.table_height = 0.0  # type: ignore[misc]
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        HAND_PARAMS.target_height = 1.0  # type: ignore[misc]
+    # compared and hashed by identity (its arrays have no single truth value)
+    assert scene == scene and scene != hand_scene() and {scene: 1}[scene] == 1
 
 
 def test_hand_scene_regions():
@@ -323,6 +345,7 @@ def test_exact_touching_gives_zero(center, rot):
     assert cylinder_box_distance(cyl, box) == pytest.approx(0.0, abs=1e-12)
     assert general_distance(cyl, box) == pytest.approx(0.0, abs=1e-12)
     assert phase_and_x(hand_scene(), cyl)[0] == 3
+    assert phase_geometry(hand_scene(), cyl, 0.05)[0] == 3  # touching is inside, on the fast path too
 
 
 def _rot_xyz(ax: float, ay: float, az: float) -> np.ndarray:
