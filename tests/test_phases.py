@@ -98,6 +98,22 @@ def pusher(center, rotation=np.eye(3), radius=R_P, half_length=H_P) -> Cylinder:
 # --------------------------------------------------------------------------- regions
 
 
+def test_phase_from_distances_counts_a_distance_of_zero_as_inside():
+    assert phase_from_distances(0.5, 0.0) == (3, 0.0)  # touching B_target: phase 3
+    assert phase_from_distances(0.0, 0.25) == (2, 0.25)  # touching B_obstacles: phase 2, x to B_target
+    assert phase_from_distances(0.125, 0.25) == (1, 0.125)
+
+
+def test_clipped_distances_saturate_deep_inside_and_far_outside():
+    """The pusher centred in B_target (itself inside B_obstacles), 1/16 m from its nearest face:
+    both distances are below -clip and read -clip; far above the table both read +clip."""
+    phase, x, clipped = phase_geometry(hand_scene(), pusher((0.0, 0.0, 0.5625)), 0.01)
+    assert phase == 3 and x < -0.01
+    assert clipped.tolist() == [-0.01, -0.01]
+    phase, x, clipped = phase_geometry(hand_scene(), pusher((0.0, 0.0, 2.0)), 0.01)
+    assert phase == 1 and x > 0.01 and clipped.tolist() == [0.01, 0.01]
+
+
 def test_a_scene_holds_float_copies_of_what_it_was_given_and_cannot_be_changed():
     import dataclasses
 
