@@ -114,6 +114,29 @@ def test_clipped_distances_saturate_deep_inside_and_far_outside():
     assert phase == 1 and x > 0.01 and clipped.tolist() == [0.01, 0.01]
 
 
+@pytest.mark.parametrize("rotation", [np.eye(3), TILT_45], ids=["upright", "tilted"])
+@pytest.mark.parametrize("center,phase", [((0.0, 0.0, 0.9), 1), ((0.3, 0.2, 0.6), 2)], ids=["phase1", "phase2"])
+def test_phase_geometry_runs_one_exact_query_away_from_the_other_boundary(monkeypatch, rotation, center, phase):
+    """phase_geometry's promise: with the pusher's bounding ball clear of one region (here B_target,
+    0.12-0.28 m away) the bounds decide that region, so only x's own exact query runs. Phase 1:
+    centre 0.9 m, B_obstacles' top 0.75, B_target's 0.625; phase 2: centre (0.3, 0.2, 0.6), 0.05 m
+    inside B_obstacles, 0.19 m from B_target."""
+    from ahrm_stack.kinematics import phases as module
+
+    calls = []
+    for name in ("_upright_distance", "_general_distance"):
+        real = getattr(module, name)
+
+        def counted(*args, _real=real):
+            calls.append(args)
+            return _real(*args)
+
+        monkeypatch.setattr(module, name, counted)
+    result = phase_geometry(hand_scene(), pusher(center, rotation), 0.01)
+    assert result[0] == phase and len(calls) == 1
+    assert result[2].tolist() == ([0.01, 0.01] if phase == 1 else [-0.01, 0.01])
+
+
 def test_a_scene_holds_float_copies_of_what_it_was_given_and_cannot_be_changed():
     import dataclasses
 
