@@ -37,6 +37,7 @@ from ahrm_stack.kinematics.phases import (
     obstacle_region,
     phase_and_x,
     phase_from_distances,
+    phase_geometry,
     region_distances,
     target_region,
     upright_cylinder_box_distance,
@@ -95,6 +96,66 @@ def pusher(center, rotation=np.eye(3), radius=R_P, half_length=H_P) -> Cylinder:
 
 
 # --------------------------------------------------------------------------- regions
+
+
+def test_phase_from_distances_counts_a_distance_of_zero_as_inside():
+    assert phase_from_distances(0.5, 0.0) == (3, 0.0)  # touching B_target: phase 3
+    assert phase_from_distances(0.0, 0.25) == (2, 0.25)  # touching B_obstacles: phase 2, x to B_target
+    assert phase_from_distances(0.125, 0.25) == (1, 0.125)
+
+
+def test_clipped_distances_saturate_deep_inside_and_far_outside():
+    """The pusher centred in B_target (itself inside B_obstacles), 1/16 m from its nearest face:
+    both distances are below -clip and read -clip; far above the table both read +clip."""
+    phase, x, clipped = phase_geometry(hand_scene(), pusher((0.0, 0.0, 0.5625)), 0.01)
+    assert phase == 3 and x < -0.01
+    assert clipped.tolist() == [-0.01, -0.01]
+    phase, x, clipped = phase_geometry(hand_scene(), pusher((0.0, 0.0, 2.0)), 0.01)
+    assert phase == 1 and x > 0.01 and clipped.tolist() == [0.01, 0.01]
+
+
+@pytest.mark.parametrize("rotation", [np.eye(3), TILT_45], ids=["upright", "tilted"])
+@pytest.mark.parametrize("center,phase", [((0.0, 0.0, 0.9), 1), ((0.3, 0.2, 0.6), 2)], ids=["phase1", "phase2"])
+def test_phase_geometry_runs_one_exact_query_away_from_the_other_boundary(monkeypatch, rotation, center, phase):
+    """phase_geometry's promise: with the pusher's bounding ball clear of one region (here B_target,
+    0.12-0.28 m away) the bounds decide that region, so only x's own exact query runs. Phase 1:
+    centre 0.9 m, B_obstacles' top 0.75, B_target's 0.625; phase 2: centre (0.3, 0.2, 0.6), 0.05 m
+    inside B_obstacles, 0.19 m from B_target."""
+    from ahrm_stack.kinematics import phases as module
+
+    calls = []
+    for name in ("_upright_distance", "_general_distance"):
+        real = getattr(module, name)
+
+        def counted(*args, _real=real):
+            calls.append(args)
+            return _real(*args)
+
+        monkeypatch.setattr(module, name, counted)
+    result = phase_geometry(hand_scene(), pusher(center, rotation), 0.01)
+    assert result[0] == phase and len(calls) == 1
+    assert result[2].tolist() == ([0.01, 0.01] if phase == 1 else [-0.01, 0.01])
+
+
+def test_a_scene_holds_float_copies_of_what_it_was_given_and_cannot_be_changed():
+    import dataclasses
+
+    target = [0, 0, 1]
+    centers = np.array([[-0.25, 0.125, 0.5625]])
+    scene = PhaseScene(table_height=1, target_center=target, obstacle_centers=centers,
+                       obstacle_half_sizes=[[0.0625, 0.0625, 0.0625]], params=HAND_PARAMS)
+    assert type(scene.table_height) is float
+    for name in ("target_center", "obstacle_centers", "obstacle_half_sizes"):
+        value = getattr(scene, name)
+        assert isinstance(value, np.ndarray) and value.dtype == np.float64, name
+    centers[0, 0] = 9.0  # the caller's array: not the scene's
+    assert scene.obstacle_centers[0, 0] == -0.25
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        scene.table_height = 0.0  # type: ignore[misc]
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        HAND_PARAMS.target_height = 1.0  # type: ignore[misc]
+    # compared and hashed by identity (its arrays have no single truth value)
+    assert scene == scene and scene != hand_scene() and {scene: 1}[scene] == 1
 
 
 def test_hand_scene_regions():
@@ -323,6 +384,7 @@ def test_exact_touching_gives_zero(center, rot):
     assert cylinder_box_distance(cyl, box) == pytest.approx(0.0, abs=1e-12)
     assert general_distance(cyl, box) == pytest.approx(0.0, abs=1e-12)
     assert phase_and_x(hand_scene(), cyl)[0] == 3
+    assert phase_geometry(hand_scene(), cyl, 0.05)[0] == 3  # touching is inside, on the fast path too
 
 
 def _rot_xyz(ax: float, ay: float, az: float) -> np.ndarray:

@@ -88,3 +88,39 @@ def test_time_objective_success_reference_by_hand():
 def test_time_objective_rejects_an_unknown_reference():
     with pytest.raises(ValueError, match="time reference"):
         TimeObjective(episode_duration=1.0, reference="best")
+
+
+def test_touches_at_the_boundaries():
+    is_obstacle = np.array([False, False, True, True])
+    is_toucher = np.array([False, True, False, False])
+    none = np.empty((0, 2), int)
+    # an obstacle moving exactly at the threshold is not pushed; no contact at all is exactly False
+    assert obstacle_touched(none, is_obstacle, is_toucher, np.array([0.0, 0.5]), 0.5) is False
+    assert obstacle_touched(none, is_obstacle, is_toucher, np.array([]), 0.5) is False
+    # an obstacle on the table, listed obstacle first, or two obstacles together: no touch
+    assert not obstacle_touched(np.array([[3, 0], [2, 3]]), is_obstacle, is_toucher, np.zeros(2), 0.5)
+    # one robot contact among others is a touch
+    assert obstacle_touched(np.array([[0, 3], [1, 3], [0, 2]]), is_obstacle, is_toucher, np.zeros(2), 0.5) is True
+
+
+def test_progress_is_measured_from_the_table_centre():
+    # target 0.5 m from the centre (1, 2): (1.3, 2.4); tip 0.1 m above it
+    assert progress(np.array([1.3, 2.4, 0.4]), np.array([1.0, 2.0]), np.array([1.3, 2.4, 0.5])) == pytest.approx(0.4)
+
+
+def test_progress_must_beat_the_best_by_more_than_eps_and_anything_beats_no_best():
+    f2 = ProgressObjective(eps=0.25)
+    assert f2.step(-5.0) == 1  # before reset the best is -inf
+    f2.reset(0.0)
+    assert f2.step(0.25) == -1  # exactly eps better: not more
+    assert f2.step(0.5625) == 1  # 0.3125 better than 0.25
+
+
+def test_time_objective_end_episode_defaults_to_a_failure_and_refuses_a_state_of_another_size():
+    f3 = TimeObjective(episode_duration=1.0, reference="success")
+    f3.reset()
+    f3.step(1, 0.25, elapsed=0.25)
+    f3.end_episode()
+    assert np.isnan(f3.budget).all()
+    with pytest.raises(ValueError, match=r"^time objective state has \(2,\) budgets, expected \(3,\)"):
+        f3.load_state_dict({"budget": [0.5, 0.5]})

@@ -76,6 +76,8 @@ SUITE: dict[str, tuple[tuple[str, ...], str]] = {
     "ahrm_stack/deploy/safety_settings.py": (("tests/test_safety_settings.py",), ""),
     "hardware/protocol.py": (("tests/test_protocol.py", "tests/test_kortex_pure.py"), ""),
     "ahrm_stack/learning/mechanisms.py": (("tests/test_mechanisms.py",), ""),
+    "ahrm_stack/env/rewards.py": (("tests/test_rewards.py",), ""),
+    "ahrm_stack/kinematics/phases.py": (("tests/test_phases.py",), ""),
 }
 
 _SWAPPED_CALLS = {"min": "max", "max": "min", "minimum": "maximum", "maximum": "minimum", "any": "all",
