@@ -44,3 +44,37 @@ def test_results_page_names_the_split() -> None:
     assert "validation" in text and "`test`" in text
     readme = (ROOT / "README.md").read_text()
     assert "validation" in readme and "test split" in readme
+
+
+def test_the_readme_test_split_table_is_up_to_date() -> None:
+    tool = _tool()
+    text = (ROOT / "README.md").read_text()
+    assert tool.render_readme(text) == text, ("README.md's test-split table is out of date: run "
+                                              "python tools/results_headlines.py")
+
+
+def test_test_split_rows_pool_paired_episodes(tmp_path: Path) -> None:
+    """Two families of 3 episodes: the pooled counts, the discordant pairs and the exact sign test
+    (2 vs 0 discordant: p = 0.5, the closed form 2 x 0.5^2), the interval from scipy's exact test."""
+    import json
+
+    header = "success,touched_steps,time_to_success\n"
+    policy = {"a": ["True,0,2.0", "True,1,2.0", "True,0,3.0"], "b": ["True,0,1.0", "False,0,", "True,0,2.0"]}
+    scripted = {"a": ["True,0,4.0", "False,0,", "True,0,3.0"], "b": ["False,0,", "False,0,", "True,0,4.0"]}
+    folder = tmp_path / "suite"
+    for family in ("a", "b"):
+        (folder / family / "scripted").mkdir(parents=True)
+        (folder / family / "evaluation.csv").write_text(header + "\n".join(policy[family]) + "\n")
+        (folder / family / "scripted" / "evaluation.csv").write_text(header + "\n".join(scripted[family]) + "\n")
+    support = {"a": True, "b": False}
+    (folder / "suite.json").write_text(json.dumps({
+        "split": "test", "families": ["a", "b"],
+        "results": {f: {"training_support": {"inside": inside}} for f, inside in support.items()}}))
+    tool = _tool()
+    tool.DEFAULT_TEST_SUITE = "suite"
+    rows = tool.test_split_rows(tmp_path)
+    all_row = rows[2]
+    assert all_row.startswith("| all families (2) | 5/6 [35.9, 99.6] % | 1 [0.4, 64.1] % | 3/6 | 0 | 2 / 0 (p = 0.5) ")
+    assert all_row.endswith("| 1 / 0 (p = 1) | 0.67 |")  # (2/4 + 3/3 + 2/4) / 3: the episodes both won
+    assert rows[3].startswith("| inside the training support (1) | 3/3 ")
+    assert rows[4].startswith("| outside it (partly or wholly) (1) | 2/3 ")
