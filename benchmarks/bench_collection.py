@@ -1,7 +1,7 @@
 """Collection: TorchRL's Collector against the trainer's LeanCollector, same environments and policy.
 
 Two trainers of the same configuration (same seeds), one collecting with TorchRL's ``Collector``
-over a ``SerialEnv`` (``trainer.LEAN_COLLECTION = False``), one with
+over a ``SerialEnv`` (``tests/torchrl_reference.py``, the oracle the tests hold it to), one with
 :class:`~ahrm_stack.learning.collection.LeanCollector`; their batches are identical
 (``tests/test_collection.py``). Batches alternate between the two; prints frames/s of each, the
 ratio lean/TorchRL and the per-frame time saved.
@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
+from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -25,21 +27,19 @@ cli.quiet_argv()  # before the heavy imports: the libraries' warnings and INFO l
 import torch  # noqa: E402
 
 from ahrm_stack.config import load_config  # noqa: E402
-from ahrm_stack.learning import trainer as trainer_module  # noqa: E402
 from ahrm_stack.learning.collection import LeanCollector  # noqa: E402
 from ahrm_stack.learning.trainer import Trainer  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))  # the reference lives with the tests
+from torchrl_reference import ReferenceTrainer  # noqa: E402
 
 DEFAULTS = ("train.num_envs=4", "ppo.frames_per_batch=1024", "train.warm_start=none", "ppo.bc_coeff=0")
 QUICK = ("ppo.frames_per_batch=64", "ppo.mini_batch_size=32")
 
 
 def _trainer(overrides: list[str], lean: bool) -> Trainer:
-    trainer_module.LEAN_COLLECTION = lean
-    try:
-        trainer = Trainer(load_config(overrides))
-        trainer._collect()  # builds the collector (with lean: LeanCollector) and warms it up
-    finally:
-        trainer_module.LEAN_COLLECTION = True
+    trainer = (Trainer if lean else ReferenceTrainer)(load_config(overrides))
+    trainer._collect()  # builds the collector (with lean: LeanCollector) and warms it up
     assert isinstance(trainer._collector, LeanCollector) == lean
     return trainer
 

@@ -20,8 +20,9 @@ import numpy as np
 import pytest
 import torch
 
+from torchrl_reference import ReferenceTrainer
+
 from ahrm_stack.config import ConfigError, load_config
-from ahrm_stack.learning import trainer as trainer_module
 from ahrm_stack.learning.ppo import LeanCollectionActor
 from ahrm_stack.learning.collection import LeanCollector
 from ahrm_stack.learning.pool import EnvPool
@@ -44,17 +45,15 @@ def _assert_same(got, want):
         np.testing.assert_array_equal(got[key].numpy(), want[key].numpy(), err_msg=str(key))
 
 
-def test_collector_runs_the_lean_actor_and_collects_what_the_torchrl_actor_does(monkeypatch):
-    monkeypatch.setattr(trainer_module, "LEAN_COLLECTION", False)  # TorchRL's Collector, both actors
-    lean = Trainer(load_config(TINY))
+def test_collector_runs_the_lean_actor_and_collects_what_the_torchrl_actor_does():
+    lean = ReferenceTrainer(load_config(TINY), actor="lean")  # TorchRL's Collector, both actors
     batch = _first_batch(lean)
-    assert isinstance(lean._collector.policy, LeanCollectionActor) or any(
-        isinstance(m, LeanCollectionActor) for m in lean._collector.policy.modules())
+    policy = lean._collector.collector.policy
+    assert isinstance(policy, LeanCollectionActor) or any(isinstance(m, LeanCollectionActor) for m in policy.modules())
     lean.close()
-    monkeypatch.setattr(trainer_module, "lean_collection_actor", lambda actor: None)
-    reference = Trainer(load_config(TINY))
+    reference = ReferenceTrainer(load_config(TINY), actor="torchrl")
     want = _first_batch(reference)
-    assert not any(isinstance(m, LeanCollectionActor) for m in reference._collector.policy.modules())
+    assert not any(isinstance(m, LeanCollectionActor) for m in reference._collector.collector.policy.modules())
     reference.close()
     _assert_same(batch, want)  # sampled actions included: the same random draws
 
@@ -115,7 +114,7 @@ def _batches(trainer: Trainer, count: int) -> tuple[list, list]:
 
 
 @pytest.mark.parametrize("envs,workers", [(1, 1), (2, 1), (2, 2), (4, 2)])
-def test_lean_collector_gives_the_torchrl_collectors_batches(monkeypatch, envs, workers):
+def test_lean_collector_gives_the_torchrl_collectors_batches(envs, workers):
     """In process (LocalEnvs) against a SerialEnv, and through the EnvPool's worker processes (one
     or two environments each) against a ParallelEnv of the same workers."""
     # 1 s episodes (20 steps) and 40-step batches per environment: episodes end inside batches,
@@ -132,12 +131,11 @@ def test_lean_collector_gives_the_torchrl_collectors_batches(monkeypatch, envs, 
         lean_envs = lean.state_dict()["env_rng"]
     finally:
         lean.close()
-    monkeypatch.setattr(trainer_module, "LEAN_COLLECTION", False)
     if workers > 1:  # the reference: a ParallelEnv of one environment per worker (TorchRL's workers
         # do not reach the WorkerEnv methods through a SerialEnv); with the ends deferred to the
         # batch's end the environments are independent, so the split over workers changes nothing
         config = dataclasses.replace(config, train=dataclasses.replace(config.train, env_workers=envs))
-    reference = Trainer(config)
+    reference = ReferenceTrainer(config)
     try:
         want, want_episodes = _batches(reference, 3)
         assert not isinstance(reference._collector, LeanCollector)

@@ -449,13 +449,13 @@ def test_pool_workers_get_the_touch_penalty():
 def test_worker_processes_get_the_touch_penalty(monkeypatch):
     """``train.env_workers`` > 1 through TorchRL's ParallelEnv (the reference path): each worker's
     environments are built with the same penalty."""
-    from ahrm_stack.learning import workers
+    import torchrl_reference
     built = []
-    monkeypatch.setattr(workers, "ParallelEnv", lambda n, groups, **kwargs: built.extend(groups) or
+    monkeypatch.setattr(torchrl_reference, "ParallelEnv", lambda n, groups, **kwargs: built.extend(groups) or
                         type("Started", (), {"start": lambda self: None})())
     config = load_config([*TINY, "train.touch_end=true", "ppo.gamma=0.99", "train.num_envs=2",
                           "train.env_workers=2"])
-    workers.make_worker_envs(config, [0, 1])
+    torchrl_reference.make_worker_envs(config, [0, 1])
     envs = [group() for group in built]
     assert len(envs) == 2 and all(env.touch_penalty == pytest.approx(300.0) for env in envs)
 

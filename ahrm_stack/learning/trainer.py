@@ -19,8 +19,10 @@ the same keys, values and random draws as the TorchRL actor, as plain torch ops)
 evaluates the TorchRL actor. The environments, in process or in the pool's workers, are collected
 by :class:`~ahrm_stack.learning.collection.LeanCollector`: TorchRL's Collector's batches (over a
 ``SerialEnv``, or a ``ParallelEnv`` of the same workers), built once per batch instead of through
-per-step TensorDicts. ``LEAN_COLLECTION = False`` puts TorchRL's Collector and ``ParallelEnv`` back
-(the reference the tests hold the lean path to).
+per-step TensorDicts. This is the one production path. TorchRL's Collector and ``ParallelEnv`` are
+the oracle it is held to, in the tests (``tests/torchrl_reference.py``: a trainer whose
+:meth:`Trainer._worker_envs` and :meth:`Trainer._make_collector` build them), key for key and batch
+for batch.
 """
 
 from __future__ import annotations
@@ -35,9 +37,7 @@ from typing import Any, Iterator
 import numpy as np
 import torch
 from tensordict import TensorDict
-from torchrl.collectors import Collector
 from torchrl.envs import SerialEnv
-from torchrl.envs.utils import ExplorationType
 
 from ahrm_stack.config import Config, ConfigError
 from ahrm_stack.env.torchrl_env import PushOffEnv, touch_penalty
@@ -55,11 +55,6 @@ from ahrm_stack.learning.start_states import ScriptedStartStates, record_traject
 from ahrm_stack.names import OBJECTIVE_NAMES
 from ahrm_stack.seeds import training_seeds
 
-
-
-# collection by LeanCollector, in process or through the EnvPool (the Collector's batches, without its
-# per-step TensorDicts); False: TorchRL's Collector and ParallelEnv (the reference it is tested against)
-LEAN_COLLECTION = True
 
 
 @contextlib.contextmanager
@@ -121,7 +116,7 @@ class Trainer:
         self.workers = config.train.env_workers > 1
         if self.workers:  # the environments live in the worker processes
             self.envs: list[PushOffEnv] = []
-            self.env = EnvPool(config, seeds) if LEAN_COLLECTION else workers.make_worker_envs(config, seeds)
+            self.env = self._worker_envs(config, seeds)
         else:
             self.envs = [PushOffEnv(config.task, config.safety, mechanism=self.mechanism, seed=seed,
                                     time_limit=config.train.time_limit)
@@ -154,8 +149,7 @@ class Trainer:
         self.episodes = 0
         self.frames = 0
         self.batches = 0
-        self._collector: Collector | LeanCollector | None = None
-        self._iterator = None
+        self._collector: LeanCollector | None = None
         self.warm_start_report: dict[str, float] | None = None
         self.demos = None
         self._demo_generator = torch.Generator().manual_seed(config.train.seed)
@@ -197,25 +191,25 @@ class Trainer:
         self.warm_start_report = report
 
     # ------------------------------------------------------------------ one iteration
+    def _worker_envs(self, config: Config, seeds: list[int]) -> EnvPool:
+        """The environments in ``train.env_workers`` processes (the tests' reference: a ParallelEnv)."""
+        return EnvPool(config, seeds)
+
+    def _make_collector(self, lean):
+        """The batches' collector: :class:`LeanCollector` with the actor's lean path (the tests'
+        reference: TorchRL's Collector); anything with ``next()`` returning a batch."""
+        return LeanCollector(self.env if self.workers else self.envs, lean, self.config.ppo.frames_per_batch)
+
     def _collect(self):
         if self._collector is None:
             if self.workers:
                 self.env.load_mechanism(self.mechanism.state_dict())
             lean = lean_collection_actor(self.modules.actor)
-            if isinstance(self.env, EnvPool) and lean is None:
-                raise RuntimeError("worker processes collect with the lean actor: this actor has none")
-            if lean is not None and LEAN_COLLECTION:  # in-process environments or the EnvPool
-                self._collector = LeanCollector(self.env if self.workers else self.envs, lean,
-                                                self.config.ppo.frames_per_batch)
-            else:
-                self._collector = Collector(self.env, lean or self.modules.actor,
-                                            frames_per_batch=self.config.ppo.frames_per_batch,
-                                            total_frames=-1, exploration_type=ExplorationType.RANDOM,
-                                            auto_register_policy_transforms=False)
-                self._iterator = iter(self._collector)
-        if isinstance(self._collector, LeanCollector):
-            return self._collector.next()
-        return next(self._iterator)
+            if lean is None:
+                raise RuntimeError("training collects with the actor's lean path (make_modules builds it): "
+                                   "this actor has none")
+            self._collector = self._make_collector(lean)
+        return self._collector.next()
 
     def _set_touch_end(self) -> None:
         """``train.touch_end``: the in-process environments end episodes on a touch, with
@@ -433,9 +427,7 @@ class Trainer:
         os.replace(tmp, path)
 
     def close(self) -> None:
-        threads = torch.get_num_threads()  # closing a ParallelEnv raises this process's count
-        if isinstance(self._collector, Collector):
-            self._collector.shutdown()
+        threads = torch.get_num_threads()  # closing worker processes may change this process's count
         if self.workers and not self.env.is_closed:
             self.env.close()
         torch.set_num_threads(threads)

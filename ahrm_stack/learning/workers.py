@@ -3,9 +3,9 @@
 The ``train.num_envs`` environments are split evenly over ``train.env_workers`` processes, so the
 physics of different environments runs on different cores while the trainer's process runs the
 policy once per step for all of them (one batched call). The trainer's processes are an
-:class:`~ahrm_stack.learning.pool.EnvPool`; :func:`make_worker_envs` builds the same workers as a
-TorchRL ``ParallelEnv`` (one environment per worker), the reference the pool's batches are tested
-against (``trainer.LEAN_COLLECTION = False``).
+:class:`~ahrm_stack.learning.pool.EnvPool` (``env`` below: the pool, or in the tests the same workers
+as a TorchRL ``ParallelEnv``, one environment per worker: the reference the pool's batches are held
+to, ``tests/torchrl_reference.py``).
 
 The reward mechanism's adaptive state stays the trainer's. Each worker holds a copy of it for the
 per-step reward and the priority constraint, and defers every episode end to the trainer: at the end
@@ -20,17 +20,14 @@ as in one process.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import os
 from typing import Any
 
 import numpy as np
-import torch
-from torchrl.envs import ParallelEnv
 
-from ahrm_stack.config import Config, MechanismConfig, SafetyConfig, TaskConfig
+from ahrm_stack.config import MechanismConfig, SafetyConfig, TaskConfig
 from ahrm_stack.env.episode import EpisodeSummary
-from ahrm_stack.env.torchrl_env import PushOffEnv, touch_penalty
+from ahrm_stack.env.torchrl_env import PushOffEnv
 from ahrm_stack.learning.mechanisms import RewardMechanism
 
 
@@ -131,25 +128,6 @@ class WorkerEnv(PushOffEnv):
         return self.task.near_cube_share, self.touch_penalty
 
 
-def make_worker_envs(config: Config, seeds: list[int]) -> ParallelEnv:
-    """``train.env_workers`` processes, one environment each (the reference path). The parent
-    waits on the pipes (``use_buffers=False``): TorchRL's shared-buffer mode spin-polls in the
-    parent, which takes a core from the workers on a small machine."""
-    workers = config.train.env_workers
-    per = len(seeds) // workers  # num_envs is a multiple of env_workers (config.py)
-    if per > 1:  # the WorkerEnv calls (drain, load_mechanism, ...) do not pass through a SerialEnv
-        raise ValueError(f"the ParallelEnv reference runs one environment per worker: train.num_envs "
-                         f"({len(seeds)}) must equal train.env_workers ({workers}); the EnvPool takes any split")
-    groups = [functools.partial(WorkerEnv, config.task, config.safety, config.mechanism, seeds[w], w,
-                                config.train.time_limit, touch_penalty(config.train.touch_end, config.ppo.gamma))
-              for w in range(workers)]
-    # num_threads is what TorchRL sets in this process: keep its count; each worker gets one
-    env = ParallelEnv(workers, groups, use_buffers=False, num_threads=torch.get_num_threads(),
-                      num_sub_threads=1)
-    env.start()
-    return env
-
-
 def _flat(results: list) -> list:
     """A dispatched call's results, one per environment (flattened where a worker returned a list)."""
     out = []
@@ -158,15 +136,15 @@ def _flat(results: list) -> list:
     return out
 
 
-def drain(env: ParallelEnv) -> list[PendingEpisode]:
+def drain(env: Any) -> list[PendingEpisode]:
     """Every worker's completed episodes, in the order they ended (step, then environment)."""
     return sorted(_flat(env.drain()), key=lambda p: (p.step, p.index))
 
 
-def per_environment(env: ParallelEnv, method: str, *args) -> list:
+def per_environment(env: Any, method: str, *args) -> list:
     """``method`` called on every environment; results in environment order."""
     results = _flat(getattr(env, method)(*args))
     return results
 
 
-__all__ = ["PendingEpisode", "WorkerEnv", "drain", "make_worker_envs", "per_environment"]
+__all__ = ["PendingEpisode", "WorkerEnv", "drain", "per_environment"]
