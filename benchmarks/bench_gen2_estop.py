@@ -1,0 +1,140 @@
+"""False alarms and runaway detection of the deploy loop's velocity e-stop on the Gen2 path.
+
+The Gen2 adapter's joint velocities are position differences over at least
+``kinova_gen2.velocity_window`` s (one 20 Hz period in a run); the loop e-stops when a joint reads
+over (1 + ``watchdog.velocity_tolerance``) x its velocity limit on ``watchdog.velocity_alarm_ticks``
+consecutive ticks (ahrm_stack/deploy/loop.py, mirrored in :func:`alarms`). With Gaussian angle
+noise sigma each reading is v_true + (n_k - n_ref) / dt: what matters is sigma / dt. So the run is
+time-scaled by ``--scale``: ticks every period / scale, the window / scale, the fake's latency /
+scale and sigma / scale give the same velocity distribution in 1 / scale of the time (the achieved
+tick spacing is reported, times scale).
+
+Conditions, each ``--ticks`` ticks on the fake SDK through :class:`~hardware.kinova_gen2.KinovaGen2Arm`:
+angle noise at 1x (the level whose one-period difference is the fake's 1 deg/s velocity-feedback
+noise, tests/test_kinova_gen2_estop.py BASE_NOISE) and 3x; the arm held still, and moving by itself
+at exactly its velocity limit on every joint (the fastest a filtered command moves it: the worst
+normal case). Reported: readings over the alarm, e-stops (false alarms). Then ``--runaways`` runaways
+at 1.5x the limit on one joint at 3x noise: the ticks from its start to the e-stop.
+
+Usage: python benchmarks/bench_gen2_estop.py [--ticks N] [--scale S] [--runaways N]
+Needs a C compiler (the fake SDK is compiled into a temporary folder).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+
+import numpy as np  # noqa: E402
+
+
+def alarms(speeds: np.ndarray, alarm: np.ndarray, ticks: int) -> tuple[int, int, list[int]]:
+    """The loop's rule over ``speeds`` (ticks x joints, rad/s): readings over ``alarm``, e-stops
+    (a joint over it on ``ticks`` consecutive readings; the count restarts after each) and the tick
+    index of each e-stop."""
+    over = np.abs(speeds) > alarm
+    run = np.zeros(speeds.shape[1], dtype=int)
+    fired: list[int] = []
+    for k, row in enumerate(over):
+        run = np.where(row, run + 1, 0)
+        if (run >= ticks).any():
+            fired.append(k)
+            run[:] = 0
+    return int(over.sum()), len(fired), fired
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--ticks", type=int, default=10_000)
+    parser.add_argument("--scale", type=float, default=20.0)
+    parser.add_argument("--runaways", type=int, default=20)
+    args = parser.parse_args(argv)
+
+    from fake_kinova_sdk import fake as fake_module
+
+    from ahrm_stack.config import load_config
+    from ahrm_stack.deploy import load_deploy_settings
+    from ahrm_stack.robot import describe, make_arm
+    from hardware.kinova_gen2 import KinovaGen2Arm
+
+    config = load_config()
+    settings = load_deploy_settings(realtime=True, telemetry="")
+    robot = describe(config.task.robot, make_arm(config.task.robot))
+    period = settings.period / args.scale
+    gen2 = dataclasses.replace(settings.kinova_gen2, library=str(fake_module.session_library()),
+                               serial=fake_module.SERIAL,
+                               velocity_window=settings.kinova_gen2.velocity_window / args.scale)
+    fake = fake_module.FakeSdk(Path(gen2.library))
+    limit = robot.velocity_limit
+    alarm = limit * (1 + settings.watchdog.velocity_tolerance)
+    ticks = settings.watchdog.velocity_alarm_ticks
+    base = fake_module.VELOCITY_NOISE * settings.period / math.sqrt(2.0)  # deg
+
+    def run(noise: float, drift_deg_s: np.ndarray, count: int, stop_on_alarm: bool = False):
+        fake.reset(position_deg=np.degrees(config.task.arm.home),
+                   latency=fake_module.LATENCY / args.scale)
+        fake.set_position_noise(noise / args.scale)
+        arm = KinovaGen2Arm(robot, gen2, command_timeout_s=1.0)
+        arm.connect()
+        speeds, stamps = [], []
+        try:
+            arm.refresh_feedback()
+            time.sleep(2 * period)
+            fake.set_drift(drift_deg_s)
+            next_tick = time.perf_counter()
+            run_length = np.zeros(len(limit), dtype=int)
+            for _ in range(count):
+                frame = arm.refresh_feedback()
+                speeds.append(frame.velocity)
+                stamps.append(frame.timestamp)
+                run_length = np.where(np.abs(frame.velocity) > alarm, run_length + 1, 0)
+                if stop_on_alarm and (run_length >= ticks).any():
+                    arm.apply_emergency_stop()
+                    break
+                next_tick += period
+                time.sleep(max(0.0, next_tick - time.perf_counter()))
+        finally:
+            fake.set_drift(np.zeros(6))
+            arm.disconnect()
+        return np.array(speeds), np.diff(stamps)
+
+    print(f"# bench_gen2_estop: {args.ticks} ticks per condition, time-scaled x{args.scale:g}; "
+          f"alarm (1 + {settings.watchdog.velocity_tolerance:g}) x limit on {ticks} ticks in a row; "
+          f"1x angle noise = {base:.4f} deg")
+    print("condition                 | ticks | spacing p50/p99 (ms, x scale) | readings over | e-stops")
+    false_alarms = 0
+    for level in (1.0, 3.0):
+        for motion, drift in (("held still", np.zeros(6)),
+                              ("at the limit", np.degrees(limit))):
+            speeds, gaps = run(level * base, drift, args.ticks)
+            over, fired, _ = alarms(speeds[1:], alarm, ticks)  # the first: the drift just began
+            false_alarms += fired
+            spacing = np.percentile(gaps, [50, 99]) * 1e3 * args.scale
+            print(f"{level:g}x noise, {motion:12s} | {len(speeds):5d} | "
+                  f"{spacing[0]:6.1f} / {spacing[1]:6.1f}             | {over:13d} | {fired}")
+    fired_after = []
+    runaway = np.zeros(6)
+    runaway[0] = 1.5 * math.degrees(limit[0])
+    for _ in range(args.runaways):
+        speeds, _ = run(3.0 * base, runaway, 10 * ticks, stop_on_alarm=True)
+        fired_after.append(len(speeds))
+    fired_after_arr = np.array(fired_after)
+    print(f"runaway at 1.5x the limit (joint 0, 3x noise), {args.runaways} runs: e-stop on tick "
+          f"{fired_after_arr.min()}..{fired_after_arr.max()} of the runaway (configured: {ticks}; "
+          f"one more when it began between two reads)")
+    print(f"ratio false e-stops per tick: {false_alarms / (4 * args.ticks):.2e}")
+    missed = int((fired_after_arr > ticks + 1).sum())
+    return 1 if false_alarms or missed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
