@@ -19,7 +19,7 @@ the fake's sample by the thread's wake-up, ~0.1-1 ms on a loaded machine, which 
 period but 20-40 % of a period scaled by 20, and reads a runaway as slower): the ticks from its
 start to the e-stop.
 
-Usage: python benchmarks/bench_gen2_estop.py [--ticks N] [--scale S] [--runaways N]
+Usage: python benchmarks/bench_gen2_estop.py [--ticks N] [--scale S] [--runaways N] [--quick]
 Needs a C compiler (the fake SDK is compiled into a temporary folder).
 """
 
@@ -60,7 +60,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--ticks", type=int, default=10_000)
     parser.add_argument("--scale", type=float, default=20.0)
     parser.add_argument("--runaways", type=int, default=20)
+    parser.add_argument("--quick", action="store_true", help="300 ticks, 2 runaways (CI)")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.ticks, args.runaways = 300, 2
 
     from fake_kinova_sdk import fake as fake_module
 
