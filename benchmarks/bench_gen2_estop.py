@@ -5,11 +5,15 @@ The Gen2 adapter's joint velocities are position differences over at least
 over (1 + ``watchdog.velocity_tolerance``) x its velocity limit on ``watchdog.velocity_alarm_ticks``
 consecutive ticks (ahrm_stack/deploy/loop.py, mirrored in :func:`alarms`). With Gaussian angle
 noise sigma each reading is v_true + (n_k - n_ref) / dt: what matters is sigma / dt. So the run is
-time-scaled by ``--scale``: ticks every period / scale, the window / scale, the fake's latency /
+time-scaled by ``--scale`` (10): ticks every period / scale, the window / scale, the fake's latency /
 scale and sigma / scale give the same velocity distribution in 1 / scale of the time (the achieved
-tick spacing is reported, times scale).
+tick spacing is reported, times scale). The scaling is pessimistic: a read's stamp lags the
+fake's sample by the thread's wake-up (~0.1-1 ms on a loaded machine: 1-2 % of a 50 ms period, 20 %
+of a 5 ms one), an error in dt that real time does not have; at x20 on a load of 5.7 it made 4
+false e-stops in 40,000 ticks, even at 1x noise, where the noise alone cannot (9 sigma).
 
-Conditions, each ``--ticks`` ticks on the fake SDK through :class:`~hardware.kinova_gen2.KinovaGen2Arm`:
+Conditions, ``--ticks`` ticks at the limit and a tenth of that held still (the easier case), on
+the fake SDK through :class:`~hardware.kinova_gen2.KinovaGen2Arm`:
 angle noise at 1x (the level whose one-period difference is the fake's 1 deg/s velocity-feedback
 noise, tests/test_kinova_gen2_estop.py BASE_NOISE) and 3x; the arm held still, and moving by itself
 at exactly its velocity limit on every joint (the fastest a filtered command moves it: the worst
@@ -58,8 +62,8 @@ def alarms(speeds: np.ndarray, alarm: np.ndarray, ticks: int) -> tuple[int, int,
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--ticks", type=int, default=10_000)
-    parser.add_argument("--scale", type=float, default=20.0)
-    parser.add_argument("--runaways", type=int, default=20)
+    parser.add_argument("--scale", type=float, default=10.0)
+    parser.add_argument("--runaways", type=int, default=10)
     parser.add_argument("--quick", action="store_true", help="300 ticks, 2 runaways (CI)")
     args = parser.parse_args(argv)
     if args.quick:
@@ -121,10 +125,12 @@ def main(argv: list[str] | None = None) -> int:
           f"1x angle noise = {base:.4f} deg")
     print("condition                 | ticks | spacing p50/p99 (ms, x scale) | readings over | e-stops")
     false_alarms = 0
+    total = 0
     for level in (1.0, 3.0):
-        for motion, drift in (("held still", np.zeros(6)),
-                              ("at the limit", np.degrees(limit))):
-            speeds, gaps, _ = run(level * base, drift, args.ticks, args.scale)
+        for motion, drift, count in (("held still", np.zeros(6), max(100, args.ticks // 10)),
+                                     ("at the limit", np.degrees(limit), args.ticks)):
+            speeds, gaps, _ = run(level * base, drift, count, args.scale)
+            total += len(speeds)
             over, fired, _ = alarms(speeds[1:], alarm, ticks)  # the first: the drift just began
             false_alarms += fired
             spacing = np.percentile(gaps, [50, 99]) * 1e3 * args.scale
@@ -144,7 +150,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"runaway at 1.5x the limit (joint 0, {level:g}x noise), {args.runaways} runs: e-stop on "
               f"{spread} of the runaway (configured: {ticks} in a row; one more when it began "
               f"between two reads; a noisy reading under the alarm restarts the count)")
-    print(f"ratio false e-stops per tick: {false_alarms / (4 * args.ticks):.2e}")
+    print(f"ratio false e-stops per tick: {false_alarms / total:.2e}")
     return 1 if false_alarms or missed else 0
 
 
