@@ -90,6 +90,7 @@ from ahrm_stack.schema import Bool, ConfigError, Float, Int, Section, Str, count
 from hardware.kinova_gen2_bus import (POINT_PERIOD, BusClosedError, BusHeldError, CallTimes, UsbBus,
                                       WatchdogStop, is_link_error)
 from hardware.kinova_gen2_loader import LoaderPathError, check_comm_layers
+from hardware.kinova_gen2_lock import lock_warning
 from hardware.protocol import (DescribedArm, ArmFaultError, ArmState, CommandRefusedError,
                                ConnectionLostError, Fault, Feedback, HardwareError,
                                NotConnectedError, ServoingMode, WallClock, check_joint_speeds,
@@ -628,6 +629,9 @@ class KinovaGen2Arm(DescribedArm):
         if self._sdk is None:
             self._sdk = Sdk(self._library)
         sdk = self._sdk
+        warning = lock_warning()  # a stuck machine-wide lock would hang the calls below
+        if warning is not None:
+            log.warning("kinova_gen2: %s", warning)
         try:
             self._api_open = True
             try:
