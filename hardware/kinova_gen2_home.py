@@ -240,7 +240,8 @@ class Homing:
     def _check_path(self, q_from: np.ndarray, q_to: np.ndarray) -> None:
         lowest, where = path_clearance(self.world, q_from, q_to)
         if lowest < self.home.clearance:
-            raise (_Stop if self.outcome.moved else HomeRefusal)(f"the move from {_degrees(np.degrees(q_from))} to the policy's start would "
+            error = _Stop if self.outcome.moved else HomeRefusal  # before any motion: bad input
+            raise error(f"the move from {_degrees(np.degrees(q_from))} to the policy's start would "
                         f"bring the pusher tip {lowest:.3f} m above the table at {where:.0%} of the "
                         f"way (kinova_gen2.home.clearance: {self.home.clearance:g} m); move the arm "
                         "clear of the table first (the joystick)")
