@@ -257,3 +257,35 @@ def test_the_fake_moves_a_position_point_at_its_speed_limit(fake):
     np.testing.assert_array_equal(dq, 0.0)
     assert fake.fifo_count() == 0 and began > 0
     lib.CloseAPI()
+
+
+@pytest.mark.parametrize("case", ["timeout", "link lost"])
+def test_a_slow_stage_or_a_lost_link_stops_the_homing(fake, library, world, start_deg, case):
+    """A stage longer than home.timeout: the arm is stopped (its FIFO erased) short of the target.
+    The USB cable pulled mid-way: the homing ends at the next read, saying so (the arm finishes
+    what it holds: the fake's pessimistic model of a pulled cable)."""
+    fake.set_position(start_deg + np.array([25.0, -20.0, 15.0, 30.0, -25.0, 20.0]))
+    if case == "timeout":
+        homing, arm, lines, asked = _homing(library, world, "home", factory_home_first=False,
+                                            speed_deg_s=10.0, timeout=0.4)
+    else:
+        def unplug_later(prompt):
+            threading.Timer(0.3, fake.set_unplugged, (True,)).start()
+            return "home"
+
+        settings = _settings(library, factory_home_first=False, speed_deg_s=10.0)
+        arm = KinovaGen2Arm(world.robot, settings.kinova_gen2, command_timeout_s=0.1)
+        arm.connect()
+        homing = Homing(arm, world, settings, lambda line: None, unplug_later)
+    outcome = homing.run()
+    assert outcome.status == STOPPED and outcome.moved, outcome
+    if case == "timeout":
+        assert "not done after 0.4 s" in outcome.reason
+        q, _ = fake.state()
+        assert np.max(np.abs(q - start_deg)) > 5.0
+        _ends_stopped(fake)
+    else:
+        assert "lost" in outcome.reason, outcome.reason
+        assert not arm.is_connected
+        names = [c.function for c in fake.calls()]
+        assert names[-1] == "CloseAPI"
