@@ -1,5 +1,6 @@
 """The homing step of a Kinova Gen2 arm: ``python -m ahrm_stack.deploy --backend kinova-gen2 --home``
-moves the arm to the posture the policy was trained from (:func:`home`).
+moves the arm to the posture the policy was trained from (:class:`Homing`; the command line builds
+it in :func:`ahrm_stack.deploy.cli.home`, which gives it the deploy settings as :class:`Limits`).
 
 **What moves, and why so.** Kinova's SDK has ``MoveHome`` (no arguments, exported by the vendored
 ``USBCommandLayerUbuntu.so``; kinova-ros's ``KinovaComm::homeArm`` calls it): the firmware drives
@@ -46,15 +47,13 @@ import dataclasses
 import logging
 import math
 import time
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Any, Callable, Protocol
 
 import numpy as np
 
 from hardware.protocol import HardwareError
 
 if TYPE_CHECKING:
-    from ahrm_stack.deploy.settings import DeploySettings
-    from ahrm_stack.deploy.world import WorldModel
     from hardware.kinova_gen2 import HomeSettings, KinovaGen2Arm
 
 log = logging.getLogger("hardware.kinova_gen2")
@@ -85,11 +84,37 @@ class HomeOutcome:
     stages: list[str] = dataclasses.field(default_factory=list)
 
 
+class TaskModel(Protocol):
+    """What homing needs of the task the policy was trained on (the deploy loop's
+    :class:`~ahrm_stack.deploy.WorldModel`): its task (``task.config.arm.home``,
+    ``task.config.table.height``), its robot description and the tip's forward kinematics."""
+
+    task: Any
+
+    @property
+    def robot(self) -> Any: ...
+
+    def tip_pose(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+@dataclasses.dataclass(frozen=True)
+class Limits:
+    """The deploy settings homing applies: ``home`` (``kinova_gen2.home``), the velocity alarm
+    (``watchdog.velocity_tolerance``, ``watchdog.velocity_alarm_ticks``) and the deploy loop's start
+    check on a posture (rad -> why it is refused, or None: ``deploy.start_check.start_refusal`` with
+    ``deploy.start_posture``'s tolerances)."""
+
+    home: HomeSettings
+    velocity_tolerance: float
+    alarm_ticks: int
+    start_refusal: Callable[[np.ndarray], "str | None"]
+
+
 def _wrap(delta: np.ndarray) -> np.ndarray:
     return (np.asarray(delta, dtype=float) + math.pi) % (2 * math.pi) - math.pi
 
 
-def start_target(world: WorldModel, q_now: np.ndarray) -> np.ndarray:
+def start_target(world: TaskModel, q_now: np.ndarray) -> np.ndarray:
     """The policy's start posture (rad): ``task.arm.home_deg`` of the task the policy was trained
     on, each continuous joint the short way round from ``q_now`` (rad). Both start modes begin
     there: ``home`` jitters it, ``random`` runs its IK from it (it lies in ``task.arm.start_region``
@@ -99,11 +124,9 @@ def start_target(world: WorldModel, q_now: np.ndarray) -> np.ndarray:
     return np.where(continuous, q_now + _wrap(home - q_now), home)
 
 
-def check_target(world: WorldModel, target: np.ndarray, settings: DeploySettings) -> None:
+def check_target(world: TaskModel, target: np.ndarray, limits: Limits) -> None:
     """:class:`HomeRefusal` (one line) unless ``target`` (rad) is inside every limited joint's range
     and passes the deploy loop's start check."""
-    from ahrm_stack.deploy.start_check import start_refusal
-
     robot = world.robot
     outside = np.flatnonzero(robot.limited & ((target < robot.position_lower)
                                               | (target > robot.position_upper)))
@@ -113,14 +136,12 @@ def check_target(world: WorldModel, target: np.ndarray, settings: DeploySettings
                           f"{math.degrees(target[i]):.1f} deg, outside its range "
                           f"[{math.degrees(robot.position_lower[i]):.1f}, "
                           f"{math.degrees(robot.position_upper[i]):.1f}]")
-    start = settings.start_posture
-    refusal = start_refusal(world, target, math.radians(start.joint_tolerance_deg),
-                            start.region_margin, math.radians(start.tilt_tolerance_deg))
+    refusal = limits.start_refusal(target)
     if refusal is not None:
         raise HomeRefusal(f"the homing target fails the deploy loop's start check: {refusal}")
 
 
-def path_clearance(world: WorldModel, q_from: np.ndarray, q_to: np.ndarray,
+def path_clearance(world: TaskModel, q_from: np.ndarray, q_to: np.ndarray,
                    samples: int = PATH_SAMPLES) -> tuple[float, float]:
     """The pusher tip's lowest height above the table top (m) along the straight joint-space line
     from ``q_from`` to ``q_to`` (rad), and where (0 start .. 1 end), at ``samples`` + 1 points."""
@@ -148,18 +169,18 @@ class Homing:
     Args:
         arm: a connected :class:`~hardware.kinova_gen2.KinovaGen2Arm`.
         world: the task's model (the policy's start, the tip's forward kinematics).
-        settings: the deploy settings (``kinova_gen2.home``, ``watchdog``, ``start_posture``).
+        limits: the deploy settings that apply (:class:`Limits`).
         say: prints one line to the user.
         ask: asks the user (a prompt -> the answer); None with ``--yes``.
         clock, sleep: s (time.perf_counter and time.sleep; tests keep them).
     """
 
-    def __init__(self, arm: KinovaGen2Arm, world: WorldModel, settings: DeploySettings,
+    def __init__(self, arm: KinovaGen2Arm, world: TaskModel, limits: Limits,
                  say: Callable[[str], None], ask: Callable[[str], str] | None,
                  clock: Callable[[], float] = time.perf_counter,
                  sleep: Callable[[float], None] = time.sleep) -> None:
-        self.arm, self.world, self.settings = arm, world, settings
-        self.home: HomeSettings = settings.kinova_gen2.home
+        self.arm, self.world, self.limits = arm, world, limits
+        self.home: HomeSettings = limits.home
         self.say, self.ask, self.clock, self.sleep = say, ask, clock, sleep
         self.outcome = HomeOutcome(STOPPED, "")
 
@@ -195,7 +216,7 @@ class Homing:
         home, robot = self.home, self.world.robot
         q_now = self.arm.refresh_feedback().position
         target = start_target(self.world, q_now)
-        check_target(self.world, target, self.settings)
+        check_target(self.world, target, self.limits)
         tolerance = math.radians(home.tolerance_deg)
         if np.all(np.abs(q_now - target) <= tolerance):
             return DONE, (f"already at the policy's start posture (every joint within "
@@ -220,7 +241,7 @@ class Homing:
                 answer = ""
             if not confirmed(answer, self.arm.serial):
                 return NOT_CONFIRMED, "not confirmed: nothing moved"
-        alarm = robot.velocity_limit * (1.0 + self.settings.watchdog.velocity_tolerance)
+        alarm = robot.velocity_limit * (1.0 + self.limits.velocity_tolerance)
         if home.factory_home_first:
             self.outcome.moved = True
             self.arm.move_home()
@@ -228,8 +249,7 @@ class Homing:
             q_now = self.arm.refresh_feedback().position
             target = start_target(self.world, q_now)
             self._check_path(q_now, target)
-        slow = np.minimum(alarm, math.radians(home.speed_deg_s)
-                          * (1.0 + self.settings.watchdog.velocity_tolerance))
+        slow = np.minimum(alarm, math.radians(home.speed_deg_s) * (1.0 + self.limits.velocity_tolerance))
         self.outcome.moved = True
         self.arm.move_to(target, home.speed_deg_s)
         q_end = self._watch("the move to the policy's start", slow, target)
@@ -255,7 +275,7 @@ class Homing:
         period = 1.0 / home.poll_rate_hz
         still = math.radians(home.still_deg_s)
         tolerance = math.radians(home.tolerance_deg)
-        ticks = self.settings.watchdog.velocity_alarm_ticks
+        ticks = self.limits.alarm_ticks
         over = np.zeros(len(alarm), dtype=int)
         begun = self.clock()
         still_since: float | None = None
@@ -282,19 +302,3 @@ class Homing:
             if now - begun > home.timeout:
                 raise _Stop(f"{stage}: not done after {home.timeout:g} s (kinova_gen2.home.timeout)")
             self.sleep(max(0.0, period - (self.clock() - now)))
-
-
-def home(config, settings: DeploySettings, yes: bool, say: Callable[[str], None] = print,
-         ask: Callable[[str], str] = input) -> HomeOutcome:
-    """``--home``: connect to the arm of ``settings.kinova_gen2`` and run :class:`Homing` for the
-    task of ``config`` (the policy's). Bad settings raise before anything is contacted (one-line
-    :class:`~hardware.kinova_gen2.Gen2ConfigError`); a failed connect raises
-    :class:`~hardware.protocol.HardwareError` (the arm stopped, the API closed)."""
-    from ahrm_stack.deploy.world import WorldModel
-    from hardware.kinova_gen2 import KinovaGen2Arm
-
-    world = WorldModel(config.task)
-    gen2 = settings.kinova_gen2
-    arm = KinovaGen2Arm(world.robot, gen2, command_timeout_s=gen2.command_timeout * settings.period)
-    arm.connect()
-    return Homing(arm, world, settings, say, None if yes else ask).run()

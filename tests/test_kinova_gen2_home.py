@@ -20,6 +20,7 @@ import yaml
 
 from ahrm_stack.config import load_config
 from ahrm_stack.deploy import DEPLOY_CONFIG, load_deploy_settings, main
+from ahrm_stack.deploy.cli import home_limits
 from ahrm_stack.deploy.start_check import start_refusal
 from ahrm_stack.deploy.world import WorldModel
 from hardware.kinova_gen2 import SYSTEM_ERROR_TYPES, KinovaGen2Arm
@@ -81,7 +82,8 @@ def _homing(library, world, answer="home", sleep=None, **home):
         return answer
 
     extra = {} if sleep is None else {"sleep": sleep}
-    homing = Homing(arm, world, settings, lines.append, None if answer is None else ask, **extra)
+    homing = Homing(arm, world, home_limits(world, settings), lines.append,
+                    None if answer is None else ask, **extra)
     return homing, arm, lines, asked
 
 
@@ -159,7 +161,7 @@ def test_a_fault_mid_way_stops_the_arm(fake, library, world, start_deg):
     settings = _settings(library, factory_home_first=False, speed_deg_s=10.0)
     arm = KinovaGen2Arm(world.robot, settings.kinova_gen2, command_timeout_s=0.1)
     arm.connect()
-    outcome = Homing(arm, world, settings, lambda line: None, inject_later).run()
+    outcome = Homing(arm, world, home_limits(world, settings), lambda line: None, inject_later).run()
     assert outcome.status == STOPPED and outcome.moved, outcome
     assert "arm fault" in outcome.reason and "errorlog_Actuator_Temperature" in outcome.reason
     q, _ = fake.state()
@@ -276,7 +278,7 @@ def test_a_slow_stage_or_a_lost_link_stops_the_homing(fake, library, world, star
         settings = _settings(library, factory_home_first=False, speed_deg_s=10.0)
         arm = KinovaGen2Arm(world.robot, settings.kinova_gen2, command_timeout_s=0.1)
         arm.connect()
-        homing = Homing(arm, world, settings, lambda line: None, unplug_later)
+        homing = Homing(arm, world, home_limits(world, settings), lambda line: None, unplug_later)
     outcome = homing.run()
     assert outcome.status == STOPPED and outcome.moved, outcome
     if case == "timeout":

@@ -113,6 +113,39 @@ def check_link(backend: str, settings: DeploySettings, checkpoint: Path | None,
     return 0 if fits else 1
 
 
+def home_limits(world, settings: DeploySettings):
+    """The deploy settings homing applies to ``world`` (a :class:`~ahrm_stack.deploy.WorldModel`):
+    ``kinova_gen2.home``, the velocity alarm and the loop's start check
+    (:class:`hardware.kinova_gen2_home.Limits`)."""
+    import math
+
+    from ahrm_stack.deploy.start_check import start_refusal
+    from hardware.kinova_gen2_home import Limits
+
+    start = settings.start_posture
+    return Limits(settings.kinova_gen2.home, settings.watchdog.velocity_tolerance,
+                  settings.watchdog.velocity_alarm_ticks,
+                  lambda q: start_refusal(world, q, math.radians(start.joint_tolerance_deg),
+                                          start.region_margin, math.radians(start.tilt_tolerance_deg)))
+
+
+def home(config, settings: DeploySettings, yes: bool, say=print, ask=input):
+    """Connect to the arm of ``settings.kinova_gen2`` and run the homing
+    (:class:`hardware.kinova_gen2_home.Homing`) to the start of ``config``'s task (the policy's),
+    with the deploy settings that apply; its outcome. Bad settings raise before anything is
+    contacted (one-line ``Gen2ConfigError``, a ValueError); a failed connect raises
+    :class:`~hardware.protocol.HardwareError` (the arm stopped, the API closed)."""
+    from ahrm_stack.deploy.world import WorldModel
+    from hardware.kinova_gen2 import KinovaGen2Arm
+    from hardware.kinova_gen2_home import Homing
+
+    world = WorldModel(config.task)
+    gen2 = settings.kinova_gen2
+    arm = KinovaGen2Arm(world.robot, gen2, command_timeout_s=gen2.command_timeout * settings.period)
+    arm.connect()
+    return Homing(arm, world, home_limits(world, settings), say, None if yes else ask).run()
+
+
 def home_arm(backend: str, settings: DeploySettings, checkpoint: Path | None,
              overrides: Sequence[str], policy_file: Path | None, yes: bool) -> int:
     """``--home``: move the arm to the start posture of the policy's task after a confirmation
@@ -122,7 +155,7 @@ def home_arm(backend: str, settings: DeploySettings, checkpoint: Path | None,
     from ahrm_stack.deploy.run import load_controller_config
     from ahrm_stack.learning.checkpoint import CheckpointError
     from hardware.kinova_gen2 import check_library
-    from hardware.kinova_gen2_home import DONE, home
+    from hardware.kinova_gen2_home import DONE
     from hardware.protocol import HardwareError
 
     prog = "python -m ahrm_stack.deploy"
