@@ -86,10 +86,11 @@ from typing import TYPE_CHECKING, Annotated, Any, Optional
 import numpy as np
 from pydantic import AfterValidator, PlainValidator
 
-from ahrm_stack.schema import ConfigError, Float, Int, Section, Str, count, fail, ge, gt, le
+from ahrm_stack.schema import Bool, ConfigError, Float, Int, Section, Str, count, fail, ge, gt, le
 from hardware.kinova_gen2_bus import (POINT_PERIOD, BusClosedError, BusHeldError, CallTimes, UsbBus,
                                       WatchdogStop, is_link_error)
 from hardware.kinova_gen2_loader import LoaderPathError, check_comm_layers
+from hardware.kinova_gen2_lock import lock_warning
 from hardware.protocol import (DescribedArm, ArmFaultError, ArmState, CommandRefusedError,
                                ConnectionLostError, Fault, Feedback, HardwareError,
                                NotConnectedError, ServoingMode, WallClock, check_joint_speeds,
@@ -109,6 +110,7 @@ DOCS = "docs/hardware.md (section 'Kinova Gen2')"
 NO_ERROR_KINOVA = 1
 ERROR_NO_DEVICE_FOUND = 1015
 ERROR_LOAD_COMM_DLL = 2002
+ANGULAR_POSITION = 2  # POSITION_TYPE (KinovaTypes.h; the vendor binary's DWARF agrees)
 ANGULAR_VELOCITY = 8  # POSITION_TYPE
 ARM_POINT_RATE_HZ = 1.0 / POINT_PERIOD  # trajectory points the arm executes per second (100)
 SERIAL_LENGTH = 20
@@ -219,6 +221,7 @@ SIGNATURES: dict[str, tuple] = {
     "GetAngularForce": (_P(AngularPosition),), "GetSensorsInfo": (_P(SensorsInfo),),
     "GetSystemErrorCount": (_P(ctypes.c_uint),),
     "GetSystemError": (ctypes.c_uint, _P(SystemError)),
+    "MoveHome": (),  # the factory home, as the joystick's home button (kinova-ros homeArm)
 }
 
 
@@ -261,6 +264,24 @@ def _not_empty(value: dict) -> dict:
 
 
 FilePath = Annotated[Optional[str], PlainValidator(_path)]
+
+
+@dataclasses.dataclass(frozen=True)
+class HomeSettings(Section):
+    """``kinova_gen2.home``: the homing step (``--home``, :mod:`hardware.kinova_gen2_home`)."""
+
+    factory_home_first: Bool  # MoveHome (the firmware's move to its factory home, at its own speed)
+    # before the slow move to the policy's start
+    speed_deg_s: Annotated[Float, gt(0), le(20.0, " deg/s: the homing move is a slow, supervised "
+                                             "first motion (kinova-ros's default joint speed limit "
+                                             "is 10)")]  # deg/s per joint, the final move's limit
+    tolerance_deg: Annotated[Float, gt(0), le(5.0)]  # deg: each joint this near its target is there
+    still_deg_s: Annotated[Float, gt(0), le(5.0)]  # deg/s: every joint slower than this is still
+    settle: Annotated[Float, gt(0), le(5.0)]  # s the arm must stay still to count as arrived
+    timeout: Annotated[Float, gt(0), le(600.0)]  # s each stage may take before the arm is stopped
+    poll_rate_hz: Annotated[Float, gt(0), le(50.0)]  # Hz: position reads while it moves
+    clearance: Annotated[Float, ge(0), le(0.5)]  # m: the pusher tip above the table top all along
+    # the final move's joint-space path
 
 
 @dataclasses.dataclass(frozen=True)
@@ -307,6 +328,7 @@ class Gen2Settings(Section):
     switch_interval: Annotated[Float, gt(0), le(0.005)]  # s, Python's GIL switch interval while
     # connected (sys.setswitchinterval)
     joints: Annotated[dict[Str, JointConvention], AfterValidator(_not_empty)]  # per arm (task.robot)
+    home: HomeSettings  # the homing step (--home)
 
 
 def _key(name: str) -> str:
@@ -465,6 +487,19 @@ def velocity_point(kinova_deg_s: np.ndarray) -> TrajectoryPoint:
     return point
 
 
+def position_point(kinova_deg: np.ndarray, speed_deg_s: float) -> TrajectoryPoint:
+    """A TrajectoryPoint of type ANGULAR_POSITION to joint angles ``kinova_deg`` (Kinova's deg)
+    with every joint's speed limited to ``speed_deg_s`` (deg/s: ``speedParameter1`` joints 1-3,
+    ``speedParameter2`` the others, ``LimitationsActive`` 1), as kinova-ros's setJointAngles."""
+    point = TrajectoryPoint()
+    point.Position.Type = ANGULAR_POSITION
+    for i, value in enumerate(np.asarray(kinova_deg, dtype=float)):
+        setattr(point.Position.Actuators, f"Actuator{i + 1}", float(value))
+    point.LimitationsActive = 1
+    point.Limitations.speedParameter1 = point.Limitations.speedParameter2 = float(speed_deg_s)
+    return point
+
+
 def _actuators(info: AngularInfo, n: int) -> np.ndarray:
     return np.array([getattr(info, f"Actuator{i + 1}") for i in range(n)], dtype=float)
 
@@ -552,6 +587,17 @@ class KinovaGen2Arm(DescribedArm):
         return self._serial
 
     @property
+    def convention(self) -> JointConvention:
+        """This arm's joint convention (``kinova_gen2.joints.<arm>``)."""
+        return self._convention
+
+    @property
+    def fault_reason(self) -> str:
+        """Why the adapter is in fault ('' when it is not)."""
+        with self._status:
+            return self._fault_reason
+
+    @property
     def command_timeout(self) -> float:
         """s without a fresh command before the USB thread stops the arm."""
         return self._timeout
@@ -583,6 +629,9 @@ class KinovaGen2Arm(DescribedArm):
         if self._sdk is None:
             self._sdk = Sdk(self._library)
         sdk = self._sdk
+        warning = lock_warning()  # a stuck machine-wide lock would hang the calls below
+        if warning is not None:
+            log.warning("kinova_gen2: %s", warning)
         try:
             self._api_open = True
             try:
@@ -922,6 +971,49 @@ class KinovaGen2Arm(DescribedArm):
         bus.drop()
         self._on_bus(clear)
         log.info("kinova_gen2: faults cleared on %s", self._serial)
+
+    # ------------------------------------------------------------------ homing (--home)
+    def _position_move(self, job) -> np.ndarray:
+        """Stop any velocity command, then ``job(sdk)`` (one position move) on the USB thread, in
+        angular control with an empty FIFO; refused in fault (:class:`ArmFaultError`)."""
+        with self._status:
+            faults, reason = self._faults, self._fault_reason
+        if faults != Fault.NONE:
+            raise ArmFaultError(f"Kinova arm {self._serial} in fault ({faults!r}: {reason}); "
+                                "clear_faults() first")
+        self._halt()
+
+        def move(sdk: Sdk) -> np.ndarray:
+            sdk.call("SetAngularControl")
+            sdk.call("EraseAllTrajectories")
+            return job(sdk)
+
+        return self._on_bus(move)
+
+    def move_home(self) -> None:
+        """``MoveHome``: the firmware moves the arm to its factory home at its own speed (as the
+        joystick's home button; kinova-ros's homeArm). Returns at once; :meth:`stop` stops it."""
+        self._position_move(lambda sdk: sdk.call("MoveHome"))
+        log.warning("kinova_gen2: MoveHome sent to %s (the firmware's factory home)", self._serial)
+
+    def move_to(self, q: np.ndarray, speed_deg_s: float) -> np.ndarray:
+        """One ANGULAR_POSITION point to the model posture ``q`` (rad), every joint at most
+        ``speed_deg_s`` deg/s, the joints arriving together; a continuous joint goes the short way
+        round from where it is (its Kinova angle within 180 deg of the present one). Returns the
+        target sent (Kinova's deg); :meth:`stop` stops the move."""
+        target = kinova_positions(np.asarray(q, dtype=float), self._convention)
+        continuous = ~self._robot.limited
+
+        def send(sdk: Sdk) -> np.ndarray:
+            now, _ = self._read_position(sdk)
+            goal = np.where(continuous, now + (target - now + 180.0) % 360.0 - 180.0, target)
+            sdk.call("SendAdvanceTrajectory", position_point(goal, speed_deg_s))
+            return goal
+
+        goal = self._position_move(send)
+        log.warning("kinova_gen2: position move of %s to %s deg at %g deg/s", self._serial,
+                    np.round(goal, 1).tolist(), speed_deg_s)
+        return goal
 
     def set_servoing_mode(self, mode: ServoingMode) -> None:
         """Gen2 has no Kortex servoing modes: single-level is angular control with joint velocity

@@ -27,6 +27,7 @@ RATIO_LINE = {  # a line each benchmark prints when it got to its figures
     "bench_distance_rows.py": "ratio reference/fast",
     "bench_env_step.py": "ratio full/bare",
     "bench_gen2_budget.py": "ratio arm points per policy tick",
+    "bench_gen2_estop.py": "ratio false e-stops per tick",
     "bench_kinova_gen2.py": "ratio sends per policy tick",
     "bench_kortex_link.py": "ratio child/direct",
     "bench_loss.py": "ratio ClipPPOLoss/lean",

@@ -462,6 +462,32 @@ def test_feedback_is_one_stamped_read_and_velocity_its_position_difference(fake,
 # ------------------------------------------------------------------ faults
 
 
+def test_each_frame_is_stamped_when_its_read_returned_at_3_ms_per_call(fake, make_arm):
+    """With the fake's USB latency (3 ms per call, one at a time) and the USB thread busy (points at
+    100 Hz, the status poll): each frame's timestamp is when its own GetAngularPosition returned,
+    after the call's end in the fake's log and before refresh_feedback returned, at least the
+    latency after the call began; never the request's time nor another call's."""
+    assert fake_module.LATENCY == 0.003
+    arm = make_arm(timeout=0.5)
+    arm.connect()
+    command = np.array([0.05, 0, 0, 0, 0, 0])
+    for _ in range(20):
+        arm.send_joint_speeds(command)
+        mark = fake.call_count()
+        asked = time.perf_counter()
+        frame = arm.refresh_feedback()
+        returned = time.perf_counter()
+        reads = fake.calls(mark, "GetAngularPosition")
+        assert len(reads) == 1, reads
+        read = reads[0]
+        assert asked <= read.start and read.t <= frame.timestamp <= returned
+        assert frame.timestamp - read.start >= fake_module.LATENCY
+        # the fake samples the angles inside the call: the frame carries that read's values
+        np.testing.assert_allclose(np.degrees(frame.position), read.values, atol=1e-3)
+        time.sleep(0.02)
+    assert len(fake.calls(function="SendAdvanceTrajectory")) > 20  # the thread was busy meanwhile
+
+
 def test_back_to_back_reads_take_their_velocity_over_the_window(fake, make_arm):
     """Two reads a few ms apart: the second's velocity is not their difference (a real arm's angle
     noise over 3 ms would be tens of deg/s) but the difference to the latest read at least

@@ -68,6 +68,13 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
                         help="measure the link to the arm and say whether its budget fits at the "
                              "configured rates, with the arm held still, then exit (kinova-gen2: each "
                              "SDK call's USB latency; exit 0 fits, 1 does not, 3 no arm)")
+    parser.add_argument("--home", action="store_true",
+                        help="kinova-gen2: move the arm to the posture the policy was trained from "
+                             "(MoveHome, then a slow joint move; kinova_gen2.home), after a "
+                             "confirmation, then exit (0 there, 1 not confirmed, 2 bad input, "
+                             "3 stopped, 130 Ctrl-C)")
+    parser.add_argument("--yes", action="store_true",
+                        help="with --home: confirm without asking (scripted use)")
     parser.add_argument("overrides", nargs="*", metavar="key=value",
                         help="config overrides without --checkpoint, e.g. task.robot=j2s6s200")
     return parser.parse_args(argv)
@@ -107,6 +114,76 @@ def check_link(backend: str, settings: DeploySettings, checkpoint: Path | None,
     return 0 if fits else 1
 
 
+def home_limits(world, settings: DeploySettings):
+    """The deploy settings homing applies to ``world`` (a :class:`~ahrm_stack.deploy.WorldModel`):
+    ``kinova_gen2.home``, the velocity alarm and the loop's start check
+    (:class:`hardware.kinova_gen2_home.Limits`)."""
+    import math
+
+    from ahrm_stack.deploy.start_check import start_refusal
+    from hardware.kinova_gen2_home import Limits
+
+    start = settings.start_posture
+    return Limits(settings.kinova_gen2.home, settings.watchdog.velocity_tolerance,
+                  settings.watchdog.velocity_alarm_ticks,
+                  lambda q: start_refusal(world, q, math.radians(start.joint_tolerance_deg),
+                                          start.region_margin, math.radians(start.tilt_tolerance_deg)))
+
+
+def home(config, settings: DeploySettings, yes: bool, say=print, ask=input):
+    """Connect to the arm of ``settings.kinova_gen2`` and run the homing
+    (:class:`hardware.kinova_gen2_home.Homing`) to the start of ``config``'s task (the policy's),
+    with the deploy settings that apply; its outcome. Bad settings raise before anything is
+    contacted (one-line ``Gen2ConfigError``, a ValueError); a failed connect raises
+    :class:`~hardware.protocol.HardwareError` (the arm stopped, the API closed)."""
+    from ahrm_stack.deploy.world import WorldModel
+    from hardware.kinova_gen2 import KinovaGen2Arm
+    from hardware.kinova_gen2_home import Homing
+
+    world = WorldModel(config.task)
+    gen2 = settings.kinova_gen2
+    arm = KinovaGen2Arm(world.robot, gen2, command_timeout_s=gen2.command_timeout * settings.period)
+    arm.connect()
+    return Homing(arm, world, home_limits(world, settings), say, None if yes else ask).run()
+
+
+def home_arm(backend: str, settings: DeploySettings, checkpoint: Path | None,
+             overrides: Sequence[str], policy_file: Path | None, yes: bool) -> int:
+    """``--home``: move the arm to the start posture of the policy's task after a confirmation
+    (:func:`hardware.kinova_gen2_home.home`); prints why it ended. Exit status: 0 at the start
+    posture, 1 not confirmed (nothing moved), 2 bad input (one line, nothing moved), 3 stopped (a
+    fault, the timeout, the link) or the arm not reached, 130 Ctrl-C."""
+    from ahrm_stack.deploy.run import load_controller_config
+    from ahrm_stack.learning.checkpoint import CheckpointError
+    from hardware.kinova_gen2 import check_library
+    from hardware.kinova_gen2_home import DONE
+    from hardware.protocol import HardwareError
+
+    prog = "python -m ahrm_stack.deploy"
+    try:
+        if backend != "kinova-gen2":
+            raise DeployConfigError(f"--home moves a Kinova Gen2 arm (--backend kinova-gen2); "
+                                    f"--backend {backend} has no homing step")
+        config, _ = load_controller_config(checkpoint, overrides, policy_file=policy_file)
+        check_library(settings.kinova_gen2)
+    except (ConfigError, DeployConfigError, CheckpointError, ValueError) as error:
+        print(f"{prog}: error: {error}", file=sys.stderr)
+        return 2
+    try:
+        outcome = home(config, settings, yes)
+    except ValueError as error:  # a setting (Gen2ConfigError), before the arm was contacted
+        print(f"{prog}: error: {error}", file=sys.stderr)
+        return 2
+    except HardwareError as error:  # the connect failed: the arm stopped, the API closed
+        print(f"{prog}: error: {(str(error).splitlines() or [''])[0]}", file=sys.stderr)
+        return 3
+    except KeyboardInterrupt:
+        print("interrupted while connecting: nothing moved", file=sys.stderr)
+        return 130
+    print(f"homing: {outcome.reason}", file=sys.stdout if outcome.status == DONE else sys.stderr)
+    return outcome.status
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     from ahrm_stack.cli import quiet_argv
 
@@ -124,6 +201,22 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     def terminate(signum, frame):  # SIGTERM stops the arm like Ctrl-C
         raise KeyboardInterrupt
+
+    if args.check and args.home:
+        print("python -m ahrm_stack.deploy: error: --check and --home are separate steps; give one",
+              file=sys.stderr)
+        return 2
+    if args.yes and not args.home:
+        print("python -m ahrm_stack.deploy: error: --yes confirms --home; give --home too",
+              file=sys.stderr)
+        return 2
+    if args.home:
+        previous = signal.signal(signal.SIGTERM, terminate)
+        try:
+            return home_arm(args.backend, settings, args.checkpoint, args.overrides,
+                            args.policy_file, args.yes)
+        finally:
+            signal.signal(signal.SIGTERM, previous)
 
     if args.check:
         previous = signal.signal(signal.SIGTERM, terminate)

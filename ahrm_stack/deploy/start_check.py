@@ -19,8 +19,8 @@ class StartPostureError(RuntimeError):
     """The arm is not near the posture the policy was trained from; one line, nothing moved."""
 
 
-ADVICE = ("move the arm there first (the joystick, or Kinova's Development Center), then run again; "
-          "or deploy a policy trained from this start")
+ADVICE = ("move the arm there first (a Gen2 arm: python -m ahrm_stack.deploy --backend kinova-gen2 "
+          "--home; else the joystick), then run again; or deploy a policy trained from this start")
 
 
 def _wrapped(delta: np.ndarray, continuous: np.ndarray) -> np.ndarray:

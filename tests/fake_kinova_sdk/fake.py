@@ -4,8 +4,9 @@
 :func:`session_library` does so once per process into a temporary folder. :class:`FakeSdk` opens
 the same file (the dynamic loader returns the same handle, so it shares the adapter's state) and
 exposes the test-only functions and the call log. :meth:`FakeSdk.reset` gives a fake that behaves
-like the arm (fake_kinova.c's header: USB latency per call, the 2,000-point trajectory FIFO,
-the real SDK's return codes without an arm, noisy velocity feedback; a cold boot on request);
+like the arm (fake_kinova.c's header: USB latency per call, the 2,000-point trajectory FIFO with
+velocity and position points, MoveHome, the real SDK's return codes without an arm, noisy velocity
+feedback; a cold boot, a runaway and position noise on request);
 ``latency=0`` and ``velocity_noise=0`` make it instant and exact where a test checks logic, not
 timing.
 """
@@ -30,13 +31,16 @@ LATENCY = 0.003  # s per SDK call: fake_kinova.c's DEFAULT_LATENCY (why: its hea
 VELOCITY_NOISE = 1.0  # deg/s, GetAngularVelocity's noise: fake_kinova.c's DEFAULT_VELOCITY_NOISE
 FIFO_SIZE = 2000  # trajectory points the arm holds
 POINT_PERIOD = 0.010  # s: the arm executes one point per 10 ms
+#: MoveHome's target, deg: j2n6s300's "Home" in kinova-ros's j2n6s300.srdf (fake_kinova.c FACTORY_HOME)
+FACTORY_HOME = (275.2885, 167.5800, 57.4104, 240.8247, 82.8383, 75.8196)
+POSITION_SPEED = 20.0  # deg/s: MoveHome's (fake_kinova.c DEFAULT_POSITION_SPEED, an assumption)
 
 #: the function ids of the call log (the enum in fake_kinova.c)
 FUNCTIONS = ("InitAPI", "CloseAPI", "GetDevices", "SetActiveDevice", "StartControlAPI",
              "StopControlAPI", "SetAngularControl", "SendAdvanceTrajectory",
              "EraseAllTrajectories", "GetAngularPosition", "GetAngularVelocity", "GetAngularForce",
              "GetSensorsInfo", "GetSystemErrorCount", "GetSystemError", "RefresDevicesList",
-             "GetAPIVersion")
+             "GetAPIVersion", "MoveHome")
 
 
 class CompilerMissing(RuntimeError):
@@ -102,6 +106,9 @@ class FakeSdk:
         lib.FakeKinova_SetPosition.argtypes = [ctypes.POINTER(ctypes.c_double)]
         lib.FakeKinova_GetState.argtypes = [ctypes.POINTER(ctypes.c_double)] * 2
         lib.FakeKinova_SetLatency.argtypes = [ctypes.c_double]
+        lib.FakeKinova_SetHome.argtypes = [ctypes.POINTER(ctypes.c_double), ctypes.c_double]
+        lib.FakeKinova_SetDrift.argtypes = [ctypes.POINTER(ctypes.c_double)]
+        lib.FakeKinova_SetPositionNoise.argtypes = [ctypes.c_double]
         lib.FakeKinova_SetVelocityNoise.argtypes = [ctypes.c_double, ctypes.c_ulonglong]
         lib.FakeKinova_SetCommMissing.argtypes = [ctypes.c_int]
         lib.FakeKinova_FailNext.argtypes = [ctypes.c_int, ctypes.c_int]
@@ -143,6 +150,21 @@ class FakeSdk:
     def set_latency(self, seconds: float) -> None:
         """s each SDK call blocks (one call at a time on the bus)."""
         self.lib.FakeKinova_SetLatency(float(seconds))
+
+    def set_home(self, degrees, speed: float = POSITION_SPEED) -> None:
+        """MoveHome's target (deg) and joint speed (deg/s; also that of a position point sent
+        without limitations)."""
+        self.lib.FakeKinova_SetHome((ctypes.c_double * 6)(*np.asarray(degrees, dtype=float)),
+                                    float(speed))
+
+    def set_drift(self, deg_s) -> None:
+        """A runaway: the joints move by themselves at ``deg_s`` (deg/s) from now, whatever they are
+        sent or erased (zeros: none); the e-stop stops it."""
+        self.lib.FakeKinova_SetDrift((ctypes.c_double * 6)(*np.asarray(deg_s, dtype=float)))
+
+    def set_position_noise(self, degrees: float) -> None:
+        """GetAngularPosition's noise, deg (standard deviation; 0, the default: exact)."""
+        self.lib.FakeKinova_SetPositionNoise(float(degrees))
 
     def set_velocity_noise(self, deg_s: float, seed: int = 1) -> None:
         self.lib.FakeKinova_SetVelocityNoise(float(deg_s), int(seed))

@@ -32,9 +32,20 @@
  *   which is how this fake reads kinova-ros's "on a cold boot the arm may not respond to commands from
  *   the API right away" (kinova_comm.cpp, which starts, stops and starts the control API); the real
  *   symptom is not documented further.
+ * - Position moves. An ANGULAR_POSITION point (SendAdvanceTrajectory) joins the same FIFO and moves
+ *   the joints along a straight line in joint space to its target, each joint at most at its speed
+ *   limit (LimitationsActive: speedParameter1 for joints 1-3, speedParameter2 for 4-6, deg/s, as
+ *   kinova-ros's setJointAngles fills them; else DEFAULT_POSITION_SPEED), all arriving together;
+ *   the next point starts when it arrives. MoveHome replaces the FIFO by one such move to the
+ *   factory home (kinova-ros's j2n6s300 "Home", FakeKinova_SetHome to change) at the firmware's
+ *   speed. EraseAllTrajectories stops either (assumed: Kinova documents neither).
+ * - A runaway (FakeKinova_SetDrift): the joints move by themselves at a set speed whatever they are
+ *   sent; only the e-stop stops them.
  * - Noisy velocity feedback. GetAngularVelocity reports the true velocity plus Gaussian noise
  *   (`velocity_noise` deg/s, FAKE_KINOVA_VELOCITY_NOISE, default 1 deg/s: an assumption; kinova-ros
  *   issues 366 and 381 report readings far from zero at rest and spiky in motion, without a figure),
+ *   and exact angles by default (issue 366: "the joint angular positions is pretty good"; a noise
+ *   of FakeKinova_SetPositionNoise deg, Gaussian, on request),
  *   at half the value with negative values wrapped by +360 (the firmware quirk kinova-ros's driver
  *   undoes).
  *
@@ -73,6 +84,8 @@
 #define POINT_PERIOD 0.010       /* s: one point per control cycle, 100 Hz */
 #define DEFAULT_LATENCY 0.003    /* s per SDK call: see the header comment */
 #define DEFAULT_VELOCITY_NOISE 1.0  /* deg/s, standard deviation: an assumption (header comment) */
+#define DEFAULT_POSITION_SPEED 20.0  /* deg/s per joint: MoveHome's, and an ANGULAR_POSITION point's
+                                      * without limitations (an assumption: not documented) */
 
 /* ---- KinovaTypes.h / Kinova.API.USBCommLayerUbuntu.h layouts (the fields used here) ---- */
 typedef struct { char SerialNumber[SERIAL_LENGTH]; char Model[SERIAL_LENGTH]; int VersionMajor;
@@ -96,13 +109,13 @@ typedef struct { unsigned int ErrorHeader; int ErrorType; int FirmwareVersion; i
                  unsigned int SystemTime; bool LayerErrorStatus[ERROR_LAYER_COUNT]; int LifeTime;
                  int DataCount; unsigned int Data[ERROR_DATA_COUNT_MAX]; } SystemError;
 
-enum { ANGULAR_VELOCITY = 8 };
+enum { ANGULAR_POSITION = 2, ANGULAR_VELOCITY = 8 };  /* POSITION_TYPE (KinovaTypes.h) */
 enum { errorlog_voltage = 9 };
 
 /* ---- the call log ---- */
 enum { F_INIT = 1, F_CLOSE, F_GET_DEVICES, F_SET_ACTIVE, F_START_CONTROL, F_STOP_CONTROL,
        F_SET_ANGULAR, F_SEND_TRAJ, F_ERASE, F_GET_POS, F_GET_VEL, F_GET_FORCE, F_GET_SENSORS,
-       F_GET_ERR_COUNT, F_GET_ERR, F_REFRESH, F_GET_API_VERSION };
+       F_GET_ERR_COUNT, F_GET_ERR, F_REFRESH, F_GET_API_VERSION, F_MOVE_HOME };
 
 typedef struct { double t; int function; int result; int type; float values[7]; double start; } FakeCall;
 
@@ -139,7 +152,15 @@ static int active = -1;
 static bool control_on = false, angular = false, estop = false, unplugged = false, cold = false;
 static double latency = DEFAULT_LATENCY, velocity_noise = DEFAULT_VELOCITY_NOISE;
 static double q[NJ], last_time = -1.0;
-static double fifo[FIFO_SIZE][NJ];
+static double fifo[FIFO_SIZE][NJ];        /* a velocity point's deg/s, a position point's target deg */
+static int fifo_type[FIFO_SIZE];          /* ANGULAR_VELOCITY or ANGULAR_POSITION */
+static double fifo_speed[FIFO_SIZE][NJ];  /* a position point's joint speed limits, deg/s */
+/* the factory home (MoveHome's target): j2n6s300's "Home" in kinova-ros's
+ * kinova_moveit/robot_configs/j2n6s300_moveit_config/config/j2n6s300.srdf, rad -> deg */
+static const double FACTORY_HOME[NJ] = {275.2885, 167.5800, 57.4104, 240.8247, 82.8383, 75.8196};
+static double home_q[NJ], home_speed = DEFAULT_POSITION_SPEED, position_speed = DEFAULT_POSITION_SPEED;
+static double drift[NJ];               /* deg/s the arm moves by itself (a runaway), whatever it is sent */
+static double position_noise = 0.0;    /* deg, GetAngularPosition's noise (standard deviation) */
 static int fifo_head = 0, fifo_count = 0;
 static double head_start = 0.0;  /* when the point at the head began (valid while fifo_count > 0) */
 static long dropped = 0;
@@ -169,11 +190,39 @@ static void record(int function, int result, int type, const double *v, double s
     ncalls++;
 }
 
-/* Integrate the joints up to t: the FIFO's points, one per POINT_PERIOD, back to back. */
+/* s a position point needs from the joints' angles to its target, each joint at most at its speed,
+ * all arriving together (a straight line in joint space) */
+static double position_move_time(int index) {
+    double longest = 0.0;
+    for (int i = 0; i < NJ; i++) {
+        double time = fabs(fifo[index][i] - q[i]) / fifo_speed[index][i];
+        if (time > longest) longest = time;
+    }
+    return longest;
+}
+
+/* Integrate the joints up to t: the runaway's drift, then the FIFO's points back to back: a velocity
+ * point for POINT_PERIOD, a position point until the joints reach its target. */
 static void advance(double t) {
     if (last_time < 0) { last_time = t; return; }
     if (t <= last_time) return;
+    if (!estop)
+        for (int i = 0; i < NJ; i++) q[i] += drift[i] * (t - last_time);
     while (fifo_count > 0) {
+        if (fifo_type[fifo_head] == ANGULAR_POSITION) {
+            double from = last_time > head_start ? last_time : head_start;
+            if (estop || t <= from) break;
+            double need = position_move_time(fifo_head);
+            if (need > t - from) {  /* on the way */
+                double share = (t - from) / need;
+                for (int i = 0; i < NJ; i++) q[i] += (fifo[fifo_head][i] - q[i]) * share;
+                break;
+            }
+            for (int i = 0; i < NJ; i++) q[i] = fifo[fifo_head][i];  /* arrived at from + need */
+            fifo_head = (fifo_head + 1) % FIFO_SIZE; fifo_count--;
+            head_start = from + need;
+            continue;
+        }
         double end = head_start + POINT_PERIOD;
         double from = last_time > head_start ? last_time : head_start;
         double until = end < t ? end : t;
@@ -187,16 +236,28 @@ static void advance(double t) {
 }
 
 static double current_velocity(int i) {
-    return (fifo_count > 0 && !estop) ? fifo[fifo_head][i] : 0.0;
+    if (estop) return 0.0;
+    if (fifo_count == 0) return drift[i];
+    if (fifo_type[fifo_head] == ANGULAR_POSITION) {
+        double need = position_move_time(fifo_head);
+        return drift[i] + (need > 0 ? (fifo[fifo_head][i] - q[i]) / need : 0.0);
+    }
+    return drift[i] + fifo[fifo_head][i];
 }
 
 static void erase_fifo(void) { fifo_head = 0; fifo_count = 0; }
 
-static void push_point(const double *v, double t) {
+/* A point joins the FIFO: `type` ANGULAR_VELOCITY (v: deg/s) or ANGULAR_POSITION (v: target deg,
+ * speed: deg/s per joint). */
+static void push_point(int type, const double *v, const double *speed, double t) {
     if (fifo_count >= FIFO_SIZE) { dropped++; return; }
     if (fifo_count == 0) head_start = t;
     int tail = (fifo_head + fifo_count) % FIFO_SIZE;
-    for (int i = 0; i < NJ; i++) fifo[tail][i] = v[i];
+    fifo_type[tail] = type;
+    for (int i = 0; i < NJ; i++) {
+        fifo[tail][i] = v[i];
+        fifo_speed[tail][i] = speed != NULL && speed[i] > 0 ? speed[i] : position_speed;
+    }
     fifo_count++;
     if (fifo_count > fifo_peak) fifo_peak = fifo_count;
 }
@@ -238,9 +299,12 @@ static int crash(void) {
 
 /* For a fake used by another process (python -m ahrm_stack.deploy): FAKE_KINOVA_DEVICES
  * ("SERIAL:MODEL,SERIAL:MODEL"), FAKE_KINOVA_POSITION ("d1,...,d6", deg), FAKE_KINOVA_LATENCY_MS,
- * FAKE_KINOVA_VELOCITY_NOISE (deg/s), FAKE_KINOVA_COMM_MISSING=1 (InitAPI: 2002) and
+ * FAKE_KINOVA_VELOCITY_NOISE (deg/s), FAKE_KINOVA_HOME_SPEED (deg/s), FAKE_KINOVA_COMM_MISSING=1 (InitAPI: 2002) and
  * FAKE_KINOVA_CRASH (1, the default: crash where the real SDK crashes; 0: count only). */
 __attribute__((constructor)) static void read_environment(void) {
+    for (int i = 0; i < NJ; i++) home_q[i] = FACTORY_HOME[i];
+    const char *home_speed_text = getenv("FAKE_KINOVA_HOME_SPEED");
+    if (home_speed_text != NULL) home_speed = position_speed = atof(home_speed_text);
     const char *list = getenv("FAKE_KINOVA_DEVICES");
     if (list != NULL) {
         char buffer[512];
@@ -363,9 +427,32 @@ int SendAdvanceTrajectory(TrajectoryPoint point) {
     else {
         result = NO_ERROR_KINOVA;
         if (point.Position.Type == ANGULAR_VELOCITY && control_on && angular && !estop)
-            push_point(v, t_);
+            push_point(ANGULAR_VELOCITY, v, NULL, t_);
+        if (point.Position.Type == ANGULAR_POSITION && control_on && angular && !estop) {
+            /* kinova-ros setJointAngles: speedParameter1 limits joints 1-3, speedParameter2 the
+             * others (deg/s), when LimitationsActive; else the firmware's own speed */
+            double speed[NJ];
+            for (int i = 0; i < NJ; i++)
+                speed[i] = !point.LimitationsActive ? position_speed
+                           : i < 3 ? point.Limitations.speedParameter1 : point.Limitations.speedParameter2;
+            push_point(ANGULAR_POSITION, v, speed, t_);
+        }
     }
     LEAVE(F_SEND_TRAJ, result, point.Position.Type, v);
+}
+
+/* The factory home, as the joystick's home button: the FIFO is replaced by one move to home_q at
+ * home_speed (pessimistic where undocumented: EraseAllTrajectories stops it, as any point). */
+int MoveHome(void) {
+    ENTER;
+    int result = COMMAND;
+    if (ARM && control_on && !estop) {
+        double speed[NJ];
+        for (int i = 0; i < NJ; i++) speed[i] = home_speed;
+        erase_fifo();
+        push_point(ANGULAR_POSITION, home_q, speed, t_);
+    }
+    LEAVE(F_MOVE_HOME, result, 0, home_q);
 }
 
 int EraseAllTrajectories(void) {
@@ -378,7 +465,8 @@ int GetAngularPosition(AngularPosition *response) {
     memset(response, 0, sizeof(*response));
     float *a = &response->Actuators.Actuator1;
     int result = GETTER(ERROR_NOT_INITIALIZED);
-    if (result == NO_ERROR_KINOVA) for (int i = 0; i < NJ; i++) a[i] = (float)q[i];
+    if (result == NO_ERROR_KINOVA)
+        for (int i = 0; i < NJ; i++) a[i] = (float)(q[i] + (position_noise > 0 ? position_noise * gaussian() : 0.0));
     LEAVE(F_GET_POS, result, 0, q);
 }
 
@@ -444,6 +532,8 @@ void FakeKinova_Reset(void) {
     for (int i = 0; i < NJ; i++) q[i] = 0.0;
     erase_fifo(); dropped = 0; fifo_peak = 0; last_time = -1.0; voltage = 24.0; nerrors = 0; ncalls = 0;
     latency = DEFAULT_LATENCY; velocity_noise = DEFAULT_VELOCITY_NOISE; rng = 0x9E3779B97F4A7C15ULL;
+    for (int i = 0; i < NJ; i++) { home_q[i] = FACTORY_HOME[i]; drift[i] = 0.0; }
+    home_speed = position_speed = DEFAULT_POSITION_SPEED; position_noise = 0.0;
     crashes = 0; crash_for_real = 0; fail_function = 0;
     pthread_mutex_unlock(&lock);
     pthread_mutex_unlock(&bus);
@@ -475,6 +565,29 @@ void FakeKinova_GetState(double *degrees, double *velocity) {
     advance(now());
     for (int i = 0; i < NJ; i++) { degrees[i] = q[i]; velocity[i] = current_velocity(i); }
     pthread_mutex_unlock(&lock);
+}
+
+/* MoveHome's target (deg) and joint speed (deg/s); the speed of position points without limitations. */
+void FakeKinova_SetHome(const double *degrees, double speed) {
+    pthread_mutex_lock(&lock);
+    advance(now());
+    for (int i = 0; i < NJ; i++) home_q[i] = degrees[i];
+    home_speed = position_speed = speed;
+    pthread_mutex_unlock(&lock);
+}
+
+/* A runaway: the joints move by themselves at `deg_s` (deg/s) from now, whatever is sent or erased
+ * (0s: no drift); the e-stop (power cut) stops it. */
+void FakeKinova_SetDrift(const double *deg_s) {
+    pthread_mutex_lock(&lock);
+    advance(now());
+    for (int i = 0; i < NJ; i++) drift[i] = deg_s[i];
+    pthread_mutex_unlock(&lock);
+}
+
+/* deg, the standard deviation of GetAngularPosition's noise (0, the default: exact). */
+void FakeKinova_SetPositionNoise(double degrees) {
+    pthread_mutex_lock(&lock); position_noise = degrees; pthread_mutex_unlock(&lock);
 }
 
 /* s per SDK call (0: none). */
