@@ -739,14 +739,23 @@ def _flatten(mapping: dict, prefix: str = "") -> list[str]:
     return items
 
 
-def profile_overrides(name: str, config_dir: Path | str = CONFIG_DIR) -> list[str]:
-    """The overrides of profile ``name`` (``configs/profiles/<name>.yaml``), as ``key=value``."""
+def profile_overrides(name: str, config_dir: Path | str = CONFIG_DIR, _seen: tuple[str, ...] = ()) -> list[str]:
+    """The overrides of profile ``name`` (``configs/profiles/<name>.yaml``), as ``key=value``. A
+    top-level ``profile: BASE`` in the file puts BASE's overrides first (the file's own win)."""
     folder = Path(config_dir) / PROFILE_DIR
     path = folder / f"{name}.yaml"
     if not path.is_file():
         known = sorted(p.stem for p in folder.glob("*.yaml")) if folder.is_dir() else []
         raise ConfigError(f"profile={name}: no file {path}; known profiles: {known}")
-    return _flatten(read_yaml(path))
+    if name in _seen:
+        raise ConfigError(f"profile={name}: its 'profile' key comes back to itself ({' -> '.join([*_seen, name])})")
+    data = read_yaml(path)
+    base = data.pop("profile", None)
+    if base is None:
+        return _flatten(data)
+    if not isinstance(base, str):
+        raise ConfigError(f"profile: must name a profile in {show_path(path)}, got {base!r}")
+    return profile_overrides(base, config_dir, (*_seen, name)) + _flatten(data)
 
 
 def apply_overrides(data: dict, overrides: Sequence[str], config_dir: Path | str = CONFIG_DIR) -> None:
