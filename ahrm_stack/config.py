@@ -567,7 +567,7 @@ class MechanismConfig(Section):
     blend_slope: Pos  # alpha, 1/m
 
 
-LaneFrame = Literal["none", "mirror", "mirror_no_joints"]  # ppo.lane_frame (learning/lane_frame.py)
+LaneFrame = Literal["none", "mirror", "mirror_no_joints", "cube_side_no_joints"]  # ppo.lane_frame (learning/lane_frame.py)
 
 
 @Frozen
@@ -609,7 +609,8 @@ class PPOConfig(Section):
     reward_scale: Annotated[Pos, legacy(1.0)]  # rewards are multiplied by this before GAE (the critic
     # learns scaled returns)
     lane_frame: Annotated[LaneFrame, legacy("none")]  # the policy reads the world mirrored
-    # x -> -x when the episode's lane is -x (learning/lane_frame.py); no_joints: joint entries zeroed
+    # x -> -x when the episode's lane is -x (learning/lane_frame.py); no_joints: joint entries zeroed;
+    # cube_side_no_joints: mirrored when the cube's observed x is < 0 instead (no planner input)
 
     def check(self, key: str) -> None:
         if self.frames_per_batch % self.mini_batch_size:
@@ -702,7 +703,7 @@ class Config(Section):
                               f"value per joint of task.robot ({self.task.robot})")
         if ppo.lane_frame != "none":
             task = self.task
-            if not task.observation.lane_choice:
+            if ppo.lane_frame.startswith("mirror") and not task.observation.lane_choice:
                 raise ConfigError(f"ppo.lane_frame: {ppo.lane_frame} needs task.observation.lane_choice: "
                                   "true (the episode's lane decides whether the policy's frame is mirrored)")
             if task.action.mode != "cartesian":

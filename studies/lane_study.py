@@ -40,6 +40,9 @@ OWN_LANE = ["profile=scratch-own-lane", *BEST]
 ARMS: dict[str, list[str]] = {
     # the baseline: world frame, any-bearing curriculum starts, lane clearances observed
     "own-lane-ahrm": [*OWN_LANE, "mechanism.method=ahrm"],
+    # + a symmetry keyed on the cube's own side of the table (not on the planner): the policy sees
+    # every episode with its cube at x >= 0 (ppo.lane_frame: cube_side_no_joints)
+    "own-lane-cubeside-ahrm": [*OWN_LANE, "ppo.lane_frame=cube_side_no_joints", "mechanism.method=ahrm"],
     # the same with the linear sum (does the hierarchy matter for the lane choice?)
     "own-lane-ls": [*OWN_LANE, "mechanism.method=ls"],
     # the planner-assisted reference (profile=scratch: lane_choice observed, lane frame, behind starts)

@@ -96,11 +96,13 @@ def _forbid_the_planner(monkeypatch):
         monkeypatch.setattr(module, "choose_lane", planner)
 
 
-def test_the_planner_free_training_never_asks_the_planner(monkeypatch):
-    """A batch of the planner-free profile's training (near-cube curriculum starts, level 0)
-    with choose_lane made to raise; the planner-assisted profile, the control, does call it."""
+@pytest.mark.parametrize("frame", ["none", "cube_side_no_joints"])
+def test_the_planner_free_training_never_asks_the_planner(monkeypatch, frame):
+    """A batch of the planner-free profile's training (near-cube curriculum starts, level 0), in
+    the world frame and in the cube-side frame, with choose_lane made to raise; the
+    planner-assisted profile, the control, does call it."""
     _forbid_the_planner(monkeypatch)
-    trainer = Trainer(load_config(["profile=scratch-own-lane", *TINY]))
+    trainer = Trainer(load_config(["profile=scratch-own-lane", f"ppo.lane_frame={frame}", *TINY]))
     assert trainer.envs[0].task.near_cube_share == 1.0
     result = trainer.iteration()
     assert trainer.frames == 64 and all(row["steps"] <= 100 for row in result.episodes)  # 5 s episodes
