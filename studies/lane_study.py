@@ -108,22 +108,25 @@ def _run_dirs(paths: list[Path]) -> list[Path]:
     return found
 
 
-DATA_FILES = ("config.yaml", "evaluations.csv", "batches.csv", "events.jsonl")
+DATA_FILES = ("config.yaml", "evaluations.csv", "batches.csv")
+GZIPPED = ("episodes.csv", "events.jsonl")  # large: copied gzipped
 
 
 def collect(runs: list[Path], out: Path) -> list[Path]:
     """Copy each run's data files (and its ``lanes/*/evaluation.{json,csv}``) to ``OUT/runs/<run>/``
-    (``episodes.csv`` gzipped); returns the copies' run folders. The table is built from them."""
+    (``episodes.csv`` and ``events.jsonl`` gzipped); returns the copies' run folders. The table is
+    built from them."""
     copies = []
     for run_dir in runs:
         target = out / "runs" / run_dir.name
         target.mkdir(parents=True, exist_ok=True)
-        for name in (*DATA_FILES, *(f"{n}.gz" for n in DATA_FILES), "episodes.csv.gz"):
+        for name in (*DATA_FILES, *(f"{n}.gz" for n in GZIPPED)):
             if (run_dir / name).is_file():
                 shutil.copyfile(run_dir / name, target / name)
-        if (run_dir / "episodes.csv").is_file():
-            with open(run_dir / "episodes.csv", "rb") as source, gzip.open(target / "episodes.csv.gz", "wb") as sink:
-                shutil.copyfileobj(source, sink)
+        for name in GZIPPED:
+            if (run_dir / name).is_file():
+                with open(run_dir / name, "rb") as source, gzip.open(target / f"{name}.gz", "wb") as sink:
+                    shutil.copyfileobj(source, sink)
         for evaluation in sorted((run_dir / "lanes").glob("*/evaluation.json")):
             folder = target / "lanes" / evaluation.parent.name
             folder.mkdir(parents=True, exist_ok=True)
