@@ -567,7 +567,7 @@ class MechanismConfig(Section):
     blend_slope: Pos  # alpha, 1/m
 
 
-LaneFrame = Literal["none", "mirror", "mirror_no_joints"]  # ppo.lane_frame (learning/lane_frame.py)
+LaneFrame = Literal["none", "mirror", "mirror_no_joints", "cube_side_no_joints"]  # ppo.lane_frame (learning/lane_frame.py)
 
 
 @Frozen
@@ -609,7 +609,8 @@ class PPOConfig(Section):
     reward_scale: Annotated[Pos, legacy(1.0)]  # rewards are multiplied by this before GAE (the critic
     # learns scaled returns)
     lane_frame: Annotated[LaneFrame, legacy("none")]  # the policy reads the world mirrored
-    # x -> -x when the episode's lane is -x (learning/lane_frame.py); no_joints: joint entries zeroed
+    # x -> -x when the episode's lane is -x (learning/lane_frame.py); no_joints: joint entries zeroed;
+    # cube_side_no_joints: mirrored when the cube's observed x is < 0 instead (no planner input)
 
     def check(self, key: str) -> None:
         if self.frames_per_batch % self.mini_batch_size:
@@ -702,7 +703,7 @@ class Config(Section):
                               f"value per joint of task.robot ({self.task.robot})")
         if ppo.lane_frame != "none":
             task = self.task
-            if not task.observation.lane_choice:
+            if ppo.lane_frame.startswith("mirror") and not task.observation.lane_choice:
                 raise ConfigError(f"ppo.lane_frame: {ppo.lane_frame} needs task.observation.lane_choice: "
                                   "true (the episode's lane decides whether the policy's frame is mirrored)")
             if task.action.mode != "cartesian":
@@ -739,14 +740,23 @@ def _flatten(mapping: dict, prefix: str = "") -> list[str]:
     return items
 
 
-def profile_overrides(name: str, config_dir: Path | str = CONFIG_DIR) -> list[str]:
-    """The overrides of profile ``name`` (``configs/profiles/<name>.yaml``), as ``key=value``."""
+def profile_overrides(name: str, config_dir: Path | str = CONFIG_DIR, _seen: tuple[str, ...] = ()) -> list[str]:
+    """The overrides of profile ``name`` (``configs/profiles/<name>.yaml``), as ``key=value``. A
+    top-level ``profile: BASE`` in the file puts BASE's overrides first (the file's own win)."""
     folder = Path(config_dir) / PROFILE_DIR
     path = folder / f"{name}.yaml"
     if not path.is_file():
         known = sorted(p.stem for p in folder.glob("*.yaml")) if folder.is_dir() else []
         raise ConfigError(f"profile={name}: no file {path}; known profiles: {known}")
-    return _flatten(read_yaml(path))
+    if name in _seen:
+        raise ConfigError(f"profile={name}: its 'profile' key comes back to itself ({' -> '.join([*_seen, name])})")
+    data = read_yaml(path)
+    base = data.pop("profile", None)
+    if base is None:
+        return _flatten(data)
+    if not isinstance(base, str):
+        raise ConfigError(f"profile: must name a profile in {show_path(path)}, got {base!r}")
+    return profile_overrides(base, config_dir, (*_seen, name)) + _flatten(data)
 
 
 def apply_overrides(data: dict, overrides: Sequence[str], config_dir: Path | str = CONFIG_DIR) -> None:

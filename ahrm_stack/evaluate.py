@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING, Callable, Sequence
 from ahrm_stack.cli import add_verbose_flag, quiet
 from ahrm_stack.config import (Config, ConfigError, VideoConfig, apply_overrides, config_from_dict, config_source,
                                load_extra, load_raw)
+from ahrm_stack.lane_agreement import LaneOutcome, LaneTable, taken_lane
 from ahrm_stack.run_config import load_run_config
 from ahrm_stack.seeds import RUN, SPLITS, Split, evaluation_range
 
@@ -134,11 +135,20 @@ class Camera:
         self._step += 1
 
 
+def _lane_outcome(task, physics, planned: int, start_xy, touched: bool) -> LaneOutcome:
+    """The episode's :class:`~ahrm_stack.lane_agreement.LaneOutcome`: ``planned`` (the lane index
+    planned at its start), the cube's start (m, world) and its position in ``physics`` now (the end)."""
+    directions = task.config.layout.lane_directions
+    return LaneOutcome(directions[planned], taken_lane(start_xy, task.cube_xy(physics), task.config.cube.size / 2),
+                       touched)
+
+
 def scripted_summaries(config: Config, episodes: int, seed_offset: int, camera_for: Callable | None = None,
                        filmed: Sequence[int] = ()):
     """Episodes ``seed_offset + i`` of the scripted controller through the safety filter, on
     ``config.task`` as it is (:func:`evaluate` passes the evaluation's task); with
-    ``camera_for(physics)``, the episodes in ``filmed`` are rendered."""
+    ``camera_for(physics)``, the episodes in ``filmed`` are rendered. Returns (summaries, each
+    episode's :class:`~ahrm_stack.lane_agreement.LaneOutcome`, the camera or None)."""
     from ahrm_stack.env.episode import EpisodeRecorder
     from ahrm_stack.env.episode_loop import scripted_episode
     from ahrm_stack.env.runner import TaskRunner
@@ -149,11 +159,12 @@ def scripted_summaries(config: Config, episodes: int, seed_offset: int, camera_f
     runner = TaskRunner(task, seed=seed_offset, safety=config.safety)
     controller = ScriptedPusher(task, config.scripted)
     camera = camera_for(runner.physics) if camera_for and filmed else None
-    summaries = []
+    summaries, lanes = [], []
     for i in range(episodes):
         film = camera if i in filmed else None
         for step in scripted_episode(runner, controller, seed_offset + i):
-            if step.sent is None:
+            if step.sent is None:  # the reset (the controller's reset reads the physics only)
+                planned, start_xy = task.plan_lane(runner.physics), task.cube_xy(runner.physics)
                 recorder = EpisodeRecorder(step.info)
                 if film:
                     film.start_episode()
@@ -164,7 +175,8 @@ def scripted_summaries(config: Config, episodes: int, seed_offset: int, camera_f
             if film:
                 film.capture(final=step.done)
         summaries.append(recorder.summary(joint_limit_violations=runner.limit_violations))
-    return summaries, camera
+        lanes.append(_lane_outcome(task, runner.physics, planned, start_xy, summaries[-1].touched))
+    return summaries, lanes, camera
 
 
 def policy_summaries(config: Config, run_dir: Path, episodes: int, seed_offset: int,
@@ -172,7 +184,8 @@ def policy_summaries(config: Config, run_dir: Path, episodes: int, seed_offset: 
                      policy_file: Path | None = None):
     """Episodes ``seed_offset + i`` of the run's deterministic policy (``policy_file``, default
     ``policy.pt``) on ``config.task`` as it is (:func:`evaluate` passes the evaluation's task);
-    the ``filmed`` ones rendered."""
+    the ``filmed`` ones rendered. Returns (summaries, each episode's
+    :class:`~ahrm_stack.lane_agreement.LaneOutcome`, the camera or None)."""
     from ahrm_stack.env.torchrl_env import PushOffEnv
     from ahrm_stack.learning.rollouts import load_policy, run_episodes
 
@@ -180,19 +193,29 @@ def policy_summaries(config: Config, run_dir: Path, episodes: int, seed_offset: 
     env = PushOffEnv(config.task, config.safety, seed=seed_offset)
     camera = camera_for(env.runner.physics) if camera_for and filmed else None
 
-    def filmed_policy(tensordict):
-        camera.capture()  # the state the action is chosen in; rendering reads it only
+    start: dict[str, object] = {}  # the episode's plan and cube position, at its first action
+
+    def planned_policy(tensordict):
+        if not start:  # the first state after the reset: where the planner plans (reading only)
+            start.update(planned=env.task.plan_lane(env.runner.physics), xy=env.task.cube_xy(env.runner.physics))
         return policy(tensordict)
 
-    summaries = []
+    def filmed_policy(tensordict):
+        camera.capture()  # the state the action is chosen in; rendering reads it only
+        return planned_policy(tensordict)
+
+    summaries, lanes = [], []
     for i in range(episodes):
+        start.clear()
         if camera and i in filmed:
             camera.start_episode()
             summaries += run_episodes(env, filmed_policy, 1, seed_offset=seed_offset + i)
             camera.capture(final=True)
         else:
-            summaries += run_episodes(env, policy, 1, seed_offset=seed_offset + i)
-    return summaries, camera
+            summaries += run_episodes(env, planned_policy, 1, seed_offset=seed_offset + i)
+        lanes.append(_lane_outcome(env.task, env.runner.physics, start["planned"], start["xy"],
+                                   summaries[-1].touched))
+    return summaries, lanes, camera
 
 
 def evaluation_configs(run_dir: Path | None, overrides: Sequence[str] = (), layout: str | None = None,
@@ -222,13 +245,14 @@ def evaluation_configs(run_dir: Path | None, overrides: Sequence[str] = (), layo
     return config, entry, trained
 
 
-def _write_outputs(out: Path, summaries, table, header: dict) -> None:
+def _write_outputs(out: Path, summaries, lanes: Sequence[LaneOutcome], table, header: dict) -> None:
     from ahrm_stack.learning.rollouts import write_episodes_csv
 
     out.mkdir(parents=True, exist_ok=True)
-    write_episodes_csv(out / "evaluation.csv", summaries)
+    write_episodes_csv(out / "evaluation.csv", summaries, [lane.row() for lane in lanes])
     (out / "evaluation.json").write_text(json.dumps(
-        {**header, **dataclasses.asdict(table), "success_rate": table.success_rate}, indent=2))
+        {**header, **dataclasses.asdict(table), "success_rate": table.success_rate,
+         "lanes": LaneTable.from_outcomes(lanes).as_dict()}, indent=2))
 
 
 def evaluate(run_dir: Path | None, episodes: int, layout: str | None = None, out: Path | None = None,
@@ -276,12 +300,12 @@ def evaluate(run_dir: Path | None, episodes: int, layout: str | None = None, out
     filmed = tuple(video_episodes) if video is not None else ()
     started = time.perf_counter()
     if run_dir is not None and not scripted:
-        summaries, camera = policy_summaries(config, run_dir, episodes, seed_offset, camera_for, filmed,
-                                             policy_file)
+        summaries, lanes, camera = policy_summaries(config, run_dir, episodes, seed_offset, camera_for, filmed,
+                                                    policy_file)
         out = Path(out) if out else run_dir / ("test" if split == "test" else "")
         name = str(policy_file or run_dir)
     else:
-        summaries, camera = scripted_summaries(config, episodes, seed_offset, camera_for, filmed)
+        summaries, lanes, camera = scripted_summaries(config, episodes, seed_offset, camera_for, filmed)
         default = "scripted-eval-test" if split == "test" else "scripted-eval"
         out = Path(out) if out else Path(config.train.runs_dir) / default
         name = "scripted controller"
@@ -298,11 +322,12 @@ def evaluate(run_dir: Path | None, episodes: int, layout: str | None = None, out
         header["video"] = {"path": str(video_path), "episodes": list(filmed), "frames": len(camera.frames),
                            "fps": fps, "width": video.width, "height": video.height,
                            "render_seconds": camera.render_seconds}
-    _write_outputs(out, summaries, table, header)
+    _write_outputs(out, summaries, lanes, table, header)
     result = json.loads((out / "evaluation.json").read_text())
     if not quiet:
         print(f"{name} ({header['layout']} layout, {split} split, seeds {seed_offset}+; training support: "
               f"{support['verdict']}): {table}")
+        print(f"lanes (the cube's against the scripted controller's plan): {LaneTable.from_outcomes(lanes)}")
         print(f"written: {out / 'evaluation.csv'}, {out / 'evaluation.json'}")
         if camera is not None:
             v = header["video"]

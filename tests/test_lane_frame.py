@@ -228,3 +228,35 @@ def test_numpy_policy_gives_the_committed_scratch_policys_action_on_both_lanes()
     env.close()
     assert lanes == {0, 1}  # both lanes were seen
     assert worst <= 1e-5, worst
+
+
+def test_the_cube_side_frame_is_keyed_on_the_cubes_x_not_the_plan():
+    """ppo.lane_frame: cube_side_no_joints (issue 42): mirrored where the observed cube x < 0, with
+    no lane_choice in the observation; the actor equivariant, deploy's NumPy forward the same, and
+    the key rebuilt from the config (not in the state dict, so older checkpoints load)."""
+    config = load_config(["profile=scratch-own-lane", "ppo.lane_frame=cube_side_no_joints"])
+    layout = observation_layout(config.task, 6, 5)
+    assert "lane_choice" not in layout
+    dim, cube_x = max(part.stop for part in layout.values()), layout["cube"].start
+    modules = make_modules(config.ppo, dim, 3, lane_mirror_for(config, dim, 3, 6, 5))
+    mirror = modules.mirror
+    observation = torch.randn(64, dim)
+    observation[:32, cube_x] = 0.1
+    observation[32:, cube_x] = -0.1
+    modules.normalizer.update(modules.framed(observation))
+    assert mirror.mirrored(observation).squeeze(-1).tolist() == [False] * 32 + [True] * 32
+    framed, action_sign = mirror.canonical(observation)
+    assert torch.all(framed[:, cube_x] == 0.1)  # every episode seen with its cube at x >= 0
+    assert action_sign[:32].tolist() == [[1.0, 1.0, 1.0]] * 32 and action_sign[32:].tolist() == [[-1.0, 1.0, 1.0]] * 32
+    act = lean_actor(modules.actor).act
+    plus = observation[:32]
+    reflected = plus[:, mirror.permutation] * mirror.sign  # the same world reflected: cube at x < 0
+    a, b = act(plus), act(reflected)
+    assert torch.allclose(a[:, 0], -b[:, 0]) and torch.allclose(a[:, 1:], b[:, 1:])
+    policy = NumpyPolicy.from_actor(modules.actor)
+    assert policy is not None
+    for row, want in zip(observation.numpy().astype(np.float64), act(observation).numpy()):
+        np.testing.assert_allclose(policy(row), want, atol=1e-5, rtol=0)
+    assert not any("key_" in name for name in mirror.state_dict())
+    with pytest.raises(ConfigError, match=r"task\.action\.mode"):
+        load_config(["profile=scratch-own-lane", "ppo.lane_frame=cube_side_no_joints", "task.action.mode=joint"])

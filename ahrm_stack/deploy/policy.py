@@ -127,18 +127,22 @@ class FrozenMirror:
     """:class:`~ahrm_stack.learning.lane_frame.LaneMirror` as NumPy arrays, frozen (float32)."""
 
     def __init__(self, permutation: np.ndarray, sign: np.ndarray, keep: np.ndarray,
-                 minus_index: int, action_sign: np.ndarray) -> None:
+                 minus_index: int, action_sign: np.ndarray, key_sign: float = 1.0,
+                 key_threshold: float = 0.5) -> None:
         self.permutation = np.asarray(permutation, dtype=np.intp)
         self.sign = np.asarray(sign, dtype=np.float32)
         self.keep = np.asarray(keep, dtype=np.float32)
         self.minus_index = int(minus_index)
         self.action_sign = np.asarray(action_sign, dtype=np.float32)
+        self.key_sign = np.float32(key_sign)  # mirrored where key_sign * x[minus_index] > key_threshold
+        self.key_threshold = np.float32(key_threshold)
         self._scratch = np.empty(self.permutation.shape, dtype=np.float32)
 
     @classmethod
     def from_module(cls, mirror) -> "FrozenMirror":
         return cls(mirror.permutation.cpu().numpy(), mirror.sign.cpu().numpy(),
-                   mirror.keep.cpu().numpy(), int(mirror.minus_index), mirror.action_sign.cpu().numpy())
+                   mirror.keep.cpu().numpy(), int(mirror.minus_index), mirror.action_sign.cpu().numpy(),
+                   float(mirror.key_sign), float(mirror.key_threshold))
 
     def fits(self, observation_dim: int, action_dim: int) -> bool:
         return (self.permutation.shape == self.sign.shape == self.keep.shape == (observation_dim,)
@@ -146,8 +150,9 @@ class FrozenMirror:
 
     def frame(self, x: np.ndarray) -> bool:
         """Map the float32 observation ``x`` into the lane frame in place (as
-        ``LaneMirror.canonical``); True when its lane is -x (the action's signs then apply)."""
-        minus = bool(x[self.minus_index] > 0.5)
+        ``LaneMirror.canonical``); True when mirrored (its lane is -x, or its cube at x < 0: the
+        action's signs then apply)."""
+        minus = bool(x[self.minus_index] * self.key_sign > self.key_threshold)
         if minus:
             np.take(x, self.permutation, out=self._scratch)
             np.multiply(self._scratch, self.sign, out=x)

@@ -254,15 +254,28 @@ class PushOffTask(composer.Task):
         a reset — the settled layout in training, the first perceived one in deployment — and
         kept for the episode, as the scripted controller keeps its plan."""
         if self._lane_plan is None:
-            if not hasattr(self, "_cube_body"):
-                self._bind(physics)
-            xpos = physics.data.xpos
-            cfg = self.config
-            layout = Layout(xpos[self._cube_body, :2].copy(), xpos[self._obstacle_bodies, :2].copy())
-            lane = choose_lane(layout, self.step_info.tip[:2], cfg.cube.size / 2,
-                               self._obstacle_half_sizes[0, :2], cfg.table, cfg.layout)
-            self._lane_plan = np.eye(len(cfg.layout.lane_directions))[lane]
+            self._lane_plan = np.eye(len(self.config.layout.lane_directions))[self.plan_lane(physics)]
         return self._lane_plan
+
+    def plan_lane(self, physics: mjcf.Physics) -> int:
+        """The planner's lane for the current state (its index in ``layout.lane_directions``):
+        :func:`~ahrm_stack.env.layout.choose_lane` on the cube's and obstacles' positions now and
+        the pusher tip of :attr:`step_info` (m, world frame). At an episode's first observation,
+        the scripted controller's plan; ``lane_choice`` shows it, lane agreement
+        (:mod:`ahrm_stack.lane_agreement`) measures against it."""
+        if not hasattr(self, "_cube_body"):
+            self._bind(physics)
+        xpos = physics.data.xpos
+        cfg = self.config
+        layout = Layout(xpos[self._cube_body, :2].copy(), xpos[self._obstacle_bodies, :2].copy())
+        return choose_lane(layout, self.step_info.tip[:2], cfg.cube.size / 2,
+                           self._obstacle_half_sizes[0, :2], cfg.table, cfg.layout)
+
+    def cube_xy(self, physics: mjcf.Physics) -> np.ndarray:
+        """The cube centre's (x, y) now, m, world frame (a copy)."""
+        if not hasattr(self, "_cube_body"):
+            self._bind(physics)
+        return physics.data.xpos[self._cube_body, :2].copy()
 
     def flat_observation(self, physics: mjcf.Physics) -> np.ndarray:
         """The observation vector in :attr:`observation_order`, read straight from the physics.

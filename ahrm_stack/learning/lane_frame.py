@@ -23,6 +23,11 @@ its own mirror image (its wrist is chiral). ``ppo.lane_frame: mirror`` keeps the
 ``mirror_no_joints`` sets them to 0 in the frame (so that the two lanes look exactly alike to the
 network; the Cartesian actions and the safety filter's differential IK do not need them).
 
+``ppo.lane_frame: cube_side_no_joints`` keys the same mirror on something that is not the planner:
+the cube's own side of the table, mirrored when the cube's observed x is below 0 (the joint entries
+zeroed). It tells the network nothing about the lane (the choice depends on the obstacles); it
+only shows it one half of the table, so that pushes learned on one side serve the other.
+
 Everything here is torch on the policy's side: the environment, the rewards, the safety filter
 and the deploy loop stay in the world frame, and a checkpoint carries the mirror as buffers.
 """
@@ -46,27 +51,37 @@ class LaneMirror(nn.Module):
     Built by :func:`make_lane_mirror`; its index tensors are buffers, so a checkpoint carries them.
     ``permutation[i]``: the world entry that entry i of the mirrored observation reads;
     ``sign[i]``: -1 for x coordinates, else +1; ``keep[i]``: 0 for entries dropped in the frame
-    (whether mirrored or not); ``minus_index``: the ``lane_choice`` entry of the -x lane;
-    ``action_sign``: -1 for the action's x entry."""
+    (whether mirrored or not); ``minus_index``: the entry that decides the mirror, the
+    ``lane_choice`` entry of the -x lane (or, ``cube_side_no_joints``, the cube's x): mirrored where
+    ``key_sign`` x that entry > ``key_threshold`` (1 and 0.5: the -x lane; -1 and 0 m: the cube at
+    x < 0; both rebuilt from the config, not stored in checkpoints); ``action_sign``: -1 for the
+    action's x entry."""
 
     permutation: torch.Tensor
     sign: torch.Tensor
     keep: torch.Tensor
     minus_index: torch.Tensor
     action_sign: torch.Tensor
+    key_sign: torch.Tensor
+    key_threshold: torch.Tensor
 
     def __init__(self, permutation: Sequence[int], sign: Sequence[float], keep: Sequence[float],
-                 minus_index: int, action_sign: Sequence[float]) -> None:
+                 minus_index: int, action_sign: Sequence[float], key_sign: float = 1.0,
+                 key_threshold: float = 0.5) -> None:
         super().__init__()
         self.register_buffer("permutation", torch.as_tensor(permutation, dtype=torch.long))
         self.register_buffer("sign", torch.as_tensor(sign, dtype=torch.float32))
         self.register_buffer("keep", torch.as_tensor(keep, dtype=torch.float32))
         self.register_buffer("minus_index", torch.as_tensor(minus_index, dtype=torch.long))
         self.register_buffer("action_sign", torch.as_tensor(action_sign, dtype=torch.float32))
+        # not in the state dict: checkpoints written before them load as they were
+        self.register_buffer("key_sign", torch.tensor(key_sign, dtype=torch.float32), persistent=False)
+        self.register_buffer("key_threshold", torch.tensor(key_threshold, dtype=torch.float32), persistent=False)
 
     def mirrored(self, observation: torch.Tensor) -> torch.Tensor:
-        """Boolean (..., 1): the observation's lane is -x."""
-        return observation.index_select(-1, self.minus_index.reshape(1)) > 0.5
+        """Boolean (..., 1): the observation is to be mirrored (its lane is -x, or its cube at x < 0)."""
+        key = observation.index_select(-1, self.minus_index.reshape(1))
+        return key * self.key_sign.to(observation.dtype) > self.key_threshold.to(observation.dtype)
 
     def canonical(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(observation in the lane frame, signs (..., action_dim) that map an action of the
@@ -90,8 +105,9 @@ def make_lane_mirror(task: TaskConfig, frame: LaneFrame, num_joints: int, num_co
         return None
     layout = observation_layout(task, num_joints, num_commanded)
     directions: list[str] = list(task.layout.lane_directions)
-    if "lane_choice" not in layout or "-x" not in directions:  # Config.check names the key
-        raise ValueError("ppo.lane_frame needs task.observation.lane_choice and a -x lane")
+    by_lane = frame.startswith("mirror")
+    if (by_lane and "lane_choice" not in layout) or "-x" not in directions:  # Config.check names the key
+        raise ValueError("ppo.lane_frame needs task.observation.lane_choice (mirror*) and a -x lane")
     size = max(s.stop for s in layout.values())
     if size != observation_dim:
         raise ValueError(f"ppo.lane_frame: the observation has {observation_dim} entries, the task's "
@@ -112,14 +128,16 @@ def make_lane_mirror(task: TaskConfig, frame: LaneFrame, num_joints: int, num_co
             for i, direction in enumerate(directions):
                 permutation[layout[name].start + i] = layout[name].start + directions.index(
                     MIRRORED_LANE[direction])
-    if frame == "mirror_no_joints":
+    if frame.endswith("no_joints"):
         for name in ("joints_pos", "joints_vel", "previous_action"):
             for i in range(layout[name].start, layout[name].stop):
                 keep[i] = 0.0
-    minus_index = layout["lane_choice"].start + directions.index("-x")
     action_sign = [1.0] * action_dim
     action_sign[0] = -1.0  # Cartesian actions: (x, y, z) of the tip's velocity, world frame
-    return LaneMirror(permutation, sign, keep, minus_index, action_sign)
+    if by_lane:
+        return LaneMirror(permutation, sign, keep, layout["lane_choice"].start + directions.index("-x"),
+                          action_sign)
+    return LaneMirror(permutation, sign, keep, layout["cube"].start, action_sign, key_sign=-1.0, key_threshold=0.0)
 
 
 def lane_mirror_for(config: Config, observation_dim: int, action_dim: int,

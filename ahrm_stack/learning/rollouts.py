@@ -13,7 +13,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 import torch
@@ -119,9 +119,15 @@ def run_episodes(env: PushOffEnv, policy, episodes: int,
     return summaries
 
 
-def write_episodes_csv(path: Path, summaries: list[EpisodeSummary]) -> None:
-    """One row per episode: the summary's fields and its failure mode."""
+def write_episodes_csv(path: Path, summaries: list[EpisodeSummary],
+                       extra: Sequence[dict[str, object]] | None = None) -> None:
+    """One row per episode: the summary's fields and its failure mode, then ``extra``'s columns
+    (one mapping per episode, e.g. the evaluation's lane agreement) when given."""
     rows = [dataclasses.asdict(s) | {"failure_mode": s.failure_mode()} for s in summaries]
+    if extra is not None:
+        if len(extra) != len(rows):
+            raise ValueError(f"{len(extra)} extra rows for {len(rows)} episodes")
+        rows = [row | more for row, more in zip(rows, extra)]
     for row in rows:
         row.pop("events", None)
         row.pop("end_order", None)

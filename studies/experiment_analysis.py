@@ -1,0 +1,233 @@
+"""The four-method experiment's registered analysis (docs/protocol.md), from its folder only.
+
+    python studies/experiment_analysis.py OUT [--reference ahrm] [--write OUT/analysis.md]
+
+OUT is a ``python -m ahrm_stack.experiment`` folder: ``runs/<method>-seed<s>/eval/evaluation.csv``
+(per test episode: ``success``, ``touched_steps``, ``time_to_success``; lane columns where
+present), ``runs/<method>-seed<s>/events.jsonl`` (AHRM's ``order_changed`` events) and
+``scripted/evaluation.csv`` (the scripted controller on the same episodes). Writes markdown with:
+
+* every run's row (successes, touching, time, lane agreement; for AHRM whether its order ever
+  changed — a run whose order never changed trained as FHRM with the initial order, and says so);
+* per method, the pooled successes and touching with Clopper–Pearson 95 % intervals, and against
+  the scripted controller the exact sign test on the paired episodes;
+* the reference (AHRM) against each other method: the mean per-seed difference (paired by seed)
+  with its 95 % t-interval and p, Holm-adjusted over the comparisons (success: H1–H3), and for
+  touching the same plus the exact sign test on paired episodes (same seed, same episode);
+* the goal: the reference's pooled success ≥ 95 % and touching ≤ 2 %.
+
+Missing runs are listed and the whole output is marked PARTIAL; nothing is called on it then.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+from scipy import stats
+
+GOAL_SUCCESS, GOAL_TOUCHING = 0.95, 0.02  # docs/protocol.md
+
+
+@dataclasses.dataclass(frozen=True)
+class Episodes:
+    """One policy's evaluation episodes, in episode order: success, touched (bool) and time to
+    success (s, nan without success); lane agreement per episode ('' where not pushed or absent)."""
+
+    success: np.ndarray
+    touched: np.ndarray
+    time: np.ndarray
+    lane_agrees: tuple[str, ...]
+
+    @classmethod
+    def read(cls, path: Path) -> "Episodes":
+        with open(path) as handle:
+            rows = list(csv.DictReader(handle))
+        if not rows:
+            raise ValueError(f"{path}: no episodes")
+        return cls(np.array([row["success"] == "True" for row in rows]),
+                   np.array([int(row["touched_steps"]) > 0 for row in rows]),
+                   np.array([float(row["time_to_success"]) for row in rows]),
+                   tuple(row.get("lane_agrees", "") for row in rows))
+
+
+def clopper_pearson(k: int, n: int) -> tuple[float, float]:
+    """Exact 95 % interval of a binomial share ``k`` of ``n``."""
+    lo = 0.0 if k == 0 else float(stats.beta.ppf(0.025, k, n - k + 1))
+    hi = 1.0 if k == n else float(stats.beta.ppf(0.975, k + 1, n - k))
+    return lo, hi
+
+
+def sign_test(only_a: int, only_b: int) -> float:
+    """Exact two-sided sign test (McNemar's exact form) of discordant pair counts."""
+    n = only_a + only_b
+    return 1.0 if n == 0 else float(stats.binomtest(only_a, n, 0.5).pvalue)
+
+
+Stat = tuple[float, float, float, float]  # mean, 95 % interval low, high, two-sided p
+
+
+def paired_t(differences: np.ndarray) -> Stat:
+    """(mean, 95 % t-interval low, high, two-sided p) of per-seed differences (nan below 2 seeds;
+    all equal: the interval is the point and p is 1 for 0 else 0)."""
+    d = np.asarray(differences, dtype=float)
+    mean = float(d.mean()) if d.size else math.nan
+    if d.size < 2:
+        return mean, math.nan, math.nan, math.nan
+    se = float(d.std(ddof=1)) / math.sqrt(d.size)
+    if se == 0.0:
+        return mean, mean, mean, 1.0 if mean == 0.0 else 0.0
+    half = float(stats.t.ppf(0.975, d.size - 1)) * se
+    return mean, mean - half, mean + half, float(2 * stats.t.sf(abs(mean) / se, d.size - 1))
+
+
+def holm(pvalues: list[float]) -> list[float]:
+    """Holm's step-down adjusted p-values, in the given order (nan stays nan)."""
+    order = sorted((p, i) for i, p in enumerate(pvalues) if not math.isnan(p))
+    adjusted = [math.nan] * len(pvalues)
+    running = 0.0
+    for rank, (p, i) in enumerate(order):
+        running = max(running, min(1.0, (len(order) - rank) * p))
+        adjusted[i] = running
+    return adjusted
+
+
+def order_changed(run_dir: Path) -> bool | None:
+    """Whether the run's priority order ever changed (``order_changed`` in ``events.jsonl``);
+    None without the file."""
+    path = run_dir / "events.jsonl"
+    if not path.is_file():
+        return None
+    return any(json.loads(line).get("kind") == "order_changed" for line in path.read_text().splitlines() if line)
+
+
+def _runs(out: Path) -> dict[str, dict[int, Path]]:
+    """method -> seed -> run folder, from ``out/grid.json`` (every planned run, evaluated or not)."""
+    grid = json.loads((out / "grid.json").read_text())
+    runs: dict[str, dict[int, Path]] = {}
+    for spec in grid["runs"]:
+        runs.setdefault(spec["method"], {})[int(spec["seed"])] = out / "runs" / spec["name"]
+    return runs
+
+
+def _share(k: int, n: int) -> str:
+    lo, hi = clopper_pearson(k, n)
+    return f"{k}/{n} ({k / n:.1%} [{lo:.1%}, {hi:.1%}])"
+
+
+def _interval(stat: Stat, p_adjusted: float | None = None) -> str:
+    mean, lo, hi, p = stat
+    text = f"{mean:+.3f} [{lo:+.3f}, {hi:+.3f}], p = {p:.3g}"
+    return text + (f", Holm p = {p_adjusted:.3g}" if p_adjusted is not None else "")
+
+
+def _per_seed(mine: dict[int, Episodes], theirs: dict[int, Episodes], seeds: list[int], name: str) -> Stat:
+    """:func:`paired_t` of the per-seed differences of the share of episodes with ``name`` true."""
+    return paired_t(np.array([getattr(mine[s], name).mean() - getattr(theirs[s], name).mean() for s in seeds]))
+
+
+def analyse(out: Path, reference: str = "ahrm") -> str:
+    """The markdown of the registered analysis of the experiment folder ``out``."""
+    runs = _runs(out)
+    episodes: dict[str, dict[int, Episodes]] = {}
+    missing = []
+    for method, seeds in runs.items():
+        for seed, run_dir in sorted(seeds.items()):
+            path = run_dir / "eval" / "evaluation.csv"
+            if path.is_file():
+                episodes.setdefault(method, {})[seed] = Episodes.read(path)
+            else:
+                missing.append(run_dir.name)
+    scripted_path = out / "scripted" / "evaluation.csv"
+    scripted = Episodes.read(scripted_path) if scripted_path.is_file() else None
+    partial = bool(missing) or scripted is None
+    lines = [f"# Analysis of {out.name} (docs/protocol.md)", ""]
+    if partial:
+        lines += [f"**PARTIAL**: missing {', '.join(missing) or 'no run'}"
+                  + ("" if scripted is not None else " and the scripted controller's evaluation")
+                  + ". No hypothesis is called on these numbers.", ""]
+    lines += ["## Every run", "", "| run | successes | touching | time (s) | lane agreement | order |",
+              "|---|---|---|---|---|---|"]
+    for method, by_seed in episodes.items():
+        for seed, e in sorted(by_seed.items()):
+            changed = order_changed(runs[method][seed]) if method == "ahrm" else None
+            order = ("changed" if changed else "order never changed (FHRM)" if changed is False else "—")
+            pushed = [a for a in e.lane_agrees if a]
+            lanes = f"{sum(a == 'True' for a in pushed)}/{len(pushed)}" if pushed else "—"
+            times = e.time[e.success]
+            time = float(times.mean()) if times.size else math.nan
+            lines.append(f"| {method}-seed{seed} | {int(e.success.sum())}/{e.success.size} | "
+                         f"{int(e.touched.sum())} | {time:.2f} | {lanes} | {order} |")
+    lines += ["", "## Pooled over seeds (Clopper–Pearson 95 %); against the scripted controller on the same "
+              "episodes (exact sign test: discordant episodes)", "",
+              "| method | seeds | successes | touching | success vs scripted | touching vs scripted |",
+              "|---|---|---|---|---|---|"]
+    for method, by_seed in episodes.items():
+        success = np.concatenate([e.success for e in by_seed.values()])
+        touched = np.concatenate([e.touched for e in by_seed.values()])
+        versus = ["—", "—"]
+        if scripted is not None:
+            pairs = [(e, scripted) for e in by_seed.values() if e.success.size == scripted.success.size]
+            for column, name in enumerate(("success", "touched")):
+                mine = np.concatenate([getattr(e, name) for e, _ in pairs]) if pairs else np.array([], bool)
+                theirs = np.concatenate([getattr(s, name) for _, s in pairs]) if pairs else np.array([], bool)
+                a, b = int((mine & ~theirs).sum()), int((~mine & theirs).sum())
+                versus[column] = f"{a} / {b}, p = {sign_test(a, b):.3g}"
+        lines.append(f"| {method} | {len(by_seed)} | {_share(int(success.sum()), success.size)} | "
+                     f"{_share(int(touched.sum()), touched.size)} | {versus[0]} | {versus[1]} |")
+    if scripted is not None:
+        lines.append(f"| scripted | – | {_share(int(scripted.success.sum()), scripted.success.size)} | "
+                     f"{_share(int(scripted.touched.sum()), scripted.touched.size)} | | |")
+    others = [m for m in episodes if m != reference]
+    mine_by_seed = episodes.get(reference, {})
+    comparisons: list[tuple[str, list[int], Stat, Stat, int, int]] = []
+    for other in others:
+        theirs_by_seed = episodes[other]
+        common = sorted(set(mine_by_seed) & set(theirs_by_seed))
+        a = sum(int((mine_by_seed[s].touched & ~theirs_by_seed[s].touched).sum()) for s in common)
+        b = sum(int((~mine_by_seed[s].touched & theirs_by_seed[s].touched).sum()) for s in common)
+        comparisons.append((other, common, _per_seed(mine_by_seed, theirs_by_seed, common, "success"),
+                            _per_seed(mine_by_seed, theirs_by_seed, common, "touched"), a, b))
+    adjusted = holm([c[2][3] for c in comparisons])
+    lines += ["", f"## {reference} − each method, paired by seed (95 % t-interval over seeds; success: "
+              "H1–H3 with Holm; touching: secondary, uncorrected, with the exact sign test on paired episodes)",
+              "", "| comparison | seeds | success | touching | touching: discordant episodes |",
+              "|---|---|---|---|---|"]
+    for (other, common, on_success, on_touching, a, b), p_holm in zip(comparisons, adjusted):
+        lines.append(f"| {reference} − {other} | {', '.join(map(str, common))} | {_interval(on_success, p_holm)} | "
+                     f"{_interval(on_touching)} | {a} only {reference} / {b} only {other}, p = {sign_test(a, b):.3g} |")
+    if mine_by_seed:
+        won = np.concatenate([e.success for e in mine_by_seed.values()])
+        hit = np.concatenate([e.touched for e in mine_by_seed.values()])
+        met = won.mean() >= GOAL_SUCCESS and hit.mean() <= GOAL_TOUCHING
+        lines += ["", f"## Goal ({reference} pooled: success ≥ {GOAL_SUCCESS:.0%}, touching ≤ {GOAL_TOUCHING:.0%})",
+                  "", f"success {_share(int(won.sum()), won.size)}, touching "
+                  f"{_share(int(hit.sum()), hit.size)}: "
+                  + ("not called (partial)" if partial else "met" if met else "not met")]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("out", type=Path, help="the experiment folder (with grid.json)")
+    parser.add_argument("--reference", default="ahrm")
+    parser.add_argument("--write", type=Path, default=None, help="also write the markdown here")
+    args = parser.parse_args(argv)
+    if not (args.out / "grid.json").is_file():
+        print(f"error: {args.out / 'grid.json'} not found: OUT must be an experiment folder", file=sys.stderr)
+        return 2
+    text = analyse(args.out, args.reference)
+    if args.write:
+        args.write.write_text(text)
+    print(text, end="")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

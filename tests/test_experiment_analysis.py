@@ -1,0 +1,82 @@
+"""studies/experiment_analysis.py (docs/protocol.md's analysis) on a synthetic experiment folder,
+its statistics by hand."""
+
+import importlib.util
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def analysis():
+    spec = importlib.util.spec_from_file_location("experiment_analysis", ROOT / "studies" / "experiment_analysis.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["experiment_analysis"] = module  # its dataclass looks its module up
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_statistics_by_hand(analysis):
+    assert analysis.holm([0.01, 0.04, 0.03]) == pytest.approx([0.03, 0.06, 0.06])
+    assert analysis.sign_test(5, 0) == pytest.approx(2 / 32)
+    assert analysis.sign_test(0, 0) == 1.0
+    assert analysis.clopper_pearson(0, 10) == pytest.approx((0.0, 1 - 0.025 ** 0.1))
+    mean, lo, hi, p = analysis.paired_t(np.array([0.2, 0.1, 0.3]))
+    half = 4.302653 * 0.1 / math.sqrt(3)  # t(0.975, 2 df) x sd / sqrt(n)
+    assert (mean, lo, hi) == pytest.approx((0.2, 0.2 - half, 0.2 + half), abs=1e-6)
+    t = 0.2 / (0.1 / math.sqrt(3))
+    assert p == pytest.approx(1 - t / math.sqrt(t * t + 2))  # two-sided, 2 df: closed form
+
+
+def _evaluation(path: Path, success, touched):
+    path.mkdir(parents=True)
+    rows = ["success,touched_steps,time_to_success,lane_agrees"]
+    rows += [f"{s},{int(t)},{3.0 if s else 'nan'},{'True' if s else ''}" for s, t in zip(success, touched)]
+    (path / "evaluation.csv").write_text("\n".join(rows) + "\n")
+
+
+def _experiment(tmp_path: Path, skip: str | None = None) -> Path:
+    out = tmp_path / "experiment"
+    specs = [{"name": f"{m}-seed{s}", "method": m, "seed": s} for m in ("ahrm", "ls") for s in (0, 1)]
+    (out / "runs").mkdir(parents=True)
+    (out / "grid.json").write_text(json.dumps({"runs": specs}))
+    results = {("ahrm", 0): ([1, 1, 1, 1], [0, 0, 0, 1]), ("ahrm", 1): ([1, 1, 1, 0], [0, 0, 0, 0]),
+               ("ls", 0): ([1, 0, 0, 0], [1, 1, 0, 1]), ("ls", 1): ([1, 1, 0, 0], [1, 0, 0, 0])}
+    for (method, seed), (success, touched) in results.items():
+        name = f"{method}-seed{seed}"
+        (out / "runs" / name).mkdir()
+        if name != skip:
+            _evaluation(out / "runs" / name / "eval", [bool(s) for s in success], [bool(t) for t in touched])
+        events = [{"episode": 3, "kind": "order_changed", "phase": 2, "detail": ""}] if name == "ahrm-seed0" else []
+        (out / "runs" / name / "events.jsonl").write_text("".join(json.dumps(e) + "\n" for e in events))
+    _evaluation(out / "scripted", [True] * 4, [False] * 4)
+    return out
+
+
+def test_the_analysis_of_a_synthetic_experiment(analysis, tmp_path):
+    text = analysis.analyse(_experiment(tmp_path))
+    assert "PARTIAL" not in text
+    assert "| ahrm-seed0 | 4/4 | 1 | 3.00 | 4/4 | changed |" in text
+    assert "| ahrm-seed1 | 3/4 | 0 | 3.00 | 3/3 | order never changed (FHRM) |" in text
+    assert "| ls-seed1 | 2/4 | 1 | 3.00 | 2/2 | — |" in text
+    # pooled: ahrm 7/8 successes, 1/8 touching; against the scripted controller 0 / 1 discordant
+    assert "| ahrm | 2 | 7/8 (87.5%" in text and "| 0 / 1, p = 1 | 1 / 0, p = 1 |" in text
+    # ahrm - ls per seed: success 1 - 0.25 = 0.75, 0.75 - 0.5 = 0.25; mean 0.5, 1 df
+    half = 12.7062 * 0.25  # t(0.975, 1 df) x se; se = sd(0.75, 0.25) / sqrt 2 = 0.3536 / 1.414 = 0.25
+    assert f"| ahrm − ls | 0, 1 | +0.500 [{0.5 - half:+.3f}, {0.5 + half:+.3f}]" in text
+    # touching: only ahrm touched in 0 paired episodes, only ls in 3 (seed 0: episodes 0 and 1;
+    # seed 1: episode 0); sign test 2 / 8
+    assert "0 only ahrm / 3 only ls, p = 0.25 |" in text
+    assert "touching 1/8" in text and text.rstrip().endswith("not met")
+
+
+def test_a_missing_run_makes_it_partial(analysis, tmp_path):
+    text = analysis.analyse(_experiment(tmp_path, skip="ls-seed1"))
+    assert "**PARTIAL**: missing ls-seed1" in text and text.rstrip().endswith("not called (partial)")
+    assert analysis.main([str(tmp_path / "nothing")]) == 2
