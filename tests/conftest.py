@@ -24,3 +24,14 @@ def config():
 @pytest.fixture(scope="session")
 def task_config(config):
     return config.task
+
+
+@pytest.fixture(scope="session")
+def library():
+    """The compiled fake Kinova Gen2 SDK (tests/fake_kinova_sdk), shared by the Gen2 test files;
+    skipped where no C compiler is found."""
+    fake = pytest.importorskip("fake_kinova_sdk.fake")
+    try:
+        return fake.session_library()
+    except fake.CompilerMissing as error:
+        pytest.skip(str(error))

@@ -46,14 +46,6 @@ def _robot(name: str):
     return describe(name, make_arm(name))
 
 
-@pytest.fixture(scope="module")
-def library():
-    try:
-        return fake_module.session_library()
-    except fake_module.CompilerMissing as error:
-        pytest.skip(str(error))
-
-
 @pytest.fixture
 def fake(library, task_config):
     sdk = FakeSdk(library)

@@ -23,14 +23,6 @@ RATES = Rates(control_hz=20.0, command_deadline=0.025, send_rate_hz=100.0, send_
               status_rate_hz=2.0)
 
 
-@pytest.fixture(scope="module")
-def library():
-    try:
-        return fake_module.session_library()
-    except fake_module.CompilerMissing as error:
-        pytest.skip(str(error))
-
-
 def _measured(call_ms: float, read_ms: float, rate: float = 100.0) -> Measurement:
     stats = CallStats(100, call_ms, call_ms * 1.1, call_ms * 1.3)
     return Measurement(serial="X", calls={name: stats for name in TIMED},

@@ -22,14 +22,6 @@ ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "configs" / "scenes" / "default.yaml"
 
 
-@pytest.fixture(scope="module")
-def library():
-    try:
-        return fake_module.session_library()
-    except fake_module.CompilerMissing as error:
-        pytest.skip(str(error))
-
-
 def _bench():
     spec = importlib.util.spec_from_file_location("bench_kinova_gen2",
                                                   ROOT / "benchmarks" / "bench_kinova_gen2.py")

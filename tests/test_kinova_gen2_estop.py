@@ -42,14 +42,6 @@ PERIOD = 0.05  # s, the deploy loop's period at 20 Hz
 BASE_NOISE = fake_module.VELOCITY_NOISE * PERIOD / math.sqrt(2.0)
 
 
-@pytest.fixture(scope="module")
-def library():
-    try:
-        return fake_module.session_library()
-    except fake_module.CompilerMissing as error:
-        pytest.skip(str(error))
-
-
 def _settings(library):
     settings = load_deploy_settings(realtime=True, telemetry="")
     return dataclasses.replace(

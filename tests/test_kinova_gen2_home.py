@@ -35,14 +35,6 @@ SPEED = 40.0  # deg/s, the final move's limit here (configs cap it at 20 for rea
 
 
 @pytest.fixture(scope="module")
-def library():
-    try:
-        return fake_module.session_library()
-    except fake_module.CompilerMissing as error:
-        pytest.skip(str(error))
-
-
-@pytest.fixture(scope="module")
 def world():
     return WorldModel(load_config().task)
 
