@@ -7,8 +7,8 @@ import numpy as np
 
 from ahrm_stack.config import TaskConfig
 from ahrm_stack.env.layout import lane_clearance
+from ahrm_stack.env.observation_layout import observation_layout
 from ahrm_stack.env.realism import VelocityEstimator, nominal
-from ahrm_stack.names import NUM_PHASES
 
 
 class WorldModel:
@@ -151,21 +151,18 @@ class ObservationBuilder:
         self._props = np.asarray(task._prop_bodies)
         self._prop_dofs = np.asarray(task._prop_linear_dofs)
         k = len(self._props)  # the cube and the obstacles
-        sizes = [("trig", 2 * n), ("dq", n), ("tip", 3), ("props", 6 * k),
-                 ("previous_action", len(task.previous_action)), ("phase", NUM_PHASES), ("x", 1)]
+        # where each part sits: the task's own layout (env/observation_layout.py), one description
+        layout = observation_layout(cfg, n, len(task.previous_action))
+        last_prop = layout[f"obstacle_{k - 2}"] if k > 1 else layout["cube"]  # the props sit together
+        sl = {"trig": layout["joints_pos"], "dq": layout["joints_vel"], "tip": layout["pusher_tip"],
+              "props": slice(layout["cube"].start, last_prop.stop),
+              "previous_action": layout["previous_action"], "phase": layout["phase"],
+              "x": layout["boundary_distance"]}
         observation = cfg.observation
-        if observation.relative:
-            sizes.append(("relative", 3 + 2 * (k - 1)))
-        if observation.lanes:
-            sizes.append(("lanes", len(cfg.layout.lane_directions)))
-        if observation.lane_choice:
-            sizes.append(("lane_choice", len(cfg.layout.lane_directions)))
-        self._out = np.zeros(sum(size for _, size in sizes))
-        at, self._slices = 0, {}
-        for name, size in sizes:
-            self._slices[name] = slice(at, at + size)
-            at += size
-        out, sl = self._out, self._slices
+        optional = (("relative", "relative_to_cube"), ("lanes", "lane_clearance"), ("lane_choice", "lane_choice"))
+        sl.update({name: layout[key] for name, key in optional if key in layout})
+        self._out = np.zeros(max(part.stop for part in layout.values()))
+        out = self._out
         self._sin, self._cos = out[sl["trig"]][0::2], out[sl["trig"]][1::2]
         self._dq, self._tip = out[sl["dq"]], out[sl["tip"]]
         props = out[sl["props"]].reshape(k, 6)
