@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import copy
 import dataclasses
+import functools
 import json
 import sys
 import time
@@ -109,30 +110,6 @@ def _parse(argv: list[str]) -> argparse.Namespace:
     if args.video and args.video_episodes[-1] >= args.episodes:
         parser.error(f"--video-episodes {args.video_episodes} must be < --episodes ({args.episodes})")
     return args
-
-
-class Camera:
-    """Collects frames of one physics every ``frame_every`` control steps of the filmed episodes."""
-
-    def __init__(self, physics, video: VideoConfig) -> None:
-        from ahrm_stack.env.video import FrameRenderer
-
-        self.renderer = FrameRenderer(physics, video)
-        self.frame_every = video.frame_every
-        self.frames: list = []
-        self.render_seconds = 0.0
-        self._step = 0
-
-    def start_episode(self) -> None:
-        self._step = 0
-
-    def capture(self, final: bool = False) -> None:
-        """Render the current state (at every ``frame_every``-th call, and always when ``final``)."""
-        if final or self._step % self.frame_every == 0:
-            started = time.perf_counter()
-            self.frames.append(self.renderer())
-            self.render_seconds += time.perf_counter() - started
-        self._step += 1
 
 
 def _lane_outcome(task, physics, planned: int, start_xy, touched: bool) -> LaneOutcome:
@@ -296,7 +273,10 @@ def evaluate(run_dir: Path | None, episodes: int, layout: str | None = None, out
 
     from ahrm_stack.learning.rollouts import EvaluationTable
 
-    camera_for = (lambda physics: Camera(physics, video)) if video is not None else None
+    camera_for = None
+    if video is not None:
+        from ahrm_stack.env.video import EpisodeFilm
+        camera_for = functools.partial(EpisodeFilm, video=video)
     filmed = tuple(video_episodes) if video is not None else ()
     started = time.perf_counter()
     if run_dir is not None and not scripted:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Sequence
 
@@ -148,3 +149,26 @@ def read_mp4(path: Path | str) -> tuple[int, tuple[int, int], float]:
             count += 1
             shape = frame.shape[:2]
     return count, shape, fps
+
+
+class EpisodeFilm:
+    """Collects frames of one physics every ``video.frame_every`` control steps of the filmed
+    episodes (an evaluation's video): :meth:`start_episode`, then :meth:`capture` in every state."""
+
+    def __init__(self, physics, video: VideoConfig) -> None:
+        self.renderer = FrameRenderer(physics, video)
+        self.frame_every = video.frame_every
+        self.frames: list = []
+        self.render_seconds = 0.0
+        self._step = 0
+
+    def start_episode(self) -> None:
+        self._step = 0
+
+    def capture(self, final: bool = False) -> None:
+        """Render the current state (at every ``frame_every``-th call, and always when ``final``)."""
+        if final or self._step % self.frame_every == 0:
+            started = time.perf_counter()
+            self.frames.append(self.renderer())
+            self.render_seconds += time.perf_counter() - started
+        self._step += 1
