@@ -72,6 +72,7 @@ from __future__ import annotations
 
 import atexit
 import collections
+import contextlib
 import ctypes
 import dataclasses
 import logging
@@ -81,7 +82,7 @@ import threading
 import time
 import weakref
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Optional
+from typing import TYPE_CHECKING, Annotated, Any, Iterator, Optional
 
 import numpy as np
 from pydantic import AfterValidator, PlainValidator
@@ -757,17 +758,24 @@ class KinovaGen2Arm(DescribedArm):
                         time.perf_counter())
         return bus
 
-    def _on_bus(self, job):
-        """``job(sdk)`` on the USB thread; a lost link disconnects (ConnectionLostError)."""
-        bus = self._require()
+    @contextlib.contextmanager
+    def _link_errors(self) -> Iterator[None]:
+        """A communication error of the SDK, or the USB thread closed: the link is lost
+        (:meth:`_lose` disconnects; ConnectionLostError); other SDK errors pass through."""
         try:
-            return bus.call(job)
+            yield
         except SdkCallError as error:
             if error.communication:
                 raise self._lose(error) from None
             raise
         except BusClosedError as error:
             raise self._lose(error.__cause__ or error) from None
+
+    def _on_bus(self, job):
+        """``job(sdk)`` on the USB thread; a lost link disconnects (ConnectionLostError)."""
+        bus = self._require()
+        with self._link_errors():
+            return bus.call(job)
 
     # ------------------------------------------------------------------ the status poll (USB thread)
     def _read_sensors(self, sdk: Sdk) -> None:
@@ -925,14 +933,8 @@ class KinovaGen2Arm(DescribedArm):
         """No standing command; zero velocity and an empty FIFO on the arm (then ``then(sdk)``);
         ``hold``: commands refused until :meth:`clear_faults`."""
         bus = self._require()
-        try:
+        with self._link_errors():
             bus.halt(then, hold)
-        except SdkCallError as error:
-            if error.communication:
-                raise self._lose(error) from None
-            raise
-        except BusClosedError as error:
-            raise self._lose(error.__cause__ or error) from None
 
     def stop(self) -> None:
         self._halt()

@@ -35,3 +35,22 @@ def library():
         return fake.session_library()
     except fake.CompilerMissing as error:
         pytest.skip(str(error))
+
+
+
+@pytest.fixture
+def gen2_config(tmp_path):
+    """A writer of configs/deploy.yaml with its ``kinova_gen2`` section updated by keyword
+    arguments, to ``tmp_path/deploy.yaml``; returns the path (for ``--config``)."""
+    import yaml
+
+    from ahrm_stack.deploy import DEPLOY_CONFIG
+
+    def write(**gen2):
+        data = yaml.safe_load(DEPLOY_CONFIG.read_text())
+        data["kinova_gen2"].update(gen2)
+        path = tmp_path / "deploy.yaml"
+        path.write_text(yaml.safe_dump(data))
+        return path
+
+    return write

@@ -11,9 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
-from ahrm_stack.deploy import DEPLOY_CONFIG, main
+from ahrm_stack.deploy import main
 from hardware.kinova_gen2_check import TIMED, CallStats, Measurement, Rates, judge, report
 
 fake_module = pytest.importorskip("fake_kinova_sdk.fake")
@@ -48,22 +47,14 @@ def test_the_judgement_by_hand():
     assert fits and lines[-1] == "the USB budget fits at 20 Hz"
 
 
-def _config(tmp_path: Path, **gen2) -> Path:
-    data = yaml.safe_load(DEPLOY_CONFIG.read_text())
-    data["kinova_gen2"].update(gen2)
-    path = tmp_path / "deploy.yaml"
-    path.write_text(yaml.safe_dump(data))
-    return path
-
-
-def test_check_measures_the_fake_arm_held_still(library, tmp_path, task_config, capsys):
+def test_check_measures_the_fake_arm_held_still(library, tmp_path, task_config, capsys, gen2_config):
     """At 3 ms per call the budget fits; a loaded machine may stretch the p99 of a few of the 20
     calls timed here past a timing rule (as it would on a busy robot computer: the check says so),
     never the bus load, which is judged on medians."""
     fake = fake_module.FakeSdk(library)
     home = np.degrees(task_config.arm.home)
     fake.reset(position_deg=home)
-    path = _config(tmp_path, library=str(library), serial=fake_module.SERIAL, scene=str(SCENE),
+    path = gen2_config(library=str(library), serial=fake_module.SERIAL, scene=str(SCENE),
                    check_calls=20)
     code = main(["--backend", "kinova-gen2", "--config", str(path), "--check"])
     out = capsys.readouterr().out
@@ -86,21 +77,21 @@ def test_check_measures_the_fake_arm_held_still(library, tmp_path, task_config, 
     assert names[-2:] == ["StopControlAPI", "CloseAPI"] and not fake.control_on
 
 
-def test_check_says_when_the_budget_does_not_fit(library, tmp_path, task_config, capsys):
+def test_check_says_when_the_budget_does_not_fit(library, tmp_path, task_config, capsys, gen2_config):
     """9 ms per call (a slow hub, say): 100 points/s alone fill 90 % of the bus."""
     fake = fake_module.FakeSdk(library)
     fake.reset(position_deg=np.degrees(task_config.arm.home), latency=0.009)
-    path = _config(tmp_path, library=str(library), serial=fake_module.SERIAL, scene=str(SCENE),
+    path = gen2_config(library=str(library), serial=fake_module.SERIAL, scene=str(SCENE),
                    check_calls=10)
     assert main(["--backend", "kinova-gen2", "--config", str(path), "--check"]) == 1
     out = capsys.readouterr().out
     assert "DOES NOT FIT: bus load" in out and "the USB budget does NOT fit at 20 Hz" in out
 
 
-def test_check_without_an_arm_is_one_line(library, tmp_path, capsys):
+def test_check_without_an_arm_is_one_line(library, tmp_path, capsys, gen2_config):
     fake = fake_module.FakeSdk(library)
     fake.reset(serials=())
-    path = _config(tmp_path, library=str(library), serial=fake_module.SERIAL, scene=str(SCENE))
+    path = gen2_config(library=str(library), serial=fake_module.SERIAL, scene=str(SCENE))
     assert main(["--backend", "kinova-gen2", "--config", str(path), "--check"]) == 3
     captured = capsys.readouterr()
     err = captured.err.strip().splitlines()
@@ -108,11 +99,11 @@ def test_check_without_an_arm_is_one_line(library, tmp_path, capsys):
     assert [c.function for c in fake.calls()] == ["InitAPI", "CloseAPI"]
 
 
-def test_check_refuses_a_backend_without_one_and_bad_settings(tmp_path, capsys):
+def test_check_refuses_a_backend_without_one_and_bad_settings(tmp_path, capsys, gen2_config):
     assert main(["--backend", "sim", "--check"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "--backend sim has none" in err
-    path = _config(tmp_path, library=None)
+    path = gen2_config(library=None)
     assert main(["--backend", "kinova-gen2", "--config", str(path), "--check"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "deploy.kinova_gen2.library is not set" in err

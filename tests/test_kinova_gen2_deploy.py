@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import yaml
 
-from ahrm_stack.deploy import DEPLOY_CONFIG, main
+from ahrm_stack.deploy import main
 from hardware.scene import SceneError, StaticScene
 
 fake_module = pytest.importorskip("fake_kinova_sdk.fake")
@@ -69,32 +69,24 @@ def test_static_scene_reads_and_validates(tmp_path):
         StaticScene(tmp_path / "none.yaml")
 
 
-def _config(tmp_path: Path, **gen2) -> Path:
-    data = yaml.safe_load(DEPLOY_CONFIG.read_text())
-    data["kinova_gen2"].update(gen2)
-    path = tmp_path / "deploy.yaml"
-    path.write_text(yaml.safe_dump(data))
-    return path
-
-
-def test_deploy_refuses_a_missing_sdk_in_one_line(tmp_path, capsys):
+def test_deploy_refuses_a_missing_sdk_in_one_line(tmp_path, capsys, gen2_config):
     missing = tmp_path / "USBCommandLayerUbuntu.so"
-    path = _config(tmp_path, library=str(missing), serial=fake_module.SERIAL, scene=str(SCENE))
+    path = gen2_config(library=str(missing), serial=fake_module.SERIAL, scene=str(SCENE))
     assert main(["--backend", "kinova-gen2", "--config", str(path), "--telemetry", ""]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(missing) in err and "docs/hardware.md" in err
-    path = _config(tmp_path, library=str(missing), serial=None, scene=str(SCENE))
+    path = gen2_config(library=str(missing), serial=None, scene=str(SCENE))
     assert main(["--backend", "kinova-gen2", "--config", str(path), "--telemetry", ""]) == 2
 
 
-def test_deploy_command_runs_the_fake_arm(library, tmp_path, task_config, capsys, caplog):
+def test_deploy_command_runs_the_fake_arm(library, tmp_path, task_config, capsys, caplog, gen2_config):
     """`python -m ahrm_stack.deploy --backend kinova-gen2` (its main, in this process: the fake
     SDK is this process's library). Missed deadlines and late feedback are tolerated here (a loaded
     machine; the stale-feedback stop has its own tests in test_deploy_faults.py): the run must
     connect by serial, tick, end when the duration runs out and leave the arm stopped."""
     fake = fake_module.FakeSdk(library)
     fake.reset(position_deg=np.degrees(task_config.arm.home))
-    path = _config(tmp_path, library=str(library), serial=fake_module.SERIAL, scene=str(SCENE))
+    path = gen2_config(library=str(library), serial=fake_module.SERIAL, scene=str(SCENE))
     data = yaml.safe_load(path.read_text())
     data["watchdog"]["max_deadline_misses"] = 1000
     data["watchdog"]["max_feedback_age"] = 10.0  # periods: a loaded CI machine delayed one 37 ms

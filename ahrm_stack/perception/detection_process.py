@@ -24,10 +24,9 @@ import multiprocessing
 import os
 import threading
 import time
-from collections import deque
 from typing import Any
 
-from ahrm_stack.perception.detection_thread import CameraThreadError, StampedMeasurement
+from ahrm_stack.perception.detection_thread import CameraThreadError, MeasurementBuffer, StampedMeasurement
 from ahrm_stack.perception.settings import PerceptionSettings
 
 
@@ -76,19 +75,18 @@ def _child(settings: PerceptionSettings, cube_size: float, conn, stop, nice: int
         conn.close()
 
 
-class DetectionProcess:
+class DetectionProcess(MeasurementBuffer):
     """The capture/detection loop of ``settings`` in a child process (the module docstring).
     ``history``: how many of the newest results :meth:`since` keeps."""
+
+    kind = "camera process"
+    poll = 0.005
 
     def __init__(self, settings: PerceptionSettings, cube_size: float, label: str, history: int = 64,
                  nice: int = 10) -> None:
         self.settings, self.cube_size, self.label = settings, cube_size, label
+        super().__init__(history)
         self.nice = nice
-        self._results: deque[StampedMeasurement] = deque(maxlen=history)
-        self.error = ""
-        self.frames_done = 0
-        self.latencies: list[float] = []
-        self._lock = threading.Lock()
         self._receiver: threading.Thread | None = None
         self._process: Any = None  # multiprocessing's spawn Process once started
         self._conn: Any = None  # the receiving end of the pipe
@@ -118,34 +116,15 @@ class DetectionProcess:
         try:
             while True:
                 item = conn.recv()  # waits without the GIL
-                with self._lock:
-                    if isinstance(item, str):
+                if isinstance(item, str):
+                    with self._lock:
                         self.error = item
-                        continue
-                    self._results.append(item)
-                    self.latencies.append(item.latency)
-                    self.frames_done += 1
+                    continue
+                self._add(item)
         except (EOFError, OSError):
             with self._lock:
                 if not self.error and not self._stop.is_set():
                     self.error = "camera process stopped: it ended without a word (killed?)"
-
-    def since(self, index: int) -> list[StampedMeasurement]:
-        """The results with ``index`` or later that arrived (oldest first); never waits for one."""
-        with self._lock:
-            return [r for r in self._results if r.index >= index]
-
-    def wait_first(self, timeout: float) -> None:
-        """Block (before a run) until the first frame was measured; :class:`CameraThreadError`
-        when the child failed or ``timeout`` s passed."""
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            if self.error:
-                raise CameraThreadError(self.error)
-            if self.frames_done:
-                return
-            time.sleep(0.005)
-        raise CameraThreadError(f"camera process: no frame measured within {timeout:g} s")
 
     @property
     def started(self) -> bool:

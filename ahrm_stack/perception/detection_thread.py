@@ -26,6 +26,7 @@ import os
 import sys
 import threading
 import time
+from collections import deque
 from typing import Callable, Protocol
 
 import numpy as np
@@ -49,7 +50,48 @@ class StampedMeasurement:
     measurement: TagMeasurement | None
 
 
-class DetectionThread:
+class MeasurementBuffer:
+    """What a detection runner (:class:`DetectionThread`, or the child process's
+    :class:`~ahrm_stack.perception.detection_process.DetectionProcess`) shares with the control
+    thread: the ``history`` newest stamped measurements, every frame's capture-to-pose latency (s),
+    the frame count and the first line of the error that stopped it. ``kind`` names the runner in
+    errors; ``poll`` (s) is :meth:`wait_first`'s sleep."""
+
+    kind = "camera thread"
+    poll = 0.002
+
+    def __init__(self, history: int) -> None:
+        self._lock = threading.Lock()
+        self._results: deque[StampedMeasurement] = deque(maxlen=history)
+        self.error = ""
+        self.frames_done = 0
+        self.latencies: list[float] = []
+
+    def _add(self, result: StampedMeasurement) -> None:
+        with self._lock:
+            self._results.append(result)
+            self.latencies.append(result.latency)
+            self.frames_done += 1
+
+    def since(self, index: int) -> list[StampedMeasurement]:
+        """The results with ``index`` or later (oldest first; at most ``history``); never waits."""
+        with self._lock:
+            return [r for r in self._results if r.index >= index]
+
+    def wait_first(self, timeout: float) -> None:
+        """Block (before a run) until the first frame was measured; :class:`CameraThreadError`
+        when the runner failed or ``timeout`` s of wall time passed."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if self.error:
+                raise CameraThreadError(self.error)
+            if self.frames_done:
+                return
+            time.sleep(self.poll)
+        raise CameraThreadError(f"{self.kind}: no frame measured within {timeout:g} s")
+
+
+class DetectionThread(MeasurementBuffer):
     """``frames`` → (``undistort``) → ``detector`` in a daemon thread (the module docstring).
 
     ``clock``: the adapter's clock (its ``now`` only: never slept on here). ``history``: how many
@@ -63,15 +105,11 @@ class DetectionThread:
                  undistort: Callable[[np.ndarray], np.ndarray] | None = None,
                  history: int = 64, nice: int = 10, switch_interval: float = 0.0005) -> None:
         self.frames, self.detector, self.clock, self.undistort = frames, detector, clock, undistort
+        super().__init__(history)
         self.history, self.nice, self.switch_interval = history, nice, switch_interval
-        self._lock = threading.Lock()
-        self._results: list[StampedMeasurement] = []
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self.error: str = ""  # the first line of the error that stopped the thread
         self._closed = False
-        self.frames_done = 0
-        self.latencies: list[float] = []  # s, every frame's capture to pose
 
     def start(self, clock=None) -> None:
         """Start the thread (``clock``: unused, the thread stamps with the one it was given)."""
@@ -96,32 +134,10 @@ class DetectionThread:
                 done = self.clock.now()
                 if found is not None:
                     up = found.rotation[:, 2]
-                result = StampedMeasurement(self.frames_done, stamp, done - stamp, found)
-                with self._lock:
-                    self._results.append(result)
-                    del self._results[:-self.history]
-                    self.latencies.append(done - stamp)
-                self.frames_done += 1
+                self._add(StampedMeasurement(self.frames_done, stamp, done - stamp, found))
         except Exception as error:  # noqa: BLE001 - reported to the control thread, one line
             text = (str(error).splitlines() or [""])[0][:200]
             self.error = f"camera thread stopped: {type(error).__name__}: {text}"
-
-    def since(self, index: int) -> list[StampedMeasurement]:
-        """The results with ``index`` or later (oldest first; at most ``history``)."""
-        with self._lock:
-            return [r for r in self._results if r.index >= index]
-
-    def wait_first(self, timeout: float) -> None:
-        """Block (before a run) until the first frame was measured, the thread failed (raises
-        :class:`CameraThreadError`) or ``timeout`` s of wall time passed (raises it too)."""
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            if self.error:
-                raise CameraThreadError(self.error)
-            if self.frames_done:
-                return
-            time.sleep(0.002)
-        raise CameraThreadError(f"camera thread: no frame measured within {timeout:g} s")
 
     def stop(self, timeout: float = 2.0) -> None:
         """Stop the thread, then close the frame source and the detector (left to the process's

@@ -114,12 +114,7 @@ class CubeTracker:
         self.frames += 1
         if position is None:
             self.misses += 1
-            if self.last_measured is None:
-                raise TagLostError(f"{self.label} is not in the camera image at the start")
-            gap = float(time) - self.last_measured
-            if gap > self.settings.max_hold + 1e-9:
-                raise TagLostError(f"{self.label} not seen for {gap:.3f} s > tracker.max_hold "
-                                   f"{self.settings.max_hold:g} s")
+            self._check_held(time)
             self.filter.predict(time)
         else:
             if not self.filter.initialised:
@@ -135,17 +130,23 @@ class CubeTracker:
                          measured=position is not None,
                          since_measured=float(time) - self.last_measured)
 
-    def at(self, time: float, latency: float = 0.0) -> CubeState:
-        """The state predicted to ``time`` s (not after a measurement: the filter is left as it
-        is), ``latency`` s recorded with it. The staleness rule of :meth:`update`:
-        :class:`TagLostError` when the last measurement's frame is more than ``max_hold`` s older
-        than ``time`` (or there was none)."""
+    def _check_held(self, time: float) -> float:
+        """The time (s) since the last measurement at ``time`` (s); :class:`TagLostError` when
+        there was none yet, or it is over ``tracker.max_hold``."""
         if self.last_measured is None:
             raise TagLostError(f"{self.label} is not in the camera image at the start")
         gap = float(time) - self.last_measured
         if gap > self.settings.max_hold + 1e-9:
             raise TagLostError(f"{self.label} not seen for {gap:.3f} s > tracker.max_hold "
                                f"{self.settings.max_hold:g} s")
+        return gap
+
+    def at(self, time: float, latency: float = 0.0) -> CubeState:
+        """The state predicted to ``time`` s (not after a measurement: the filter is left as it
+        is), ``latency`` s recorded with it. The staleness rule of :meth:`update`:
+        :class:`TagLostError` when the last measurement's frame is more than ``max_hold`` s older
+        than ``time`` (or there was none)."""
+        gap = self._check_held(time)
         ahead = max(0.0, float(time) - float(self.filter.time))
         return CubeState(timestamp=float(time), position=self.filter.position + ahead * self.filter.velocity,
                          quaternion=self.quaternion.copy(), velocity=self.filter.velocity,
