@@ -27,9 +27,12 @@ ROOT = Path(__file__).resolve().parents[1]
 SERIAL = "PJ00900006151300001"
 TIMEOUT = 120  # s per child: a loaded 2-core machine imports dm_control slowly
 
-pytestmark = pytest.mark.skipif(
-    not (sys.platform.startswith("linux") and platform.machine() == "x86_64"),
-    reason="Kinova's vendored Gen2 SDK is the x86_64 Linux build")
+pytestmark = [
+    pytest.mark.skipif(not (sys.platform.startswith("linux") and platform.machine() == "x86_64"),
+                       reason="Kinova's vendored Gen2 SDK is the x86_64 Linux build"),
+    # the SDK takes Kinova's machine-wide lock (/dev/shm/sem.KinovaMutex): one worker runs these
+    pytest.mark.xdist_group("kinova_vendor_sdk"),
+]
 
 
 @pytest.fixture(scope="module")
