@@ -24,7 +24,7 @@ def test_every_safety_key_has_a_direction_that_fits_its_type(ours):
     found = markers(SafetyConfig, Stricter)
     assert sorted(found) == keys_of(SafetyConfig)
     unmarked = [key for key, mark in found.items() if mark is None]
-    assert not unmarked, f"safety keys without a stricter(...) marker in ahrm_stack/config.py: {unmarked}"
+    assert not unmarked, f"safety keys without a stricter(...) marker in ahrm_stack/config/safety.py: {unmarked}"
     for key, direction in safety_directions().items():
         value = getattr(ours, key)
         assert direction in DIRECTIONS, key

@@ -28,7 +28,7 @@ def make_worker_envs(config: Config, seeds: list[int]) -> ParallelEnv:
     (``use_buffers=False``): TorchRL's shared-buffer mode spin-polls in the parent, which takes a
     core from the workers on a small machine."""
     workers = config.train.env_workers
-    per = len(seeds) // workers  # num_envs is a multiple of env_workers (config.py)
+    per = len(seeds) // workers  # num_envs is a multiple of env_workers (ahrm_stack/config)
     if per > 1:  # the WorkerEnv calls (drain, load_mechanism, ...) do not pass through a SerialEnv
         raise ValueError(f"the ParallelEnv reference runs one environment per worker: train.num_envs "
                          f"({len(seeds)}) must equal train.env_workers ({workers}); the EnvPool takes any split")

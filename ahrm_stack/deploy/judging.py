@@ -2,17 +2,20 @@
 model's measure of the task), never from the simulator: success (:class:`SuccessJudge`), touching
 (:class:`TouchEstimator`) and task progress (:class:`ProgressWatchdog`). Each is fed once per
 control tick by :class:`~ahrm_stack.deploy.loop.DeployLoop`; the settings are ``configs/deploy.yaml``'s
-``success``, ``touch`` and ``progress`` sections. Positions in m, world frame; times in s of loop
-time."""
+``success``, ``touch`` and ``progress`` sections; a success is confirmed from perception after
+the stop (:func:`confirm_success`). Positions in m, world frame; times in s of loop time."""
 
 from __future__ import annotations
 
 import dataclasses
+import math
+from typing import Any, Callable
 
 import numpy as np
 
 from ahrm_stack.config import TableConfig
 from ahrm_stack.deploy.settings import ProgressSettings, SuccessSettings, TouchSettings
+from hardware.protocol import HardwareError
 
 
 class SuccessJudge:
@@ -146,3 +149,68 @@ class ProgressWatchdog:
             return (f"watchdog: no task progress for {timeout:.1f} s (best progress {self.best:.3f} m "
                     f"at t={self.best_time:.2f} s, highest phase {self.phase})")
         return None
+
+
+def first_line(error: BaseException) -> str:
+    """``Type: first line of the message`` (at most 200 characters of it)."""
+    text = (str(error).splitlines() or [""])[0][:200]
+    return type(error).__name__ + (f": {text}" if text else "")
+
+
+@dataclasses.dataclass(frozen=True)
+class SuccessConfirmation:
+    """What perception showed after a success's stop (:func:`confirm_success`)."""
+
+    confirmed: bool  # no read had the cube back on the table
+    message: str  # what was perceived, for the stop reason and the log
+    reads: list[np.ndarray]  # the cube centres read after the stop, (3,) each, m, world frame
+    gone: str  # why the cube counted as gone from view (a perception error), or ''
+
+
+def confirm_success(judge: SuccessJudge, perceive: Callable[[], Any], clock: Any, stopped: float,
+                    period: float, lost: str = "") -> SuccessConfirmation:
+    """Confirm a success that ``judge`` saw (the arm stopped at clock time ``stopped``, s): re-read
+    ``perceive()`` (object poses) every ``period`` s for ``success.confirm_time`` s (``clock``
+    sleeps between reads; none when ``lost``, the perception error of a cube perceived off the
+    table and then gone from view). It is a success unless a read perceives the cube back on the
+    table; a read that fails (an exception other than the adapter's
+    :class:`~hardware.protocol.HardwareError`, which propagates; a non-finite position: a camera's
+    tag fallen out of view) ends the confirmation as the cube gone."""
+    seen = judge.seen
+    wait = judge.settings.confirm_time
+    count = 0 if lost else max(1, math.ceil(wait / period - 1e-9))
+    reads: list[np.ndarray] = []
+    gone = lost
+    for k in range(1, count + 1):
+        clock.sleep_until(stopped + min(k * period, wait))
+        try:
+            poses = perceive()
+        except HardwareError:  # the adapter's: handled as in a tick
+            raise
+        except Exception as error:  # noqa: BLE001 - e.g. the tag out of view once fallen
+            gone = first_line(error)
+            break
+        if not np.isfinite(poses.cube_position).all():
+            gone = "non-finite cube position"
+            break
+        reads.append(np.asarray(poses.cube_position, dtype=float)[:3].copy())
+    back = next((i for i, p in enumerate(reads) if not judge.off_table(p)), None)
+    confirmed = back is None
+    where = ", ".join(f"{v:.3f}" for v in seen[:3])
+    message = (f"the cube was perceived off the table at ({where}) m for {judge.streak} "
+               f"tick{'s' * (judge.streak != 1)}")
+    if not confirmed:
+        assert back is not None
+        at = ", ".join(f"{v:.3f}" for v in reads[back])
+        message += (f", but back on the table at ({at}) m "
+                    f"{min((back + 1) * period, wait):.2f} s after the stop")
+    elif lost:
+        message += f", then gone from view ({lost})"
+    elif gone and not reads:
+        message += f", then gone from view at the first read after the stop ({gone})"
+    elif gone:
+        message += (f", still off in {len(reads)} read{'s' * (len(reads) != 1)} after the stop, "
+                    f"then gone from view ({gone})")
+    else:
+        message += f", still off {wait:g} s after the stop ({len(reads)} reads)"
+    return SuccessConfirmation(confirmed, message, reads, gone)

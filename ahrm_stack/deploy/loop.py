@@ -1,6 +1,7 @@
 """The deploy loop: one control period of feedback, world model, controller, safety filter and
-command per :meth:`DeployLoop.tick`, and every way a run ends (:class:`DeployFault`,
-:class:`DeploySummary`)."""
+command per :meth:`DeployLoop.tick`, and every way a run ends (its records, :class:`DeployFault`
+and :class:`DeploySummary`, are in :mod:`ahrm_stack.deploy.summary`; the success confirmation
+after the stop in :mod:`ahrm_stack.deploy.judging`)."""
 
 from __future__ import annotations
 
@@ -13,63 +14,17 @@ import time
 
 import numpy as np
 
-from ahrm_stack.deploy.judging import ProgressWatchdog, SuccessJudge, TouchEstimator
+from ahrm_stack.deploy.judging import (ProgressWatchdog, SuccessJudge, TouchEstimator, confirm_success,
+                                      first_line)
 from ahrm_stack.deploy.safety_settings import require_filter
 from ahrm_stack.deploy.settings import DeploySettings, control_periods
 from ahrm_stack.deploy.start_check import StartPostureError, start_refusal
+from ahrm_stack.deploy.summary import DeployFault, DeploySummary
 from ahrm_stack.deploy.world import WorldModel
 from hardware.protocol import (ArmFaultError, CommandRefusedError, ConnectionLostError,
                                FeedbackTimeoutError, HardwareError, ServoingMode)
 
 log = logging.getLogger("ahrm_stack.deploy")
-
-
-@dataclasses.dataclass
-class DeploySummary:
-    success: bool  # the cube perceived off the table, sustained, and still off after the stop
-    duration: float  # s of loop time
-    ticks: int
-    interventions: int  # ticks whose command the safety filter modified
-    fallbacks: int
-    deadline_misses: int
-    latency_p50_ms: float  # feedback received -> command sent
-    latency_p99_ms: float
-    stop_reason: str
-    emergency_stops: int
-    adapter_refusals: int
-    fault: str = ""  # the software fault that stopped the run (exception, NaN request), or ''
-    # touching estimated from perception (deploy.touch): an obstacle perceived displaced
-    touched: bool = False
-    touched_obstacles: list[int] = dataclasses.field(default_factory=list)  # in order of touch
-    first_touch_time: float | None = None  # s of loop time, None when nothing was touched
-
-    def __str__(self) -> str:
-        touched = (f"touched {self.touched} (obstacles {self.touched_obstacles}, first at "
-                   f"{self.first_touch_time:.2f} s)" if self.touched and self.first_touch_time is not None
-                   else f"touched {self.touched}")
-        return (f"deploy summary: success {self.success} | {touched} | duration {self.duration:.2f} s | "
-                f"ticks {self.ticks} | interventions {self.interventions} | fallbacks "
-                f"{self.fallbacks} | deadline misses {self.deadline_misses} | latency p50 "
-                f"{self.latency_p50_ms:.3f} ms p99 {self.latency_p99_ms:.3f} ms | e-stops "
-                f"{self.emergency_stops} | stop: {self.stop_reason}")
-
-
-class DeployFault(RuntimeError):
-    """A software fault stopped the run: an exception in start-up, perception, the world model,
-    the controller, the safety filter or the loop itself, or a non-finite controller request. The
-    arm was commanded to zero velocity and the stop and the summary were recorded before this is
-    raised. ``summary`` is the run's :class:`DeploySummary`; ``__cause__`` the original exception
-    (None for a NaN request)."""
-
-    def __init__(self, message: str, summary: DeploySummary) -> None:
-        super().__init__(message)
-        self.summary = summary
-
-
-def _first_line(error: BaseException) -> str:
-    """``Type: first line of the message`` (at most 200 characters of it)."""
-    text = (str(error).splitlines() or [""])[0][:200]
-    return type(error).__name__ + (f": {text}" if text else "")
 
 
 class _Halt(Exception):
@@ -209,58 +164,21 @@ class DeployLoop:
 
     def _judge_success(self, lost: str = "") -> None:
         """The cube was perceived off the table for ``success.sustain_ticks`` ticks, or (``lost``:
-        the perception error) perceived off and then gone from view: stop the arm, re-read
-        perception each period for ``success.confirm_time`` s (the arm still), and end the run. It
-        is a success unless a read perceives the cube back on the table; a read that fails (an
-        exception other than the adapter's, a non-finite position: a camera's tag fallen out of
-        view) ends the confirmation as the cube gone."""
+        the perception error) perceived off and then gone from view: stop the arm, confirm it from
+        perception after the stop (:func:`~ahrm_stack.deploy.judging.confirm_success`), record the
+        judgement and end the run."""
         judge = self.success_judge
-        seen = judge.seen
         if not self.halted:
             self.stop_reason = "success judgement: confirming after the stop"
         self._command_stop(emergency=False)
         stopped = self.stopped_at if self.stopped_at is not None else self.clock.now()
-        wait = self.settings.success.confirm_time
-        count = 0 if lost else max(1, math.ceil(wait / self.period - 1e-9))
-        reads: list[np.ndarray] = []
-        gone = lost
-        for k in range(1, count + 1):
-            self.clock.sleep_until(stopped + min(k * self.period, wait))
-            try:
-                poses = self._perceive()
-            except HardwareError:  # the adapter's: handled as in a tick
-                raise
-            except Exception as error:  # noqa: BLE001 - e.g. the tag out of view once fallen
-                gone = _first_line(error)
-                break
-            if not np.isfinite(poses.cube_position).all():
-                gone = "non-finite cube position"
-                break
-            reads.append(np.asarray(poses.cube_position, dtype=float)[:3].copy())
-        back = next((i for i, p in enumerate(reads) if not judge.off_table(p)), None)
-        confirmed = back is None
-        where = ", ".join(f"{v:.3f}" for v in seen[:3])
-        message = (f"the cube was perceived off the table at ({where}) m for {judge.streak} "
-                   f"tick{'s' * (judge.streak != 1)}")
-        if not confirmed:
-            assert back is not None
-            at = ", ".join(f"{v:.3f}" for v in reads[back])
-            message += (f", but back on the table at ({at}) m "
-                        f"{min((back + 1) * self.period, wait):.2f} s after the stop")
-        elif lost:
-            message += f", then gone from view ({lost})"
-        elif gone and not reads:
-            message += f", then gone from view at the first read after the stop ({gone})"
-        elif gone:
-            message += (f", still off in {len(reads)} read{'s' * (len(reads) != 1)} after the stop, "
-                        f"then gone from view ({gone})")
-        else:
-            message += f", still off {wait:g} s after the stop ({len(reads)} reads)"
+        check = confirm_success(judge, self._perceive, self.clock, stopped, self.period, lost)
+        confirmed, message = check.confirmed, check.message
         self._event(logging.INFO if confirmed else logging.WARNING, "success judgement", message,
-                    cube=[round(float(v), 6) for v in seen[:3]], sustained_ticks=judge.streak,
-                    stopped_t=round(stopped - self._t0, 6), confirm_time=wait,
-                    confirmation_reads=[[round(float(v), 6) for v in p] for p in reads],
-                    gone_from_view=gone, confirmed=confirmed)
+                    cube=[round(float(v), 6) for v in judge.seen[:3]], sustained_ticks=judge.streak,
+                    stopped_t=round(stopped - self._t0, 6), confirm_time=judge.settings.confirm_time,
+                    confirmation_reads=[[round(float(v), 6) for v in p] for p in check.reads],
+                    gone_from_view=check.gone, confirmed=confirmed)
         self.success = confirmed
         self.stop_reason = f"success: {message}" if confirmed else f"success not confirmed: {message}"
         self._event(logging.INFO if confirmed else logging.WARNING, "stop", self.stop_reason)
@@ -420,7 +338,7 @@ class DeployLoop:
             except Exception as error:  # noqa: BLE001 - re-raised: a perception or adapter fault
                 if not self.success_judge.streak or isinstance(error, HardwareError):
                     raise
-                self._judge_success(lost=_first_line(error))  # perceived off, then gone from view
+                self._judge_success(lost=first_line(error))  # perceived off, then gone from view
             if not poses.finite:
                 self._halt("non-finite perception (object poses)", emergency=False)
             elapsed = tick_time - self._t0

@@ -24,7 +24,7 @@ def safety_directions() -> dict[str, str]:
     found = markers(SafetyConfig, Stricter)
     for key, mark in found.items():
         if mark is None:
-            raise TypeError(f"safety.{key} has no stricter(...) marker in ahrm_stack/config.py "
+            raise TypeError(f"safety.{key} has no stricter(...) marker in ahrm_stack/config/safety.py "
                             "(SafetyConfig): say which of two values is the stricter")
     return {key: mark.direction for key, mark in found.items()}
 

@@ -9,6 +9,8 @@ Each control step (``control_period`` s) the task:
    f = (f1, f2, f3) and their penalty form g, and whether the cube has left the table.
 
 The results of the last step are in :attr:`PushOffTask.step_info`.
+The observation (the observables, the flat vector, the lane plan) lives in the task's base class
+:class:`~ahrm_stack.env.task_observation.TaskObservation`.
 """
 
 from __future__ import annotations
@@ -18,7 +20,6 @@ import dataclasses
 import mujoco
 import numpy as np
 from dm_control import composer, mjcf
-from dm_control.composer.observation import observable
 from dm_env import specs
 
 from ahrm_stack.config import ConfigError, TaskConfig
@@ -26,10 +27,11 @@ from ahrm_stack.env.arena import TableArena
 from ahrm_stack.env.clearance import Clearance
 from ahrm_stack.env.control_step import command_to_action
 from ahrm_stack.env.entities import BoxProp, Pusher
-from ahrm_stack.env.layout import Layout, LayoutSampler, choose_lane, lane_clearance
+from ahrm_stack.env.layout import Layout, LayoutSampler, choose_lane
 from ahrm_stack.env.realism import DynamicsVariation, draw_dynamics
 from ahrm_stack.env.start_pose import solve_start_pose
-from ahrm_stack.env.rewards import (NUM_PHASES, ProgressObjective, TimeObjective, avoid_component,
+from ahrm_stack.env.task_observation import TaskObservation
+from ahrm_stack.env.rewards import (ProgressObjective, TimeObjective, avoid_component,
                                     obstacle_touched, penalty_form, progress)
 from ahrm_stack.kinematics.model import make_kinematics, relative_name
 from ahrm_stack.kinematics.scene import CollisionScene, link_capsules
@@ -87,7 +89,7 @@ class JointAddresses:
     obstacle_dof: np.ndarray  # (n_obstacles, 3) linear velocities
 
 
-class PushOffTask(composer.Task):
+class PushOffTask(TaskObservation, composer.Task):
     """Push the target cube off the table without touching the obstacles (spec §1-3)."""
 
     def __init__(self, config: TaskConfig) -> None:
@@ -171,133 +173,6 @@ class PushOffTask(composer.Task):
     @property
     def obstacles(self) -> list[BoxProp]:
         return list(self._obstacles)
-
-    def _declare_observables(self) -> None:
-        """The observation of spec §1; :data:`OBSERVATION_ORDER` lists the keys in vector order."""
-        self._arm.observables.joints_pos.enabled = True
-        self._arm.observables.joints_vel.enabled = True
-        for prop in [self._cube, *self._obstacles]:
-            prop.observables.position.enabled = True
-            prop.observables.linear_velocity.enabled = True
-        self._task_observables = {
-            "pusher_tip": observable.Generic(lambda physics: self.step_info.tip),
-            "previous_action": observable.Generic(lambda physics: self.previous_action),
-            "phase": observable.Generic(
-                lambda physics: np.eye(NUM_PHASES)[self.step_info.phase - 1]),
-            "boundary_distance": observable.Generic(
-                lambda physics: np.array([self.step_info.x])),
-        }
-        if self.config.observation.relative:
-            self._task_observables["relative_to_cube"] = observable.Generic(
-                lambda physics: self._relative_to_cube(physics))
-        if self.config.observation.lanes:
-            self._task_observables["lane_clearance"] = observable.Generic(
-                lambda physics: self._lane_clearance(physics))
-        if self.config.observation.lane_choice:
-            self._task_observables["lane_choice"] = observable.Generic(
-                lambda physics: self._lane_choice(physics))
-        for obs in self._task_observables.values():
-            obs.enabled = True
-        # Sample once per control step (at its last substep), not at every physics substep.
-        for obs in self.observables.values():
-            obs.update_interval = self.config.substeps
-
-    @property
-    def observables(self) -> dict:
-        """All enabled observables, keyed as in the composer observation dict."""
-        found = {}
-        for entity in [self._arm, self._cube, *self._obstacles]:
-            for name, obs in entity.observables.as_dict().items():
-                if obs.enabled:
-                    found[name] = obs
-        found.update(self._task_observables)
-        return found
-
-    @property
-    def task_observables(self) -> dict:
-        return self._task_observables
-
-    @property
-    def observation_order(self) -> list[str]:
-        """Observation keys in the order of the flat observation vector."""
-        props = [self._cube, *self._obstacles]
-        keys = [f"{self._arm.mjcf_model.model}/joints_pos", f"{self._arm.mjcf_model.model}/joints_vel",
-                "pusher_tip"]
-        for prop in props:
-            keys += [f"{prop.mjcf_model.model}/position", f"{prop.mjcf_model.model}/linear_velocity"]
-        keys += ["previous_action", "phase", "boundary_distance"]
-        return keys + [k for k in ("relative_to_cube", "lane_clearance", "lane_choice")
-                       if k in self._task_observables]
-
-    def _relative_to_cube(self, physics: mjcf.Physics) -> np.ndarray:
-        """Tip - cube (3) and each obstacle - cube in (x, y) (2 each), m, world frame."""
-        if not hasattr(self, "_cube_body"):  # composer evaluates observables before the first reset
-            self._bind(physics)
-        xpos = physics.data.xpos
-        cube = xpos[self._cube_body]
-        return np.concatenate([self.step_info.tip - cube,
-                               (xpos[self._obstacle_bodies, :2] - cube[:2]).ravel()])
-
-    def _lane_clearance(self, physics: mjcf.Physics) -> np.ndarray:
-        """Each reachable lane's clearance from the current cube and obstacle positions, m."""
-        if not hasattr(self, "_cube_body"):
-            self._bind(physics)
-        xpos = physics.data.xpos
-        cfg = self.config
-        return lane_clearance(xpos[self._cube_body, :2], xpos[self._obstacle_bodies, :2],
-                              cfg.cube.size / 2, self._obstacle_half_sizes[0, :2], cfg.table, cfg.layout,
-                              cfg.observation.lane_clip)
-
-    def _lane_choice(self, physics: mjcf.Physics) -> np.ndarray:
-        """One-hot over ``layout.lane_directions``: the episode's lane
-        (:func:`~ahrm_stack.env.layout.choose_lane`), planned from the first state observed after
-        a reset — the settled layout in training, the first perceived one in deployment — and
-        kept for the episode, as the scripted controller keeps its plan."""
-        if self._lane_plan is None:
-            self._lane_plan = np.eye(len(self.config.layout.lane_directions))[self.plan_lane(physics)]
-        return self._lane_plan
-
-    def plan_lane(self, physics: mjcf.Physics) -> int:
-        """The planner's lane for the current state (its index in ``layout.lane_directions``):
-        :func:`~ahrm_stack.env.layout.choose_lane` on the cube's and obstacles' positions now and
-        the pusher tip of :attr:`step_info` (m, world frame). At an episode's first observation,
-        the scripted controller's plan; ``lane_choice`` shows it, lane agreement
-        (:mod:`ahrm_stack.lane_agreement`) measures against it."""
-        if not hasattr(self, "_cube_body"):
-            self._bind(physics)
-        xpos = physics.data.xpos
-        cfg = self.config
-        layout = Layout(xpos[self._cube_body, :2].copy(), xpos[self._obstacle_bodies, :2].copy())
-        return choose_lane(layout, self.step_info.tip[:2], cfg.cube.size / 2,
-                           self._obstacle_half_sizes[0, :2], cfg.table, cfg.layout)
-
-    def cube_xy(self, physics: mjcf.Physics) -> np.ndarray:
-        """The cube centre's (x, y) now, m, world frame (a copy)."""
-        if not hasattr(self, "_cube_body"):
-            self._bind(physics)
-        return physics.data.xpos[self._cube_body, :2].copy()
-
-    def flat_observation(self, physics: mjcf.Physics) -> np.ndarray:
-        """The observation vector in :attr:`observation_order`, read straight from the physics.
-
-        Equal to concatenating the declared observables (a test checks it) but without composer's
-        per-observable overhead: this runs every control step.
-        """
-        data = physics.data
-        q = data.qpos[self._arm_qpos]
-        parts = [np.stack([np.sin(q), np.cos(q)], axis=1).ravel(), data.qvel[self._arm_dof],
-                 self.step_info.tip,
-                 np.concatenate([data.xpos[self._prop_bodies], data.qvel[self._prop_linear_dofs]],
-                                axis=1).ravel(),
-                 self.previous_action, np.eye(NUM_PHASES)[self.step_info.phase - 1],
-                 (self.step_info.x,)]
-        if self.config.observation.relative:
-            parts.append(self._relative_to_cube(physics))
-        if self.config.observation.lanes:
-            parts.append(self._lane_clearance(physics))
-        if self.config.observation.lane_choice:
-            parts.append(self._lane_choice(physics))
-        return np.concatenate(parts)
 
     def enable_sleep(self, physics: mjcf.Physics) -> None:
         """Turn on MuJoCo's body sleeping in ``physics`` (``task.episode.sleep``): the resting

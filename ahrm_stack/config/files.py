@@ -1,0 +1,14 @@
+"""Where the configuration's YAML files live: the ``configs/`` folder and the names under it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+CONFIG_DIR = Path(__file__).resolve().parent.parent.parent / "configs"
+
+SECTIONS = {"task": "task.yaml", "scripted": "scripted.yaml", "safety": "safety.yaml",
+            "mechanism": "mechanism.yaml", "ppo": "ppo.yaml", "train": "train.yaml"}
+
+PROFILE_DIR = "profiles"  # under the config folder: named sets of overrides
+
+ROBOTS_DIR = CONFIG_DIR / "robots"  # configs/robots/<name>.yaml: arms built from a URDF

@@ -1,0 +1,50 @@
+"""The whole configuration: :class:`Config`, the six sections of ``configs/`` together, and the
+rules that span several of them."""
+
+from __future__ import annotations
+
+from ahrm_stack.config.fields import LIMITS, Frozen
+from ahrm_stack.config.learning import MechanismConfig, PPOConfig, TrainConfig
+from ahrm_stack.config.safety import SafetyConfig
+from ahrm_stack.config.task import ScriptedConfig, TaskConfig
+from ahrm_stack.schema import ConfigError, Section
+
+
+@Frozen
+class Config(Section):
+    task: TaskConfig
+    scripted: ScriptedConfig
+    safety: SafetyConfig
+    mechanism: MechanismConfig
+    ppo: PPOConfig
+    train: TrainConfig
+
+    def check(self, key: str) -> None:
+        ppo, train, episode = self.ppo, self.train, self.task.episode
+        if ppo.frames_per_batch % train.num_envs:
+            raise ConfigError(f"ppo.frames_per_batch ({ppo.frames_per_batch}) must be a multiple of "
+                              f"train.num_envs ({train.num_envs})")
+        steps = round(episode.duration / episode.control_period)
+        uses_demos = train.warm_start == "bc" or ppo.bc_coeff > 0
+        if uses_demos and train.demo_episodes * steps > LIMITS["demo_steps"]:
+            raise ConfigError(f"train.demo_episodes ({train.demo_episodes}) x {steps} steps per "
+                              f"episode (task.episode.duration) exceeds {LIMITS['demo_steps']} "
+                              "demonstration steps held in memory")
+        if len(self.safety.acceleration_limit) != len(self.task.arm.home):
+            raise ConfigError(f"safety.acceleration_limit has {len(self.safety.acceleration_limit)} "
+                              f"values, task.arm.home_deg {len(self.task.arm.home)}: both give one "
+                              f"value per joint of task.robot ({self.task.robot})")
+        if ppo.lane_frame != "none":
+            task = self.task
+            if ppo.lane_frame.startswith("mirror") and not task.observation.lane_choice:
+                raise ConfigError(f"ppo.lane_frame: {ppo.lane_frame} needs task.observation.lane_choice: "
+                                  "true (the episode's lane decides whether the policy's frame is mirrored)")
+            if task.action.mode != "cartesian":
+                raise ConfigError(f"ppo.lane_frame: {ppo.lane_frame} needs task.action.mode: cartesian (a "
+                                  f"joint-velocity action has no mirror image), got {task.action.mode}")
+            if set(task.layout.lane_directions) != {"+x", "-x"}:
+                raise ConfigError(f"ppo.lane_frame: {ppo.lane_frame} needs both lanes, +x and -x, in "
+                                  f"task.layout.lane_directions, got {list(task.layout.lane_directions)}")
+        if self.task.regions.distance_clip < self.mechanism.blend_band:
+            raise ConfigError(f"task.regions.distance_clip ({self.task.regions.distance_clip} m) must "
+                              f"be >= mechanism.blend_band ({self.mechanism.blend_band} m)")

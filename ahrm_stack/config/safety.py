@@ -1,0 +1,97 @@
+"""The safety filter's section (``configs/safety.yaml``): :class:`SafetyConfig`, whose every key
+carries a ``stricter`` marker, and the per-arm self-collision pairs."""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from typing import Annotated, Literal
+
+from ahrm_stack.config.fields import LIMITS, Frozen, NonNeg, NonNegInt, Pos, PosInt, Vec3
+from ahrm_stack.schema import Bool, ConfigError, Float, Section, Str, le, legacy, stricter, within
+
+#: ``safety.self_collision_pairs`` of a run written before the key existed: configs/safety.yaml's
+#: pairs when the key was added (2026-12-01).
+SELF_COLLISION_PAIRS_2026_12_01 = {
+    "jaco": [["base", "link4"], ["base", "link5"], ["base", "link6"], ["base", "pusher"],
+             ["link1", "link4"], ["link1", "link5"], ["link1", "link6"], ["link1", "pusher"],
+             ["link2", "link4"], ["link2", "link5"], ["link2", "link6"], ["link2", "pusher"]],
+    "j2s6s200": [["base", "link4"], ["base", "link5"], ["base", "link6"], ["base", "pusher"],
+                 ["link1", "link4"], ["link1", "link5"], ["link1", "link6"], ["link1", "pusher"],
+                 ["link2", "link4"], ["link2", "link5"], ["link2", "link6"], ["link2", "pusher"],
+                 ["link3", "link5"], ["link3", "link6"], ["link3", "pusher"]]}
+
+SELF_COLLISION_PART = re.compile(r"^(base|pusher|link[1-9])$")
+
+
+@Frozen
+class SelfCollisionPairs(Section):
+    """Per arm (``task.robot``), the pairs of arm parts that get a self-collision distance row.
+    Parts are named ``base``, ``link1`` ... ``link6`` (the body each joint turns) and ``pusher``."""
+
+    jaco: tuple[tuple[Str, Str], ...]
+    j2s6s200: tuple[tuple[Str, Str], ...]
+
+    def check(self, key: str) -> None:
+        for robot in (f.name for f in dataclasses.fields(self)):
+            for i, pair in enumerate(getattr(self, robot)):
+                where = f"{key}.{robot}[{i}]"
+                for name in pair:
+                    if not SELF_COLLISION_PART.match(name):
+                        raise ConfigError(f"{where}: {name!r} is not an arm part; use base, link1 ... "
+                                          "link9 or pusher")
+                if pair[0] == pair[1]:
+                    raise ConfigError(f"{where}: a part cannot be paired with itself ({list(pair)})")
+
+
+@Frozen
+class SafetyConfig(Section):
+    """The QP action filter (spec §5). Joint limits and velocity limits come from the robot
+    description; only margins and the extra limits the description lacks live here."""
+
+    enabled: Annotated[Bool, stricter("on")]  # false only for an explicit ablation (logged as such)
+    solver: Annotated[Literal["osqp", "daqp"], stricter("none")]
+    position_margin: Annotated[NonNeg, stricter("higher")]  # rad, kept from each finite joint limit
+    velocity_margin: Annotated[Float, within(0, 1, "[)"), stricter("higher")]  # fraction of each
+    # joint's velocity limit left unused: headroom for the velocity controller, whose joints run
+    # faster than commanded under gravity (servo error)
+    acceleration_limit: Annotated[tuple[Pos, ...], stricter("lower")]  # rad/s^2 per joint,
+    # |u - u_prev| <= a_max dt
+    braking_horizon: Annotated[Bool, stricter("on")]  # true: position and Cartesian rows look ahead
+    # max(dt, max_i v_i/a_i) s (the time to brake from full speed), which keeps them satisfiable
+    # under the acceleration limits; false: one control period dt, the literal one-step rows
+    table_rows: Annotated[Bool, stricter("on")]  # the tip and wrist stay table_margin above the table top
+    table_margin: Annotated[NonNeg, stricter("higher")]  # m, the pusher tip stays this far above the table top
+    wrist_table_margin: Annotated[NonNeg, stricter("higher")]  # m, the wrist point (the pusher's
+    # attachment, inside the wrist ring) stays this far above the table top: the ring's radius plus
+    # a clearance
+    workspace_rows: Annotated[Bool, stricter("on")]  # the tip and wrist stay inside the workspace box
+    workspace_lower: Annotated[Vec3, stricter("higher")]  # m, world-frame box the tip and wrist stay in
+    workspace_upper: Annotated[Vec3, stricter("lower")]  # m
+    table_distance_rows: Annotated[Bool, stricter("on")]  # distance rows robot part-table (pusher
+    # body, link capsules)
+    obstacle_rows: Annotated[Bool, stricter("on")]  # distance rows robot part-obstacle (off in
+    # training, on in deployment)
+    obstacle_safe_distance: Annotated[NonNeg, stricter("higher")]  # m, d_safe
+    obstacle_activation_distance: Annotated[Float, stricter("higher")]  # m, pairs farther than this
+    # add no row
+    max_obstacle_rows: Annotated[NonNegInt, le(LIMITS["max_obstacle_rows"]), stricter("higher")]  # the
+    # nearest pairs within the activation distance get a row
+    self_collision_rows: Annotated[Bool, stricter("on"), legacy(True)]  # distance rows between the
+    # arm's own parts (the pairs below), with the obstacle rows' safe distance, activation distance
+    # and horizon (legacy: runs before 2026-12-01 were read with the rows on, as configs/ had it then)
+    self_collision_pairs: Annotated[SelfCollisionPairs, stricter("none"), legacy(SELF_COLLISION_PAIRS_2026_12_01)]
+    # no order: deploy's pairs are used (its arm's)
+    osqp_eps: Annotated[Pos, stricter("none")]  # OSQP absolute and relative tolerance
+    osqp_max_iter: Annotated[PosInt, le(LIMITS["osqp_max_iter"]), stricter("none")]
+    cartesian_regularization: Annotated[Pos, stricter("none")]  # lambda of ||u||^2 in cartesian mode, (m/rad)^2
+    cartesian_orientation_weight: Annotated[NonNeg, stricter("none")]  # weight of holding the pusher's
+    # axis direction, m^2
+
+    def check(self, key: str) -> None:
+        if self.obstacle_activation_distance <= self.obstacle_safe_distance:
+            raise ConfigError(f"{key}.obstacle_activation_distance ({self.obstacle_activation_distance}) "
+                              f"must exceed {key}.obstacle_safe_distance ({self.obstacle_safe_distance})")
+        for i, (lo, hi) in enumerate(zip(self.workspace_lower, self.workspace_upper)):
+            if not lo < hi:
+                raise ConfigError(f"{key}.workspace_lower[{i}] ({lo}) must be < workspace_upper[{i}] ({hi})")
