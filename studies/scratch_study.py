@@ -368,7 +368,7 @@ def probe(noises: list[float], smoothings: list[float], episodes: int, speed: fl
             for episode in range(episodes):
                 runner.seed(10_000 + episode)
                 runner.reset()
-                lane = config.task.layout.lane_directions[int(np.argmax(task._lane_choice(runner.physics)))]
+                lane = config.task.layout.lane_directions[int(np.argmax(task.lane_choice(runner.physics)))]
                 sign = 1.0 if lane == "+x" else -1.0
                 done, touched, good, steps = False, False, 0, 0
                 while not done:

@@ -28,7 +28,7 @@ def test_the_builder_is_used_and_equals_the_tasks_observation(overrides):
         physics.data.qvel[:] = rng.normal(0.0, 0.1, physics.data.qvel.shape)
         physics.forward()
         built = world._builder.fill().copy()
-        task._lane_plan = None
+        task.forget_lane_plan()
         expected = task.flat_observation(physics)
-        task._lane_plan = None
+        task.forget_lane_plan()
         np.testing.assert_array_equal(built, expected)

@@ -282,9 +282,9 @@ def test_a_world_model_reused_for_a_new_run_plans_its_lane_again():
         arm.connect()
         world.begin_run()
         world.update(arm.refresh_feedback(), arm.perception(), 0.0)
-        lanes.append(world.task._lane_choice(world.physics).copy())
+        lanes.append(world.task.lane_choice(world.physics).copy())
         world.update(arm.refresh_feedback(), arm.perception(), 0.05)
         fresh = WorldModel(config.task)
         fresh.update(arm.refresh_feedback(), arm.perception(), 0.0)
-        np.testing.assert_array_equal(lanes[-1], fresh.task._lane_choice(fresh.physics))
+        np.testing.assert_array_equal(lanes[-1], fresh.task.lane_choice(fresh.physics))
     assert not np.array_equal(lanes[0], lanes[1])  # these two layouts have different lanes

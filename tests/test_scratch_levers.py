@@ -267,7 +267,7 @@ def test_behind_starts_put_the_tip_opposite_the_episodes_lane():
     lanes = set()
     for seed in range(12):
         tip, cube = _near_cube_start(task, runner, seed)
-        lane = directions[int(np.argmax(task._lane_choice(runner.physics)))]
+        lane = directions[int(np.argmax(task.lane_choice(runner.physics)))]
         lanes.add(lane)
         push = np.array([1.0, 0.0]) if lane == "+x" else np.array([-1.0, 0.0])
         offset = tip[:2] - cube[:2]

@@ -52,7 +52,7 @@ class WorldModel:
         # rotation matrix, world frame), read from MuJoCo's arrays without dm_control's indexing
         raw = self.physics.data.ptr
         self._xpos, self._xmat = raw.xpos, raw.xmat
-        self._object_bodies = np.array([self.task._cube_body, *self.task._obstacle_bodies], dtype=int)
+        self._object_bodies = self.task.bodies.props.copy()
         self._object_poses = np.zeros((len(self._object_bodies), 12))
 
     @property
@@ -85,7 +85,7 @@ class WorldModel:
         data.time = self._start + elapsed
         self._kinematics(self._model_ptr, self._data_ptr)
         if new_run:  # the episode's bookkeeping restarts: the lane is planned again, the objectives
-            self.task._begin_episode(self.physics)  # and the previous action reset
+            self.task.begin_episode(self.physics)  # and the previous action reset
         self.task.after_step(self.physics, self.random_state)
         return self.task.step_info
 
@@ -115,7 +115,7 @@ class WorldModel:
         data = self.physics.data
         data.qpos[self._addresses.arm_qpos] = q
         self._kinematics(self._model_ptr, self._data_ptr)
-        site = self.task._tip_site_id
+        site = self.task.bodies.tip_site
         return data.site_xpos[site].copy(), data.site_xmat[site].reshape(3, 3)[:, 2].copy()
 
     def make_collision_scene(self):
@@ -147,9 +147,10 @@ class ObservationBuilder:
         self._qpos, self._qvel, self._xpos = raw.qpos, raw.qvel, raw.xpos
         n = task.robot.num_joints
         self._arm_qpos, self._arm_dof = task.addresses.arm_qpos, task.addresses.arm_dof
-        self._cube, self._obstacles = int(task._cube_body), np.asarray(task._obstacle_bodies)
-        self._props = np.asarray(task._prop_bodies)
-        self._prop_dofs = np.asarray(task._prop_linear_dofs)
+        bodies = task.bodies
+        self._cube, self._obstacles = int(bodies.cube), np.asarray(bodies.obstacles)
+        self._props = np.asarray(bodies.props)
+        self._prop_dofs = np.asarray(bodies.prop_linear_dofs)
         k = len(self._props)  # the cube and the obstacles
         # where each part sits: the task's own layout (env/observation_layout.py), one description
         layout = observation_layout(cfg, n, len(task.previous_action))
@@ -176,7 +177,7 @@ class ObservationBuilder:
             relative = out[sl["relative"]]
             self._relative_tip, self._relative_obstacles = relative[:3], relative[3:].reshape(k - 1, 2)
         if observation.lanes:
-            self._lane_args = (cfg.cube.size / 2, task._obstacle_half_sizes[0, :2], cfg.table, cfg.layout,
+            self._lane_args = (cfg.cube.size / 2, task.obstacle_half_sizes[0, :2], cfg.table, cfg.layout,
                                tuple(float(v) for v in cfg.observation.lane_clip))
             self._lanes = out[sl["lanes"]]
         self._lane_choice = out[sl["lane_choice"]] if observation.lane_choice else None
@@ -191,7 +192,7 @@ class ObservationBuilder:
         except (AttributeError, IndexError, KeyError, TypeError, ValueError):
             return None
         expected = task.flat_observation(physics)
-        task._lane_plan = None  # the check must not plan the episode's lane from this state
+        task.forget_lane_plan()  # the check must not plan the episode's lane from this state
         if built.shape != expected.shape or not np.array_equal(built, expected):
             return None
         return builder
@@ -225,5 +226,5 @@ class ObservationBuilder:
         if self._lanes is not None:
             self._lanes[:] = self.lane_clearance(cube[:2], self._obstacle_xy)
         if self._lane_choice is not None:
-            self._lane_choice[:] = task._lane_choice(self._physics)
+            self._lane_choice[:] = task.lane_choice(self._physics)
         return self._out

@@ -89,6 +89,18 @@ class JointAddresses:
     obstacle_dof: np.ndarray  # (n_obstacles, 3) linear velocities
 
 
+@dataclasses.dataclass(frozen=True)
+class BodyIds:
+    """Where the pusher's tip site and the props (the cube, then the obstacles) sit in one compiled
+    physics: MuJoCo ids (rows of ``data.site_xpos`` / ``data.xpos``) and the props' linear dofs."""
+
+    tip_site: int  # the pusher tip's site id
+    cube: int  # the cube's body id
+    obstacles: np.ndarray  # (n_obstacles,) body ids
+    props: np.ndarray  # (1 + n_obstacles,) body ids: the cube, then the obstacles
+    prop_linear_dofs: np.ndarray  # (1 + n_obstacles, 3) dof addresses: world-frame linear velocity
+
+
 class PushOffTask(TaskObservation, composer.Task):
     """Push the target cube off the table without touching the obstacles (spec §1-3)."""
 
@@ -241,7 +253,7 @@ class PushOffTask(TaskObservation, composer.Task):
         physics.data.qpos[self._arm_qpos] = q0
         physics.data.ctrl[:] = 0.0
         self._settle(physics, q0)
-        self._begin_episode(physics)
+        self.begin_episode(physics)
 
     def _vary_dynamics(self, physics: mjcf.Physics, random_state: np.random.RandomState) -> None:
         """``task.realism``'s episode draw of the cube's and obstacles' mass and friction (from
@@ -262,7 +274,12 @@ class PushOffTask(TaskObservation, composer.Task):
         variation = getattr(self, "_dynamics", None)
         return {} if variation is None else variation.factors
 
-    def _begin_episode(self, physics: mjcf.Physics) -> None:
+    @property
+    def obstacle_half_sizes(self) -> np.ndarray:
+        """(n_obstacles, 3) half sizes of the obstacle boxes, m (a copy)."""
+        return self._obstacle_half_sizes.copy()
+
+    def begin_episode(self, physics: mjcf.Physics) -> None:
         """The episode's bookkeeping once its state is set: no previous command, the clock and
         the objectives restarted, the first step measured, the lane to be planned."""
         self.previous_action = np.zeros(len(self.robot.commanded_joints))
@@ -285,7 +302,7 @@ class PushOffTask(TaskObservation, composer.Task):
         data.qacc_warmstart[:] = 0.0
         physics.forward()
         self.start_target = None
-        self._begin_episode(physics)
+        self.begin_episode(physics)
 
     def _random_start(self, physics: mjcf.Physics, random_state: np.random.RandomState,
                       q_home: np.ndarray) -> np.ndarray:
@@ -383,6 +400,8 @@ class PushOffTask(TaskObservation, composer.Task):
         self._is_arm = np.zeros(model.ngeom, dtype=bool)
         self._is_arm[[g for g in range(model.ngeom) if int(model.geom_bodyid[g]) in arm_bodies]] = True
         self._tip_site_id = int(physics.bind(self._pusher.tip_site).element_id)
+        self.bodies = BodyIds(self._tip_site_id, self._cube_body, self._obstacle_bodies,
+                              self._prop_bodies, self._prop_linear_dofs)
 
     def before_step(self, physics: mjcf.Physics, action: np.ndarray,
                     random_state: np.random.RandomState) -> None:

@@ -65,7 +65,7 @@ class TaskObservation:
                 lambda physics: self._lane_clearance(physics))
         if self.config.observation.lane_choice:
             self._task_observables["lane_choice"] = observable.Generic(
-                lambda physics: self._lane_choice(physics))
+                lambda physics: self.lane_choice(physics))
         for obs in self._task_observables.values():
             obs.enabled = True
         # Sample once per control step (at its last substep), not at every physics substep.
@@ -118,7 +118,7 @@ class TaskObservation:
                               cfg.cube.size / 2, self._obstacle_half_sizes[0, :2], cfg.table, cfg.layout,
                               cfg.observation.lane_clip)
 
-    def _lane_choice(self, physics: mjcf.Physics) -> np.ndarray:
+    def lane_choice(self, physics: mjcf.Physics) -> np.ndarray:
         """One-hot over ``layout.lane_directions``: the episode's lane
         (:func:`~ahrm_stack.env.layout.choose_lane`), planned from the first state observed after
         a reset — the settled layout in training, the first perceived one in deployment — and
@@ -126,6 +126,11 @@ class TaskObservation:
         if self._lane_plan is None:
             self._lane_plan = np.eye(len(self.config.layout.lane_directions))[self.plan_lane(physics)]
         return self._lane_plan
+
+    def forget_lane_plan(self) -> None:
+        """The next :meth:`lane_choice` plans the lane again from the state it sees (a look at the
+        observation that must not fix the episode's plan)."""
+        self._lane_plan = None
 
     def plan_lane(self, physics: mjcf.Physics) -> int:
         """The planner's lane for the current state (its index in ``layout.lane_directions``):
@@ -166,5 +171,5 @@ class TaskObservation:
         if self.config.observation.lanes:
             parts.append(self._lane_clearance(physics))
         if self.config.observation.lane_choice:
-            parts.append(self._lane_choice(physics))
+            parts.append(self.lane_choice(physics))
         return np.concatenate(parts)
