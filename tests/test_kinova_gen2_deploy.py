@@ -127,7 +127,7 @@ def test_faults_stop_the_deploy_loop_within_one_period(library, task_config, cap
     from ahrm_stack.deploy import DeployLoop, ScriptedController, WorldModel, load_deploy_settings
     from hardware import backends
     from hardware.kinova_gen2 import SYSTEM_ERROR_TYPES
-    from hardware.kinova_gen2_bus import POINT_PERIOD
+    from hardware.kinova_gen2.bus import POINT_PERIOD
 
     fake = fake_module.FakeSdk(library)
     config = load_config()

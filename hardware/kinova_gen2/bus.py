@@ -65,7 +65,7 @@ T = TypeVar("T")
 
 
 class SdkLike(Protocol):
-    """What the bus needs of the SDK (:class:`hardware.kinova_gen2.Sdk`)."""
+    """What the bus needs of the SDK (:class:`hardware.kinova_gen2.sdk.Sdk`)."""
 
     times: "CallTimes"
 
