@@ -191,3 +191,36 @@ def test_joint_speeds_need_single_level_servoing(connected):
         connected.send_joint_speeds(np.zeros(connected.num_joints))
     connected.set_servoing_mode(ServoingMode.SINGLE_LEVEL_SERVOING)
     connected.send_joint_speeds(np.zeros(connected.num_joints))
+
+
+# ------------------------------------------------------------------ the command gate (protocol.py)
+
+
+def test_a_speed_at_its_limit_is_sent_and_the_next_float_beyond_it_is_refused_and_e_stops(connected):
+    limit = connected.velocity_limit
+    connected.send_joint_speeds(_speeds(connected, 0, -limit[0]))  # inclusive: sent
+    connected.stop()
+    assert connected.refresh_feedback().faults == Fault.NONE
+    with pytest.raises(CommandRefusedError, match=r"joint speed \[0\]"):
+        connected.send_joint_speeds(_speeds(connected, 0, np.nextafter(limit[0], np.inf)))
+    frame = connected.refresh_feedback()
+    assert Fault.EMERGENCY_STOP in frame.faults and Fault.LIMIT in frame.faults
+    connected.clear_faults()
+    assert connected.refresh_feedback().faults == Fault.NONE
+
+
+def test_a_bad_command_in_fault_is_refused_as_the_fault_without_another_e_stop(connected):
+    connected.apply_emergency_stop()
+    for bad in (_speeds(connected, 0, np.nan), _speeds(connected, 1, 10 * connected.velocity_limit[1])):
+        with pytest.raises(ArmFaultError, match="EMERGENCY_STOP"):
+            connected.send_joint_speeds(bad)
+    assert Fault.LIMIT not in connected.refresh_feedback().faults  # no refusal was recorded
+
+
+def test_a_bad_command_outside_single_level_servoing_is_refused_without_an_e_stop(connected):
+    connected.set_servoing_mode(ServoingMode.LOW_LEVEL_SERVOING)
+    with pytest.raises(ArmFaultError, match="single-level servoing"):
+        connected.send_joint_speeds(_speeds(connected, 0, np.inf))
+    connected.set_servoing_mode(ServoingMode.SINGLE_LEVEL_SERVOING)
+    assert connected.refresh_feedback().faults == Fault.NONE
+    connected.send_joint_speeds(np.zeros(connected.num_joints))

@@ -31,10 +31,9 @@ from hardware.kinova_gen2.settings import (DOCS, Gen2ConfigError, Gen2Settings, 
                                            check_library, joint_convention, setting_key,
                                            kinova_positions, kinova_velocities, model_positions,
                                            model_velocities)
-from hardware.protocol import (ArmFaultError, ArmState, CommandRefusedError, ConnectionLostError,
-                               Fault, Feedback, HardwareError, NotConnectedError,
-                               ServoingMode, WallClock, check_joint_speeds, range_centres,
-                               unwrap_positions)
+from hardware.protocol import (ArmFaultError, ArmState, ConnectionLostError, Fault, Feedback,
+                               HardwareError, NotConnectedError, ServoingMode, WallClock,
+                               range_centres, unwrap_positions)
 
 if TYPE_CHECKING:
     from ahrm_stack.robot import RobotDescription
@@ -340,31 +339,15 @@ class KinovaGen2Arm(Gen2Faults):
                         arm_state=ArmState.IN_FAULT if faults != Fault.NONE else ArmState.SERVOING_READY,
                         faults=faults)
 
-    def send_joint_speeds(self, speeds: np.ndarray) -> np.ndarray:
-        """Check the command and make it the standing one: the USB thread sends it in the next
-        trajectory point (from rest, before this returns)."""
+    def _send(self, command: np.ndarray) -> np.ndarray:
+        """Make a command that passed the gate the standing one (times ``speed_scale``): the USB
+        thread sends it in the next trajectory point (from rest, before this returns)."""
         bus = self._require()
-        with self._status:
-            faults, reason = self._faults, self._fault_reason
-        if faults != Fault.NONE:
-            raise ArmFaultError(f"Kinova arm {self._serial} in fault ({faults!r}: {reason}); "
-                                "clear_faults() first")
-        if self._mode != ServoingMode.SINGLE_LEVEL_SERVOING:
-            raise ArmFaultError(f"joint speed commands need single-level servoing, not {self._mode}")
-        try:
-            command = check_joint_speeds(speeds, self._robot.velocity_limit)
-        except CommandRefusedError as error:
-            self.apply_emergency_stop()
-            with self._status:
-                self._faults |= Fault.LIMIT
-                self._fault_reason = f"refused command: {error}"
-            raise
         sent = command * self.settings.speed_scale
         try:
             bus.command(kinova_velocities(sent, self._convention))
-        except BusHeldError:  # a fault latched since the check above (the status poll)
-            with self._status:
-                faults, reason = self._faults, self._fault_reason
+        except BusHeldError:  # a fault latched since the gate's check (the status poll)
+            faults, reason = self._fault_state()
             raise ArmFaultError(f"Kinova arm {self._serial} in fault ({faults!r}: {reason}); "
                                 "clear_faults() first") from None
         except BusClosedError as error:
@@ -386,9 +369,7 @@ class KinovaGen2Arm(Gen2Faults):
 
     def apply_emergency_stop(self) -> None:
         self._require()
-        with self._status:
-            self._faults |= Fault.EMERGENCY_STOP
-            self._fault_reason = "emergency stop applied"
+        self._add_fault(Fault.EMERGENCY_STOP, "emergency stop applied")
         # the arm ignores commands until StartControlAPI (clear_faults)
         self._halt(lambda sdk: sdk.call("StopControlAPI"), hold=True)
         log.error("kinova_gen2: EMERGENCY STOP on %s: zero velocity, trajectories erased, "
@@ -423,8 +404,7 @@ class KinovaGen2Arm(Gen2Faults):
     def _position_move(self, job) -> np.ndarray:
         """Stop any velocity command, then ``job(sdk)`` (one position move) on the USB thread, in
         angular control with an empty FIFO; refused in fault (:class:`ArmFaultError`)."""
-        with self._status:
-            faults, reason = self._faults, self._fault_reason
+        faults, reason = self._fault_state()
         if faults != Fault.NONE:
             raise ArmFaultError(f"Kinova arm {self._serial} in fault ({faults!r}: {reason}); "
                                 "clear_faults() first")

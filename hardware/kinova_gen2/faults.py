@@ -67,6 +67,15 @@ class Gen2Faults(DescribedArm):
         with self._status:
             return self._fault_reason
 
+    def _fault_state(self) -> tuple[Fault, str]:
+        with self._status:
+            return self._faults, self._fault_reason
+
+    def _add_fault(self, flag: Fault, reason: str) -> None:
+        with self._status:
+            self._faults |= flag
+            self._fault_reason = reason
+
     # ------------------------------------------------------------------ the status poll (USB thread)
     def _read_sensors(self, sdk: Sdk) -> None:
         """GetSensorsInfo: a supply voltage below ``min_supply_voltage`` is the e-stop."""

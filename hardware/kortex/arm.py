@@ -26,10 +26,9 @@ from hardware.kortex.settings import KortexOptions
 from hardware.kortex.vendor_link import INSTALL_HINT, LinkError, VendorLink
 from hardware.kortex.watchdog import CommandWatchdog
 from hardware.kortex.zones import ProtectionZone, zone_report, zones_in_workspace
-from hardware.protocol import (ArmFaultError, ArmState, CommandRefusedError, ConnectionLostError,
-                               DescribedArm, Fault, Feedback, FeedbackTimeoutError, HardwareError,
-                               NotConnectedError, ServoingMode, WallClock, check_joint_speeds,
-                               range_centres)
+from hardware.protocol import (ArmFaultError, ArmState, ConnectionLostError, DescribedArm, Fault,
+                               Feedback, FeedbackTimeoutError, HardwareError, NotConnectedError,
+                               ServoingMode, WallClock, range_centres)
 
 log = logging.getLogger("hardware.kortex")
 
@@ -78,8 +77,10 @@ class KortexArm(DescribedArm):
         self._wanted_mode = ServoingMode.SINGLE_LEVEL_SERVOING  # what clear_faults restores
         self._previous: np.ndarray | None = None
         self._freshness = FrameFreshness()
-        self._estopped = False  # we e-stopped the arm; latched until clear_faults()
-        self._arm_in_fault = False  # the last feedback reported a fault
+        self._faults = Fault.NONE  # the adapter's own flags (e-stop, refusal); latched until
+        self._fault_reason = ""  # clear_faults(), carried by every frame
+        self._arm_in_fault = False  # the last feedback (or a refused RPC) reported a fault
+        self._arm_faults = Fault.NONE  # that feedback's flags
         self._watchdog = CommandWatchdog(options.watchdog_timeout, options.watchdog_poll,
                                          self._watchdog_expired, clock=self._clock.now)
         self._range_centre = range_centres(robot)
@@ -129,7 +130,7 @@ class KortexArm(DescribedArm):
         if kind == "timeout":
             raise FeedbackTimeoutError(f"{what}: no answer within {timeout_ms} ms ({message})")
         if kind == "fault":
-            self._arm_in_fault = True
+            self._arm_in_fault, self._arm_faults = True, self._arm_faults | Fault.HARDWARE
             raise ArmFaultError(f"{what}: the arm refused it in fault ({message}); "
                                 "clear_faults() first")
         if kind in ("connection", "dead"):
@@ -267,7 +268,12 @@ class KortexArm(DescribedArm):
     def refresh_feedback(self) -> Feedback:
         """The arm's latest frame, stamped when its request was sent (adapter clock); a frame
         equal to the previous one in every analogue reading keeps that one's id and stamp
-        (:mod:`hardware.kortex.freshness`)."""
+        (:mod:`hardware.kortex.freshness`); its flags: the arm's and the adapter's own."""
+        frame = self._arm_frame()
+        return dataclasses.replace(frame, faults=frame.faults | self._faults)
+
+    def _arm_frame(self) -> Feedback:
+        """The arm's frame, its flags the arm's only (and the watchdog's)."""
         self._require()
         sent = self._clock.now()
         raw = self._rpc("RefreshFeedback", "feedback")
@@ -281,24 +287,26 @@ class KortexArm(DescribedArm):
             reference=self._previous, continuous=~self._robot.limited,
             range_centre=self._range_centre)
         self._arm_in_fault = frame.arm_state == ArmState.IN_FAULT or frame.faults != Fault.NONE
+        self._arm_faults = frame.faults
         if self._watchdog.tripped:  # stopped by the client-side watchdog: a link fault
             frame = dataclasses.replace(frame, faults=frame.faults | Fault.COMMUNICATION)
         if np.isfinite(frame.position).all():
             self._previous = frame.position
         return frame
 
-    def send_joint_speeds(self, speeds: np.ndarray) -> np.ndarray:
-        self._require()
-        try:
-            command = check_joint_speeds(speeds, self._robot.velocity_limit)
-        except CommandRefusedError:
-            self.apply_emergency_stop()
-            raise
-        if self._estopped or self._arm_in_fault:
-            why = "e-stopped" if self._estopped else "reported by its feedback"
-            raise ArmFaultError(f"the arm is in fault ({why}): clear_faults() first")
-        if self._mode != ServoingMode.SINGLE_LEVEL_SERVOING:
-            raise ArmFaultError(f"joint speed commands need single-level servoing, not {self._mode}")
+    def _fault_state(self) -> tuple[Fault, str]:
+        faults, reason = self._faults, self._fault_reason
+        if self._arm_in_fault:
+            faults |= self._arm_faults or Fault.HARDWARE
+            reason = reason or "reported by the arm's feedback"
+        return faults, reason
+
+    def _add_fault(self, flag: Fault, reason: str) -> None:
+        self._faults |= flag
+        self._fault_reason = reason
+
+    def _send(self, command: np.ndarray) -> np.ndarray:
+        """Send a command that passed the gate, through the command watchdog."""
         moving = bool(np.any(command != 0.0))
         if moving:
             self._watchdog.start()  # a no-op once running
@@ -335,7 +343,7 @@ class KortexArm(DescribedArm):
 
     def apply_emergency_stop(self) -> None:
         self._require()
-        self._estopped = True
+        self._add_fault(Fault.EMERGENCY_STOP, "emergency stop applied")
         self._rpc("ApplyEmergencyStop", "emergency_stop")
         self._watchdog.disarm()
 
@@ -353,7 +361,7 @@ class KortexArm(DescribedArm):
         self._rpc("ClearFaults", "clear_faults")
         deadline = self._clock.now() + options.reset_wait
         while True:
-            frame = self.refresh_feedback()
+            frame = self._arm_frame()
             arm_faults = frame.faults & ~Fault.COMMUNICATION
             if frame.arm_state != ArmState.IN_FAULT and arm_faults == Fault.NONE:
                 break
@@ -362,8 +370,8 @@ class KortexArm(DescribedArm):
                                     f"{options.reset_wait * 1e3:.0f} ms (state "
                                     f"{frame.arm_state.value}, flags {arm_faults!r})")
             self._clock.sleep(options.reset_poll)
-        self._estopped = False
-        self._arm_in_fault = False
+        self._faults, self._fault_reason = Fault.NONE, ""
+        self._arm_in_fault, self._arm_faults = False, Fault.NONE
         self._watchdog.reset()
         if self._wanted_mode != ServoingMode.SINGLE_LEVEL_SERVOING:
             self._set_mode(self._wanted_mode)
