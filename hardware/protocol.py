@@ -85,6 +85,7 @@ class Fault(enum.IntFlag):
     LIMIT = 2  # a command was refused by the limit check, or a joint is past a limit
     HARDWARE = 4  # an actuator or base fault bank is non-zero
     COMMUNICATION = 8  # the link to the arm reported an error
+    WATCHDOG = 16  # no fresh command within the command timeout; the arm was stopped
 
 
 class ServoingMode(enum.Enum):
@@ -284,6 +285,13 @@ class ArmAdapter(abc.ABC):
       the reason (:meth:`_add_fault`) and raises :class:`CommandRefusedError`; (5) sends it
       (:meth:`_send`, the backend's transport and scaling) and returns what was sent (rad/s).
     * :meth:`apply_emergency_stop` stops the arm and puts it in fault until :meth:`clear_faults`.
+    * A **command watchdog** (a backend whose joint speeds do not expire by themselves on the arm
+      has one; its docstring says so, or why not): when moving commands stop arriving for longer
+      than the backend's command timeout, the adapter stops the arm by itself, records why,
+      latches ``Fault.WATCHDOG`` (in :meth:`_fault_state` and every feedback frame) and so
+      refuses commands (:class:`ArmFaultError`) until :meth:`clear_faults`: a stalled control
+      loop never resumes motion silently. A zero command or :meth:`stop` disarms it (nothing
+      moves, nothing to watch); the next moving command arms it again.
 
     Backend hooks (abstract): :meth:`_require`, :meth:`_fault_state`, :meth:`_add_fault`,
     :meth:`_send`.

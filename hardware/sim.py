@@ -28,7 +28,9 @@ happened (the cube off the table, an obstacle touched), which a real deployment 
 
 Fault injection for tests (:meth:`SimArm.inject`, :class:`InjectedFault`): stale or dropped
 feedback, a delayed command, NaN in a reading, a fault flag, a lost connection. A lost connection
-stops the simulated arm at once, as the real arm's connection watchdog does.
+stops the simulated arm at once, as the real arm's connection watchdog does. The sim has no
+command watchdog (the protocol's ``Fault.WATCHDOG`` never appears): a command holds until the
+next one, a stop or a lost connection; the deploy loop's own deadline checks cover a stall.
 
 :attr:`SimArm.violations` counts limit violations that reached the simulated actuators or joints
 (a command beyond the velocity limits or non-finite, a joint past a position limit by more than

@@ -281,7 +281,7 @@ def measure_watchdog(trials: int) -> np.ndarray:
             delays.append(arm.speed_log[-1][0] - sent)
             with pytest.raises(ArmFaultError, match="watchdog"):
                 adapter.send_joint_speeds(_speeds(0, 0.1))  # latched until cleared
-            assert Fault.COMMUNICATION in adapter.refresh_feedback().faults
+            assert Fault.WATCHDOG in adapter.refresh_feedback().faults
             adapter.clear_faults()
     finally:
         adapter.disconnect()

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 import hardware.protocol as protocol
-from hardware.protocol import (ArmAdapter, ArmFaultError, ArmState, CommandRefusedError, DescribedArm, FastClock, Fault, Feedback,
-                               ObjectPoses, ServoingMode, WallClock, check_joint_speeds, range_centres,
-                               unwrap_positions)
+from hardware.protocol import (ArmAdapter, ArmFaultError, ArmState, CommandRefusedError, DescribedArm, FastClock,
+                               Fault, Feedback, ObjectPoses, ServoingMode, WallClock, check_joint_speeds,
+                               range_centres, unwrap_positions)
 
 LIMIT = np.array([0.5, 1.0, 2.0])  # rad/s
 
@@ -354,8 +354,8 @@ def test_the_adapter_base_defaults_to_the_wall_clock():
 
 
 def test_fault_flags_are_distinct_bits_so_that_any_combination_reads_back():
-    assert [flag.value for flag in (Fault.EMERGENCY_STOP, Fault.LIMIT, Fault.HARDWARE, Fault.COMMUNICATION)] == \
-        [1, 2, 4, 8]
+    assert [flag.value for flag in (Fault.EMERGENCY_STOP, Fault.LIMIT, Fault.HARDWARE, Fault.COMMUNICATION,
+                                    Fault.WATCHDOG)] == [1, 2, 4, 8, 16]
     both = Fault.EMERGENCY_STOP | Fault.LIMIT
     assert Fault.EMERGENCY_STOP in both and Fault.LIMIT in both and Fault.HARDWARE not in both
     assert not Fault.NONE

@@ -27,9 +27,11 @@ command the standing one, which the thread sends in its next point (at most 100 
 points pile up in the arm's 2,000-point FIFO and keep it moving after commands stop). Supply
 voltage, the system error log and the torques are polled at ``kinova_gen2.status_rate_hz`` (2 Hz).
 Every stop sends zero velocity and erases the FIFO (``EraseAllTrajectories``). The **command
-watchdog**: when no fresh command has come for ``kinova_gen2.command_timeout`` control periods, the
-thread sends zero velocity, then ``EraseAllTrajectories``, at that deadline, and records why
-(:attr:`KinovaGen2Arm.watchdog_stops`); the next fresh command moves the arm again.
+watchdog** (the protocol's rule, :class:`~hardware.protocol.ArmAdapter`): when no fresh command has
+come for ``kinova_gen2.command_timeout`` control periods while the standing command moves the arm,
+the thread sends zero velocity, then ``EraseAllTrajectories``, at that deadline, records why
+(:attr:`KinovaGen2Arm.watchdog_stops`) and latches ``Fault.WATCHDOG``: commands are refused until
+:meth:`~KinovaGen2Arm.clear_faults`. A zero command or a stop disarms it.
 
 Units: the protocol speaks rad and rad/s; Gen2 degrees and deg/s. The model's joint angle is
 ``sign * kinova_angle + offset`` per joint (``kinova_gen2.joints.<arm>``; both arms: sign +1,

@@ -192,7 +192,8 @@ class KinovaGen2Arm(Gen2Faults):
         self._bus = UsbBus(sdk, velocity_point, self.num_joints, 1.0 / settings.send_rate_hz,
                            settings.send_ahead, self._timeout, 1.0 / settings.status_rate_hz,
                            (self._read_sensors, self._read_error_log, self._read_torques),
-                           f"kinova-gen2-usb-{self._serial}", self.watchdog_stops)
+                           f"kinova-gen2-usb-{self._serial}", self.watchdog_stops,
+                           self._watchdog_stopped)
         self._switch_interval = sys.getswitchinterval()
         sys.setswitchinterval(min(self._switch_interval, settings.switch_interval))
         self._bus.start()
@@ -346,10 +347,10 @@ class KinovaGen2Arm(Gen2Faults):
         sent = command * self.settings.speed_scale
         try:
             bus.command(kinova_velocities(sent, self._convention))
-        except BusHeldError:  # a fault latched since the gate's check (the status poll)
+        except BusHeldError:  # a fault latched since the gate's check (status poll, watchdog)
             faults, reason = self._fault_state()
-            raise ArmFaultError(f"Kinova arm {self._serial} in fault ({faults!r}: {reason}); "
-                                "clear_faults() first") from None
+            raise ArmFaultError(f"Kinova arm {self._serial} held stopped in fault ({faults!r}: "
+                                f"{reason or 'being latched'}); clear_faults() first") from None
         except BusClosedError as error:
             raise self._lose(error.__cause__ or error) from None
         except SdkCallError as error:

@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from hardware.kinova_gen2.bus import UsbBus, is_link_error
+from hardware.kinova_gen2.bus import UsbBus, WatchdogStop, is_link_error
 from hardware.kinova_gen2.sdk import (SYSTEM_ERROR_TYPES, VOLTAGE_ERROR, AngularPosition, Sdk,
                                       SensorsInfo, SystemError, actuators)
 from hardware.kinova_gen2.settings import Gen2Settings
@@ -75,6 +75,13 @@ class Gen2Faults(DescribedArm):
         with self._status:
             self._faults |= flag
             self._fault_reason = reason
+
+    def _watchdog_stopped(self, stop: WatchdogStop) -> None:
+        """The USB thread's command watchdog stopped the arm (on that thread, which now holds it
+        stopped): ``Fault.WATCHDOG`` until :meth:`clear_faults`, as the protocol says."""
+        self._add_fault(Fault.WATCHDOG, stop.reason)
+        log.error("kinova_gen2: arm %s in fault: %s; clear_faults() to move again", self._serial,
+                  stop.reason)
 
     # ------------------------------------------------------------------ the status poll (USB thread)
     def _read_sensors(self, sdk: Sdk) -> None:

@@ -81,6 +81,7 @@ class KortexArm(DescribedArm):
         self._fault_reason = ""  # clear_faults(), carried by every frame
         self._arm_in_fault = False  # the last feedback (or a refused RPC) reported a fault
         self._arm_faults = Fault.NONE  # that feedback's flags
+        self._watchdog_reason = ""  # why the command watchdog stopped the arm (Fault.WATCHDOG)
         self._watchdog = CommandWatchdog(options.watchdog_timeout, options.watchdog_poll,
                                          self._watchdog_expired, clock=self._clock.now)
         self._range_centre = range_centres(robot)
@@ -268,12 +269,14 @@ class KortexArm(DescribedArm):
     def refresh_feedback(self) -> Feedback:
         """The arm's latest frame, stamped when its request was sent (adapter clock); a frame
         equal to the previous one in every analogue reading keeps that one's id and stamp
-        (:mod:`hardware.kortex.freshness`); its flags: the arm's and the adapter's own."""
+        (:mod:`hardware.kortex.freshness`); its flags: the arm's and the adapter's own (the
+        e-stop, a refused command, the command watchdog: ``Fault.WATCHDOG``)."""
         frame = self._arm_frame()
-        return dataclasses.replace(frame, faults=frame.faults | self._faults)
+        own = self._faults | (Fault.WATCHDOG if self._watchdog.tripped else Fault.NONE)
+        return dataclasses.replace(frame, faults=frame.faults | own)
 
     def _arm_frame(self) -> Feedback:
-        """The arm's frame, its flags the arm's only (and the watchdog's)."""
+        """The arm's frame, its flags the arm's only."""
         self._require()
         sent = self._clock.now()
         raw = self._rpc("RefreshFeedback", "feedback")
@@ -288,14 +291,15 @@ class KortexArm(DescribedArm):
             range_centre=self._range_centre)
         self._arm_in_fault = frame.arm_state == ArmState.IN_FAULT or frame.faults != Fault.NONE
         self._arm_faults = frame.faults
-        if self._watchdog.tripped:  # stopped by the client-side watchdog: a link fault
-            frame = dataclasses.replace(frame, faults=frame.faults | Fault.COMMUNICATION)
         if np.isfinite(frame.position).all():
             self._previous = frame.position
         return frame
 
     def _fault_state(self) -> tuple[Fault, str]:
         faults, reason = self._faults, self._fault_reason
+        if self._watchdog.tripped:
+            faults |= Fault.WATCHDOG
+            reason = reason or self._watchdog_reason or "command watchdog: the arm was stopped"
         if self._arm_in_fault:
             faults |= self._arm_faults or Fault.HARDWARE
             reason = reason or "reported by the arm's feedback"
@@ -323,6 +327,8 @@ class KortexArm(DescribedArm):
     def _watchdog_expired(self, age: float) -> None:
         """From the watchdog thread: no fresh command for ``age`` s; stop the arm (Base.Stop,
         else zero joint speeds)."""
+        self._watchdog_reason = (f"command watchdog: no command for {age * 1e3:.1f} ms (timeout "
+                                 f"{self._options.watchdog_timeout * 1e3:.0f} ms): the arm was stopped")
         log.error("kortex: WATCHDOG: no command for %.1f ms (limit %.1f ms): stopping the arm",
                   age * 1e3, self._options.watchdog_timeout * 1e3)
         if not self._connected:
@@ -362,7 +368,7 @@ class KortexArm(DescribedArm):
         deadline = self._clock.now() + options.reset_wait
         while True:
             frame = self._arm_frame()
-            arm_faults = frame.faults & ~Fault.COMMUNICATION
+            arm_faults = frame.faults
             if frame.arm_state != ArmState.IN_FAULT and arm_faults == Fault.NONE:
                 break
             if self._clock.now() >= deadline:
