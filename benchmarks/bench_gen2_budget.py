@@ -92,7 +92,7 @@ def budget_run(duration: float, rate_hz: float = 20.0, fault_every: float = 30.0
     from ahrm_stack.deploy import DeployLoop, ScriptedController, WorldModel, load_deploy_settings
     from hardware import backends
     from hardware.kinova_gen2 import SYSTEM_ERROR_TYPES
-    from hardware.kinova_gen2_bus import POINT_PERIOD
+    from hardware.kinova_gen2.bus import POINT_PERIOD
 
     library = session_library()
     fake = FakeSdk(library)

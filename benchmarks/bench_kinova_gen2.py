@@ -82,7 +82,8 @@ def deploy_on_fake(duration: float, freezes: int, resume_ticks: int = 10) -> dic
         latencies = []
         for i in range(freezes):
             freeze_mark = end_mark
-            if i:  # moving again before the next freeze
+            if i:  # moving again before the next freeze (the watchdog latched: clear it first)
+                arm.clear_faults()
                 loop.resume()
                 for _ in range(resume_ticks):
                     if not loop.tick():

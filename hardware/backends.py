@@ -78,9 +78,9 @@ def _make_gen2(config, settings) -> ArmAdapter:
 
 
 def _link_check_gen2(config, settings) -> tuple[list[str], bool]:
-    """The Gen2 USB budget on the arm (:mod:`hardware.kinova_gen2_check`), held still."""
+    """The Gen2 USB budget on the arm (:mod:`hardware.kinova_gen2.check`), held still."""
     from hardware.kinova_gen2 import KinovaGen2Arm
-    from hardware.kinova_gen2_check import Rates, check_link
+    from hardware.kinova_gen2.check import Rates, check_link
 
     gen2, robot, _ = _gen2_parts(config, settings)
     arm = KinovaGen2Arm(robot, gen2, command_timeout_s=gen2.command_timeout * settings.period)

@@ -20,10 +20,11 @@ Units are SI and radians everywhere in this protocol: positions in rad, velociti
 torques in N·m, times in s. Only the Kortex backend converts to degrees, at its edge.
 
 Every method but :meth:`ArmAdapter.connect` and the description properties raises
-:class:`NotConnectedError` when the adapter is not connected. Commands are re-checked against the
-robot's limits here, at the adapter (:func:`check_joint_speeds`): a command that is not real
+:class:`NotConnectedError` when the adapter is not connected. Every command passes one gate,
+written once here (:meth:`ArmAdapter.send_joint_speeds`): a session, no fault, single-level
+servoing, then the robot's limits (:func:`check_joint_speeds`): a command that is not real
 numbers, non-finite, of the wrong size, or beyond a velocity limit is refused and the arm is
-e-stopped.
+e-stopped. Each backend sends what passed (:meth:`ArmAdapter._send`).
 """
 
 from __future__ import annotations
@@ -84,6 +85,7 @@ class Fault(enum.IntFlag):
     LIMIT = 2  # a command was refused by the limit check, or a joint is past a limit
     HARDWARE = 4  # an actuator or base fault bank is non-zero
     COMMUNICATION = 8  # the link to the arm reported an error
+    WATCHDOG = 16  # no fresh command within the command timeout; the arm was stopped
 
 
 class ServoingMode(enum.Enum):
@@ -273,10 +275,26 @@ class ArmAdapter(abc.ABC):
       an error to connect twice. :meth:`disconnect` stops the arm and closes the session; it is
       idempotent.
     * While not connected, every other method raises :class:`NotConnectedError`.
-    * :meth:`send_joint_speeds` returns the command actually sent (rad/s); it refuses (and
-      e-stops) commands failing :func:`check_joint_speeds`, and raises :class:`ArmFaultError`
-      while the arm is in fault.
+    * :meth:`send_joint_speeds` is the one command gate, here; in this order it (1) requires a
+      session (:meth:`_require`: :class:`NotConnectedError`, or the backend's lost-link error);
+      (2) refuses while in fault (:meth:`_fault_state`): :class:`ArmFaultError` naming the flags
+      and the reason, nothing sent and no further e-stop; (3) refuses unless in single-level
+      servoing (:class:`ArmFaultError`); (4) checks the command (:func:`check_joint_speeds`
+      against ``velocity_limit``; a speed exactly at its limit passes): a refused command
+      e-stops the arm (:meth:`apply_emergency_stop`), adds ``Fault.LIMIT`` with the refusal as
+      the reason (:meth:`_add_fault`) and raises :class:`CommandRefusedError`; (5) sends it
+      (:meth:`_send`, the backend's transport and scaling) and returns what was sent (rad/s).
     * :meth:`apply_emergency_stop` stops the arm and puts it in fault until :meth:`clear_faults`.
+    * A **command watchdog** (a backend whose joint speeds do not expire by themselves on the arm
+      has one; its docstring says so, or why not): when moving commands stop arriving for longer
+      than the backend's command timeout, the adapter stops the arm by itself, records why,
+      latches ``Fault.WATCHDOG`` (in :meth:`_fault_state` and every feedback frame) and so
+      refuses commands (:class:`ArmFaultError`) until :meth:`clear_faults`: a stalled control
+      loop never resumes motion silently. A zero command or :meth:`stop` disarms it (nothing
+      moves, nothing to watch); the next moving command arms it again.
+
+    Backend hooks (abstract): :meth:`_require`, :meth:`_fault_state`, :meth:`_add_fault`,
+    :meth:`_send`.
     """
 
     @property
@@ -317,9 +335,42 @@ class ArmAdapter(abc.ABC):
         """A fresh feedback frame; :class:`FeedbackTimeoutError` when none came in time,
         :class:`ConnectionLostError` when the session dropped."""
 
-    @abc.abstractmethod
     def send_joint_speeds(self, speeds: np.ndarray) -> np.ndarray:
-        """Command joint velocities (rad/s, all joints at once) and return what was sent."""
+        """Command joint velocities (rad/s, all joints at once) and return what was sent: the
+        command gate (see the class docstring for its order), then :meth:`_send`."""
+        self._require()
+        faults, reason = self._fault_state()
+        if faults != Fault.NONE:
+            raise ArmFaultError(f"the arm is in fault ({faults!r}: {reason or 'no reason given'}); "
+                                "clear_faults() first")
+        mode = self.servoing_mode
+        if mode != ServoingMode.SINGLE_LEVEL_SERVOING:
+            raise ArmFaultError(f"joint speed commands need single-level servoing, not {mode}")
+        try:
+            command = check_joint_speeds(speeds, self.velocity_limit)
+        except CommandRefusedError as error:
+            self.apply_emergency_stop()
+            self._add_fault(Fault.LIMIT, f"refused command: {error}")
+            raise
+        return self._send(command)
+
+    @abc.abstractmethod
+    def _require(self) -> Any:
+        """Raise :class:`NotConnectedError` (or the backend's lost-link error) unless connected."""
+
+    @abc.abstractmethod
+    def _fault_state(self) -> tuple[Fault, str]:
+        """The adapter's fault flags as of now and why (``(Fault.NONE, '')`` when healthy): the
+        flags the next feedback frame carries, latched until :meth:`clear_faults`."""
+
+    @abc.abstractmethod
+    def _add_fault(self, flag: Fault, reason: str) -> None:
+        """Latch ``flag`` (until :meth:`clear_faults`), ``reason`` saying why."""
+
+    @abc.abstractmethod
+    def _send(self, command: np.ndarray) -> np.ndarray:
+        """Send a command that passed the gate (rad/s, checked, float) over the backend's own
+        transport; return what was sent (rad/s)."""
 
     @abc.abstractmethod
     def stop(self) -> None:
@@ -360,10 +411,6 @@ class DescribedArm(ArmAdapter):
     _clock: WallClock
     _connected: bool
     _mode: ServoingMode
-
-    @abc.abstractmethod
-    def _require(self) -> Any:
-        """Raise :class:`NotConnectedError` (or the backend's lost-link error) unless connected."""
 
     @property
     def joint_names(self) -> tuple[str, ...]:

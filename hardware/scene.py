@@ -27,7 +27,7 @@ from typing import Annotated, Any, Protocol, Sequence, TypeVar
 import numpy as np
 
 from ahrm_stack.schema import Float, Section, read_yaml, unit_quaternion, validate
-from hardware.protocol import ArmAdapter, Feedback, ObjectPoses, ServoingMode, WallClock
+from hardware.protocol import ArmAdapter, Fault, Feedback, ObjectPoses, ServoingMode, WallClock
 
 
 #: how far from 1 a layout quaternion's norm may be (it is then normalised): rounding in a
@@ -147,7 +147,20 @@ class PerceivedArm(ArmAdapter):
         return self.arm.refresh_feedback()
 
     def send_joint_speeds(self, speeds: np.ndarray) -> np.ndarray:
-        return self.arm.send_joint_speeds(speeds)
+        return self.arm.send_joint_speeds(speeds)  # the wrapped backend's gate, once
+
+    # the gate's hooks: the wrapped backend's (its gate runs them; see send_joint_speeds)
+    def _require(self):
+        return self.arm._require()
+
+    def _fault_state(self) -> tuple[Fault, str]:
+        return self.arm._fault_state()
+
+    def _add_fault(self, flag: Fault, reason: str) -> None:
+        self.arm._add_fault(flag, reason)
+
+    def _send(self, command: np.ndarray) -> np.ndarray:
+        return self.arm._send(command)
 
     def stop(self) -> None:
         self.arm.stop()

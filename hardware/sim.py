@@ -28,7 +28,9 @@ happened (the cube off the table, an obstacle touched), which a real deployment 
 
 Fault injection for tests (:meth:`SimArm.inject`, :class:`InjectedFault`): stale or dropped
 feedback, a delayed command, NaN in a reading, a fault flag, a lost connection. A lost connection
-stops the simulated arm at once, as the real arm's connection watchdog does.
+stops the simulated arm at once, as the real arm's connection watchdog does. The sim has no
+command watchdog (the protocol's ``Fault.WATCHDOG`` never appears): a command holds until the
+next one, a stop or a lost connection; the deploy loop's own deadline checks cover a stall.
 
 :attr:`SimArm.violations` counts limit violations that reached the simulated actuators or joints
 (a command beyond the velocity limits or non-finite, a joint past a position limit by more than
@@ -50,10 +52,9 @@ from ahrm_stack.env.realism import RealismConfig, measure
 from ahrm_stack.env.rewards import obstacle_touched
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.task import PushOffTask
-from hardware.protocol import (DescribedArm, ArmFaultError, ArmState, CommandRefusedError,
-                               ConnectionLostError, Fault, Feedback, FeedbackTimeoutError,
-                               NotConnectedError, ObjectPoses, ServoingMode, WallClock,
-                               check_joint_speeds)
+from hardware.protocol import (ArmState, ConnectionLostError, DescribedArm, Fault, Feedback,
+                               FeedbackTimeoutError, NotConnectedError, ObjectPoses, ServoingMode,
+                               WallClock)
 
 log = logging.getLogger(__name__)
 
@@ -120,6 +121,7 @@ class SimArm(DescribedArm):
         self._connected = False
         self._mode = ServoingMode.SINGLE_LEVEL_SERVOING
         self._faults = Fault.NONE
+        self._fault_reason = ""
         self._pending: set[InjectedFault] = set()
         self._lost = False
         self._last: Feedback | None = None
@@ -179,7 +181,7 @@ class SimArm(DescribedArm):
         if fault == InjectedFault.LOST_CONNECTION and self._connected:
             self._lose_connection()
         elif fault == InjectedFault.FAULT_FLAG:
-            self._faults |= Fault.HARDWARE
+            self._add_fault(Fault.HARDWARE, "injected fault flag")
             self._set_command(np.zeros(self._robot.num_joints))  # the arm stops itself
             self._pending.discard(fault)
 
@@ -284,18 +286,15 @@ class SimArm(DescribedArm):
                                  config.rewards.obstacle_speed_threshold) or (moved > 0.002).any()):
                 truth.touched, truth.touch_time = True, float(data.time)
 
-    def send_joint_speeds(self, speeds: np.ndarray) -> np.ndarray:
-        self._require()
-        if self._faults != Fault.NONE:
-            raise ArmFaultError(f"arm in fault ({self._faults!r}): clear_faults() first")
-        if self._mode != ServoingMode.SINGLE_LEVEL_SERVOING:
-            raise ArmFaultError(f"joint speed commands need single-level servoing, not {self._mode}")
-        try:
-            command = check_joint_speeds(speeds, self._robot.velocity_limit)
-        except CommandRefusedError:
-            self.apply_emergency_stop()
-            self._faults |= Fault.LIMIT
-            raise
+    def _fault_state(self) -> tuple[Fault, str]:
+        return self._faults, self._fault_reason
+
+    def _add_fault(self, flag: Fault, reason: str) -> None:
+        self._faults |= flag
+        self._fault_reason = reason
+
+    def _send(self, command: np.ndarray) -> np.ndarray:
+        """Queue a command that passed the gate (:meth:`ArmAdapter.send_joint_speeds`)."""
         if self._take(InjectedFault.DELAYED_COMMAND):
             self._clock.sleep(self.command_delay)
         # Applied by an advance, at this time plus the command latency (the physics is not
@@ -313,12 +312,12 @@ class SimArm(DescribedArm):
         self._require()
         self._advance()
         self._set_command(np.zeros(self._robot.num_joints))
-        self._faults |= Fault.EMERGENCY_STOP
+        self._add_fault(Fault.EMERGENCY_STOP, "emergency stop applied")
 
     def clear_faults(self) -> None:
         self._require()
         self._advance()
-        self._faults = Fault.NONE
+        self._faults, self._fault_reason = Fault.NONE, ""
         self._set_command(np.zeros(self._robot.num_joints))
 
     def set_servoing_mode(self, mode: ServoingMode) -> None:

@@ -21,13 +21,15 @@ def _sim(task_config) -> ArmAdapter:
     return SimArm(task_config, seed=0, clock=FastClock())
 
 
-def _kortex(task_config) -> ArmAdapter:
+def _kortex(task_config, command_timeout: float = 5.0) -> ArmAdapter:
     """KortexArm over the fake arm. Its command watchdog is relaxed to 5 s here: these tests hold
     one command for up to 0.5 s, which the configured watchdog (1.5 periods) rightly stops
     (tests/test_kortex_backend.py tests the watchdog)."""
     from fake_kortex_api.rig import make_for, options
 
-    adapter, _ = make_for(_robot(task_config.robot), opts=options(watchdog_timeout=5.0))
+    adapter, _ = make_for(_robot(task_config.robot),
+                          opts=options(watchdog_timeout=command_timeout,
+                                       watchdog_poll=min(command_timeout, options().watchdog_poll)))
     return adapter
 
 
@@ -38,7 +40,7 @@ def _robot(name: str):
     return describe(name, make_arm(name))
 
 
-def _kinova_gen2(task_config) -> ArmAdapter:
+def _kinova_gen2(task_config, command_timeout: float = 1.0) -> ArmAdapter:
     """The Gen2 backend on the fake SDK. The contract holds one command for up to 0.5 s, so its
     command watchdog is set to 1 s here (deploy uses configs/deploy.yaml's two periods)."""
     from fake_kinova_sdk.fake import CompilerMissing, FakeSdk, SERIAL, session_library
@@ -54,7 +56,7 @@ def _kinova_gen2(task_config) -> ArmAdapter:
     FakeSdk(library).reset(position_deg=np.degrees(task_config.arm.home))  # gen2: joints as Kinova's
     settings = dataclasses.replace(load_deploy_settings().kinova_gen2, library=str(library),
                                    serial=SERIAL)
-    return KinovaGen2Arm(robot, settings, command_timeout_s=1.0)
+    return KinovaGen2Arm(robot, settings, command_timeout_s=command_timeout)
 
 
 BACKENDS = {"sim": _sim, "kortex": _kortex, "kinova-gen2": _kinova_gen2}
@@ -191,3 +193,77 @@ def test_joint_speeds_need_single_level_servoing(connected):
         connected.send_joint_speeds(np.zeros(connected.num_joints))
     connected.set_servoing_mode(ServoingMode.SINGLE_LEVEL_SERVOING)
     connected.send_joint_speeds(np.zeros(connected.num_joints))
+
+
+# ------------------------------------------------------------------ the command gate (protocol.py)
+
+
+def test_a_speed_at_its_limit_is_sent_and_the_next_float_beyond_it_is_refused_and_e_stops(connected):
+    limit = connected.velocity_limit
+    connected.send_joint_speeds(_speeds(connected, 0, -limit[0]))  # inclusive: sent
+    connected.stop()
+    assert connected.refresh_feedback().faults == Fault.NONE
+    with pytest.raises(CommandRefusedError, match=r"joint speed \[0\]"):
+        connected.send_joint_speeds(_speeds(connected, 0, np.nextafter(limit[0], np.inf)))
+    frame = connected.refresh_feedback()
+    assert Fault.EMERGENCY_STOP in frame.faults and Fault.LIMIT in frame.faults
+    connected.clear_faults()
+    assert connected.refresh_feedback().faults == Fault.NONE
+
+
+def test_a_bad_command_in_fault_is_refused_as_the_fault_without_another_e_stop(connected):
+    connected.apply_emergency_stop()
+    for bad in (_speeds(connected, 0, np.nan), _speeds(connected, 1, 10 * connected.velocity_limit[1])):
+        with pytest.raises(ArmFaultError, match="EMERGENCY_STOP"):
+            connected.send_joint_speeds(bad)
+    assert Fault.LIMIT not in connected.refresh_feedback().faults  # no refusal was recorded
+
+
+def test_a_bad_command_outside_single_level_servoing_is_refused_without_an_e_stop(connected):
+    connected.set_servoing_mode(ServoingMode.LOW_LEVEL_SERVOING)
+    with pytest.raises(ArmFaultError, match="single-level servoing"):
+        connected.send_joint_speeds(_speeds(connected, 0, np.inf))
+    connected.set_servoing_mode(ServoingMode.SINGLE_LEVEL_SERVOING)
+    assert connected.refresh_feedback().faults == Fault.NONE
+    connected.send_joint_speeds(np.zeros(connected.num_joints))
+
+
+# ------------------------------------------------------------------ the command watchdog (protocol.py)
+
+WATCHDOG_TIMEOUT = 0.1  # s
+
+
+@pytest.fixture(params=["kortex", "kinova-gen2"])  # the sim has no command watchdog (its docstring)
+def watched(request, task_config):
+    adapter = BACKENDS[request.param](task_config, command_timeout=WATCHDOG_TIMEOUT)
+    adapter.connect()
+    yield adapter
+    adapter.disconnect()
+
+
+def test_the_command_watchdog_stops_the_arm_and_latches_until_faults_are_cleared(watched):
+    """A moving command, then silence beyond the command timeout: the arm is stopped by the
+    adapter, the feedback reports WATCHDOG, commands are refused until clear_faults()."""
+    move = _speeds(watched, 0, 0.3)
+    watched.send_joint_speeds(move)
+    watched.clock.sleep(WATCHDOG_TIMEOUT + 0.25)  # the control loop stalls
+    frame = watched.refresh_feedback()
+    assert Fault.WATCHDOG in frame.faults and not frame.healthy
+    watched.clock.sleep(0.1)
+    assert np.abs(watched.refresh_feedback().velocity).max() < 0.05  # stopped
+    with pytest.raises(ArmFaultError, match="WATCHDOG"):
+        watched.send_joint_speeds(move)  # a stalled loop does not resume motion silently
+    with pytest.raises(ArmFaultError, match="WATCHDOG"):
+        watched.send_joint_speeds(np.zeros(watched.num_joints))
+    watched.clear_faults()
+    assert watched.refresh_feedback().faults == Fault.NONE
+    np.testing.assert_array_equal(watched.send_joint_speeds(move), move)
+    watched.stop()
+
+
+def test_a_zero_command_or_a_stop_disarms_the_command_watchdog(watched):
+    for halt in (lambda: watched.send_joint_speeds(np.zeros(watched.num_joints)), watched.stop):
+        watched.send_joint_speeds(_speeds(watched, 0, 0.3))
+        halt()
+        watched.clock.sleep(WATCHDOG_TIMEOUT + 0.25)
+        assert watched.refresh_feedback().faults == Fault.NONE

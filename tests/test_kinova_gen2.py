@@ -1,4 +1,4 @@
-"""The Kinova Gen2 backend (hardware/kinova_gen2.py) against the fake SDK (tests/fake_kinova_sdk),
+"""The Kinova Gen2 backend (hardware/kinova_gen2/) against the fake SDK (tests/fake_kinova_sdk),
 compiled here with the system C compiler: settings, struct layouts, unit and joint conventions,
 device selection, the cold-boot start, the USB thread (one position read per tick, the 100 Hz
 points, the status poll, the order of calls), the command watchdog, faults, the e-stop, a lost
@@ -30,10 +30,10 @@ from hardware.kinova_gen2 import (SYSTEM_ERROR_TYPES, AngularPosition, Gen2Confi
                                   JointConvention, KinovaDevice, KinovaGen2Arm, SensorsInfo,
                                   Sdk, SystemError, TrajectoryPoint, UserPosition, check_library,
                                   kinova_positions, kinova_velocities,
-                                  model_positions, model_velocities, unwrap_positions,
+                                  model_positions, model_velocities,
                                   velocity_point)
 from hardware.protocol import (ArmFaultError, ArmState, CommandRefusedError, ConnectionLostError, Fault,
-                               HardwareError, NotConnectedError, ServoingMode)
+                               HardwareError, NotConnectedError, ServoingMode, unwrap_positions)
 
 fake_module = pytest.importorskip("fake_kinova_sdk.fake")
 no_arm = pytest.importorskip("fake_kinova_sdk.no_arm")
@@ -404,7 +404,12 @@ def test_watchdog_stops_a_frozen_caller_within_20_ms(fake, make_arm):
     time.sleep(0.05)
     np.testing.assert_array_equal(fake.state()[0], q_before)
     assert arm.standing_command is None
-    arm.send_joint_speeds(np.array([0.1, 0, 0, 0, 0, 0]))  # a fresh command moves it again
+    assert arm.faults == Fault.WATCHDOG and "watchdog" in arm.fault_reason  # latched
+    with pytest.raises(ArmFaultError, match="WATCHDOG"):
+        arm.send_joint_speeds(np.array([0.1, 0, 0, 0, 0, 0]))
+    assert arm.standing_command is None and fake.state()[1][0] == 0.0
+    arm.clear_faults()
+    arm.send_joint_speeds(np.array([0.1, 0, 0, 0, 0, 0]))  # cleared: a command moves it again
     assert fake.state()[1][0] == pytest.approx(math.degrees(0.1), rel=1e-5)
     assert arm.standing_command is not None
 
@@ -499,7 +504,7 @@ def test_back_to_back_reads_take_their_velocity_over_the_window(fake, make_arm):
 
 
 def test_system_error_faults_the_arm_until_cleared(fake, make_arm):
-    arm = make_arm()
+    arm = make_arm(timeout=5.0)  # the command watchdog (it latches) out of the way
     arm.connect()
     arm.send_joint_speeds(np.array([0.2, 0, 0, 0, 0, 0]))
     fake.inject_error(SYSTEM_ERROR_TYPES.index("errorlog_current_Actuators"))
@@ -566,7 +571,7 @@ def test_a_fault_halt_holds_off_commands_until_cleared(fake, make_arm):
 
 
 def test_hardware_estop(fake, make_arm):
-    arm = make_arm()
+    arm = make_arm(timeout=5.0)  # the command watchdog (it latches) out of the way
     arm.connect()
     arm.send_joint_speeds(np.array([0.2, 0, 0, 0, 0, 0]))
     fake.set_estop(True)

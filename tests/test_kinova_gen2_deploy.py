@@ -127,7 +127,7 @@ def test_faults_stop_the_deploy_loop_within_one_period(library, task_config, cap
     from ahrm_stack.deploy import DeployLoop, ScriptedController, WorldModel, load_deploy_settings
     from hardware import backends
     from hardware.kinova_gen2 import SYSTEM_ERROR_TYPES
-    from hardware.kinova_gen2_bus import POINT_PERIOD
+    from hardware.kinova_gen2.bus import POINT_PERIOD
 
     fake = fake_module.FakeSdk(library)
     config = load_config()
@@ -196,5 +196,45 @@ def test_faults_stop_the_deploy_loop_within_one_period(library, task_config, cap
                 arm.connect()
             arm.clear_faults()
             loop.resume()
+    finally:
+        arm.disconnect()
+
+
+def test_a_stalled_loop_finds_the_command_watchdog_latched_and_stops_saying_why(library):
+    """The loop stalls past the command timeout while the arm moves: the USB thread's watchdog
+    stops the arm and latches Fault.WATCHDOG (the protocol's rule), so the next tick does not
+    resume motion: it stops the run and records why."""
+    import dataclasses
+
+    from ahrm_stack.config import load_config
+    from ahrm_stack.deploy import DeployLoop, ScriptedController, WorldModel, load_deploy_settings
+    from hardware import backends
+    from hardware.protocol import Fault
+
+    fake = fake_module.FakeSdk(library)
+    config = load_config()
+    fake.reset(position_deg=np.degrees(config.task.arm.home))
+    settings = load_deploy_settings(realtime=True, telemetry="")
+    settings = dataclasses.replace(
+        settings, watchdog=dataclasses.replace(settings.watchdog, max_deadline_misses=10**9,
+                                               max_feedback_age=10.0),
+        kinova_gen2=dataclasses.replace(settings.kinova_gen2, library=str(library),
+                                        serial=fake_module.SERIAL, scene=str(SCENE)))
+    arm = backends.get("kinova-gen2").make(config, settings)
+    world = WorldModel(config.task)
+    arm.connect()
+    try:
+        loop = DeployLoop(arm, world, ScriptedController(world, config), config.safety, settings)
+        loop.start()
+        for _ in range(4):
+            assert loop.tick(), loop.stop_reason
+        assert arm.standing_command is not None and arm.standing_command.any()  # moving
+        time.sleep(arm.command_timeout + 0.1)  # the loop stalls
+        assert Fault.WATCHDOG in arm.faults and len(arm.watchdog_stops) == 1
+        np.testing.assert_array_equal(fake.state()[1], 0.0)  # stopped by the USB thread
+        assert not loop.tick()
+        assert "WATCHDOG" in loop.stop_reason, loop.stop_reason
+        assert arm.standing_command is None
+        np.testing.assert_array_equal(fake.state()[1], 0.0)
     finally:
         arm.disconnect()

@@ -15,7 +15,7 @@ import subprocess
 import pytest
 
 from hardware import kinova_gen2
-from hardware.kinova_gen2_loader import VENDOR_LIBRARY
+from hardware.kinova_gen2.loader import VENDOR_LIBRARY
 
 pytestmark = pytest.mark.skipif(shutil.which("readelf") is None or not VENDOR_LIBRARY.is_file(),
                                 reason="binutils' readelf and the vendored Gen2 SDK are needed")

@@ -2,7 +2,7 @@
 noise, yet firing on a real runaway.
 
 The Gen2 adapter's velocities are position differences over at least ``velocity_window`` s
-(hardware/kinova_gen2.py ``_velocity``); the firmware's own velocity feedback is noisy (kinova-ros
+(hardware/kinova_gen2/arm.py ``_velocity``); the firmware's own velocity feedback is noisy (kinova-ros
 issues 381 and 202: Kinova's answer is that it comes from the firmware's speed regulation and is
 unsteady; issue 366: "the joint angular positions is pretty good", velocities "not even close to
 zero" at rest; no figure is given) and is not used. The fake's GetAngularVelocity noise is 1 deg/s

@@ -1,4 +1,4 @@
-"""The homing step (``--home``, hardware/kinova_gen2_home.py) on the fake Kinova SDK, whose arm moves
+"""The homing step (``--home``, hardware/kinova_gen2/home.py) on the fake Kinova SDK, whose arm moves
 at a finite speed through its trajectory FIFO: MoveHome to kinova-ros's j2n6s300 factory home, an
 ANGULAR_POSITION point at its speed limits along a straight joint-space line
 (tests/fake_kinova_sdk/fake_kinova.c). No confirmation: nothing moves; a confirmation: the arm ends
@@ -24,7 +24,7 @@ from ahrm_stack.deploy.cli import home_limits
 from ahrm_stack.deploy.start_check import start_refusal
 from ahrm_stack.deploy.world import WorldModel
 from hardware.kinova_gen2 import SYSTEM_ERROR_TYPES, KinovaGen2Arm
-from hardware.kinova_gen2_home import (BAD_INPUT, DONE, INTERRUPTED, NOT_CONFIRMED, STOPPED,
+from hardware.kinova_gen2.home import (BAD_INPUT, DONE, INTERRUPTED, NOT_CONFIRMED, STOPPED,
                                        Homing, path_clearance)
 
 fake_module = pytest.importorskip("fake_kinova_sdk.fake")

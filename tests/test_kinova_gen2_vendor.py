@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from hardware.kinova_gen2_loader import VENDOR_DIR, VENDOR_LIBRARY
+from hardware.kinova_gen2.loader import VENDOR_DIR, VENDOR_LIBRARY
 
 from fake_kinova_sdk import no_arm  # noqa: E402  (tests/ is on sys.path)
 
@@ -141,18 +141,21 @@ def test_check_without_an_arm_ends_in_one_line(libusb, tmp_path):
 CONNECT = """
 import dataclasses, sys
 import hardware.kinova_gen2 as gen2
+import hardware.kinova_gen2.sdk as gen2_sdk
+import hardware.kinova_gen2.settings as gen2_settings
+from hardware.protocol import HardwareError
 from ahrm_stack.deploy import load_deploy_settings
 from ahrm_stack.robot import describe, make_arm
-from hardware.kinova_gen2_loader import VENDOR_LIBRARY
+from hardware.kinova_gen2.loader import VENDOR_LIBRARY
 if sys.argv[1] == "bypass-check":  # reach InitAPI's own failure (2002), as an unchecked caller would
-    gen2.check_sdk_path = lambda library: {}
+    gen2_settings.check_sdk_path = gen2_sdk.check_sdk_path = lambda library: {}
 settings = dataclasses.replace(load_deploy_settings().kinova_gen2, library=str(VENDOR_LIBRARY),
                                serial="%s")
 arm = gen2.KinovaGen2Arm(describe("jaco", make_arm("jaco")), settings, 0.1)
 for attempt in range(2):
     try:
         arm.connect()
-    except gen2.HardwareError as error:
+    except HardwareError as error:
         print("connect failed:", error, flush=True)
     print("connected:", arm.is_connected, flush=True)
 arm.disconnect()

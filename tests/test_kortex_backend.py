@@ -237,6 +237,30 @@ def test_the_deploy_loop_stops_on_a_late_frame(config):
         rig.adapter.disconnect()
 
 
+def test_the_deploy_loop_stops_on_the_latched_command_watchdog(config):
+    """The loop stalls (virtual time jumps a second with no command) while the arm moves: the
+    watchdog stops the arm and latches Fault.WATCHDOG, so the next tick stops the run saying why
+    instead of moving again."""
+    from fake_kortex_api.rig import DeployRig
+
+    rig = DeployRig(config)
+    try:
+        for _ in range(5):
+            assert rig.loop.tick(), rig.loop.stop_reason
+        assert rig.command.any()  # moving
+        rig.adapter.clock.sleep(1.0)  # the loop stalls
+        deadline = time.perf_counter() + 2.0
+        while rig.command.any() and time.perf_counter() < deadline:
+            time.sleep(0.005)  # the watchdog thread polls in real time
+        np.testing.assert_array_equal(rig.command, 0.0)
+        assert rig.adapter.watchdog.trips == 1
+        assert not rig.loop.tick()
+        assert "WATCHDOG" in rig.loop.stop_reason, rig.loop.stop_reason
+        np.testing.assert_array_equal(rig.command, 0.0)
+    finally:
+        rig.adapter.disconnect()
+
+
 # ---------------------------------------------------------------------------------------------
 # The command watchdog
 # ---------------------------------------------------------------------------------------------
@@ -281,7 +305,7 @@ def measure_watchdog(trials: int) -> np.ndarray:
             delays.append(arm.speed_log[-1][0] - sent)
             with pytest.raises(ArmFaultError, match="watchdog"):
                 adapter.send_joint_speeds(_speeds(0, 0.1))  # latched until cleared
-            assert Fault.COMMUNICATION in adapter.refresh_feedback().faults
+            assert Fault.WATCHDOG in adapter.refresh_feedback().faults
             adapter.clear_faults()
     finally:
         adapter.disconnect()

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 import hardware.protocol as protocol
-from hardware.protocol import (ArmAdapter, ArmState, CommandRefusedError, DescribedArm, FastClock, Fault, Feedback,
-                               ObjectPoses, ServoingMode, WallClock, check_joint_speeds, range_centres,
-                               unwrap_positions)
+from hardware.protocol import (ArmAdapter, ArmFaultError, ArmState, CommandRefusedError, DescribedArm, FastClock,
+                               Fault, Feedback, ObjectPoses, ServoingMode, WallClock, check_joint_speeds,
+                               range_centres, unwrap_positions)
 
 LIMIT = np.array([0.5, 1.0, 2.0])  # rad/s
 
@@ -253,7 +253,7 @@ def test_the_wall_clock_is_real_time():
 
 
 class _Arm(DescribedArm):
-    """The smallest adapter: the abstract methods do nothing but record the session."""
+    """The smallest adapter: the abstract methods do nothing but record what was called."""
 
     def __init__(self) -> None:
         self._robot = types.SimpleNamespace(joint_names=("a", "b"), velocity_limit=np.array([1.0, 2.0]))
@@ -261,10 +261,17 @@ class _Arm(DescribedArm):
         self._connected = False
         self._mode = ServoingMode.SINGLE_LEVEL_SERVOING
         self.calls: list[str] = []
+        self.faults, self.reason = Fault.NONE, ""
 
     def _require(self) -> None:
         if not self._connected:
             raise protocol.NotConnectedError("not connected")
+
+    def _fault_state(self) -> tuple[Fault, str]:
+        return self.faults, self.reason
+
+    def _add_fault(self, flag: Fault, reason: str) -> None:
+        self.faults, self.reason = self.faults | flag, reason
 
     def connect(self) -> None:
         self.calls.append("connect")
@@ -277,14 +284,16 @@ class _Arm(DescribedArm):
     def refresh_feedback(self) -> Feedback:
         raise NotImplementedError
 
-    def send_joint_speeds(self, speeds: np.ndarray) -> np.ndarray:
-        return check_joint_speeds(speeds, self.velocity_limit)
+    def _send(self, command: np.ndarray) -> np.ndarray:
+        self.calls.append("send")
+        return command
 
     def stop(self) -> None:
         pass
 
     def apply_emergency_stop(self) -> None:
-        pass
+        self.calls.append("e-stop")
+        self._add_fault(Fault.EMERGENCY_STOP, "emergency stop applied")
 
     def clear_faults(self) -> None:
         pass
@@ -308,13 +317,45 @@ def test_a_described_arm_answers_from_its_description_and_a_context_manager_clos
     assert arm.calls == ["connect", "disconnect"] and not arm.is_connected
 
 
+def test_the_gate_sends_a_command_at_its_limit_and_e_stops_on_one_beyond_it():
+    arm = _Arm()
+    arm.connect()
+    np.testing.assert_array_equal(arm.send_joint_speeds([1.0, -2.0]), [1.0, -2.0])
+    assert arm.calls == ["connect", "send"] and arm.faults == Fault.NONE
+    with pytest.raises(CommandRefusedError, match=r"joint speed \[1\]"):
+        arm.send_joint_speeds([0.0, np.nextafter(2.0, 3.0)])
+    assert arm.calls == ["connect", "send", "e-stop"]  # e-stopped, nothing sent
+    assert arm.faults == Fault.EMERGENCY_STOP | Fault.LIMIT
+    assert arm.reason.startswith("refused command: joint speed [1]")
+
+
+@pytest.mark.parametrize("state", ["not connected", "in fault", "low-level servoing"])
+def test_the_gate_checks_the_session_the_fault_and_the_mode_before_the_command(state):
+    """A bad command meets the earlier refusals first: none of them sends or e-stops."""
+    arm = _Arm()
+    if state != "not connected":
+        arm.connect()
+    if state == "in fault":
+        arm.faults, arm.reason = Fault.HARDWARE, "an actuator is hot"
+    if state == "low-level servoing":
+        arm.set_servoing_mode(ServoingMode.LOW_LEVEL_SERVOING)
+    error = {"not connected": protocol.NotConnectedError, "in fault": ArmFaultError,
+             "low-level servoing": ArmFaultError}[state]
+    with pytest.raises(error) as refused:
+        arm.send_joint_speeds([np.nan, 99.0])
+    assert "send" not in arm.calls and "e-stop" not in arm.calls
+    assert Fault.LIMIT not in arm.faults
+    if state == "in fault":
+        assert "HARDWARE" in str(refused.value) and "an actuator is hot" in str(refused.value)
+
+
 def test_the_adapter_base_defaults_to_the_wall_clock():
     assert type(ArmAdapter.clock.fget(_Arm())) is WallClock  # type: ignore[attr-defined]
 
 
 def test_fault_flags_are_distinct_bits_so_that_any_combination_reads_back():
-    assert [flag.value for flag in (Fault.EMERGENCY_STOP, Fault.LIMIT, Fault.HARDWARE, Fault.COMMUNICATION)] == \
-        [1, 2, 4, 8]
+    assert [flag.value for flag in (Fault.EMERGENCY_STOP, Fault.LIMIT, Fault.HARDWARE, Fault.COMMUNICATION,
+                                    Fault.WATCHDOG)] == [1, 2, 4, 8, 16]
     both = Fault.EMERGENCY_STOP | Fault.LIMIT
     assert Fault.EMERGENCY_STOP in both and Fault.LIMIT in both and Fault.HARDWARE not in both
     assert not Fault.NONE

@@ -117,11 +117,11 @@ def check_link(backend: str, settings: DeploySettings, checkpoint: Path | None,
 def home_limits(world, settings: DeploySettings):
     """The deploy settings homing applies to ``world`` (a :class:`~ahrm_stack.deploy.WorldModel`):
     ``kinova_gen2.home``, the velocity alarm and the loop's start check
-    (:class:`hardware.kinova_gen2_home.Limits`)."""
+    (:class:`hardware.kinova_gen2.home.Limits`)."""
     import math
 
     from ahrm_stack.deploy.start_check import start_refusal
-    from hardware.kinova_gen2_home import Limits
+    from hardware.kinova_gen2.home import Limits
 
     start = settings.start_posture
     return Limits(settings.kinova_gen2.home, settings.watchdog.velocity_tolerance,
@@ -132,13 +132,13 @@ def home_limits(world, settings: DeploySettings):
 
 def home(config, settings: DeploySettings, yes: bool, say=print, ask=input):
     """Connect to the arm of ``settings.kinova_gen2`` and run the homing
-    (:class:`hardware.kinova_gen2_home.Homing`) to the start of ``config``'s task (the policy's),
+    (:class:`hardware.kinova_gen2.home.Homing`) to the start of ``config``'s task (the policy's),
     with the deploy settings that apply; its outcome. Bad settings raise before anything is
     contacted (one-line ``Gen2ConfigError``, a ValueError); a failed connect raises
     :class:`~hardware.protocol.HardwareError` (the arm stopped, the API closed)."""
     from ahrm_stack.deploy.world import WorldModel
     from hardware.kinova_gen2 import KinovaGen2Arm
-    from hardware.kinova_gen2_home import Homing
+    from hardware.kinova_gen2.home import Homing
 
     world = WorldModel(config.task)
     gen2 = settings.kinova_gen2
@@ -150,13 +150,13 @@ def home(config, settings: DeploySettings, yes: bool, say=print, ask=input):
 def home_arm(backend: str, settings: DeploySettings, checkpoint: Path | None,
              overrides: Sequence[str], policy_file: Path | None, yes: bool) -> int:
     """``--home``: move the arm to the start posture of the policy's task after a confirmation
-    (:func:`hardware.kinova_gen2_home.home`); prints why it ended. Exit status: 0 at the start
+    (:func:`hardware.kinova_gen2.home.home`); prints why it ended. Exit status: 0 at the start
     posture, 1 not confirmed (nothing moved), 2 bad input (one line, nothing moved), 3 stopped (a
     fault, the timeout, the link) or the arm not reached, 130 Ctrl-C."""
     from ahrm_stack.deploy.run import load_controller_config
     from ahrm_stack.learning.checkpoint import CheckpointError
     from hardware.kinova_gen2 import check_library
-    from hardware.kinova_gen2_home import DONE
+    from hardware.kinova_gen2.home import DONE
     from hardware.protocol import HardwareError
 
     prog = "python -m ahrm_stack.deploy"

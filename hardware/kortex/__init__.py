@@ -36,7 +36,9 @@ Safety of the link, each number from ``configs/deploy.yaml``'s ``kortex`` sectio
   guard.
 * **Command watchdog.** Joint-speed commands never expire on the arm; :class:`CommandWatchdog`
   sends ``Base.Stop`` when no fresh command came for ``watchdog_periods`` control periods while
-  the arm was commanded to move, and latches until :meth:`KortexArm.clear_faults`.
+  the arm was commanded to move, and latches until :meth:`KortexArm.clear_faults` (the
+  protocol's rule, :class:`~hardware.protocol.ArmAdapter`): feedback and the command gate report
+  it as ``Fault.WATCHDOG``.
 * **Staleness without an arm clock.** ``Feedback.frame_id`` is client-set (it echoes the last
   cyclic command's), and feedback has no timestamp: frames are stamped on the adapter's clock
   when requested, and a frame identical in every analogue reading to the previous one is a

@@ -26,10 +26,9 @@ from hardware.kortex.settings import KortexOptions
 from hardware.kortex.vendor_link import INSTALL_HINT, LinkError, VendorLink
 from hardware.kortex.watchdog import CommandWatchdog
 from hardware.kortex.zones import ProtectionZone, zone_report, zones_in_workspace
-from hardware.protocol import (ArmFaultError, ArmState, CommandRefusedError, ConnectionLostError,
-                               DescribedArm, Fault, Feedback, FeedbackTimeoutError, HardwareError,
-                               NotConnectedError, ServoingMode, WallClock, check_joint_speeds,
-                               range_centres)
+from hardware.protocol import (ArmFaultError, ArmState, ConnectionLostError, DescribedArm, Fault,
+                               Feedback, FeedbackTimeoutError, HardwareError, NotConnectedError,
+                               ServoingMode, WallClock, range_centres)
 
 log = logging.getLogger("hardware.kortex")
 
@@ -78,8 +77,11 @@ class KortexArm(DescribedArm):
         self._wanted_mode = ServoingMode.SINGLE_LEVEL_SERVOING  # what clear_faults restores
         self._previous: np.ndarray | None = None
         self._freshness = FrameFreshness()
-        self._estopped = False  # we e-stopped the arm; latched until clear_faults()
-        self._arm_in_fault = False  # the last feedback reported a fault
+        self._faults = Fault.NONE  # the adapter's own flags (e-stop, refusal); latched until
+        self._fault_reason = ""  # clear_faults(), carried by every frame
+        self._arm_in_fault = False  # the last feedback (or a refused RPC) reported a fault
+        self._arm_faults = Fault.NONE  # that feedback's flags
+        self._watchdog_reason = ""  # why the command watchdog stopped the arm (Fault.WATCHDOG)
         self._watchdog = CommandWatchdog(options.watchdog_timeout, options.watchdog_poll,
                                          self._watchdog_expired, clock=self._clock.now)
         self._range_centre = range_centres(robot)
@@ -129,7 +131,7 @@ class KortexArm(DescribedArm):
         if kind == "timeout":
             raise FeedbackTimeoutError(f"{what}: no answer within {timeout_ms} ms ({message})")
         if kind == "fault":
-            self._arm_in_fault = True
+            self._arm_in_fault, self._arm_faults = True, self._arm_faults | Fault.HARDWARE
             raise ArmFaultError(f"{what}: the arm refused it in fault ({message}); "
                                 "clear_faults() first")
         if kind in ("connection", "dead"):
@@ -267,7 +269,14 @@ class KortexArm(DescribedArm):
     def refresh_feedback(self) -> Feedback:
         """The arm's latest frame, stamped when its request was sent (adapter clock); a frame
         equal to the previous one in every analogue reading keeps that one's id and stamp
-        (:mod:`hardware.kortex.freshness`)."""
+        (:mod:`hardware.kortex.freshness`); its flags: the arm's and the adapter's own (the
+        e-stop, a refused command, the command watchdog: ``Fault.WATCHDOG``)."""
+        frame = self._arm_frame()
+        own = self._faults | (Fault.WATCHDOG if self._watchdog.tripped else Fault.NONE)
+        return dataclasses.replace(frame, faults=frame.faults | own)
+
+    def _arm_frame(self) -> Feedback:
+        """The arm's frame, its flags the arm's only."""
         self._require()
         sent = self._clock.now()
         raw = self._rpc("RefreshFeedback", "feedback")
@@ -281,24 +290,27 @@ class KortexArm(DescribedArm):
             reference=self._previous, continuous=~self._robot.limited,
             range_centre=self._range_centre)
         self._arm_in_fault = frame.arm_state == ArmState.IN_FAULT or frame.faults != Fault.NONE
-        if self._watchdog.tripped:  # stopped by the client-side watchdog: a link fault
-            frame = dataclasses.replace(frame, faults=frame.faults | Fault.COMMUNICATION)
+        self._arm_faults = frame.faults
         if np.isfinite(frame.position).all():
             self._previous = frame.position
         return frame
 
-    def send_joint_speeds(self, speeds: np.ndarray) -> np.ndarray:
-        self._require()
-        try:
-            command = check_joint_speeds(speeds, self._robot.velocity_limit)
-        except CommandRefusedError:
-            self.apply_emergency_stop()
-            raise
-        if self._estopped or self._arm_in_fault:
-            why = "e-stopped" if self._estopped else "reported by its feedback"
-            raise ArmFaultError(f"the arm is in fault ({why}): clear_faults() first")
-        if self._mode != ServoingMode.SINGLE_LEVEL_SERVOING:
-            raise ArmFaultError(f"joint speed commands need single-level servoing, not {self._mode}")
+    def _fault_state(self) -> tuple[Fault, str]:
+        faults, reason = self._faults, self._fault_reason
+        if self._watchdog.tripped:
+            faults |= Fault.WATCHDOG
+            reason = reason or self._watchdog_reason or "command watchdog: the arm was stopped"
+        if self._arm_in_fault:
+            faults |= self._arm_faults or Fault.HARDWARE
+            reason = reason or "reported by the arm's feedback"
+        return faults, reason
+
+    def _add_fault(self, flag: Fault, reason: str) -> None:
+        self._faults |= flag
+        self._fault_reason = reason
+
+    def _send(self, command: np.ndarray) -> np.ndarray:
+        """Send a command that passed the gate, through the command watchdog."""
         moving = bool(np.any(command != 0.0))
         if moving:
             self._watchdog.start()  # a no-op once running
@@ -315,6 +327,8 @@ class KortexArm(DescribedArm):
     def _watchdog_expired(self, age: float) -> None:
         """From the watchdog thread: no fresh command for ``age`` s; stop the arm (Base.Stop,
         else zero joint speeds)."""
+        self._watchdog_reason = (f"command watchdog: no command for {age * 1e3:.1f} ms (timeout "
+                                 f"{self._options.watchdog_timeout * 1e3:.0f} ms): the arm was stopped")
         log.error("kortex: WATCHDOG: no command for %.1f ms (limit %.1f ms): stopping the arm",
                   age * 1e3, self._options.watchdog_timeout * 1e3)
         if not self._connected:
@@ -335,7 +349,7 @@ class KortexArm(DescribedArm):
 
     def apply_emergency_stop(self) -> None:
         self._require()
-        self._estopped = True
+        self._add_fault(Fault.EMERGENCY_STOP, "emergency stop applied")
         self._rpc("ApplyEmergencyStop", "emergency_stop")
         self._watchdog.disarm()
 
@@ -353,8 +367,8 @@ class KortexArm(DescribedArm):
         self._rpc("ClearFaults", "clear_faults")
         deadline = self._clock.now() + options.reset_wait
         while True:
-            frame = self.refresh_feedback()
-            arm_faults = frame.faults & ~Fault.COMMUNICATION
+            frame = self._arm_frame()
+            arm_faults = frame.faults
             if frame.arm_state != ArmState.IN_FAULT and arm_faults == Fault.NONE:
                 break
             if self._clock.now() >= deadline:
@@ -362,8 +376,8 @@ class KortexArm(DescribedArm):
                                     f"{options.reset_wait * 1e3:.0f} ms (state "
                                     f"{frame.arm_state.value}, flags {arm_faults!r})")
             self._clock.sleep(options.reset_poll)
-        self._estopped = False
-        self._arm_in_fault = False
+        self._faults, self._fault_reason = Fault.NONE, ""
+        self._arm_in_fault, self._arm_faults = False, Fault.NONE
         self._watchdog.reset()
         if self._wanted_mode != ServoingMode.SINGLE_LEVEL_SERVOING:
             self._set_mode(self._wanted_mode)

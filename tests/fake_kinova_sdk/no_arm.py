@@ -13,7 +13,7 @@ real binary (in child processes: tests/test_kinova_gen2_vendor.py) and on the fa
 (fake_kinova.c, in process: its crashes are counted), so the fake answers as the real SDK does.
 
 As a child process: ``python -m fake_kinova_sdk.no_arm LIBRARY CALL...`` loads LIBRARY with
-:mod:`ctypes` (the argument types of hardware/kinova_gen2.py), makes the calls and prints
+:mod:`ctypes` (the argument types of hardware/kinova_gen2/sdk.py), makes the calls and prints
 ``CALL CODE`` per call, flushed, so a crash shows as the return code after the last line printed.
 """
 
@@ -75,7 +75,7 @@ CRASHES: dict[str, tuple[bool, list[str]]] = {
 
 
 def bind(library: Path | str) -> ctypes.CDLL:
-    """The library, loaded with hardware/kinova_gen2.py's argument and return types."""
+    """The library, loaded with hardware/kinova_gen2/sdk.py's argument and return types."""
     from hardware.kinova_gen2 import SIGNATURES
 
     lib = ctypes.CDLL(str(library), mode=ctypes.RTLD_GLOBAL)

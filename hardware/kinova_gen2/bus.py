@@ -9,7 +9,11 @@ priority first:
 
 1. **stops** (zero velocity, ``EraseAllTrajectories``; the e-stop's ``StopControlAPI``): a stop
    waits at most for the call in progress;
-2. the **command watchdog**'s stop, at its deadline (no fresh command for ``command_timeout`` s);
+2. the **command watchdog**'s stop, at its deadline (no fresh command for ``command_timeout`` s
+   while the standing command moves the arm; a zero command or a stop disarms it): it latches, as
+   the protocol says (:class:`~hardware.protocol.ArmAdapter`): commands are refused
+   (:class:`BusHeldError`) until :meth:`UsbBus.release`, and the adapter hears of it
+   (``on_watchdog``), which sets ``Fault.WATCHDOG``;
 3. a trajectory point that is **urgent**: the arm's FIFO would run dry if one more call went first
    (at most one such point goes ahead of a waiting caller's call);
 4. the **callers' calls**, in order: the control tick's one position read, ``clear_faults``, ...;
@@ -65,7 +69,7 @@ T = TypeVar("T")
 
 
 class SdkLike(Protocol):
-    """What the bus needs of the SDK (:class:`hardware.kinova_gen2.Sdk`)."""
+    """What the bus needs of the SDK (:class:`hardware.kinova_gen2.sdk.Sdk`)."""
 
     times: "CallTimes"
 
@@ -162,18 +166,21 @@ class UsbBus:
         send_period: s, 1 / ``kinova_gen2.send_rate_hz``: no two points closer than this when it is
             longer than the arm's 10 ms (the arm then moves proportionally slower).
         send_ahead: s of motion the FIFO holds when the next point is due (``kinova_gen2.send_ahead``).
-        command_timeout: s without a fresh command before the watchdog stops the arm.
+        command_timeout: s without a fresh command before the watchdog stops the arm (while the
+            standing command moves it).
         status_period: s between two status polls (1 / ``kinova_gen2.status_rate_hz``).
         status_steps: the poll's steps, each one SDK call, run on this thread in order (the
             adapter's: they may call :meth:`halt`, which then runs inline).
         name: the thread's name.
         watchdog_stops: where the watchdog's stops are recorded (the adapter's list).
+        on_watchdog: called on this thread with each watchdog stop, once the arm is stopped.
     """
 
     def __init__(self, sdk: SdkLike, make_point: Callable[[np.ndarray], Any], joints: int,
                  send_period: float, send_ahead: float, command_timeout: float,
                  status_period: float, status_steps: Sequence[Callable[[Any], None]],
-                 name: str, watchdog_stops: list[WatchdogStop] | None = None) -> None:
+                 name: str, watchdog_stops: list[WatchdogStop] | None = None,
+                 on_watchdog: Callable[[WatchdogStop], None] | None = None) -> None:
         self.sdk = sdk
         self._make_point = make_point
         self._zero = np.zeros(joints)
@@ -194,7 +201,8 @@ class UsbBus:
         # the standing command and the FIFO model
         self._values = np.zeros(joints)  # deg/s
         self._active = False
-        self._held = False  # a fault's halt: commands refused until release()
+        self._moving = False  # the standing command is not all zeros: the watchdog is armed
+        self._held = False  # a fault's halt or the watchdog's stop: commands refused until release()
         self._fresh_at = 0.0  # perf_counter s of the last fresh command
         self._fifo_end = 0.0  # perf_counter s at which the arm will have run every point sent
         self._last_point = -1e9  # perf_counter s the last point was sent
@@ -206,6 +214,7 @@ class UsbBus:
         self.points = 0  # SendAdvanceTrajectory calls carrying the standing command
         self.point_times: Deque[float] = collections.deque(maxlen=1 << 16)  # when each point went out
         self.watchdog_stops: list[WatchdogStop] = [] if watchdog_stops is None else watchdog_stops
+        self._on_watchdog = on_watchdog
         self.status_polls = 0
         self.waits: Deque[JobWait] = collections.deque(maxlen=1 << 16)  # the callers' calls
 
@@ -272,6 +281,7 @@ class UsbBus:
             if self._held:
                 raise BusHeldError("the arm is held stopped (a fault); release() first")
             self._values = np.array(kinova_deg_s, dtype=float)
+            self._moving = bool(np.any(self._values != 0.0))
             self._fresh_at = time.perf_counter()
             starting, self._active = not self._active, True
             mark = self.points
@@ -355,9 +365,9 @@ class UsbBus:
         estimate = self.sdk.times.estimate()
         waits = [self._next_status] if self._steps and self._step >= len(self._steps) else []
         if self._active:
-            deadline = self._fresh_at + self._timeout
+            deadline = self._fresh_at + self._timeout if self._moving else float("inf")
             if now >= deadline:
-                self._active = False
+                self._active, self._held = False, True  # latched: no command slips in
                 return (lambda: self._watchdog_stop(now, deadline)), 0.0
             due = self._point_due()
             values = self._values.copy()
@@ -467,5 +477,8 @@ class UsbBus:
         self._fifo_end = time.perf_counter()
         reason = (f"command watchdog: no fresh command for {(now - self._fresh_at) * 1e3:.1f} ms "
                   f"(timeout {self._timeout * 1e3:.0f} ms): zero velocity sent, trajectories erased")
-        self.watchdog_stops.append(WatchdogStop(deadline, sent_at, reason))
+        stop = WatchdogStop(deadline, sent_at, reason)
+        self.watchdog_stops.append(stop)
         log.warning("kinova_gen2: %s", reason)
+        if self._on_watchdog is not None:
+            self._on_watchdog(stop)

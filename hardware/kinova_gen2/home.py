@@ -51,10 +51,12 @@ from typing import TYPE_CHECKING, Any, Callable, Protocol
 
 import numpy as np
 
+from hardware.kinova_gen2.settings import kinova_positions
 from hardware.protocol import HardwareError
 
 if TYPE_CHECKING:
-    from hardware.kinova_gen2 import HomeSettings, KinovaGen2Arm
+    from hardware.kinova_gen2.arm import KinovaGen2Arm
+    from hardware.kinova_gen2.settings import HomeSettings
 
 log = logging.getLogger("hardware.kinova_gen2")
 
@@ -223,7 +225,6 @@ class Homing:
                           f"{home.tolerance_deg:g} deg); nothing moved")
         if not home.factory_home_first:
             self._check_path(q_now, target)
-        from hardware.kinova_gen2 import kinova_positions
 
         convention = self.arm.convention
         self.say(f"Kinova arm {self.arm.serial} ({robot.name}), Kinova joint angles in deg:")

@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from hardware.kinova_gen2 import KinovaGen2Arm
+    from hardware.kinova_gen2.arm import KinovaGen2Arm
 
 MAX_BUS_LOAD = 0.5  # share of each second the USB may be busy
 MAX_READ_SHARE = 0.5  # share of the command deadline a tick's position read may take (p99)

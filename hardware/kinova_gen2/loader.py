@@ -24,7 +24,7 @@ import re
 from pathlib import Path
 
 #: Kinova's x86_64 USB SDK shipped with this repository (see its README.md).
-VENDOR_DIR = Path(__file__).resolve().parent / "vendor" / "kinova_gen2" / "x86_64-linux-gnu"
+VENDOR_DIR = Path(__file__).resolve().parents[1] / "vendor" / "kinova_gen2" / "x86_64-linux-gnu"
 VENDOR_LIBRARY = VENDOR_DIR / "USBCommandLayerUbuntu.so"
 
 # A NUL-terminated string constant naming a communication layer: the argument of InitAPI's dlopen
