@@ -1,6 +1,6 @@
 """What the homing step sends, against Kinova's own binary's debug information (DWARF, read with
 binutils' ``readelf``): ``MoveHome`` takes no argument and returns int; ``POSITION_TYPE``'s
-``ANGULAR_POSITION`` and ``ANGULAR_VELOCITY`` have the values hardware/kinova_gen2.py sends; the
+``ANGULAR_POSITION`` and ``ANGULAR_VELOCITY`` have the values hardware/kinova_gen2/ sends; the
 ``Limitation``, ``UserPosition`` and ``TrajectoryPoint`` structs have the size and member offsets of
 the ctypes layouts (``speedParameter1``/``2``, ``LimitationsActive``: the homing move's speed
 limits)."""
