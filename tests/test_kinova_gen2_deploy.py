@@ -108,6 +108,26 @@ def test_deploy_command_runs_the_fake_arm(library, tmp_path, task_config, capsys
     assert len(fake.calls(function="SendAdvanceTrajectory")) > 20
 
 
+def _fake_arm_settings(library):
+    """The fake SDK at the task's home posture, the task config, and realtime deploy settings for
+    it (the loop's own deadline and feedback-age stops out of the way: the adapter's are tested)."""
+    import dataclasses
+
+    from ahrm_stack.config import load_config
+    from ahrm_stack.deploy import load_deploy_settings
+
+    fake = fake_module.FakeSdk(library)
+    config = load_config()
+    fake.reset(position_deg=np.degrees(config.task.arm.home))
+    settings = load_deploy_settings(realtime=True, telemetry="")
+    settings = dataclasses.replace(
+        settings, watchdog=dataclasses.replace(settings.watchdog, max_deadline_misses=10**9,
+                                               max_feedback_age=10.0),
+        kinova_gen2=dataclasses.replace(settings.kinova_gen2, library=str(library),
+                                        serial=fake_module.SERIAL, scene=str(SCENE)))
+    return fake, config, settings
+
+
 def test_faults_stop_the_deploy_loop_within_one_period(library, task_config, caplog):
     """The faults of tests/test_hardware_faults.py that the Gen2 SDK can show, in the deploy loop at
     20 Hz over the realistic fake (3 ms per call, one at a time): a logged system error and the
@@ -121,23 +141,13 @@ def test_faults_stop_the_deploy_loop_within_one_period(library, task_config, cap
       the fault flags, a stop on the lost link) within one period of that tick's start (its USB work
       is bounded: one read behind at most two calls, then the stop behind at most one);
     - a log line naming it."""
-    import dataclasses
 
-    from ahrm_stack.config import load_config
-    from ahrm_stack.deploy import DeployLoop, ScriptedController, WorldModel, load_deploy_settings
+    from ahrm_stack.deploy import DeployLoop, ScriptedController, WorldModel
     from hardware import backends
     from hardware.kinova_gen2 import SYSTEM_ERROR_TYPES
     from hardware.kinova_gen2.bus import POINT_PERIOD
 
-    fake = fake_module.FakeSdk(library)
-    config = load_config()
-    fake.reset(position_deg=np.degrees(config.task.arm.home))
-    settings = load_deploy_settings(realtime=True, telemetry="")
-    settings = dataclasses.replace(
-        settings, watchdog=dataclasses.replace(settings.watchdog, max_deadline_misses=10**9,
-                                               max_feedback_age=10.0),
-        kinova_gen2=dataclasses.replace(settings.kinova_gen2, library=str(library),
-                                        serial=fake_module.SERIAL, scene=str(SCENE)))
+    fake, config, settings = _fake_arm_settings(library)
     gen2 = settings.kinova_gen2
     period = settings.period
     # the ticks a fault may take to be seen: the status poll's period, one tick, one to spare
@@ -204,22 +214,12 @@ def test_a_stalled_loop_finds_the_command_watchdog_latched_and_stops_saying_why(
     """The loop stalls past the command timeout while the arm moves: the USB thread's watchdog
     stops the arm and latches Fault.WATCHDOG (the protocol's rule), so the next tick does not
     resume motion: it stops the run and records why."""
-    import dataclasses
 
-    from ahrm_stack.config import load_config
-    from ahrm_stack.deploy import DeployLoop, ScriptedController, WorldModel, load_deploy_settings
+    from ahrm_stack.deploy import DeployLoop, ScriptedController, WorldModel
     from hardware import backends
     from hardware.protocol import Fault
 
-    fake = fake_module.FakeSdk(library)
-    config = load_config()
-    fake.reset(position_deg=np.degrees(config.task.arm.home))
-    settings = load_deploy_settings(realtime=True, telemetry="")
-    settings = dataclasses.replace(
-        settings, watchdog=dataclasses.replace(settings.watchdog, max_deadline_misses=10**9,
-                                               max_feedback_age=10.0),
-        kinova_gen2=dataclasses.replace(settings.kinova_gen2, library=str(library),
-                                        serial=fake_module.SERIAL, scene=str(SCENE)))
+    fake, config, settings = _fake_arm_settings(library)
     arm = backends.get("kinova-gen2").make(config, settings)
     world = WorldModel(config.task)
     arm.connect()
