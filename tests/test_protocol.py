@@ -349,6 +349,14 @@ def test_the_gate_checks_the_session_the_fault_and_the_mode_before_the_command(s
         assert "HARDWARE" in str(refused.value) and "an actuator is hot" in str(refused.value)
 
 
+def test_the_session_is_checked_before_the_fault_flags():
+    """Faults left from before a disconnect do not hide that there is no session."""
+    arm = _Arm()
+    arm.faults, arm.reason = Fault.EMERGENCY_STOP, "emergency stop applied"
+    with pytest.raises(protocol.NotConnectedError):
+        arm.send_joint_speeds([0.0, 0.0])
+
+
 def test_the_adapter_base_defaults_to_the_wall_clock():
     assert type(ArmAdapter.clock.fget(_Arm())) is WallClock  # type: ignore[attr-defined]
 
