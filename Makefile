@@ -47,11 +47,13 @@ run: $(STAMP)
 demo: $(STAMP)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m ahrm_stack.demo $(ARGS)
 
-# Lint (ruff) and type check (mypy) first: settings in pyproject.toml. The tests run on every core
-# (pytest-xdist); tests marked xdist_group(name) share one worker (Kinova's machine-wide SDK lock).
-# PYTEST_ARGS="-n 0" runs them in one process.
+# Lint (ruff) and type check (mypy) first: settings in pyproject.toml. Then every test: those not
+# marked realtime on every core (pytest-xdist; tests marked xdist_group(name) share one worker:
+# Kinova's machine-wide SDK lock), then the realtime ones (wall-clock timing, tests/conftest.py)
+# alone in one process.
 test: lint
-	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m pytest -q -n auto --dist loadgroup $(PYTEST_ARGS)
+	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m pytest -q -n auto --dist loadgroup -m "not realtime" $(PYTEST_ARGS)
+	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m pytest -q -m realtime $(PYTEST_ARGS)
 
 lint: $(STAMP)
 	$(PY) -m ruff check .

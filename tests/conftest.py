@@ -13,6 +13,39 @@ if os.environ.get("CI"):
 
 from ahrm_stack.config import load_config  # noqa: E402
 
+# Test files that time real threads, processes or USB-like calls against the wall clock (a camera
+# at 30 frames/s, the Gen2 USB thread at 100 Hz, the Kortex link and watchdogs): they are marked
+# ``realtime``, and `make test` runs them on their own after the parallel part, so that no other
+# test competes with them for the cores.
+REALTIME_FILES = frozenset({
+    "test_camera_video.py", "test_hardware_contract.py", "test_kinova_gen2.py",
+    "test_kinova_gen2_check.py", "test_kinova_gen2_deploy.py", "test_kinova_gen2_estop.py",
+    "test_kortex_backend.py", "test_kortex_link.py",
+})
+# and the brief runs of the benchmarks that pace threads or processes by the wall clock
+REALTIME_BENCHMARKS = ("bench_camera_scene", "bench_camera_thread", "bench_gen2_budget", "bench_gen2_estop",
+                       "bench_kinova_gen2", "bench_kortex_link")
+# Files whose module-scoped fixture is expensive (a training run, the CLI's imports): their tests
+# share one worker, so that the fixture is built once.
+SHARED_FIXTURE_FILES = frozenset({"test_experiment.py", "test_cli_quiet.py"})
+
+
+# The files with the longest tests (minutes of hypothesis examples, training runs, Ray) go first, so
+# that the parallel workers end together instead of one waiting on a long test started last.
+LONG_FIRST = ("test_experiment.py", "test_safety.py", "test_benchmarks.py", "test_collection.py",
+              "test_pool.py", "test_train.py", "test_scratch_levers.py", "test_hardware_faults.py")
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {name: i for i, name in enumerate(LONG_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(LONG_FIRST)))  # stable: same order on every worker
+    for item in items:
+        if item.path.name in REALTIME_FILES or (
+                item.path.name == "test_benchmarks.py" and any(b in item.name for b in REALTIME_BENCHMARKS)):
+            item.add_marker(pytest.mark.realtime)
+        if item.path.name in SHARED_FIXTURE_FILES:
+            item.add_marker(pytest.mark.xdist_group(item.path.stem))
+
 
 @pytest.fixture(scope="session")
 def config():
