@@ -148,14 +148,14 @@ def run_one(spec: dict) -> dict:
                 checkpoints = run_dir / "checkpoints"
                 resume = checkpoints.is_dir() and any(checkpoints.glob("ckpt-*.pt"))
                 train(config, run_dir, resume=resume, progress=False)
-            from ahrm_stack.evaluate import evaluate
+            from ahrm_stack.evaluation import evaluate
             split = spec.get("split", "validation")
             evaluation = evaluate(run_dir, spec["eval_episodes"], spec["layout"], run_dir / "eval",
                                   Path(spec["video"]) if spec["video"] else None,
                                   [spec["video_episode"]], spec["video_overrides"], quiet=True, split=split)
             suites = {}
             if spec.get("suite"):
-                from ahrm_stack.evaluate import evaluate_suite
+                from ahrm_stack.evaluation import evaluate_suite
                 from ahrm_stack.learning.run_folder import CLONE_POLICY
                 suites["policy"] = evaluate_suite(run_dir, spec["eval_episodes"], run_dir / "suite",
                                                   with_scripted=False, quiet=True, split=split)["results"]
@@ -186,7 +186,7 @@ def run_scripted(spec: dict) -> dict:
     started = time.perf_counter()
     try:
         with _logged(out):
-            from ahrm_stack.evaluate import evaluate
+            from ahrm_stack.evaluation import evaluate
             split = spec.get("split", "validation")
             evaluation = evaluate(None, spec["episodes"], spec["layout"], out,
                                   Path(spec["video"]) if spec["video"] else None,
@@ -194,7 +194,7 @@ def run_scripted(spec: dict) -> dict:
                                   overrides=spec["overrides"], split=split)
             suite = None
             if spec.get("suite"):
-                from ahrm_stack.evaluate import evaluate_suite
+                from ahrm_stack.evaluation import evaluate_suite
                 suite = evaluate_suite(None, spec["suite_episodes"], out / "suite", spec["overrides"],
                                        quiet=True, split=split)["results"]
         result = {"name": "scripted", "status": "done", "seconds": time.perf_counter() - started,

@@ -9,9 +9,10 @@ demonstration layout and no validation episode is a test episode.
 
 The test split is sealed: :func:`evaluation_range` is the one function that returns a test range,
 and it refuses unless its caller is the final evaluation of a frozen policy
-(:data:`FINAL_EVALUATION`, i.e. ``python -m ahrm_stack.evaluate RUN --split test`` and the
-experiment's final table, which calls it) and no training runs in this process (:func:`sealed`,
-which ``ahrm_stack.train.train`` holds for its whole run).
+(:data:`FINAL_EVALUATION`: the evaluation library :mod:`ahrm_stack.evaluation`, which
+``python -m ahrm_stack.evaluate RUN --split test`` and the experiment's final table call) and no
+training runs in this process (:func:`sealed`, which ``ahrm_stack.train.train`` holds for its whole
+run).
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ SEEDS_FILE = CONFIG_DIR / "seeds.yaml"
 Split = Literal["validation", "test"]
 SPLITS: tuple[Split, ...] = ("validation", "test")
 RUN = "run"  # the evaluation set of a run's own layouts (evaluate RUN without --layout)
-FINAL_EVALUATION = "ahrm_stack.evaluate"  # the one module that may read the test split
+FINAL_EVALUATION = "ahrm_stack.evaluation"  # the one module that may read the test split
 
 
 class SealedSplitError(ConfigError):
@@ -175,7 +176,7 @@ def evaluation_range(name: str, split: Split = "validation") -> SeedRange:
     frame_globals = sys._getframe(1).f_globals
     caller = frame_globals.get("__name__")
     spec = frame_globals.get("__spec__")
-    if caller == "__main__" and spec is not None:  # python -m ahrm_stack.evaluate: the module run as __main__
+    if caller == "__main__" and spec is not None:  # a module run as __main__ (python -m): its own name
         caller = getattr(spec, "name", caller)
     if caller != FINAL_EVALUATION:
         raise SealedSplitError(f"the test split is sealed: only the final evaluation of a frozen policy "

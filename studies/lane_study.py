@@ -81,7 +81,7 @@ def lanes(run_dir: Path, episodes: int) -> list[Path]:
     ``episodes`` validation episodes of the run's own layouts, with the lane agreement, into
     ``RUN/lanes/<policy>/``; a policy already evaluated on as many episodes is skipped. Returns
     the folders written."""
-    from ahrm_stack.evaluate import evaluate
+    from ahrm_stack.evaluation import evaluate
 
     written = []
     policies = [*sorted((run_dir / "policies").glob("episode-*.pt")), run_dir / "policy.pt"]

@@ -13,7 +13,7 @@ import ahrm_stack.env.scripted as scripted_module
 import ahrm_stack.env.task as task_module
 from ahrm_stack.config import ConfigError, load_config, profile_overrides
 from ahrm_stack.env.task import PushOffTask
-from ahrm_stack.evaluate import evaluate
+from ahrm_stack.evaluation import evaluate
 from ahrm_stack.evaluate import main as evaluate_cli
 from ahrm_stack.lane_agreement import LaneOutcome, LaneTable, taken_lane
 from ahrm_stack.learning.trainer import Trainer

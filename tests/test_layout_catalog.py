@@ -7,7 +7,7 @@ import yaml
 
 from ahrm_stack.config import ConfigError, load_raw
 from ahrm_stack.env.layout_catalog import apply_layout, load_layouts
-from ahrm_stack.evaluate import evaluate
+from ahrm_stack.evaluation import evaluate
 from ahrm_stack.learning.rollouts import VALIDATION_SEED_OFFSET
 
 
@@ -80,7 +80,7 @@ def test_scripted_evaluation_on_the_mirrored_layout(tmp_path):
 
 def test_the_suite_is_every_family_marked_suite_and_evaluates_with_the_scripted_row(tmp_path):
     from ahrm_stack.env.layout_catalog import suite_names
-    from ahrm_stack.evaluate import evaluate_suite
+    from ahrm_stack.evaluation import evaluate_suite
 
     names = suite_names()
     assert "fixed" not in names and "random" not in names
@@ -152,7 +152,7 @@ def test_a_dynamics_family_sets_the_cube_factors_of_an_otherwise_nominal_evaluat
 def test_the_scripted_controller_succeeds_on_every_new_family(tmp_path):
     """Two episodes each: every family is solvable by the scripted controller (on 20 validation
     episodes each it scored 19-20/20 with no touching episode; cube_heavy's first episode stalls)."""
-    from ahrm_stack.evaluate import evaluate_suite
+    from ahrm_stack.evaluation import evaluate_suite
 
     families = ["beyond_plus_x", "beyond_minus_x", "beyond_toward_arm", "obstacles_near", "start_plus_x", "start_high",
                 "start_far", "cube_heavy", "cube_light", "cube_grippy", "cube_slippery"]

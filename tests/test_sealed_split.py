@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from ahrm_stack.env.runner import TaskRunner
-from ahrm_stack.evaluate import evaluate
+from ahrm_stack.evaluation import evaluate
 from ahrm_stack.evaluate import main as evaluate_cli
 from ahrm_stack.seeds import SealedSplitError, evaluation_range, sealed, seed_table
 

@@ -179,7 +179,7 @@ def test_an_old_run_folder_takes_an_override_of_the_new_key(tmp_path):
     """Keys added after a run was written are filled before overrides apply, so that evaluating
     an old run with ``task.episode.sleep=...`` works (it was an 'unknown config key' before)."""
     from ahrm_stack.config import apply_overrides, fill_missing
-    from ahrm_stack.evaluate import evaluate
+    from ahrm_stack.evaluation import evaluate
 
     run = ROOT / "tests/data/legacy_run_configs/scratch-study/round6/runs/mirror-nj-fhrm-seed0"  # as written
     raw = yaml.safe_load((run / "config.yaml").read_text())

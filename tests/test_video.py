@@ -7,7 +7,8 @@ import pytest
 
 from ahrm_stack.config import ConfigError, load_extra, VideoConfig
 from ahrm_stack.env.video import RenderError, read_mp4, select_gl_backend
-from ahrm_stack.evaluate import evaluate, main
+from ahrm_stack.evaluate import main
+from ahrm_stack.evaluation import evaluate
 
 SHORT = ["task.episode.duration=1"]  # 20 control steps of 0.05 s
 SMALL = ["width=160", "height=120"]
