@@ -8,7 +8,7 @@ Defaults come from ``configs/experiment.yaml``. ``--config`` overrides go to the
 (``task.episode.duration=30``), to ``experiment.*`` (``experiment.eval_episodes=10``) or to
 ``video.*`` (``video.width=320``). Every (method, seed) run is one Ray task (``cpus_per_run`` CPUs;
 a local Ray instance by default, a cluster with ``--address``) that trains in-process
-(``ahrm_stack.train.train``) into ``OUT/runs/<method>-seed<seed>/``, then evaluates the frozen
+(``ahrm_stack.learning.training.train``) into ``OUT/runs/<method>-seed<seed>/``, then evaluates the frozen
 deterministic policy (``eval/``, and the suite) on ``experiment.split``'s seeds (``test`` by
 default: the sealed split, read only here, after training) and, for the first seed, renders one
 evaluation episode to ``OUT/videos/<method>.mp4``. A finished run writes ``done.json`` and is skipped on a rerun; a run
@@ -143,7 +143,7 @@ def run_one(spec: dict) -> dict:
         with _logged(run_dir):
             (run_dir / FAILED).unlink(missing_ok=True)
             if not (run_dir / "policy.pt").is_file():
-                from ahrm_stack.train import train
+                from ahrm_stack.learning.training import train
                 config = load_config(spec["overrides"])
                 checkpoints = run_dir / "checkpoints"
                 resume = checkpoints.is_dir() and any(checkpoints.glob("ckpt-*.pt"))

@@ -11,8 +11,8 @@ The test split is sealed: :func:`evaluation_range` is the one function that retu
 and it refuses unless its caller is the final evaluation of a frozen policy
 (:data:`FINAL_EVALUATION`: the evaluation library :mod:`ahrm_stack.evaluation`, which
 ``python -m ahrm_stack.evaluate RUN --split test`` and the experiment's final table call) and no
-training runs in this process (:func:`sealed`, which ``ahrm_stack.train.train`` holds for its whole
-run).
+training runs in this process (:func:`sealed`, which ``ahrm_stack.learning.training.train`` holds for
+its whole run).
 """
 
 from __future__ import annotations

@@ -58,17 +58,38 @@ ROWS: dict[str, list[str]] = {
 
 
 def run(row: str, seed: int, episodes: int, runs_dir: Path, eval_every: int) -> int:
-    from ahrm_stack.train import main as train_main
+    """Train (or resume) one row's run in ``RUNS_DIR/ROW-seedN`` through the training library, then
+    its final evaluation, as ``python -m ahrm_stack.train`` with the printed arguments would."""
+    from ahrm_stack.config import ConfigError
+    from ahrm_stack.learning.checkpoint import CheckpointError
+    from ahrm_stack.learning.rollouts import evaluate_run
+    from ahrm_stack.learning.trainer import DemonstrationsFailed
+    from ahrm_stack.learning.training import resolve_config, train
     if row not in ROWS:
         print(f"error: unknown row {row!r}; rows: {sorted(ROWS)}", file=sys.stderr)
         return 2
     run_dir = runs_dir / f"{row}-seed{seed}"
-    args = [*ROWS[row], f"train.seed={seed}", f"train.episodes={episodes}",
-            f"train.eval_every={eval_every}", "--run-dir", str(run_dir), "--no-progress"]
-    if (run_dir / "checkpoints").is_dir():
-        args = ["--resume", str(run_dir), "--no-progress", f"train.episodes={episodes}"]
+    resume = (run_dir / "checkpoints").is_dir()
+    if resume:
+        overrides = [f"train.episodes={episodes}"]
+        args = ["--resume", str(run_dir), "--no-progress", *overrides]
+    else:
+        overrides = [*ROWS[row], f"train.seed={seed}", f"train.episodes={episodes}", f"train.eval_every={eval_every}"]
+        args = [*overrides, "--run-dir", str(run_dir), "--no-progress"]
     print("python -m ahrm_stack.train " + " ".join(args))
-    return train_main(args)
+    try:
+        config, run_dir = resolve_config(overrides, run_dir, resume=run_dir if resume else None)
+        run_dir = train(config, run_dir, resume=resume, progress=False, rewrite_config=resume)
+    except ConfigError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    except (CheckpointError, DemonstrationsFailed) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    print(f"run folder: {run_dir}")
+    if config.train.eval_episodes:
+        print(evaluate_run(run_dir, config.train.eval_episodes))
+    return 0
 
 
 # ---------------------------------------------------------------------------------------------- report

@@ -163,13 +163,13 @@ def branch(source: Path, destination: Path, overrides: list[str]) -> int:
     before anything is copied: the source is a run folder with a checkpoint, the destination does
     not exist, and the overrides apply to the source's configuration."""
     from ahrm_stack.config import ConfigError
-    from ahrm_stack.train import resolve_config
+    from ahrm_stack.learning.training import resolve_config
 
     if not (source / "config.yaml").is_file() or not any((source / "checkpoints").glob("ckpt-*.pt")):
         raise ConfigError(f"branch: {source} is not a run folder with a checkpoint")
     if destination.exists():
         raise ConfigError(f"branch: {destination} exists; give a new folder")
-    resolve_config(argparse.Namespace(resume=str(source), overrides=overrides))  # one-line errors
+    resolve_config(overrides, resume=source)  # one-line errors
     shutil.copytree(source, destination)
     return subprocess.call(branch_command(destination, overrides))
 

@@ -1,6 +1,6 @@
 """PPO building blocks (TorchRL 0.14): observation normaliser, actor, critic, loss, GAE, buffer.
 
-Kept apart from the training loop (``ahrm_stack/train.py``) the way TorchRL's sota PPO keeps
+Kept apart from the training loop (``ahrm_stack/learning/training.py``) the way TorchRL's sota PPO keeps
 ``utils_mujoco.py`` apart from ``ppo_mujoco.py``. Every hyper-parameter comes from
 :class:`PPOConfig` (``configs/ppo.yaml``).
 """

@@ -1,0 +1,176 @@
+"""Training one reward mechanism with PPO: the configuration, the run folder and the training loop.
+
+:func:`resolve_config` reads and validates the configuration (``configs/`` with overrides, or a
+resumed run's ``config.yaml``) and names the run folder; :func:`train` runs (or continues) the
+training into it: warm start, PPO iterations with logs, checkpoints and interim evaluations on the
+validation split, and at the end ``policy.pt`` and ``diagnostics.png``. The command line is
+``python -m ahrm_stack.train`` (:mod:`ahrm_stack.train`).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+import warnings
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from ahrm_stack.config import Config, ConfigError, load_config
+from ahrm_stack.run_config import load_run_config
+
+# torchrl announces its own deprecations at import, and dm_control turns every DeprecationWarning
+# on (warnings.simplefilter('always')): on stderr they would bury a one-line error. The warnings
+# of these imports are recorded and dropped; the warning filters are restored afterwards.
+with warnings.catch_warnings(record=True):
+    import torch
+    from tqdm import tqdm
+
+    from ahrm_stack.env.realism import nominal
+    from ahrm_stack.env.torchrl_env import PushOffEnv
+    from ahrm_stack.learning.checkpoint import CheckpointManager
+    from ahrm_stack.learning.diagnostics import plot_run
+    from ahrm_stack.learning.run_folder import CLONE_POLICY, RunLog, start_run
+    from ahrm_stack.learning.rollouts import VALIDATION_SEED_OFFSET, EvaluationTable, run_episodes
+    from ahrm_stack.learning.pool import WorkerError
+    from ahrm_stack.learning.trainer import Trainer, TrainingDiverged
+    from ahrm_stack.safety.constraints.base import ConstraintDefinitionError
+    from ahrm_stack.safety.filter import SafetyFilterError
+
+
+def resolve_config(overrides: Sequence[str] = (), run_dir: str | Path | None = None,
+                   resume: str | Path | None = None) -> tuple[Config, Path]:
+    """The validated configuration (``configs/`` or, with ``resume``, that run's ``config.yaml``,
+    with the ``overrides``) and the run folder (``resume``, ``run_dir``, or by default
+    ``<train.runs_dir>/<method>-seed<seed>-<time>``): what ``python -m ahrm_stack.train`` trains.
+    Raises :class:`ConfigError` on a bad key or value, or a ``resume`` that is not a run folder."""
+    if resume:
+        run_dir = Path(resume)
+        path = run_dir / "config.yaml"
+        if not run_dir.is_dir():
+            raise ConfigError(f"--resume {run_dir}: no such folder")
+        if not path.is_file():
+            raise ConfigError(f"--resume {run_dir}: no config.yaml there; is it a run folder? (a run "
+                              "killed before writing it has nothing to resume: start it again)")
+        return load_run_config(run_dir, list(overrides)), run_dir
+    config = load_config(list(overrides))
+    if run_dir:
+        run_dir = Path(run_dir)
+    else:
+        stamp = time.strftime("%Y%m%d-%H%M%S")
+        run_dir = Path(config.train.runs_dir) / f"{config.mechanism.method}-seed{config.train.seed}-{stamp}"
+    return config, run_dir
+
+
+def train(config: Config, run_dir: Path, resume: bool, progress: bool = True,
+          rewrite_config: bool = False) -> Path:
+    """Run (or continue) training; returns the run folder.
+
+    Raises ``ConfigError`` (a bad value that only the built environment reveals, a fresh run into
+    a folder with checkpoints) or :class:`CheckpointError` (no usable checkpoint to resume from)
+    before anything is written. ``rewrite_config``: on resume, store ``config`` (the run's config
+    with this resume's overrides) as the run's config.yaml. The whole run holds
+    :func:`ahrm_stack.seeds.sealed`: its interim evaluations use the validation split, and nothing
+    it calls can obtain a test seed.
+    """
+    from ahrm_stack.seeds import sealed
+
+    with sealed():
+        return _train(config, run_dir, resume, progress, rewrite_config)
+
+
+def _train(config: Config, run_dir: Path, resume: bool, progress: bool, rewrite_config: bool) -> Path:
+    """:func:`train`'s body, run inside the sealed test split."""
+    cpus = os.cpu_count() or 1
+    if config.train.threads > cpus:
+        raise ConfigError(f"train.threads ({config.train.threads}) must be <= the {cpus} CPUs of this "
+                          "machine")
+    torch.set_num_threads(config.train.threads)
+    checkpoints = CheckpointManager(run_dir / "checkpoints", config.train.keep_checkpoints)
+    try:  # building the environments checks what the configuration alone cannot
+        trainer = Trainer(config, collect_demos=False)
+    except (SafetyFilterError, ConstraintDefinitionError) as error:
+        raise ConfigError(f"safety: {error}") from None
+    try:
+        restored = start_run(config, run_dir, resume, rewrite_config, checkpoints, trainer)
+        trainer.collect_demos()
+        if restored.state is not None:  # exactly the state saved, whatever the demos drew
+            torch.set_rng_state(restored.state["torch_rng"])
+    except BaseException:
+        trainer.close()
+        raise
+    log = RunLog(run_dir)
+    by_frames = bool(config.train.frames)  # the budget: train.frames when set, else train.episodes
+    total = config.train.frames if by_frames else config.train.episodes
+    done = trainer.frames if by_frames else trainer.episodes
+    bar = tqdm(total=total, initial=min(done, total), unit="frame" if by_frames else "ep",
+               disable=not progress, dynamic_ncols=True)
+    recent: list[bool] = []
+    every, every_frames = config.train.eval_every, config.train.eval_every_frames
+    interim = bool((every or every_frames) and config.train.eval_episodes)
+    # built once: every interim evaluation replays the same evaluation seeds on this environment
+    eval_env = PushOffEnv(nominal(config.task), config.safety, seed=VALIDATION_SEED_OFFSET) if interim else None
+
+    def evaluate_now() -> None:
+        """One interim deterministic evaluation, logged, with the policy it evaluated."""
+        summaries = run_episodes(eval_env, trainer.modules.actor, config.train.eval_episodes)
+        log.evaluation(trainer, EvaluationTable.from_summaries(summaries))
+        trainer.save_policy(run_dir / "policies" / f"episode-{trainer.episodes:05d}.pt")
+
+    evaluated, evaluated_frames = trainer.episodes, trainer.frames
+
+    def evaluation_due() -> bool:
+        return bool((every and trainer.episodes // every > evaluated // every)
+                    or (every_frames and trainer.frames // every_frames > evaluated_frames // every_frames))
+
+    try:
+        if trainer.batches == 0 and config.train.warm_start == "bc":
+            trainer.warm_start()  # the clone, kept: the policy before any PPO update
+            trainer.save_policy(run_dir / CLONE_POLICY)
+            if trainer.warm_start_report is not None:
+                print(f"warm start: {trainer.warm_start_report}")
+            if interim:
+                evaluate_now()  # the curve's first point
+        elif interim and trainer.batches == 0:
+            evaluate_now()
+        while not trainer.finished():
+            try:
+                result = trainer.iteration()
+            except TrainingDiverged as error:
+                raise SystemExit(f"training stopped: {error}. The last good checkpoint is kept in "
+                                 f"{checkpoints.directory}; nothing after it was written.") from None
+            for row in result.episodes:
+                log.episode(row)
+                recent = (recent + [bool(row["success"])])[-20:]
+            for event in result.events:
+                log.event(event)
+            log.batch(result.batch)
+            bar.update(min(result.batch["frames"] - bar.n if by_frames else len(result.episodes),
+                           total - bar.n))
+            phase = result.episodes[-1]["phases_visited"][-1] if result.episodes else "-"
+            bar.set_postfix(frames=trainer.frames, success=f"{np.mean(recent) if recent else 0:.2f}",
+                            phase=phase, orders=trainer.mechanism_orders())
+            if interim and evaluation_due():
+                evaluated, evaluated_frames = trainer.episodes, trainer.frames
+                evaluate_now()
+            if trainer.batches % config.train.checkpoint_every == 0:
+                log.flush()  # the rows first: a checkpoint never counts a row that is not on disk
+                checkpoints.save(trainer.state_dict(), trainer.batches)
+        log.flush()
+        checkpoints.save(trainer.state_dict(), trainer.batches)
+        trainer.save_policy(run_dir / "policy.pt")
+        try:
+            plot_run(run_dir)
+        except (ValueError, FileNotFoundError) as error:  # a plot is not worth losing the run over
+            print(f"warning: no diagnostics plot: {error}", file=sys.stderr)
+    except WorkerError as error:  # an environment process raised or died (train.env_workers)
+        first, _, rest = str(error).partition("\n")
+        raise SystemExit(f"training stopped: {first}. The last checkpoint is kept in "
+                         f"{checkpoints.directory}; --resume continues from it.\n{rest}".rstrip()) from None
+    finally:
+        bar.close()
+        log.close()
+        trainer.close()
+    return run_dir
