@@ -33,14 +33,10 @@ import time
 import warnings
 
 from ahrm_stack.cli import add_verbose_flag, quiet
-from ahrm_stack.config import ConfigError
 
 # torchrl and dm_control warn at import (see ahrm_stack.learning.training): recorded and dropped.
 with warnings.catch_warnings(record=True):
-    from ahrm_stack.learning.training import resolve_config, train
-    from ahrm_stack.learning.checkpoint import CheckpointError
-    from ahrm_stack.learning.pool import WorkerError
-    from ahrm_stack.learning.trainer import DemonstrationsFailed
+    from ahrm_stack.learning.training import failure, resolve_config, train
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -61,19 +57,12 @@ def main(argv: list[str] | None = None) -> int:
         config, run_dir = resolve_config(args.overrides, args.run_dir, args.resume)
         run_dir = train(config, run_dir, resume=bool(args.resume), progress=not args.no_progress,
                         rewrite_config=bool(args.resume and args.overrides))
-    except ConfigError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    except (CheckpointError, DemonstrationsFailed) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 1
-    except WorkerError as error:  # an environment process failed before training began
-        first, _, rest = str(error).partition("\n")
-        print(f"error: {first}{chr(10) + rest if rest else ''}", file=sys.stderr)
-        return 1
-    except OSError as error:  # the run folder cannot be created or written
-        print(f"error: {error.filename or ''}: {error.strerror or error}", file=sys.stderr)
-        return 1
+    except Exception as error:
+        failed = failure(error)
+        if failed is None:
+            raise
+        print(failed[1], file=sys.stderr)
+        return failed[0]
     minutes = (time.perf_counter() - started) / 60
     print(f"run folder: {run_dir}  ({minutes:.1f} min)")
     if config.train.eval_episodes:

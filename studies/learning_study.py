@@ -60,11 +60,8 @@ ROWS: dict[str, list[str]] = {
 def run(row: str, seed: int, episodes: int, runs_dir: Path, eval_every: int) -> int:
     """Train (or resume) one row's run in ``RUNS_DIR/ROW-seedN`` through the training library, then
     its final evaluation, as ``python -m ahrm_stack.train`` with the printed arguments would."""
-    from ahrm_stack.config import ConfigError
-    from ahrm_stack.learning.checkpoint import CheckpointError
     from ahrm_stack.learning.rollouts import evaluate_run
-    from ahrm_stack.learning.trainer import DemonstrationsFailed
-    from ahrm_stack.learning.training import resolve_config, train
+    from ahrm_stack.learning.training import failure, resolve_config, train
     if row not in ROWS:
         print(f"error: unknown row {row!r}; rows: {sorted(ROWS)}", file=sys.stderr)
         return 2
@@ -80,12 +77,12 @@ def run(row: str, seed: int, episodes: int, runs_dir: Path, eval_every: int) -> 
     try:
         config, run_dir = resolve_config(overrides, run_dir, resume=run_dir if resume else None)
         run_dir = train(config, run_dir, resume=resume, progress=False, rewrite_config=resume)
-    except ConfigError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    except (CheckpointError, DemonstrationsFailed) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 1
+    except Exception as error:
+        failed = failure(error)
+        if failed is None:
+            raise
+        print(failed[1], file=sys.stderr)
+        return failed[0]
     print(f"run folder: {run_dir}")
     if config.train.eval_episodes:
         print(evaluate_run(run_dir, config.train.eval_episodes))

@@ -30,14 +30,32 @@ with warnings.catch_warnings(record=True):
 
     from ahrm_stack.env.realism import nominal
     from ahrm_stack.env.torchrl_env import PushOffEnv
-    from ahrm_stack.learning.checkpoint import CheckpointManager
+    from ahrm_stack.learning.checkpoint import CheckpointError, CheckpointManager
     from ahrm_stack.learning.diagnostics import plot_run
     from ahrm_stack.learning.run_folder import CLONE_POLICY, RunLog, start_run
     from ahrm_stack.learning.rollouts import VALIDATION_SEED_OFFSET, EvaluationTable, run_episodes
     from ahrm_stack.learning.pool import WorkerError
-    from ahrm_stack.learning.trainer import Trainer, TrainingDiverged
+    from ahrm_stack.learning.trainer import DemonstrationsFailed, Trainer, TrainingDiverged
     from ahrm_stack.safety.constraints.base import ConstraintDefinitionError
     from ahrm_stack.safety.filter import SafetyFilterError
+
+
+def failure(error: BaseException) -> tuple[int, str] | None:
+    """The exit status and the message (``error: ...``, one line but for a worker's own report) of
+    a failure of :func:`resolve_config` or :func:`train` that the user can act on: 2 for the
+    configuration, 1 for a checkpoint, the demonstrations, an environment process that failed
+    before training began, or a run folder that cannot be created or written; None for any other
+    error (a bug: let it raise)."""
+    if isinstance(error, ConfigError):
+        return 2, f"error: {error}"
+    if isinstance(error, (CheckpointError, DemonstrationsFailed)):
+        return 1, f"error: {error}"
+    if isinstance(error, WorkerError):
+        first, _, rest = str(error).partition("\n")
+        return 1, f"error: {first}{chr(10) + rest if rest else ''}"
+    if isinstance(error, OSError):
+        return 1, f"error: {error.filename or ''}: {error.strerror or error}"
+    return None
 
 
 def resolve_config(overrides: Sequence[str] = (), run_dir: str | Path | None = None,
