@@ -114,7 +114,7 @@ class TrainConfig(Section):
     eval_episodes: Annotated[NonNegInt, le(LIMITS["eval_episodes"])]  # deterministic evaluation
     # episodes at the end of training (0: none)
     eval_every: NonNegInt  # also evaluate (eval_episodes) every this many training episodes (0: never)
-    threads: Annotated[PosInt, le(LIMITS["threads"], " (train.py also refuses more than this "
+    threads: Annotated[PosInt, le(LIMITS["threads"], " (training also refuses more than this "
                                                      "machine's CPU count)")]  # torch intra-op threads
     update_threads: Annotated[PosInt, le(LIMITS["threads"]), legacy(1)]  # torch threads for GAE and the PPO
     # epochs (the environments wait then); at most the machine's CPU count is used. More than 1 pays
