@@ -36,7 +36,7 @@ from ahrm_stack.cli import add_verbose_flag, quiet
 
 # torchrl and dm_control warn at import (see ahrm_stack.learning.training): recorded and dropped.
 with warnings.catch_warnings(record=True):
-    from ahrm_stack.learning.training import failure, resolve_config, train
+    from ahrm_stack.learning.training import exit_status, resolve_config, train
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -58,11 +58,7 @@ def main(argv: list[str] | None = None) -> int:
         run_dir = train(config, run_dir, resume=bool(args.resume), progress=not args.no_progress,
                         rewrite_config=bool(args.resume and args.overrides))
     except Exception as error:
-        failed = failure(error)
-        if failed is None:
-            raise
-        print(failed[1], file=sys.stderr)
-        return failed[0]
+        return exit_status(error)
     minutes = (time.perf_counter() - started) / 60
     print(f"run folder: {run_dir}  ({minutes:.1f} min)")
     if config.train.eval_episodes:

@@ -61,7 +61,7 @@ def run(row: str, seed: int, episodes: int, runs_dir: Path, eval_every: int) -> 
     """Train (or resume) one row's run in ``RUNS_DIR/ROW-seedN`` through the training library, then
     its final evaluation, as ``python -m ahrm_stack.train`` with the printed arguments would."""
     from ahrm_stack.learning.rollouts import evaluate_run
-    from ahrm_stack.learning.training import failure, resolve_config, train
+    from ahrm_stack.learning.training import exit_status, resolve_config, train
     if row not in ROWS:
         print(f"error: unknown row {row!r}; rows: {sorted(ROWS)}", file=sys.stderr)
         return 2
@@ -78,11 +78,7 @@ def run(row: str, seed: int, episodes: int, runs_dir: Path, eval_every: int) -> 
         config, run_dir = resolve_config(overrides, run_dir, resume=run_dir if resume else None)
         run_dir = train(config, run_dir, resume=resume, progress=False, rewrite_config=resume)
     except Exception as error:
-        failed = failure(error)
-        if failed is None:
-            raise
-        print(failed[1], file=sys.stderr)
-        return failed[0]
+        return exit_status(error)
     print(f"run folder: {run_dir}")
     if config.train.eval_episodes:
         print(evaluate_run(run_dir, config.train.eval_episodes))

@@ -4,6 +4,7 @@ briefly: `python benchmarks/bench_kinova_gen2.py` measures it at full size), the
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import logging
 import math
@@ -108,13 +109,16 @@ def test_deploy_command_runs_the_fake_arm(library, tmp_path, task_config, capsys
     assert len(fake.calls(function="SendAdvanceTrajectory")) > 20
 
 
-def _fake_arm_settings(library):
-    """The fake SDK at the task's home posture, the task config, and realtime deploy settings for
-    it (the loop's own deadline and feedback-age stops out of the way: the adapter's are tested)."""
+@contextlib.contextmanager
+def _scripted_loop_on_the_fake(library):
+    """The scripted controller's deploy loop, started, on the fake SDK at the task's home posture,
+    with realtime deploy settings (the loop's own deadline and feedback-age stops out of the way:
+    the adapter's are tested); yields (fake, settings, arm, loop) and disconnects the arm after."""
     import dataclasses
 
     from ahrm_stack.config import load_config
-    from ahrm_stack.deploy import load_deploy_settings
+    from ahrm_stack.deploy import DeployLoop, ScriptedController, WorldModel, load_deploy_settings
+    from hardware import backends
 
     fake = fake_module.FakeSdk(library)
     config = load_config()
@@ -125,7 +129,15 @@ def _fake_arm_settings(library):
                                                max_feedback_age=10.0),
         kinova_gen2=dataclasses.replace(settings.kinova_gen2, library=str(library),
                                         serial=fake_module.SERIAL, scene=str(SCENE)))
-    return fake, config, settings
+    arm = backends.get("kinova-gen2").make(config, settings)
+    world = WorldModel(config.task)
+    arm.connect()
+    try:
+        loop = DeployLoop(arm, world, ScriptedController(world, config), config.safety, settings)
+        loop.start()
+        yield fake, settings, arm, loop
+    finally:
+        arm.disconnect()
 
 
 def test_faults_stop_the_deploy_loop_within_one_period(library, task_config, caplog):
@@ -142,22 +154,14 @@ def test_faults_stop_the_deploy_loop_within_one_period(library, task_config, cap
       is bounded: one read behind at most two calls, then the stop behind at most one);
     - a log line naming it."""
 
-    from ahrm_stack.deploy import DeployLoop, ScriptedController, WorldModel
-    from hardware import backends
     from hardware.kinova_gen2 import SYSTEM_ERROR_TYPES
     from hardware.kinova_gen2.bus import POINT_PERIOD
 
-    fake, config, settings = _fake_arm_settings(library)
-    gen2 = settings.kinova_gen2
-    period = settings.period
-    # the ticks a fault may take to be seen: the status poll's period, one tick, one to spare
-    most_ticks = math.ceil(1.0 / gen2.status_rate_hz / period) + 2
-    arm = backends.get("kinova-gen2").make(config, settings)
-    world = WorldModel(config.task)
-    arm.connect()
-    try:
-        loop = DeployLoop(arm, world, ScriptedController(world, config), config.safety, settings)
-        loop.start()
+    with _scripted_loop_on_the_fake(library) as (fake, settings, arm, loop):
+        gen2 = settings.kinova_gen2
+        period = settings.period
+        # the ticks a fault may take to be seen: the status poll's period, one tick, one to spare
+        most_ticks = math.ceil(1.0 / gen2.status_rate_hz / period) + 2
         faults = [
             ("arm fault", True, lambda: fake.inject_error(
                 SYSTEM_ERROR_TYPES.index("errorlog_Actuator_Temperature")), lambda: None),
@@ -206,8 +210,6 @@ def test_faults_stop_the_deploy_loop_within_one_period(library, task_config, cap
                 arm.connect()
             arm.clear_faults()
             loop.resume()
-    finally:
-        arm.disconnect()
 
 
 def test_a_stalled_loop_finds_the_command_watchdog_latched_and_stops_saying_why(library):
@@ -215,17 +217,9 @@ def test_a_stalled_loop_finds_the_command_watchdog_latched_and_stops_saying_why(
     stops the arm and latches Fault.WATCHDOG (the protocol's rule), so the next tick does not
     resume motion: it stops the run and records why."""
 
-    from ahrm_stack.deploy import DeployLoop, ScriptedController, WorldModel
-    from hardware import backends
     from hardware.protocol import Fault
 
-    fake, config, settings = _fake_arm_settings(library)
-    arm = backends.get("kinova-gen2").make(config, settings)
-    world = WorldModel(config.task)
-    arm.connect()
-    try:
-        loop = DeployLoop(arm, world, ScriptedController(world, config), config.safety, settings)
-        loop.start()
+    with _scripted_loop_on_the_fake(library) as (fake, settings, arm, loop):
         for _ in range(4):
             assert loop.tick(), loop.stop_reason
         assert arm.standing_command is not None and arm.standing_command.any()  # moving
@@ -236,5 +230,3 @@ def test_a_stalled_loop_finds_the_command_watchdog_latched_and_stops_saying_why(
         assert "WATCHDOG" in loop.stop_reason, loop.stop_reason
         assert arm.standing_command is None
         np.testing.assert_array_equal(fake.state()[1], 0.0)
-    finally:
-        arm.disconnect()

@@ -40,6 +40,17 @@ with warnings.catch_warnings(record=True):
     from ahrm_stack.safety.filter import SafetyFilterError
 
 
+def exit_status(error: Exception) -> int:
+    """For a command line around :func:`resolve_config` and :func:`train`: print the message of a
+    failure the user can act on (``error: ...`` on stderr, one line but for a worker's own report)
+    and return its exit status; re-raise any other error (a bug)."""
+    failed = failure(error)
+    if failed is None:
+        raise error
+    print(failed[1], file=sys.stderr)
+    return failed[0]
+
+
 def failure(error: BaseException) -> tuple[int, str] | None:
     """The exit status and the message (``error: ...``, one line but for a worker's own report) of
     a failure of :func:`resolve_config` or :func:`train` that the user can act on: 2 for the
