@@ -75,7 +75,7 @@ def test_a_run_finished_before_the_split_existed_counts_as_validation(tmp_path):
     """A done.json without a split was evaluated on the validation seeds: a test-split grid does
     not reuse it, a validation grid does."""
     from ahrm_stack.config import ConfigError
-    from ahrm_stack.experiment import check_finished
+    from ahrm_stack.experiment_grid import check_finished
 
     spec = {"run_dir": str(tmp_path / "run"), "overrides": [], "eval_episodes": 2, "episodes": 2, "layout": "random"}
     (tmp_path / "run").mkdir()
@@ -87,7 +87,8 @@ def test_a_run_finished_before_the_split_existed_counts_as_validation(tmp_path):
 
 
 def test_the_budget_is_frames_unless_episodes_are_asked_for(tmp_path):
-    from ahrm_stack.experiment import _parse, build_grid
+    from ahrm_stack.experiment import _parse
+    from ahrm_stack.experiment_grid import build_grid
     from ahrm_stack.report import budget
 
     def overrides(*flags):
