@@ -20,7 +20,7 @@ import yaml
 
 from ahrm_stack.config import load_config
 from ahrm_stack.deploy import DEPLOY_CONFIG, load_deploy_settings, main
-from ahrm_stack.deploy.cli import home_limits
+from ahrm_stack.deploy.bring_up import home_limits
 from ahrm_stack.deploy.start_check import start_refusal
 from ahrm_stack.deploy.world import WorldModel
 from hardware.kinova_gen2 import SYSTEM_ERROR_TYPES, KinovaGen2Arm

@@ -72,6 +72,8 @@ The package, one idea per module:
 * :mod:`~ahrm_stack.deploy.start_check` — does the arm start where the policy was trained to start;
 * :mod:`~ahrm_stack.deploy.loop` — :class:`DeployLoop`, its summary and faults;
 * :mod:`~ahrm_stack.deploy.run` — building one run (config, telemetry, adapter, loop);
+* :mod:`~ahrm_stack.deploy.bring_up` — the steps before a run: ``--check`` (the link, the arm held
+  still) and ``--home`` (to the start posture, after a typed confirmation);
 * :mod:`~ahrm_stack.deploy.cli` — the command line (:func:`main`; the backend is chosen in
   :func:`~ahrm_stack.deploy.cli.run_backend`).
 

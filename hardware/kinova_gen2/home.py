@@ -1,6 +1,6 @@
 """The homing step of a Kinova Gen2 arm: ``python -m ahrm_stack.deploy --backend kinova-gen2 --home``
 moves the arm to the posture the policy was trained from (:class:`Homing`; the command line builds
-it in :func:`ahrm_stack.deploy.cli.home`, which gives it the deploy settings as :class:`Limits`).
+it in :func:`ahrm_stack.deploy.bring_up.home`, which gives it the deploy settings as :class:`Limits`).
 
 **What moves, and why so.** Kinova's SDK has ``MoveHome`` (no arguments, exported by the vendored
 ``USBCommandLayerUbuntu.so``; kinova-ros's ``KinovaComm::homeArm`` calls it): the firmware drives

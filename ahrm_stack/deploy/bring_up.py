@@ -1,0 +1,116 @@
+"""The two bring-up steps before a deploy run, each its own command: ``--check`` (the backend's
+link check, the arm held still) and ``--home`` (one slow move to the policy's start posture, after a
+typed confirmation). Called by :func:`ahrm_stack.deploy.cli.main`."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Sequence
+
+from ahrm_stack.config import ConfigError
+from ahrm_stack.deploy.settings import DeployConfigError, DeploySettings
+
+
+def check_link(backend: str, settings: DeploySettings, checkpoint: Path | None,
+               overrides: Sequence[str], policy_file: Path | None = None) -> int:
+    """``--check``: the backend's link check (:data:`hardware.backends.BACKENDS`), the arm held
+    still; prints its lines. Exit status: 0 the budget fits, 1 it does not, 2 bad input (one line,
+    the arm never contacted), 3 the arm could not be reached (one line, e.g. no arm found), 130
+    Ctrl-C."""
+    from ahrm_stack.deploy.run import load_controller_config
+    from ahrm_stack.learning.checkpoint import CheckpointError
+    from hardware import backends
+    from hardware.protocol import HardwareError
+
+    prog = "python -m ahrm_stack.deploy"
+    try:
+        config, _ = load_controller_config(checkpoint, overrides, policy_file=policy_file)
+        chosen = backends.get(backend)
+        if chosen.link_check is None:
+            raise DeployConfigError(f"--check measures an arm's link (the kinova-gen2 backend's USB "
+                                    f"budget); --backend {backend} has none")
+        chosen.check(config, settings)
+    except (ConfigError, DeployConfigError, CheckpointError, ValueError) as error:
+        print(f"{prog}: error: {error}", file=sys.stderr)
+        return 2
+    try:
+        lines, fits = chosen.link_check(config, settings)
+    except (HardwareError, ValueError) as error:
+        print(f"{prog}: error: {(str(error).splitlines() or [''])[0]}", file=sys.stderr)
+        return 3
+    except KeyboardInterrupt:
+        print("interrupted: the check stopped (the arm was held still)", file=sys.stderr)
+        return 130
+    print("\n".join(lines))
+    return 0 if fits else 1
+
+
+def home_limits(world, settings: DeploySettings):
+    """The deploy settings homing applies to ``world`` (a :class:`~ahrm_stack.deploy.WorldModel`):
+    ``kinova_gen2.home``, the velocity alarm and the loop's start check
+    (:class:`hardware.kinova_gen2.home.Limits`)."""
+    import math
+
+    from ahrm_stack.deploy.start_check import start_refusal
+    from hardware.kinova_gen2.home import Limits
+
+    start = settings.start_posture
+    return Limits(settings.kinova_gen2.home, settings.watchdog.velocity_tolerance,
+                  settings.watchdog.velocity_alarm_ticks,
+                  lambda q: start_refusal(world, q, math.radians(start.joint_tolerance_deg),
+                                          start.region_margin, math.radians(start.tilt_tolerance_deg)))
+
+
+def home(config, settings: DeploySettings, yes: bool, say=print, ask=input):
+    """Connect to the arm of ``settings.kinova_gen2`` and run the homing
+    (:class:`hardware.kinova_gen2.home.Homing`) to the start of ``config``'s task (the policy's),
+    with the deploy settings that apply; its outcome. Bad settings raise before anything is
+    contacted (one-line ``Gen2ConfigError``, a ValueError); a failed connect raises
+    :class:`~hardware.protocol.HardwareError` (the arm stopped, the API closed)."""
+    from ahrm_stack.deploy.world import WorldModel
+    from hardware.kinova_gen2 import KinovaGen2Arm
+    from hardware.kinova_gen2.home import Homing
+
+    world = WorldModel(config.task)
+    gen2 = settings.kinova_gen2
+    arm = KinovaGen2Arm(world.robot, gen2, command_timeout_s=gen2.command_timeout * settings.period)
+    arm.connect()
+    return Homing(arm, world, home_limits(world, settings), say, None if yes else ask).run()
+
+
+def home_arm(backend: str, settings: DeploySettings, checkpoint: Path | None,
+             overrides: Sequence[str], policy_file: Path | None, yes: bool) -> int:
+    """``--home``: move the arm to the start posture of the policy's task after a confirmation
+    (:func:`hardware.kinova_gen2.home.home`); prints why it ended. Exit status: 0 at the start
+    posture, 1 not confirmed (nothing moved), 2 bad input (one line, nothing moved), 3 stopped (a
+    fault, the timeout, the link) or the arm not reached, 130 Ctrl-C."""
+    from ahrm_stack.deploy.run import load_controller_config
+    from ahrm_stack.learning.checkpoint import CheckpointError
+    from hardware.kinova_gen2 import check_library
+    from hardware.kinova_gen2.home import DONE
+    from hardware.protocol import HardwareError
+
+    prog = "python -m ahrm_stack.deploy"
+    try:
+        if backend != "kinova-gen2":
+            raise DeployConfigError(f"--home moves a Kinova Gen2 arm (--backend kinova-gen2); "
+                                    f"--backend {backend} has no homing step")
+        config, _ = load_controller_config(checkpoint, overrides, policy_file=policy_file)
+        check_library(settings.kinova_gen2)
+    except (ConfigError, DeployConfigError, CheckpointError, ValueError) as error:
+        print(f"{prog}: error: {error}", file=sys.stderr)
+        return 2
+    try:
+        outcome = home(config, settings, yes)
+    except ValueError as error:  # a setting (Gen2ConfigError), before the arm was contacted
+        print(f"{prog}: error: {error}", file=sys.stderr)
+        return 2
+    except HardwareError as error:  # the connect failed: the arm stopped, the API closed
+        print(f"{prog}: error: {(str(error).splitlines() or [''])[0]}", file=sys.stderr)
+        return 3
+    except KeyboardInterrupt:
+        print("interrupted while connecting: nothing moved", file=sys.stderr)
+        return 130
+    print(f"homing: {outcome.reason}", file=sys.stdout if outcome.status == DONE else sys.stderr)
+    return outcome.status
