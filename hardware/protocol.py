@@ -339,10 +339,7 @@ class ArmAdapter(abc.ABC):
         """Command joint velocities (rad/s, all joints at once) and return what was sent: the
         command gate (see the class docstring for its order), then :meth:`_send`."""
         self._require()
-        faults, reason = self._fault_state()
-        if faults != Fault.NONE:
-            raise ArmFaultError(f"the arm is in fault ({faults!r}: {reason or 'no reason given'}); "
-                                "clear_faults() first")
+        self._refuse_in_fault()
         mode = self.servoing_mode
         if mode != ServoingMode.SINGLE_LEVEL_SERVOING:
             raise ArmFaultError(f"joint speed commands need single-level servoing, not {mode}")
@@ -353,6 +350,14 @@ class ArmAdapter(abc.ABC):
             self._add_fault(Fault.LIMIT, f"refused command: {error}")
             raise
         return self._send(command)
+
+    def _refuse_in_fault(self) -> None:
+        """Raise :class:`ArmFaultError` naming the flags and the reason while the adapter is in
+        fault (:meth:`_fault_state`); the gate's second step, and any other motion's."""
+        faults, reason = self._fault_state()
+        if faults != Fault.NONE:
+            raise ArmFaultError(f"the arm is in fault ({faults!r}: {reason or 'no reason given'}); "
+                                "clear_faults() first")
 
     @abc.abstractmethod
     def _require(self) -> Any:

@@ -405,10 +405,7 @@ class KinovaGen2Arm(Gen2Faults):
     def _position_move(self, job) -> np.ndarray:
         """Stop any velocity command, then ``job(sdk)`` (one position move) on the USB thread, in
         angular control with an empty FIFO; refused in fault (:class:`ArmFaultError`)."""
-        faults, reason = self._fault_state()
-        if faults != Fault.NONE:
-            raise ArmFaultError(f"Kinova arm {self._serial} in fault ({faults!r}: {reason}); "
-                                "clear_faults() first")
+        self._refuse_in_fault()
         self._halt()
 
         def move(sdk: Sdk) -> np.ndarray:
