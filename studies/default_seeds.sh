@@ -16,7 +16,7 @@ for seed in 1 2 3 4; do
       "$py" -m ahrm_stack.train --resume "$run" --no-progress
     else
       rm -rf "$run"
-      "$py" -m ahrm_stack.train "seed=$seed" --run-dir "$run" --no-progress
+      "$py" -m ahrm_stack.train "train.seed=$seed" --run-dir "$run" --no-progress
     fi
   fi
   if [ ! -f "$run/suite-test/suite.json" ]; then
