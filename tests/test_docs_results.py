@@ -71,10 +71,51 @@ def test_test_split_rows_pool_paired_episodes(tmp_path: Path) -> None:
         "split": "test", "families": ["a", "b"],
         "results": {f: {"training_support": {"inside": inside}} for f, inside in support.items()}}))
     tool = _tool()
-    tool.DEFAULT_TEST_SUITE = "suite"
-    rows = tool.test_split_rows(tmp_path)
+    rows = tool.test_split_rows(tmp_path, ("suite",))
     all_row = rows[2]
     assert all_row.startswith("| all families (2) | 5/6 [35.9, 99.6] % | 1 [0.4, 64.1] % | 3/6 | 0 | 2 / 0 (p = 0.5) ")
     assert all_row.endswith("| 1 / 0 (p = 1) | 0.67 |")  # (2/4 + 3/3 + 2/4) / 3: the episodes both won
     assert rows[3].startswith("| inside the training support (1) | 3/3 ")
     assert rows[4].startswith("| outside it (partly or wholly) (1) | 2/3 ")
+
+
+def _write_suite(folder: Path, policy: dict[str, list[str]], scripted: dict[str, list[str]]) -> None:
+    import json
+
+    header = "success,touched_steps,time_to_success\n"
+    for family in policy:
+        (folder / family / "scripted").mkdir(parents=True)
+        (folder / family / "evaluation.csv").write_text(header + "\n".join(policy[family]) + "\n")
+        (folder / family / "scripted" / "evaluation.csv").write_text(header + "\n".join(scripted[family]) + "\n")
+    (folder / "suite.json").write_text(json.dumps({
+        "split": "test", "families": list(policy),
+        "results": {f: {"training_support": {"inside": True}} for f in policy}}))
+
+
+def test_test_split_rows_pool_every_seed_first_and_give_seed_level_intervals(tmp_path: Path) -> None:
+    """Two seeds on the same two scripted episodes: the policy pooled over both (4 episodes), the
+    scripted controller counted once (2), the discordant pairs of both seeds, and the seed-level
+    t-interval in closed form: gains (2-1)/2 = 0.5 and (1-1)/2 = 0, mean 0.25, sd 0.3536,
+    half-width t(0.975, 1) x 0.3536 / sqrt 2 = 12.706 x 0.25 = 3.177."""
+    scripted = {"a": ["True,0,4.0", "False,0,"]}
+    _write_suite(tmp_path / "seed0", {"a": ["True,0,2.0", "True,1,2.0"]}, scripted)
+    _write_suite(tmp_path / "seed1", {"a": ["True,0,4.0", "False,0,"]}, scripted)
+    tool = _tool()
+    rows = tool.test_split_rows(tmp_path, ("seed0", "seed1"))
+    assert rows[0].startswith("| families (40 test episodes each) | policy successes, 2 seeds pooled |")
+    assert rows[2].startswith("| all families (1) | 3/4 ")
+    assert "| 1/2 | 0 | 1 / 0 (p = 1) |" in rows[2]
+    assert rows[7] == "| 0 | 2/2 | 1 | 1 / 0 (p = 1) | 0.50 |"
+    assert rows[8] == "| 1 | 1/2 | 0 | 0 / 0 (p = 1) | 1.00 |"
+    assert "success share minus the scripted controller's +0.250 [-2.927, +3.427]" in rows[10]
+    assert "time / scripted (both won) 0.750 [-2.427, 3.927]" in rows[10]
+
+
+def test_test_split_rows_refuse_seeds_on_other_episodes(tmp_path: Path) -> None:
+    """A seed whose scripted results differ was not evaluated on the same test episodes: refused."""
+    import pytest
+
+    _write_suite(tmp_path / "seed0", {"a": ["True,0,2.0"]}, {"a": ["True,0,4.0"]})
+    _write_suite(tmp_path / "seed1", {"a": ["True,0,2.0"]}, {"a": ["False,0,"]})
+    with pytest.raises(ValueError, match="not the episodes of seed 0"):
+        _tool().test_split_rows(tmp_path, ("seed0", "seed1"))

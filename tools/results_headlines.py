@@ -23,6 +23,7 @@ from pathlib import Path
 
 import yaml
 from scipy.stats import binomtest
+from scipy.stats import t as t_dist
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "docs" / "results.md"
@@ -37,8 +38,11 @@ DEFAULT_POLICY = "docs/policies/ahrm-default-seed0/evaluation.yaml"
 DEFAULT_SUITE = "docs/robustness/ideal-floor/suite.md"
 DEFAULT_ROBUSTNESS = "docs/robustness/ideal-floor/robustness/robustness.md"
 
-#: The default policy's suite on the sealed test split (its one final evaluation, 2026-12-05).
-DEFAULT_TEST_SUITE = "docs/policies/ahrm-default-seed0/suite-test"
+#: The default configuration's suites on the sealed test split, one per training seed: the five seeds
+#: registered in docs/protocol.md ("the default configuration over five seeds"), each added here when
+#: its one final evaluation is committed (seed 0: 2026-12-05).
+DEFAULT_TEST_SUITES: tuple[str, ...] = ("docs/policies/ahrm-default-seed0/suite-test",)
+REGISTERED_SEEDS = 5
 
 #: The four methods and the clone with the current training defaults (issue 14, 2026-12-02, 60k
 #: frames per run): one suite file per seed, seeds 0, 1, 2.
@@ -113,46 +117,121 @@ def _interval(k: int, n: int) -> str:
     return f"[{100 * ci.low:.1f}, {100 * ci.high:.1f}] %"
 
 
-def test_split_rows(root: Path = ROOT) -> list[str]:
-    """The default policy's test-split suite pooled over its families (all, inside and outside the
-    training support as suite.json computed it), against the scripted controller on the same
-    episodes: successes and touching with exact intervals, the episodes only one of them won with
-    the exact two-sided sign test, the same for touching, and the mean time ratio on the episodes both won."""
-    folder = root / DEFAULT_TEST_SUITE
-    suite = json.loads((folder / "suite.json").read_text())
-    if suite["split"] != "test":
-        raise ValueError(f"{folder / 'suite.json'}: split {suite['split']!r}, not test")
-    groups: dict[str, list[str]] = {"all families": list(suite["families"]), "inside the training support": [],
+def _seed_of(folder: str) -> str:
+    match = re.search(r"seed(\d+)", folder)
+    return match[1] if match else folder
+
+
+def _seed_list() -> str:
+    return ", ".join(_seed_of(name) for name in DEFAULT_TEST_SUITES)
+
+
+def _t_interval(values: list[float], sign: str = "+") -> str:
+    """Mean and its two-sided 95 % Student-t interval over the seeds (n - 1 degrees of freedom);
+    ``sign="+"`` writes differences with their sign, ``""`` plain values (ratios)."""
+    n = len(values)
+    mean = sum(values) / n
+    if n < 2:
+        return f"{mean:{sign}.3f} (one seed: no interval)"
+    sd = (sum((v - mean) ** 2 for v in values) / (n - 1)) ** 0.5
+    half = float(t_dist.ppf(0.975, n - 1)) * sd / n ** 0.5
+    return f"{mean:{sign}.3f} [{mean - half:{sign}.3f}, {mean + half:{sign}.3f}]"
+
+
+def _sign(a: int, b: int) -> float:
+    return binomtest(a, a + b).pvalue if a + b else 1.0
+
+
+def _suites(root: Path, folders: tuple[str, ...]) -> list[tuple[str, dict, Path]]:
+    """(seed, suite.json, folder) per seed; every seed's suite must be on the test split, over the
+    same families with the same support, and its scripted episodes the same as the first seed's
+    (the same test episodes, so the comparison is paired)."""
+    suites = []
+    for name in folders:
+        folder = root / name
+        suite = json.loads((folder / "suite.json").read_text())
+        if suite["split"] != "test":
+            raise ValueError(f"{folder / 'suite.json'}: split {suite['split']!r}, not test")
+        if suites:
+            first_seed, first, first_folder = suites[0]
+            if suite["families"] != first["families"]:
+                raise ValueError(f"{folder / 'suite.json'}: families differ from seed {first_seed}'s")
+            for family in suite["families"]:
+                mine = (folder / family / "scripted" / "evaluation.csv").read_text()
+                if mine != (first_folder / family / "scripted" / "evaluation.csv").read_text():
+                    raise ValueError(f"{folder / family / 'scripted'}: not the episodes of seed {first_seed}'s "
+                                     "suite (the scripted controller's results differ)")
+        suites.append((_seed_of(name), suite, folder))
+    return suites
+
+
+def test_split_rows(root: Path = ROOT, folders: tuple[str, ...] | None = None) -> list[str]:
+    """The default configuration's test-split suites, every committed seed pooled first: per group of
+    families (all; inside and outside the training support as suite.json computed it) the policy's
+    successes and touching episodes summed over the seeds with exact intervals, the scripted
+    controller on the same episodes (once: it is deterministic), the episodes only one of them won
+    (each policy seed paired with the scripted episode) with the exact two-sided sign test, the same
+    for touching, and the mean time ratio on the episodes both won. Then a row per seed, and the
+    seed-level means with 95 % t-intervals of the success and touching shares' differences from the
+    scripted controller and of the time ratio."""
+    suites = _suites(root, folders if folders is not None else DEFAULT_TEST_SUITES)
+    families_of = suites[0][1]["families"]
+    groups: dict[str, list[str]] = {"all families": list(families_of), "inside the training support": [],
                                     "outside it (partly or wholly)": []}
-    for family in suite["families"]:
-        inside = suite["results"][family]["training_support"]["inside"]
+    for family in families_of:
+        inside = suites[0][1]["results"][family]["training_support"]["inside"]
         groups["inside the training support" if inside else "outside it (partly or wholly)"].append(family)
-    rows = ["| families (40 test episodes each) | policy successes | touching | scripted successes | "
-            "touching | won by one only: policy / scripted (sign test p) | touching by one only (p) | "
-            "time / scripted (both won) |",
-            "|---|---|---|---|---|---|---|---|"]
-    for name, families in groups.items():
-        pairs = [(p, s) for f in families for p, s in zip(_episodes(folder / f / "evaluation.csv"),
+
+    def pairs(folder: Path, families: list[str]) -> list[tuple[tuple[bool, bool, float], tuple[bool, bool, float]]]:
+        return [(p, s) for f in families for p, s in zip(_episodes(folder / f / "evaluation.csv"),
                                                          _episodes(folder / f / "scripted" / "evaluation.csv"),
                                                          strict=True)]
-        n = len(pairs)
-        won = sum(p[0] for p, _ in pairs)
-        touched = sum(p[1] for p, _ in pairs)
-        s_won = sum(s[0] for _, s in pairs)
-        s_touched = sum(s[1] for _, s in pairs)
-        only_p = sum(p[0] and not s[0] for p, s in pairs)
-        only_s = sum(s[0] and not p[0] for p, s in pairs)
-        sign = binomtest(only_p, only_p + only_s).pvalue if only_p + only_s else 1.0
-        touch_p = sum(p[1] and not s[1] for p, s in pairs)
-        touch_s = sum(s[1] and not p[1] for p, s in pairs)
-        touch_sign = binomtest(touch_p, touch_p + touch_s).pvalue if touch_p + touch_s else 1.0
-        ratios = [p[2] / s[2] for p, s in pairs if p[0] and s[0]]
+
+    seeds = len(suites)
+    rows = [f"| families (40 test episodes each) | policy successes, {seeds} seed{'s' * (seeds > 1)} pooled | "
+            "touching | scripted successes | touching | won by one only: policy / scripted (sign test p) | "
+            "touching by one only (p) | time / scripted (both won) |",
+            "|---|---|---|---|---|---|---|---|"]
+    for name, families in groups.items():
+        if not families:
+            continue
+        pooled = [pair for _, _, folder in suites for pair in pairs(folder, families)]
+        scripted = [s for _, s in pairs(suites[0][2], families)]
+        n, n_s = len(pooled), len(scripted)
+        won = sum(p[0] for p, _ in pooled)
+        touched = sum(p[1] for p, _ in pooled)
+        only_p = sum(p[0] and not s[0] for p, s in pooled)
+        only_s = sum(s[0] and not p[0] for p, s in pooled)
+        touch_p = sum(p[1] and not s[1] for p, s in pooled)
+        touch_s = sum(s[1] and not p[1] for p, s in pooled)
+        ratios = [p[2] / s[2] for p, s in pooled if p[0] and s[0]]
         rows.append(f"| {name} ({len(families)}) | {won}/{n} {_interval(won, n)} | {touched} "
-                    f"{_interval(touched, n)} | {s_won}/{n} | {s_touched} | {only_p} / {only_s} "
-                    f"(p = {sign:.2g}) | {touch_p} / {touch_s} (p = {touch_sign:.2g}) | "
-                    f"{sum(ratios) / len(ratios):.2f} |")
-    rows += ["", f"Files: `{DEFAULT_TEST_SUITE}/suite.md` (per family, with each family's support) and the "
-             "per-episode `evaluation.csv` files beside it."]
+                    f"{_interval(touched, n)} | {sum(s[0] for s in scripted)}/{n_s} | {sum(s[1] for s in scripted)} | "
+                    f"{only_p} / {only_s} (p = {_sign(only_p, only_s):.2g}) | {touch_p} / {touch_s} "
+                    f"(p = {_sign(touch_p, touch_s):.2g}) | {sum(ratios) / len(ratios):.2f} |")
+    rows += ["", "| seed (all families) | successes | touching | won by one only: policy / scripted (p) | "
+             "time / scripted (both won) |", "|---|---|---|---|---|"]
+    gains, touch_gains, seed_ratios = [], [], []
+    for seed, _, folder in suites:
+        seed_pairs = pairs(folder, list(families_of))
+        n = len(seed_pairs)
+        won = sum(p[0] for p, _ in seed_pairs)
+        touched = sum(p[1] for p, _ in seed_pairs)
+        only_p = sum(p[0] and not s[0] for p, s in seed_pairs)
+        only_s = sum(s[0] and not p[0] for p, s in seed_pairs)
+        ratios = [p[2] / s[2] for p, s in seed_pairs if p[0] and s[0]]
+        ratio = sum(ratios) / len(ratios)
+        gains.append((won - sum(s[0] for _, s in seed_pairs)) / n)
+        touch_gains.append((touched - sum(s[1] for _, s in seed_pairs)) / n)
+        seed_ratios.append(ratio)
+        rows.append(f"| {seed} | {won}/{n} | {touched} | {only_p} / {only_s} (p = {_sign(only_p, only_s):.2g}) | "
+                    f"{ratio:.2f} |")
+    rows += ["", f"Seed level ({seeds} of the {REGISTERED_SEEDS} registered seeds; mean [95 % t-interval]): "
+             f"success share minus the scripted controller's {_t_interval(gains)}; touching share minus "
+             f"the scripted controller's {_t_interval(touch_gains)}; time / scripted (both won) "
+             f"{_t_interval(seed_ratios, sign='')}."]
+    rows += ["", "Files: " + ", ".join(f"`{name}/suite.md`" for name in (folders or DEFAULT_TEST_SUITES))
+             + " (per family, with each family's support) and the per-episode `evaluation.csv` files beside them."]
     return rows
 
 
@@ -177,9 +256,9 @@ def block(root: Path = ROOT) -> str:
     lines = [BEGIN, "", "**Today's default policy** (`docs/policies/ahrm-default-seed0`, trained 2026-12-04; "
              "one seed; validation split):", ""]
     lines += default_policy_rows(root)
-    lines += ["", "**Today's default policy on the sealed test split** (its one final evaluation, "
-              "`python -m ahrm_stack.evaluate docs/policies/ahrm-default-seed0 --suite --split test`, "
-              "2026-12-05; one seed):", ""]
+    lines += ["", "**The default configuration on the sealed test split** (each seed's one final "
+              "evaluation, `python -m ahrm_stack.evaluate docs/policies/ahrm-default-seedN --suite --split test`; "
+              f"seeds {_seed_list()} of the {REGISTERED_SEEDS} registered in docs/protocol.md, pooled first):", ""]
     lines += test_split_rows(root)
     lines += ["", "**The four methods with the current training defaults** (2026-12-02; pooled over "
               "seeds 0–2, 1,080 suite episodes per method; validation split):", ""]
@@ -197,7 +276,7 @@ def render(text: str, root: Path = ROOT) -> str:
 def render_readme(text: str, root: Path = ROOT) -> str:
     """The README with its test-split table (:func:`test_split_rows`) between its markers."""
     start, end = text.index(README_BEGIN), text.index(README_END) + len(README_END)
-    rows = test_split_rows(root)[:-2]  # without the files line: the README names them in its text
+    rows = test_split_rows(root)[:-2]  # without the files line: the README names the files in its text
     return text[:start] + "\n".join([README_BEGIN, *rows, README_END]) + text[end:]
 
 
