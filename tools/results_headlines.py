@@ -146,7 +146,7 @@ def _suites(root: Path, folders: tuple[str, ...]) -> list[tuple[str, dict, Path]
     """(seed, suite.json, folder) per seed; every seed's suite must be on the test split, over the
     same families with the same support, and its scripted episodes the same as the first seed's
     (the same test episodes, so the comparison is paired)."""
-    suites = []
+    suites: list[tuple[str, dict, Path]] = []
     for name in folders:
         folder = root / name
         suite = json.loads((folder / "suite.json").read_text())
