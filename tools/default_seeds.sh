@@ -4,9 +4,9 @@
 # final policy once on the sealed test split. Resumable: rerun it; a trained run is not retrained,
 # an evaluated one not re-evaluated, a stopped training resumes from its last checkpoint.
 #
-#   studies/default_seeds.sh OUT_DIR        # run from the repository root (or a worktree of it)
+#   tools/default_seeds.sh OUT_DIR        # run from the repository root (or a worktree of it)
 set -euo pipefail
-out=${1:?usage: studies/default_seeds.sh OUT_DIR}
+out=${1:?usage: tools/default_seeds.sh OUT_DIR}
 py=${PYTHON:-.venv/bin/python}
 mkdir -p "$out"
 for seed in 1 2 3 4; do
