@@ -57,6 +57,16 @@ def test_no_training_study_or_benchmark_source_names_the_test_split():
     assert not found, found
 
 
+def test_no_script_in_studies_or_benchmarks_names_the_test_split():
+    """Shell and other non-Python files there too (a registered row's final evaluation lives in
+    tools/, e.g. tools/default_seeds.sh)."""
+    scripts = [path for folder in ("studies", "benchmarks") for path in sorted((ROOT / folder).rglob("*"))
+               if path.is_file() and path.suffix not in (".py", ".pyc")]
+    found = [str(path.relative_to(ROOT)) for path in scripts
+             if any(word in path.read_text(errors="replace") for word in ("--split test", "split=test", "split test"))]
+    assert not found, found
+
+
 def test_the_one_function_refuses_the_test_split_to_other_callers():
     assert evaluation_range("heldout").start == seed_table().evaluation["heldout"].validation.start
     with pytest.raises(SealedSplitError, match="the test split is sealed: .* not .*test_sealed_split"):
