@@ -153,7 +153,8 @@ def report(runs_dir: Path, out: Path) -> None:
     for run_dir in sorted(p for p in runs_dir.iterdir() if (p / "episodes.csv").is_file()):
         row = run_dir.name.rsplit("-seed", 1)[0]
         groups[row].append(summarize(run_dir))
-    lines = ["| row | seed | episodes | training successes | first success (episode) | "
+    lines = ["Seeds: the validation split of configs/seeds.yaml (studies never read the sealed split).", "",
+             "| row | seed | episodes | training successes | first success (episode) | "
              "touching episodes | deterministic eval before PPO | at 300 | at 600 | "
              "wall minutes (collection + updates) |",
              "|---|---|---|---|---|---|---|---|---|---|"]

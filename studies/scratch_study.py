@@ -34,6 +34,7 @@ import ast
 import dataclasses
 import gzip
 import csv
+import json
 import math
 import shutil
 import subprocess
@@ -183,6 +184,15 @@ def sign_test(only_a: int, only_b: int) -> float:
     return min(1.0, 2.0 * sum(math.comb(n, i) for i in range(k + 1)) / 2.0 ** n)
 
 
+def _split_of(evaluation_csv: Path) -> str:
+    """The split an evaluation.csv was drawn from, as its evaluation.json says; files written before
+    the split existed (2026-12-04) were on the range now called validation."""
+    meta = evaluation_csv.with_name("evaluation.json")
+    if meta.is_file():
+        return str(json.loads(meta.read_text()).get("split", "validation"))
+    return "validation"
+
+
 def compare(paths: list[Path], names: list[str], samples: int = 10_000) -> list[str]:
     """Evaluations of the same episodes (``evaluation.csv`` files of one seed offset, the same
     count) side by side: each one's successes and touching episodes (Wilson 95 %), and against the
@@ -207,9 +217,13 @@ def compare(paths: list[Path], names: list[str], samples: int = 10_000) -> list[
         raise ConfigError(f"compare: the evaluations hold different episode counts {sorted(counts)}; "
                           "they must be the same episodes")
     n = counts.pop()
+    splits = {_split_of(path) for path in paths}
+    if len(splits) != 1:
+        raise ConfigError(f"compare: the evaluations are on different splits {sorted(splits)}")
     rng = np.random.default_rng(0)
     draws = rng.integers(n, size=(samples, n))
-    lines = [f"{n} episodes each, the same seeds; intervals 95 %: Wilson for shares, bootstrap over "
+    lines = [f"Seeds: the {splits.pop()} split of configs/seeds.yaml.", "",
+             f"{n} episodes each, the same seeds; intervals 95 %: Wilson for shares, bootstrap over "
              "episodes for paired differences; discordant: episodes where only the first / only this "
              "one has it; p: exact sign test of those", "",
              f"| policy | successes | touching | s to success | success − {names[0]} | discordant (p) "
@@ -328,6 +342,7 @@ def behaviour_by_part(run_dir: Path, parts: int = 5) -> list[dict]:
             for chunk in np.array_split(np.arange(len(episodes)), parts) if len(chunk)]
 
 
+STUDY_SEEDS = "Seeds: the validation split of configs/seeds.yaml (studies never read the sealed split)."
 EARLY_EPISODES = 200  # the report's "first training episodes" (a few batches at 5 s episodes)
 
 
@@ -614,7 +629,8 @@ def report(runs_dirs: list[Path], out: Path, scripted_dir: Path | None = None) -
         raise SystemExit(f"error: no run folders with episodes.csv in {', '.join(map(str, runs_dirs))}")
     summaries = [summarize(p) for p in runs]
     out.mkdir(parents=True, exist_ok=True)
-    lines = ["| run | frames | episodes | training successes (last 500 episodes) | first training success: "
+    lines = [STUDY_SEEDS, "",
+             "| run | frames | episodes | training successes (last 500 episodes) | first training success: "
              "frames (episode) | training success rate >= 10 % / >= 50 % (200 episodes) | "
              "first evaluation success | evaluation >= 50 % | evaluation >= 90 % | "
              "best evaluation | last evaluation (touching, s to success, at frames) | curriculum "

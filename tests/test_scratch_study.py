@@ -262,6 +262,13 @@ def test_compare_pairs_the_same_episodes(study, tmp_path):
     # success: one episode only b wins (+1/4); touching: two only a touches (-2/4)
     assert b_row[4].startswith("+0.250 [") and b_row[5] == "0 / 1 (1)"
     assert b_row[6].startswith("-0.500 [") and b_row[7] == "2 / 0 (0.5)"
+    # the seeds are named: no evaluation.json (written before the split existed) is validation;
+    # evaluations on two different splits are not compared
+    assert lines[0] == "Seeds: the validation split of configs/seeds.yaml."
+    b.with_name("evaluation.json").write_text('{"split": "other"}')
+    with pytest.raises(ValueError, match="different splits"):
+        study.compare([a, b], ["a", "b"], samples=10)
+    b.with_name("evaluation.json").unlink()
     # different episode counts: a one-line error, nothing compared
     _final(tmp_path / "c", [True], [0], [1.0])
     with pytest.raises(ValueError, match="different episode counts"):
