@@ -47,7 +47,11 @@ def build_grid(args: argparse.Namespace) -> dict:
             experiment_overrides.append(f"{key}={json.dumps(value)}")
     experiment = load_extra(ExperimentConfig, "experiment", experiment_overrides)
     load_extra(VideoConfig, "video", video_overrides)  # fail now, not in every task
-    load_config(train_overrides)  # fail now, not in every task
+    train = load_config(train_overrides).train  # fail now, not in every task
+    # the experiment evaluates every run itself (run_one): a run's own final evaluation is skipped,
+    # unless the training asks for interim (validation) evaluations, the runs' learning curves,
+    # which train.eval_episodes sizes
+    interim = bool(train.eval_every or train.eval_every_frames)
     from ahrm_stack.env.layout_catalog import apply_layout
     apply_layout(load_raw(), experiment.eval_layout)
     out = Path(args.out).resolve()
@@ -61,7 +65,7 @@ def build_grid(args: argparse.Namespace) -> dict:
                 "overrides": train_overrides + [f"mechanism.method={method}", f"train.seed={seed}",
                                                 f"train.episodes={experiment.episodes}",
                                                 f"train.frames={experiment.frames}",
-                                                "train.eval_episodes=0"],
+                                                *([] if interim else ["train.eval_episodes=0"])],
                 "eval_episodes": experiment.eval_episodes, "layout": experiment.eval_layout,
                 "split": experiment.split, "suite": experiment.suite,
                 "suite_clone": experiment.suite and method == experiment.methods[0],

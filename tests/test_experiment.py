@@ -124,3 +124,24 @@ def test_report_tables_figures_and_videos(grid):
         assert f"videos/{method}.mp4" in report
     # a learned policy's episode here runs the full 2 s: 40 control steps + the final frame
     assert read_mp4(out / "videos" / "ahrm.mp4")[0] == 41
+
+
+def test_interim_evaluations_asked_of_the_training_are_kept(tmp_path):
+    """The experiment skips a run's own final evaluation (it evaluates the run itself), but a
+    training that asks for interim evaluations (the learning curves, docs/protocol.md) keeps them:
+    a real two-episode run of the grid logs one per episode."""
+    from ahrm_stack.experiment import _parse
+    from ahrm_stack.experiment_grid import build_grid, run_one
+
+    def spec(*config):
+        grid = build_grid(_parse(["--methods", "ahrm", "--seeds", "1", "--episodes", "2", "--no-video",
+                                  "--out", str(tmp_path), "--config", *TINY, *config]))
+        return grid["runs"][0]
+
+    assert "train.eval_episodes=0" in spec()["overrides"]
+    kept = spec("train.eval_every=1", "train.eval_episodes=1")
+    assert "train.eval_episodes=0" not in kept["overrides"]
+    assert run_one(kept)["status"] == "done"
+    with open(tmp_path / "runs" / "ahrm-seed0" / "evaluations.csv") as handle:
+        rows = handle.read().splitlines()
+    assert len(rows) >= 3, rows  # the header, the first point before training, one per episode
