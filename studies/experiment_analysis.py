@@ -116,6 +116,43 @@ def _runs(out: Path) -> dict[str, dict[int, Path]]:
     return runs
 
 
+def progress(run_dir: Path) -> tuple[int, str, str]:
+    """How far an unfinished (or finished) run is: (frames trained, its latest interim evaluation
+    on validation episodes as "k/n at F frames" or "—", for AHRM whether its order has changed so
+    far), read from ``episodes.csv``, ``evaluations.csv`` and ``events.jsonl``."""
+    frames = 0
+    if (run_dir / "episodes.csv").is_file():
+        with open(run_dir / "episodes.csv") as handle:
+            for row in csv.DictReader(handle):
+                frames = int(row["frames"])
+    latest = "—"
+    if (run_dir / "evaluations.csv").is_file():
+        with open(run_dir / "evaluations.csv") as handle:
+            rows = list(csv.DictReader(handle))
+        if rows:
+            last = rows[-1]
+            latest = f"{last['successes']}/{last['episodes']} ({last['touched_episodes']} touching) at {int(last['frames']):,}"
+    changed = order_changed(run_dir)
+    return frames, latest, "—" if changed is None else "changed" if changed else "not yet"
+
+
+def planner_line(overrides: list[str]) -> str:
+    """The report's first line (docs/protocol.md): whether the runs' configuration feeds the
+    scripted controller's lane plan to the network, computed from the training overrides."""
+    from ahrm_stack.config import load_config
+
+    config = load_config(overrides)
+    uses = [name for name, on in (
+        ("observes its lane choice", config.task.observation.lane_choice),
+        ("reads the episode in that lane's frame", config.ppo.lane_frame != "none"),
+        ("starts its curriculum behind the cube for that lane", config.task.arm.near_cube.bearing == "behind"))
+        if on]
+    if uses:
+        return ("**Planner-assisted: the network runs on the scripted controller's lane plan** ("
+                + "; ".join(uses) + ").")
+    return "**Planner-free: no input keyed on the scripted controller's lane plan.**"
+
+
 def _share(k: int, n: int) -> str:
     lo, hi = clopper_pearson(k, n)
     return f"{k}/{n} ({k / n:.1%} [{lo:.1%}, {hi:.1%}])"
@@ -147,11 +184,27 @@ def analyse(out: Path, reference: str = "ahrm") -> str:
     scripted_path = out / "scripted" / "evaluation.csv"
     scripted = Episodes.read(scripted_path) if scripted_path.is_file() else None
     partial = bool(missing) or scripted is None
+    grid = json.loads((out / "grid.json").read_text())
     lines = [f"# Analysis of {out.name} (docs/protocol.md)", ""]
+    if "train_overrides" in grid:
+        lines += [planner_line(grid["train_overrides"]),
+                  "", f"Training overrides: `{' '.join(grid['train_overrides'])}`; final evaluation on the "
+                  f"**{grid.get('split', 'validation')} split**.", ""]
     if partial:
         lines += [f"**PARTIAL**: missing {', '.join(missing) or 'no run'}"
                   + ("" if scripted is not None else " and the scripted controller's evaluation")
-                  + ". No hypothesis is called on these numbers.", ""]
+                  + ". No hypothesis is called on these numbers.", "",
+                  "## Progress (frames trained of each run's budget; its latest interim evaluation, on "
+                  "**validation** episodes, never a test result)", "",
+                  "| run | frames | latest interim evaluation (validation) | AHRM order |", "|---|---|---|---|"]
+        budget = int(grid.get("frames") or 0)
+        for method, seeds in runs.items():
+            for seed, run_dir in sorted(seeds.items()):
+                frames, latest, changed = progress(run_dir)
+                share = f" ({frames / budget:.0%})" if budget else ""
+                lines.append(f"| {method}-seed{seed} | {frames:,}{share} | {latest} | "
+                             f"{changed if method == 'ahrm' else '—'} |")
+        lines.append("")
     lines += ["## Every run", "", "| run | successes | touching | time (s) | lane agreement | order |",
               "|---|---|---|---|---|---|"]
     for method, by_seed in episodes.items():

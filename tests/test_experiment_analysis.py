@@ -80,3 +80,28 @@ def test_a_missing_run_makes_it_partial(analysis, tmp_path):
     text = analysis.analyse(_experiment(tmp_path, skip="ls-seed1"))
     assert "**PARTIAL**: missing ls-seed1" in text and text.rstrip().endswith("not called (partial)")
     assert analysis.main([str(tmp_path / "nothing")]) == 2
+
+
+def test_a_partial_experiment_reports_how_far_each_run_is(analysis, tmp_path):
+    """Unfinished runs: frames from episodes.csv against the grid's budget, the latest interim
+    (validation) evaluation, and whether AHRM's order has changed so far."""
+    out = _experiment(tmp_path, skip="ahrm-seed1")
+    grid = json.loads((out / "grid.json").read_text())
+    (out / "grid.json").write_text(json.dumps({**grid, "frames": 1000}))
+    run = out / "runs" / "ahrm-seed1"
+    (run / "episodes.csv").write_text("episode,frames,steps\n0,128,50\n1,250,61\n")
+    (run / "evaluations.csv").write_text("episode,frames,episodes,successes,touched_episodes\n"
+                                         "0,0,40,0,3\n1,250,40,12,1\n")
+    text = analysis.analyse(out)
+    assert "**PARTIAL**: missing ahrm-seed1." in text
+    assert "| ahrm-seed1 | 250 (25%) | 12/40 (1 touching) at 250 | not yet |" in text
+    assert "| ahrm-seed0 | 0 (0%) | — | changed |" in text
+    assert "| ls-seed0 | 0 (0%) | — | — |" in text
+
+
+def test_the_first_line_says_whether_the_planner_is_used(analysis):
+    """Computed from the configuration the overrides give (docs/protocol.md's first line)."""
+    assisted = analysis.planner_line(["profile=scratch"])
+    assert assisted.startswith("**Planner-assisted: the network runs on the scripted controller's lane plan**")
+    assert "observes its lane choice" in assisted and "behind the cube" in assisted
+    assert analysis.planner_line(["profile=scratch-own-lane"]).startswith("**Planner-free")
