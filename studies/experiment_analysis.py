@@ -131,7 +131,8 @@ def progress(run_dir: Path) -> tuple[int, str, str]:
             rows = list(csv.DictReader(handle))
         if rows:
             last = rows[-1]
-            latest = f"{last['successes']}/{last['episodes']} ({last['touched_episodes']} touching) at {int(last['frames']):,}"
+            latest = (f"{last['successes']}/{last['episodes']} ({last['touched_episodes']} touching) "
+                      f"at {int(last['frames']):,}")
     changed = order_changed(run_dir)
     return frames, latest, "—" if changed is None else "changed" if changed else "not yet"
 
