@@ -107,8 +107,8 @@ def test_test_split_rows_pool_every_seed_first_and_give_seed_level_intervals(tmp
     assert "| 1/2 | 0 | 1 / 0 (p = 1) |" in rows[2]
     assert rows[7] == "| 0 | 2/2 | 1 | 1 / 0 (p = 1) | 0.50 |"
     assert rows[8] == "| 1 | 1/2 | 0 | 0 / 0 (p = 1) | 1.00 |"
-    assert "success share minus the scripted controller's +0.250 [-2.927, +3.427]" in rows[10]
-    assert "time / scripted (both won) 0.750 [-2.427, 3.927]" in rows[10]
+    assert "success share minus the scripted controller's +0.250 [-2.927, +3.427], not established" in rows[10]
+    assert "time / scripted (both won) 0.750 [-2.427, 3.927], not established" in rows[10]
 
 
 def test_test_split_rows_refuse_seeds_on_other_episodes(tmp_path: Path) -> None:
@@ -119,3 +119,12 @@ def test_test_split_rows_refuse_seeds_on_other_episodes(tmp_path: Path) -> None:
     _write_suite(tmp_path / "seed1", {"a": ["True,0,2.0"]}, {"a": ["False,0,"]})
     with pytest.raises(ValueError, match="not the episodes of seed 0"):
         _tool().test_split_rows(tmp_path, ("seed0", "seed1"))
+
+
+def test_a_seed_level_interval_that_excludes_the_null_is_established() -> None:
+    """Three seeds 0.10, 0.12, 0.14: mean 0.12, sd 0.02, half-width t(0.975, 2) x 0.02 / sqrt 3 =
+    4.303 x 0.01155 = 0.0497: [0.070, 0.170] excludes 0; a ratio interval around 1 does not."""
+    tool = _tool()
+    assert tool._t_interval([0.10, 0.12, 0.14]) == "+0.120 [+0.070, +0.170], established"
+    assert tool._t_interval([0.9, 1.1, 1.0], sign="", null=1.0).endswith(", not established")
+    assert tool._t_interval([0.5]) == "+0.500 (one seed: no interval)"

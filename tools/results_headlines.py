@@ -41,7 +41,8 @@ DEFAULT_ROBUSTNESS = "docs/robustness/ideal-floor/robustness/robustness.md"
 #: The default configuration's suites on the sealed test split, one per training seed: the five seeds
 #: registered in docs/protocol.md ("the default configuration over five seeds"), each added here when
 #: its one final evaluation is committed (seed 0: 2026-12-05).
-DEFAULT_TEST_SUITES: tuple[str, ...] = ("docs/policies/ahrm-default-seed0/suite-test",)
+DEFAULT_TEST_SUITES: tuple[str, ...] = tuple(f"docs/policies/ahrm-default-seed{seed}/suite-test"
+                                             for seed in (0, 1))
 REGISTERED_SEEDS = 5
 
 #: The four methods and the clone with the current training defaults (issue 14, 2026-12-02, 60k
@@ -111,6 +112,11 @@ def _episodes(path: Path) -> list[tuple[bool, bool, float]]:
                 for row in csv.DictReader(handle)]
 
 
+def _comparable(path: Path) -> list[tuple[bool, bool, float | None]]:
+    """:func:`_episodes` with no time as None (nan is not equal to itself)."""
+    return [(won, touched, None if time != time else time) for won, touched, time in _episodes(path)]
+
+
 def _interval(k: int, n: int) -> str:
     """The exact (Clopper-Pearson) 95 % interval of k/n, in percent."""
     ci = binomtest(k, n).proportion_ci(0.95, method="exact")
@@ -126,16 +132,18 @@ def _seed_list() -> str:
     return ", ".join(_seed_of(name) for name in DEFAULT_TEST_SUITES)
 
 
-def _t_interval(values: list[float], sign: str = "+") -> str:
-    """Mean and its two-sided 95 % Student-t interval over the seeds (n - 1 degrees of freedom);
-    ``sign="+"`` writes differences with their sign, ``""`` plain values (ratios)."""
+def _t_interval(values: list[float], sign: str = "+", null: float = 0.0) -> str:
+    """Mean and its two-sided 95 % Student-t interval over the seeds (n - 1 degrees of freedom),
+    and whether the interval excludes ``null`` ("established") or not; ``sign="+"`` writes
+    differences with their sign, ``""`` plain values (ratios, against ``null=1``)."""
     n = len(values)
     mean = sum(values) / n
     if n < 2:
         return f"{mean:{sign}.3f} (one seed: no interval)"
     sd = (sum((v - mean) ** 2 for v in values) / (n - 1)) ** 0.5
     half = float(t_dist.ppf(0.975, n - 1)) * sd / n ** 0.5
-    return f"{mean:{sign}.3f} [{mean - half:{sign}.3f}, {mean + half:{sign}.3f}]"
+    verdict = "established" if not mean - half <= null <= mean + half else "not established"
+    return f"{mean:{sign}.3f} [{mean - half:{sign}.3f}, {mean + half:{sign}.3f}], {verdict}"
 
 
 def _sign(a: int, b: int) -> float:
@@ -156,9 +164,9 @@ def _suites(root: Path, folders: tuple[str, ...]) -> list[tuple[str, dict, Path]
             first_seed, first, first_folder = suites[0]
             if suite["families"] != first["families"]:
                 raise ValueError(f"{folder / 'suite.json'}: families differ from seed {first_seed}'s")
-            for family in suite["families"]:
-                mine = (folder / family / "scripted" / "evaluation.csv").read_text()
-                if mine != (first_folder / family / "scripted" / "evaluation.csv").read_text():
+            for family in suite["families"]:  # (later evaluations add columns: compared on these)
+                mine = _comparable(folder / family / "scripted" / "evaluation.csv")
+                if mine != _comparable(first_folder / family / "scripted" / "evaluation.csv"):
                     raise ValueError(f"{folder / family / 'scripted'}: not the episodes of seed {first_seed}'s "
                                      "suite (the scripted controller's results differ)")
         suites.append((_seed_of(name), suite, folder))
@@ -229,7 +237,7 @@ def test_split_rows(root: Path = ROOT, folders: tuple[str, ...] | None = None) -
     rows += ["", f"Seed level ({seeds} of the {REGISTERED_SEEDS} registered seeds; mean [95 % t-interval]): "
              f"success share minus the scripted controller's {_t_interval(gains)}; touching share minus "
              f"the scripted controller's {_t_interval(touch_gains)}; time / scripted (both won) "
-             f"{_t_interval(seed_ratios, sign='')}."]
+             f"{_t_interval(seed_ratios, sign='', null=1.0)}."]
     rows += ["", "Files: " + ", ".join(f"`{name}/suite.md`" for name in (folders or DEFAULT_TEST_SUITES))
              + " (per family, with each family's support) and the per-episode `evaluation.csv` files beside them."]
     return rows
