@@ -1,6 +1,6 @@
 """The four-method experiment's registered analysis (docs/protocol.md), from its folder only.
 
-    python studies/experiment_analysis.py OUT [--reference ahrm] [--write OUT/analysis.md]
+    python studies/experiment_analysis.py OUT [--reference ahrm] [--write OUT/analysis.md] [--curves PNG]
 
 OUT is a ``python -m ahrm_stack.experiment`` folder: ``runs/<method>-seed<s>/eval/evaluation.csv``
 (per test episode: ``success``, ``touched_steps``, ``time_to_success``; lane columns where
@@ -26,6 +26,7 @@ import csv
 import dataclasses
 import json
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -154,6 +155,81 @@ def planner_line(overrides: list[str]) -> str:
     return "**Planner-free: no input keyed on the scripted controller's lane plan.**"
 
 
+def interim_curves(out: Path) -> dict[str, dict[int, list[tuple[int, float, float]]]]:
+    """method -> seed -> [(frames, success share, touching share)] of each run's interim
+    evaluations (``evaluations.csv``: validation episodes), frames rounded to the grid's
+    ``train.eval_every_frames`` step when the overrides give it (a batch ends a little after it)."""
+    grid = json.loads((out / "grid.json").read_text())
+    step = 0
+    for override in grid.get("train_overrides", []):
+        if override.startswith("train.eval_every_frames="):
+            step = int(override.split("=", 1)[1])
+    curves: dict[str, dict[int, list[tuple[int, float, float]]]] = {}
+    for method, seeds in _runs(out).items():
+        for seed, run_dir in sorted(seeds.items()):
+            path = run_dir / "evaluations.csv"
+            if not path.is_file():
+                continue
+            with open(path) as handle:
+                rows = list(csv.DictReader(handle))
+            points = []
+            for row in rows:
+                frames = int(row["frames"])
+                if step:
+                    frames = int(round(frames / step)) * step
+                episodes = int(row["episodes"])
+                points.append((frames, int(row["successes"]) / episodes, int(row["touched_episodes"]) / episodes))
+            if points:
+                curves.setdefault(method, {})[seed] = points
+    return curves
+
+
+def seed_band(values: list[float]) -> tuple[float, float, float]:
+    """(mean, low, high) over the seeds: the 95 % t-interval from three seeds on, the seeds' range
+    for two, the value itself for one."""
+    v = np.asarray(values, dtype=float)
+    mean = float(v.mean())
+    if v.size > 2:
+        half = float(stats.t.ppf(0.975, v.size - 1)) * float(v.std(ddof=1)) / math.sqrt(v.size)
+        return mean, mean - half, mean + half
+    return mean, float(v.min()), float(v.max())
+
+
+def plot_curves(out: Path, path: Path) -> Path | None:
+    """Success and touching shares of the interim (validation) evaluations against frames, per
+    method: the mean over the seeds that reached each point, a band of the 95 % t-interval over
+    them (the seeds' range where only two have it, nothing for one), and each seed thin."""
+    from ahrm_stack.learning.diagnostics import pyplot, save_figure
+
+    curves = interim_curves(out)
+    if not curves:
+        return None
+    plt = pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(13, 4.5))
+    for i, (method, by_seed) in enumerate(curves.items()):
+        color = f"C{i}"
+        frames = sorted({f for points in by_seed.values() for f, _, _ in points})
+        for column, ax in ((1, axes[0]), (2, axes[1])):
+            for points in by_seed.values():
+                ax.plot([p[0] for p in points], [p[column] for p in points], color=color, alpha=0.25, lw=0.8)
+            mean, low, high = [], [], []
+            for f in frames:
+                m, lo, hi = seed_band([p[column] for points in by_seed.values() for p in points if p[0] == f])
+                mean.append(m)
+                low.append(lo)
+                high.append(hi)
+            ax.plot(frames, mean, color=color, lw=2, label=f"{method} ({len(by_seed)} seeds)")
+            ax.fill_between(frames, low, high, color=color, alpha=0.2)
+    axes[0].set_title("success share, interim evaluations (validation episodes)")
+    axes[1].set_title("touching share, interim evaluations (validation episodes)")
+    for ax in axes:
+        ax.set_xlabel("training frames")
+        ax.set_ylim(-0.02, 1.02)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    return save_figure(fig, path, dpi=90)
+
+
 def _share(k: int, n: int) -> str:
     lo, hi = clopper_pearson(k, n)
     return f"{k}/{n} ({k / n:.1%} [{lo:.1%}, {hi:.1%}])"
@@ -272,11 +348,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("out", type=Path, help="the experiment folder (with grid.json)")
     parser.add_argument("--reference", default="ahrm")
     parser.add_argument("--write", type=Path, default=None, help="also write the markdown here")
+    parser.add_argument("--curves", type=Path, default=None,
+                        help="write the interim evaluations' success/touching vs frames curves (PNG) here")
     args = parser.parse_args(argv)
     if not (args.out / "grid.json").is_file():
         print(f"error: {args.out / 'grid.json'} not found: OUT must be an experiment folder", file=sys.stderr)
         return 2
     text = analyse(args.out, args.reference)
+    if args.curves:
+        args.curves.parent.mkdir(parents=True, exist_ok=True)
+        if plot_curves(args.out, args.curves) is not None:
+            link = os.path.relpath(args.curves, args.write.parent if args.write else Path.cwd())
+            text += f"\n![interim evaluations against frames]({link})\n"
     if args.write:
         args.write.write_text(text)
     print(text, end="")
