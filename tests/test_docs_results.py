@@ -128,3 +128,14 @@ def test_a_seed_level_interval_that_excludes_the_null_is_established() -> None:
     assert tool._t_interval([0.10, 0.12, 0.14]) == "+0.120 [+0.070, +0.170], established"
     assert tool._t_interval([0.9, 1.1, 1.0], sign="", null=1.0).endswith(", not established")
     assert tool._t_interval([0.5]) == "+0.500 (one seed: no interval)"
+
+
+def test_robustness_rows_read_the_all_row_and_count_the_met_conditions(tmp_path: Path) -> None:
+    header = ("| condition | policy: success | touching | time (s) | judged wrong | e-stops | scripted: success | "
+              "touching | time (s) | judged wrong | paired time (s) | goal |\n" + "|---" * 12 + "|\n")
+    (tmp_path / "r.md").write_text(
+        "Robustness of X\n\n" + header
+        + "| ideal | 30/30 | 1 | 2.8 | 0 | 0 | 30/30 | 0 | 3.7 | 0 | 2.8 / 3.7 (30) | met |\n"
+        + "| all (jaco2) | 28/30 | 2 | 3.4 | 0 | 0 | 29/30 | 1 | 4.1 | 0 | 3.4 / 4.1 (27) | **missed** |\n")
+    rows = _tool().robustness_rows(tmp_path, {"3": "r.md"})
+    assert rows[2] == "| 3 | 28/30 | 2 | 29/30 | 1 | 1 of 2 |"
