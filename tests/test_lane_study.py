@@ -63,3 +63,12 @@ def test_summarise_builds_the_table_from_the_run_data(study, tmp_path):
     assert "| own-lane-ahrm-seed0 | policy | 4,096 | 9/10 | 1 | 10 | 9/10 (90%) | 0/9 | 1/1 |" in table
     assert "| own-lane-ahrm-seed0 | scripted | – | 10/10 | 0 | 10 | 10/10 (100%) | 0/10 | 0/0 |" in table
     assert (tmp_path / "out" / "runs" / "own-lane-ahrm-seed0" / "episodes.csv.gz").is_file()
+
+
+def test_the_committed_table_is_what_the_committed_run_data_give(study):
+    """docs/lane-study/table.md regenerated from the copies under docs/lane-study/runs/ (issue 42,
+    item 5: every table in the docs from committed data, checked)."""
+    root = Path(__file__).resolve().parents[1] / "docs" / "lane-study"
+    copies = sorted(p for p in (root / "runs").iterdir() if p.is_dir())
+    assert study.table(copies) == (root / "table.md").read_text(), (
+        "docs/lane-study/table.md is out of date: python studies/lane_study.py summarise ...")

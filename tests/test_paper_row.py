@@ -1,0 +1,51 @@
+"""studies/paper_row.py (issue 42, item 6): the row's table from run data, by hand on a synthetic
+run, and the committed table from the committed copies."""
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def row():
+    spec = importlib.util.spec_from_file_location("paper_row", ROOT / "studies" / "paper_row.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["paper_row"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def _run(folder: Path, evaluations: list[str], episodes: int = 4) -> Path:
+    folder.mkdir(parents=True)
+    (folder / "config.yaml").write_text("train:\n  warm_start: bc\ntask:\n  action:\n    mode: joint\n"
+                                        "  arm:\n    start: home\n")
+    (folder / "episodes.csv").write_text("episode,frames,success\n" + "".join(
+        f"{i},{(i + 1) * 100},{i % 2 == 1}\n" for i in range(episodes)))
+    (folder / "evaluations.csv").write_text("episode,frames,episodes,successes,touched_episodes\n"
+                                            + "".join(line + "\n" for line in evaluations))
+    return folder
+
+
+def test_the_row_of_a_run(row, tmp_path):
+    """At the budget: the last evaluation at or before episode 300; first >= 37/40; the best."""
+    run = _run(tmp_path / "in" / "paper-bc-seed0", ["0,0,40,30,1", "250,1000,40,38,0", "301,2000,40,39,2"])
+    text = row.summarise([run], tmp_path / "out").read_text()
+    line = [r for r in text.splitlines() if r.startswith("| paper-bc-seed0 |")][0]
+    assert line == ("| paper-bc-seed0 | train.warm_start=bc, task.action.mode=joint, task.arm.start=home | 4, 400, 2 | "
+                    "38/40 (0 touching) at episode 250, 1,000 frames | 38/40 (0 touching) at episode 250, 1,000 "
+                    "frames | 39/40 (2 touching) at episode 301, 2,000 frames |")
+    assert (tmp_path / "out" / "runs" / "paper-bc-seed0" / "episodes.csv.gz").is_file()
+    never = _run(tmp_path / "in" / "paper-seed0", ["0,0,40,0,0", "100,500,40,0,3"])
+    line = row.table([row.collect([never], tmp_path / "out")[0]]).splitlines()[-1]
+    assert line.endswith("| never (up to 400 frames) | 0 at all 2 evaluations |")
+
+
+def test_the_committed_table_is_what_the_committed_run_data_give(row):
+    root = ROOT / "docs" / "paper-row"
+    copies = sorted(p for p in (root / "runs").iterdir() if p.is_dir())
+    assert row.table(copies) == (root / "table.md").read_text(), (
+        "docs/paper-row/table.md is out of date: python studies/paper_row.py summarise ...")
