@@ -44,7 +44,7 @@ DEFAULT_ROBUSTNESS = "docs/robustness/ideal-floor/robustness/robustness.md"
 #: registered in docs/protocol.md ("the default configuration over five seeds"), each added here when
 #: its one final evaluation is committed (seed 0: 2026-12-05).
 DEFAULT_TEST_SUITES: tuple[str, ...] = tuple(f"docs/policies/ahrm-default-seed{seed}/suite-test"
-                                             for seed in (0, 1, 2, 3))
+                                             for seed in (0, 1, 2, 3, 4))
 REGISTERED_SEEDS = 5
 
 #: The same seeds through the deploy loop (python -m ahrm_stack.robustness, jaco2, 30 episodes per
@@ -52,7 +52,7 @@ REGISTERED_SEEDS = 5
 #: (docs/robustness/ideal-floor, the same run), the others' from their docs/policies folder.
 DEFAULT_ROBUSTNESS_BY_SEED: dict[str, str] = {
     "0": DEFAULT_ROBUSTNESS,
-    **{str(seed): f"docs/policies/ahrm-default-seed{seed}/robustness/robustness.md" for seed in (1, 2)}}
+    **{str(seed): f"docs/policies/ahrm-default-seed{seed}/robustness/robustness.md" for seed in (1, 2, 3)}}
 
 #: The four methods and the clone with the current training defaults (issue 14, 2026-12-02, 60k
 #: frames per run): one suite file per seed, seeds 0, 1, 2.
