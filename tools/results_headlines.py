@@ -52,7 +52,7 @@ REGISTERED_SEEDS = 5
 #: (docs/robustness/ideal-floor, the same run), the others' from their docs/policies folder.
 DEFAULT_ROBUSTNESS_BY_SEED: dict[str, str] = {
     "0": DEFAULT_ROBUSTNESS,
-    **{str(seed): f"docs/policies/ahrm-default-seed{seed}/robustness/robustness.md" for seed in (1, 2, 3)}}
+    **{str(seed): f"docs/policies/ahrm-default-seed{seed}/robustness/robustness.md" for seed in (1, 2, 3, 4)}}
 
 #: The four methods and the clone with the current training defaults (issue 14, 2026-12-02, 60k
 #: frames per run): one suite file per seed, seeds 0, 1, 2.
