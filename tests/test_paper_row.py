@@ -22,7 +22,7 @@ def row():
 def _run(folder: Path, evaluations: list[str], episodes: int = 4) -> Path:
     folder.mkdir(parents=True)
     (folder / "config.yaml").write_text("train:\n  warm_start: bc\ntask:\n  action:\n    mode: joint\n"
-                                        "  arm:\n    start: home\n")
+                                        "  arm:\n    start: home\n    home_deg:\n      jaco: [1, 2]\n")
     (folder / "episodes.csv").write_text("episode,frames,success\n" + "".join(
         f"{i},{(i + 1) * 100},{i % 2 == 1}\n" for i in range(episodes)))
     (folder / "evaluations.csv").write_text("episode,frames,episodes,successes,touched_episodes\n"
@@ -35,13 +35,16 @@ def test_the_row_of_a_run(row, tmp_path):
     run = _run(tmp_path / "in" / "paper-bc-seed0", ["0,0,40,30,1", "250,1000,40,38,0", "301,2000,40,39,2"])
     text = row.summarise([run], tmp_path / "out").read_text()
     line = [r for r in text.splitlines() if r.startswith("| paper-bc-seed0 |")][0]
-    assert line == ("| paper-bc-seed0 | train.warm_start=bc, task.action.mode=joint, task.arm.start=home | 4, 400, 2 | "
-                    "38/40 (0 touching) at episode 250, 1,000 frames | 38/40 (0 touching) at episode 250, 1,000 "
-                    "frames | 39/40 (2 touching) at episode 301, 2,000 frames |")
+    assert line == ("| paper-bc-seed0 | train.warm_start=bc, task.action.mode=joint, task.arm.start=home, "
+                    "task.arm.home_deg.jaco=[1,2] | 4, 400, 2 | 38/40 (0 touching) at episode 250, 1,000 frames | "
+                    "not yet (4 of 300 episodes) | 38/40 (0 touching) at episode 250, 1,000 frames | 39/40 (2 "
+                    "touching) at episode 301, 2,000 frames |")
+    long = _run(tmp_path / "in" / "long-seed0", ["0,0,40,39,0", "300,9000,40,20,5"], episodes=301)
+    assert "| no | 39/40 (0 touching) at episode 0, 0 frames |" in row.table(row.collect([long], tmp_path / "o2"))
     assert (tmp_path / "out" / "runs" / "paper-bc-seed0" / "episodes.csv.gz").is_file()
     never = _run(tmp_path / "in" / "paper-seed0", ["0,0,40,0,0", "100,500,40,0,3"])
     line = row.table([row.collect([never], tmp_path / "out")[0]]).splitlines()[-1]
-    assert line.endswith("| never (up to 400 frames) | 0 at all 2 evaluations |")
+    assert line.endswith("| not yet (4 of 300 episodes) | never (up to 400 frames) | 0 at all 2 evaluations |")
 
 
 def test_the_committed_table_is_what_the_committed_run_data_give(row):
