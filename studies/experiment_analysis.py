@@ -188,11 +188,10 @@ def seed_band(values: list[float]) -> tuple[float, float, float]:
     """(mean, low, high) over the seeds: the 95 % t-interval from three seeds on, the seeds' range
     for two, the value itself for one."""
     v = np.asarray(values, dtype=float)
-    mean = float(v.mean())
     if v.size > 2:
-        half = float(stats.t.ppf(0.975, v.size - 1)) * float(v.std(ddof=1)) / math.sqrt(v.size)
-        return mean, mean - half, mean + half
-    return mean, float(v.min()), float(v.max())
+        mean, low, high, _ = paired_t(v)
+        return mean, low, high
+    return float(v.mean()), float(v.min()), float(v.max())
 
 
 def plot_curves(out: Path, path: Path) -> Path | None:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import json
 import re
 import sys
@@ -159,6 +160,35 @@ def _sign(a: int, b: int) -> float:
     return binomtest(a, a + b).pvalue if a + b else 1.0
 
 
+Episode = tuple[bool, bool, float]  # success, touched, time to success (s, nan without success)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Tally:
+    """Counts over paired episodes (policy, scripted controller): each one's successes and touching
+    episodes, the discordant pairs of both, and the mean time ratio on the episodes both won."""
+
+    n: int
+    won: int
+    touched: int
+    scripted_won: int
+    scripted_touched: int
+    only_p: int
+    only_s: int
+    touch_p: int
+    touch_s: int
+    ratio: float
+
+    @classmethod
+    def of(cls, pairs: list[tuple[Episode, Episode]]) -> "_Tally":
+        ratios = [p[2] / s[2] for p, s in pairs if p[0] and s[0]]
+        return cls(n=len(pairs), won=sum(p[0] for p, _ in pairs), touched=sum(p[1] for p, _ in pairs),
+                   scripted_won=sum(s[0] for _, s in pairs), scripted_touched=sum(s[1] for _, s in pairs),
+                   only_p=sum(p[0] and not s[0] for p, s in pairs), only_s=sum(s[0] and not p[0] for p, s in pairs),
+                   touch_p=sum(p[1] and not s[1] for p, s in pairs), touch_s=sum(s[1] and not p[1] for p, s in pairs),
+                   ratio=sum(ratios) / len(ratios) if ratios else float("nan"))
+
+
 def _suites(root: Path, folders: tuple[str, ...]) -> list[tuple[str, dict, Path]]:
     """(seed, suite.json, folder) per seed; every seed's suite must be on the test split, over the
     same families with the same support, and its scripted episodes the same as the first seed's
@@ -199,7 +229,7 @@ def test_split_rows(root: Path = ROOT, folders: tuple[str, ...] | None = None) -
         inside = suites[0][1]["results"][family]["training_support"]["inside"]
         groups["inside the training support" if inside else "outside it (partly or wholly)"].append(family)
 
-    def pairs(folder: Path, families: list[str]) -> list[tuple[tuple[bool, bool, float], tuple[bool, bool, float]]]:
+    def pairs(folder: Path, families: list[str]) -> list[tuple[Episode, Episode]]:
         return [(p, s) for f in families for p, s in zip(_episodes(folder / f / "evaluation.csv"),
                                                          _episodes(folder / f / "scripted" / "evaluation.csv"),
                                                          strict=True)]
@@ -212,37 +242,22 @@ def test_split_rows(root: Path = ROOT, folders: tuple[str, ...] | None = None) -
     for name, families in groups.items():
         if not families:
             continue
-        pooled = [pair for _, _, folder in suites for pair in pairs(folder, families)]
-        scripted = [s for _, s in pairs(suites[0][2], families)]
-        n, n_s = len(pooled), len(scripted)
-        won = sum(p[0] for p, _ in pooled)
-        touched = sum(p[1] for p, _ in pooled)
-        only_p = sum(p[0] and not s[0] for p, s in pooled)
-        only_s = sum(s[0] and not p[0] for p, s in pooled)
-        touch_p = sum(p[1] and not s[1] for p, s in pooled)
-        touch_s = sum(s[1] and not p[1] for p, s in pooled)
-        ratios = [p[2] / s[2] for p, s in pooled if p[0] and s[0]]
-        rows.append(f"| {name} ({len(families)}) | {won}/{n} {_interval(won, n)} | {touched} "
-                    f"{_interval(touched, n)} | {sum(s[0] for s in scripted)}/{n_s} | {sum(s[1] for s in scripted)} | "
-                    f"{only_p} / {only_s} (p = {_sign(only_p, only_s):.2g}) | {touch_p} / {touch_s} "
-                    f"(p = {_sign(touch_p, touch_s):.2g}) | {sum(ratios) / len(ratios):.2f} |")
+        t = _Tally.of([pair for _, _, folder in suites for pair in pairs(folder, families)])
+        once = _Tally.of(pairs(suites[0][2], families))  # the scripted controller's episodes, counted once
+        rows.append(f"| {name} ({len(families)}) | {t.won}/{t.n} {_interval(t.won, t.n)} | {t.touched} "
+                    f"{_interval(t.touched, t.n)} | {once.scripted_won}/{once.n} | {once.scripted_touched} | "
+                    f"{t.only_p} / {t.only_s} (p = {_sign(t.only_p, t.only_s):.2g}) | {t.touch_p} / {t.touch_s} "
+                    f"(p = {_sign(t.touch_p, t.touch_s):.2g}) | {t.ratio:.2f} |")
     rows += ["", "| seed (all families) | successes | touching | won by one only: policy / scripted (p) | "
              "time / scripted (both won) |", "|---|---|---|---|---|"]
     gains, touch_gains, seed_ratios = [], [], []
     for seed, _, folder in suites:
-        seed_pairs = pairs(folder, list(families_of))
-        n = len(seed_pairs)
-        won = sum(p[0] for p, _ in seed_pairs)
-        touched = sum(p[1] for p, _ in seed_pairs)
-        only_p = sum(p[0] and not s[0] for p, s in seed_pairs)
-        only_s = sum(s[0] and not p[0] for p, s in seed_pairs)
-        ratios = [p[2] / s[2] for p, s in seed_pairs if p[0] and s[0]]
-        ratio = sum(ratios) / len(ratios)
-        gains.append((won - sum(s[0] for _, s in seed_pairs)) / n)
-        touch_gains.append((touched - sum(s[1] for _, s in seed_pairs)) / n)
-        seed_ratios.append(ratio)
-        rows.append(f"| {seed} | {won}/{n} | {touched} | {only_p} / {only_s} (p = {_sign(only_p, only_s):.2g}) | "
-                    f"{ratio:.2f} |")
+        t = _Tally.of(pairs(folder, list(families_of)))
+        gains.append((t.won - t.scripted_won) / t.n)
+        touch_gains.append((t.touched - t.scripted_touched) / t.n)
+        seed_ratios.append(t.ratio)
+        rows.append(f"| {seed} | {t.won}/{t.n} | {t.touched} | {t.only_p} / {t.only_s} "
+                    f"(p = {_sign(t.only_p, t.only_s):.2g}) | {t.ratio:.2f} |")
     rows += ["", f"Seed level ({seeds} of the {REGISTERED_SEEDS} registered seeds; mean [95 % t-interval]): "
              f"success share minus the scripted controller's {_t_interval(gains)}; touching share minus "
              f"the scripted controller's {_t_interval(touch_gains)}; time / scripted (both won) "
