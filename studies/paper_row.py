@@ -78,8 +78,9 @@ def collect(runs: list[Path], out: Path) -> list[Path]:
         target.mkdir(parents=True, exist_ok=True)
         for name in ("config.yaml", "evaluations.csv"):
             shutil.copyfile(run_dir / name, target / name)
-        with open(run_dir / "episodes.csv", "rb") as source, gzip.open(target / "episodes.csv.gz", "wb") as sink:
-            shutil.copyfileobj(source, sink)
+        with open(run_dir / "episodes.csv", "rb") as source, open(target / "episodes.csv.gz", "wb") as raw:
+            with gzip.GzipFile(fileobj=raw, mode="wb", mtime=0) as sink:  # no time stamp: same data, same bytes
+                shutil.copyfileobj(source, sink)
         copies.append(target)
     return copies
 
