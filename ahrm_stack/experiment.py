@@ -12,7 +12,9 @@ a local Ray instance by default, a cluster with ``--address``) that trains in-pr
 deterministic policy (``eval/``, and the suite) on ``experiment.split``'s seeds (``test`` by
 default: the sealed split, read only here, after training) and, for the first seed, renders one
 evaluation episode to ``OUT/videos/<method>.mp4``. A finished run writes ``done.json`` and is skipped on a rerun; a run
-stopped during training resumes from its last checkpoint; a failed run writes ``failed.json`` (the
+stopped during training resumes from its last checkpoint, and those start first; the others start
+seed by seed (every method of seed 0, then of seed 1, ...), so that a grid stopped part-way holds
+whole seeds of every method; a failed run writes ``failed.json`` (the
 error text, also in the report) and the others go on. The scripted controller's row is one more
 task (``OUT/scripted/``). Each run's output goes to its ``log.txt``.
 """

@@ -210,11 +210,26 @@ def check_finished(grid: dict) -> None:
                                   "use another --out for a new grid, or delete that run folder")
 
 
+def schedule(grid: dict) -> list[dict]:
+    """The unfinished runs in the order they are handed to Ray: first those that have a checkpoint
+    (they resume), then seed by seed, every method of a seed before the next seed (``ahrm-seed0,
+    mhrm-seed0, ..., ahrm-seed1, ...``), so that a grid stopped part-way holds whole seeds of every
+    method, the unit the analysis pairs on. The order changes when a run starts, never what it
+    computes (each run has its own seeds)."""
+    methods = list(grid["methods"])
+    pending = [spec for spec in grid["runs"] if not (Path(spec["run_dir"]) / DONE).is_file()]
+
+    def started(spec: dict) -> bool:
+        return any((Path(spec["run_dir"]) / "checkpoints").glob("ckpt-*.pt"))
+
+    return sorted(pending, key=lambda spec: (not started(spec), spec["seed"], methods.index(spec["method"])))
+
+
 def run_grid(grid: dict, experiment: ExperimentConfig, address: str | None) -> list[dict]:
     """Run every unfinished run of the grid on Ray; returns one result per run (and the scripted
     row last when it has episodes). A task that dies (worker crash) is reported as failed."""
     check_finished(grid)
-    pending = [spec for spec in grid["runs"] if not (Path(spec["run_dir"]) / DONE).is_file()]
+    pending = schedule(grid)
     results = [run_one(spec) for spec in grid["runs"] if spec not in pending]
     scripted = grid["scripted"]
     do_scripted = scripted["episodes"] > 0 and not (Path(scripted["run_dir"]) / DONE).is_file()
@@ -226,11 +241,17 @@ def run_grid(grid: dict, experiment: ExperimentConfig, address: str | None) -> l
     try:
         remote_run = ray.remote(num_cpus=experiment.cpus_per_run, max_retries=0)(run_one)
         remote_scripted = ray.remote(num_cpus=experiment.cpus_per_run, max_retries=0)(run_scripted)
-        refs = {remote_run.remote(spec): spec for spec in pending}
-        if do_scripted:
-            refs[remote_scripted.remote(scripted)] = scripted
-        waiting = list(refs)
-        while waiting:
+        queue = [(remote_run, spec) for spec in pending] + ([(remote_scripted, scripted)] if do_scripted else [])
+        # no more tasks handed to Ray than it can run at once, so that they start in the schedule's order
+        slots = max(1, int(ray.cluster_resources().get("CPU", 1) // experiment.cpus_per_run))
+        refs: dict = {}
+        waiting: list = []
+        while queue or waiting:
+            while queue and len(waiting) < slots:
+                task, spec = queue.pop(0)
+                ref = task.remote(spec)
+                refs[ref] = spec
+                waiting.append(ref)
             ready, waiting = ray.wait(waiting, num_returns=1)
             spec = refs[ready[0]]
             try:

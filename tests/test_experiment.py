@@ -145,3 +145,22 @@ def test_interim_evaluations_asked_of_the_training_are_kept(tmp_path):
     with open(tmp_path / "runs" / "ahrm-seed0" / "evaluations.csv") as handle:
         rows = handle.read().splitlines()
     assert len(rows) >= 3, rows  # the header, the first point before training, one per episode
+
+
+def test_runs_start_seed_by_seed_and_finished_ones_are_left_out(tmp_path):
+    """A grid stopped part-way holds whole seeds of every method: the schedule is seed-major, after
+    the runs that resume from a checkpoint."""
+    from ahrm_stack.experiment_grid import DONE, schedule
+
+    methods = ["ahrm", "mhrm", "fhrm", "ls"]
+    runs = [{"name": f"{m}-seed{s}", "method": m, "seed": s, "run_dir": str(tmp_path / f"{m}-seed{s}")}
+            for m in methods for s in range(3)]  # the grid's own order: method by method
+    (tmp_path / "ahrm-seed0").mkdir()
+    (tmp_path / "ahrm-seed0" / DONE).write_text("{}")
+    (tmp_path / "ls-seed2" / "checkpoints").mkdir(parents=True)
+    (tmp_path / "ls-seed2" / "checkpoints" / "ckpt-0000010.pt").write_bytes(b"")  # started: it resumes first
+    (tmp_path / "fhrm-seed1").mkdir()  # a folder without a checkpoint has not started
+    names = [spec["name"] for spec in schedule({"methods": methods, "runs": runs})]
+    assert names == ["ls-seed2", "mhrm-seed0", "fhrm-seed0", "ls-seed0",
+                     "ahrm-seed1", "mhrm-seed1", "fhrm-seed1", "ls-seed1",
+                     "ahrm-seed2", "mhrm-seed2", "fhrm-seed2"]
