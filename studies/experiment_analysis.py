@@ -1,6 +1,6 @@
 """The four-method experiment's registered analysis (docs/protocol.md), from its folder only.
 
-    python studies/experiment_analysis.py OUT [--reference ahrm] [--write OUT/analysis.md] [--curves PNG]
+    python studies/experiment_analysis.py OUT [--reference ahrm] [--collect DIR] [--write MD] [--curves PNG]
 
 OUT is a ``python -m ahrm_stack.experiment`` folder: ``runs/<method>-seed<s>/eval/evaluation.csv``
 (per test episode: ``success``, ``touched_steps``, ``time_to_success``; lane columns where
@@ -17,6 +17,13 @@ present), ``runs/<method>-seed<s>/events.jsonl`` (AHRM's ``order_changed`` event
 * the goal: the reference's pooled success ≥ 95 % and touching ≤ 2 %.
 
 Missing runs are listed and the whole output is marked PARTIAL; nothing is called on it then.
+
+``--collect DIR`` first copies what the analysis reads into ``DIR`` (``grid.json``; per run its
+``config.yaml``, ``evaluations.csv``, ``batches.csv`` gzipped, ``eval/evaluation.*``, ``done.json``
+or ``failed.json``, and of ``events.jsonl`` only the priority-order events; the scripted
+controller's ``evaluation.*``), then analyses that copy, so that the committed report can be
+regenerated from committed data (``tests/test_experiment_analysis.py`` does it for
+``docs/experiment-42``).
 """
 
 from __future__ import annotations
@@ -24,9 +31,12 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
+import gzip
+import io
 import json
 import math
 import os
+import shutil
 import sys
 from pathlib import Path
 
@@ -117,15 +127,61 @@ def _runs(out: Path) -> dict[str, dict[int, Path]]:
     return runs
 
 
+def _csv_rows(run_dir: Path, name: str) -> list[dict[str, str]]:
+    """The rows of ``run_dir/name``, or of its gzipped copy ``name.gz``; [] when neither exists."""
+    if (run_dir / name).is_file():
+        text = (run_dir / name).read_text()
+    elif (run_dir / f"{name}.gz").is_file():
+        with gzip.open(run_dir / f"{name}.gz", "rt") as handle:
+            text = handle.read()
+    else:
+        return []
+    return list(csv.DictReader(io.StringIO(text)))
+
+
+#: the events of a run that the analysis reads (the rest of ``events.jsonl`` is not copied)
+ORDER_EVENTS = ("order_changed", "order_locked")
+
+
+def collect(out: Path, dest: Path) -> Path:
+    """Copy what :func:`analyse` and :func:`plot_curves` read from the experiment folder ``out``
+    into ``dest`` (same layout; ``batches.csv`` gzipped without a time stamp, ``events.jsonl``
+    cut to :data:`ORDER_EVENTS`); returns ``dest``. Files a run does not have yet are skipped."""
+    dest.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(out / "grid.json", dest / "grid.json")
+    grid = json.loads((out / "grid.json").read_text())
+    for name in [spec["name"] for spec in grid["runs"]]:
+        source, target = out / "runs" / name, dest / "runs" / name
+        for file in ("config.yaml", "evaluations.csv", "done.json", "failed.json",
+                     "eval/evaluation.csv", "eval/evaluation.json"):
+            if (source / file).is_file():
+                (target / file).parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(source / file, target / file)
+        if (source / "batches.csv").is_file():
+            target.mkdir(parents=True, exist_ok=True)
+            with open(source / "batches.csv", "rb") as plain, open(target / "batches.csv.gz", "wb") as raw:
+                with gzip.GzipFile(filename="batches.csv", fileobj=raw, mode="wb", mtime=0) as packed:
+                    shutil.copyfileobj(plain, packed)
+        if (source / "events.jsonl").is_file():
+            target.mkdir(parents=True, exist_ok=True)
+            kept = [line for line in (source / "events.jsonl").read_text().splitlines()
+                    if line and json.loads(line).get("kind") in ORDER_EVENTS]
+            (target / "events.jsonl").write_text("".join(line + "\n" for line in kept))
+    for file in ("evaluation.csv", "evaluation.json", "done.json"):
+        if (out / "scripted" / file).is_file():
+            (dest / "scripted").mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(out / "scripted" / file, dest / "scripted" / file)
+    return dest
+
+
 def progress(run_dir: Path) -> tuple[int, str, str]:
     """How far an unfinished (or finished) run is: (frames trained, its latest interim evaluation
     on validation episodes as "k/n at F frames" or "—", for AHRM whether its order has changed so
-    far), read from ``episodes.csv``, ``evaluations.csv`` and ``events.jsonl``."""
+    far), read from ``batches.csv`` (or its gzipped copy; else ``episodes.csv``), ``evaluations.csv``
+    and ``events.jsonl``."""
     frames = 0
-    if (run_dir / "episodes.csv").is_file():
-        with open(run_dir / "episodes.csv") as handle:
-            for row in csv.DictReader(handle):
-                frames = int(row["frames"])
+    for row in _csv_rows(run_dir, "batches.csv") or _csv_rows(run_dir, "episodes.csv"):
+        frames = int(row["frames"])
     latest = "—"
     if (run_dir / "evaluations.csv").is_file():
         with open(run_dir / "evaluations.csv") as handle:
@@ -261,7 +317,7 @@ def analyse(out: Path, reference: str = "ahrm") -> str:
     scripted = Episodes.read(scripted_path) if scripted_path.is_file() else None
     partial = bool(missing) or scripted is None
     grid = json.loads((out / "grid.json").read_text())
-    lines = [f"# Analysis of {out.name} (docs/protocol.md)", ""]
+    lines = [f"# Analysis of {Path(grid.get('out', out)).name} (docs/protocol.md)", ""]
     if "train_overrides" in grid:
         lines += [planner_line(grid["train_overrides"]),
                   "", f"Training overrides: `{' '.join(grid['train_overrides'])}`; final evaluation on the "
@@ -349,10 +405,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--write", type=Path, default=None, help="also write the markdown here")
     parser.add_argument("--curves", type=Path, default=None,
                         help="write the interim evaluations' success/touching vs frames curves (PNG) here")
+    parser.add_argument("--collect", type=Path, default=None,
+                        help="first copy the data the analysis reads into this folder, then analyse the copy")
     args = parser.parse_args(argv)
     if not (args.out / "grid.json").is_file():
         print(f"error: {args.out / 'grid.json'} not found: OUT must be an experiment folder", file=sys.stderr)
         return 2
+    if args.collect:
+        args.out = collect(args.out, args.collect)
     text = analyse(args.out, args.reference)
     if args.curves:
         args.curves.parent.mkdir(parents=True, exist_ok=True)

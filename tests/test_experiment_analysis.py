@@ -124,3 +124,38 @@ def test_interim_curves_and_their_seed_band(analysis, tmp_path):
     half = 4.302653 * 0.1 / math.sqrt(3)
     assert (mean, low, high) == pytest.approx((0.2, 0.2 - half, 0.2 + half), abs=1e-6)
     assert analysis.plot_curves(out, tmp_path / "curves.png").stat().st_size > 1000
+
+
+def test_collect_keeps_what_the_analysis_reads(analysis, tmp_path):
+    """The copy gives the same analysis as the folder: frames from the gzipped batches.csv, only
+    the order events; the copy's bytes do not depend on when it was made."""
+    out = _experiment(tmp_path, skip="ahrm-seed1")
+    grid = json.loads((out / "grid.json").read_text())
+    (out / "grid.json").write_text(json.dumps({**grid, "frames": 1000, "out": "/somewhere/experiment-7"}))
+    run = out / "runs" / "ahrm-seed1"
+    (run / "batches.csv").write_text("batch,frames,episodes\n1,128,0\n2,256,1\n")
+    (run / "episodes.csv").write_text("episode,frames,steps\n0,128,50\n1,250,61\n")
+    (run / "events.jsonl").write_text('{"kind": "constraint_termination"}\n{"kind": "order_locked", "phase": 1}\n')
+    (run / "checkpoints").mkdir()
+    (run / "checkpoints" / "ckpt-0000002.pt").write_bytes(b"big")
+    copy = analysis.collect(out, tmp_path / "copy")
+    assert analysis.analyse(copy) == analysis.analyse(out)
+    assert analysis.analyse(copy).startswith("# Analysis of experiment-7 ")
+    assert "| ahrm-seed1 | 256 (26%) |" in analysis.analyse(copy)  # batches.csv before episodes.csv
+    assert (copy / "runs" / "ahrm-seed1" / "events.jsonl").read_text() == '{"kind": "order_locked", "phase": 1}\n'
+    assert not (copy / "runs" / "ahrm-seed1" / "checkpoints").exists()
+    again = analysis.collect(out, tmp_path / "again")
+    for name in ("batches.csv.gz", "events.jsonl"):
+        assert (again / "runs" / "ahrm-seed1" / name).read_bytes() == (copy / "runs" / "ahrm-seed1" / name).read_bytes()
+
+
+def test_the_committed_report_is_what_the_committed_data_give(analysis):
+    """docs/experiment-42.md is the analysis of docs/experiment-42/data (plus its figure's link)."""
+    committed = (ROOT / "docs" / "experiment-42.md").read_text()
+    text = analysis.analyse(ROOT / "docs" / "experiment-42" / "data")
+    assert committed.startswith(text), (
+        "docs/experiment-42.md is out of date: python studies/experiment_analysis.py /work/experiment-42 "
+        "--collect docs/experiment-42/data --write docs/experiment-42.md "
+        "--curves docs/experiment-42/interim-curves.png")
+    figure = "![interim evaluations against frames](experiment-42/interim-curves.png)"
+    assert committed[len(text):].strip() in ("", figure)
