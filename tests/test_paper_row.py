@@ -26,28 +26,31 @@ def _run(folder: Path, evaluations: list[str], episodes: int = 4,
     (folder / "config.yaml").write_text(config)
     (folder / "episodes.csv").write_text("episode,frames,success\n" + "".join(
         f"{i},{(i + 1) * 100},{i % 2 == 1}\n" for i in range(episodes)))
+    (folder / "batches.csv").write_text("batch,frames,updates\n1,200,24\n2,400,3\n")
     (folder / "evaluations.csv").write_text("episode,frames,episodes,successes,touched_episodes\n"
                                             + "".join(line + "\n" for line in evaluations))
     return folder
 
 
 def test_the_row_of_a_run(row, tmp_path):
-    """At the budget: the last evaluation at or before episode 300; first >= 37/40; the best. The
+    """At the budget: the last evaluation at or before episode 300; first >= 37/40; the best; the
+    PPO gradient steps summed from batches.csv. The
     setting: the keys whose values differ from profile=paper's (seed, budget and unknown keys not)."""
     run = _run(tmp_path / "in" / "paper-bc-seed0", ["0,0,40,30,1", "250,1000,40,38,0", "301,2000,40,39,2"])
     text = row.summarise([run], tmp_path / "out").read_text()
     line = [r for r in text.splitlines() if r.startswith("| paper-bc-seed0 |")][0]
-    assert line == ("| paper-bc-seed0 | train.warm_start=bc, task.arm.home_deg.jaco=[1,2] | 4, 400, 2 | "
+    assert line == ("| paper-bc-seed0 | train.warm_start=bc, task.arm.home_deg.jaco=[1,2] | 4, 400, 2, 27 | "
                     "38/40 (0 touching) at episode 250, 1,000 frames | "
                     "not yet (4 of 300 episodes) | 38/40 (0 touching) at episode 250, 1,000 frames | 39/40 (2 "
                     "touching) at episode 301, 2,000 frames |")
     long = _run(tmp_path / "in" / "long-seed0", ["0,0,40,39,0", "300,9000,40,20,5"], episodes=301)
     assert "| no | 39/40 (0 touching) at episode 0, 0 frames |" in row.table(row.collect([long], tmp_path / "o2"))
     assert (tmp_path / "out" / "runs" / "paper-bc-seed0" / "episodes.csv.gz").is_file()
+    assert (tmp_path / "out" / "runs" / "paper-bc-seed0" / "batches.csv.gz").is_file()
     never = _run(tmp_path / "in" / "paper-seed0", ["0,0,40,0,0", "100,500,40,0,3"],
                  config="train:\n  warm_start: none\n  episodes: 300\nppo:\n  learning_rate: 0.001\n")
     line = row.table([row.collect([never], tmp_path / "out")[0]]).splitlines()[-1]
-    assert line.startswith("| paper-seed0 | the paper's setting | 4, 400, 2 |")
+    assert line.startswith("| paper-seed0 | the paper's setting | 4, 400, 2, 27 |")
     assert line.endswith("| not yet (4 of 300 episodes) | never (up to 400 frames) | 0 at all 2 evaluations |")
 
 
