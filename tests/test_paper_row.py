@@ -1,4 +1,4 @@
-"""studies/paper_row.py (issue 42, item 6): the row's table from run data, by hand on a synthetic
+"""tools/paper_row.py (issue 42, item 6): the row's table from run data, by hand on a synthetic
 run, and the committed table from the committed copies."""
 
 import importlib.util
@@ -12,7 +12,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope="module")
 def row():
-    spec = importlib.util.spec_from_file_location("paper_row", ROOT / "studies" / "paper_row.py")
+    spec = importlib.util.spec_from_file_location("paper_row", ROOT / "tools" / "paper_row.py")
     module = importlib.util.module_from_spec(spec)
     sys.modules["paper_row"] = module
     spec.loader.exec_module(module)
@@ -57,5 +57,22 @@ def test_the_row_of_a_run(row, tmp_path):
 def test_the_committed_table_is_what_the_committed_run_data_give(row):
     root = ROOT / "docs" / "paper-row"
     copies = sorted(p for p in (root / "runs").iterdir() if p.is_dir())
-    assert row.table(copies) == (root / "table.md").read_text(), (
-        "docs/paper-row/table.md is out of date: python studies/paper_row.py summarise ...")
+    assert row.table(copies) + row.answer(root) == (root / "table.md").read_text(), (
+        "docs/paper-row/table.md is out of date: python tools/paper_row.py summarise ...")
+
+
+def test_the_answer_line_from_its_test_evaluation(row, tmp_path):
+    """Successes with the exact interval, touching, and the sign test against the scripted
+    controller on the same episodes; nothing before the evaluation exists; a validation file is refused."""
+    assert row.answer(tmp_path) == ""
+    for folder, results in (("test", [(1, 0)] * 38 + [(0, 1), (0, 0)]), ("test-scripted", [(1, 0)] * 40)):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "evaluation.csv").write_text("success,touched_steps\n" + "".join(
+            f"{bool(w)},{t}\n" for w, t in results))
+    (tmp_path / "test" / "evaluation.json").write_text('{"split": "test", "policy": "/x/paper-bc-ppo-seed0"}')
+    line = row.answer(tmp_path)
+    assert "`paper-bc-ppo-seed0`" in line and "38/40 [83.1%, 99.4%], 1 touching" in line  # Clopper-Pearson
+    assert "same episodes 40/40, 0 touching" in line and "policy 0 / scripted 2 (exact sign test p = 0.5)" in line
+    (tmp_path / "test" / "evaluation.json").write_text('{"split": "validation", "policy": "x"}')
+    with pytest.raises(SystemExit, match="not test"):
+        row.answer(tmp_path)
