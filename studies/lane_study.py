@@ -125,8 +125,10 @@ def collect(runs: list[Path], out: Path) -> list[Path]:
                 shutil.copyfile(run_dir / name, target / name)
         for name in GZIPPED:
             if (run_dir / name).is_file():
-                with open(run_dir / name, "rb") as source, gzip.open(target / f"{name}.gz", "wb") as sink:
-                    shutil.copyfileobj(source, sink)
+                with open(run_dir / name, "rb") as source, open(target / f"{name}.gz", "wb") as raw:
+                    # no time stamp: same data, same bytes
+                    with gzip.GzipFile(filename=name, fileobj=raw, mode="wb", mtime=0) as sink:
+                        shutil.copyfileobj(source, sink)
         for evaluation in sorted((run_dir / "lanes").glob("*/evaluation.json")):
             folder = target / "lanes" / evaluation.parent.name
             folder.mkdir(parents=True, exist_ok=True)
