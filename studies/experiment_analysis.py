@@ -31,8 +31,6 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
-import gzip
-import io
 import json
 import math
 import os
@@ -42,6 +40,8 @@ from pathlib import Path
 
 import numpy as np
 from scipy import stats
+
+from ahrm_stack.log_copies import csv_rows, gzip_copy
 
 GOAL_SUCCESS, GOAL_TOUCHING = 0.95, 0.02  # docs/protocol.md
 
@@ -127,18 +127,6 @@ def _runs(out: Path) -> dict[str, dict[int, Path]]:
     return runs
 
 
-def _csv_rows(run_dir: Path, name: str) -> list[dict[str, str]]:
-    """The rows of ``run_dir/name``, or of its gzipped copy ``name.gz``; [] when neither exists."""
-    if (run_dir / name).is_file():
-        text = (run_dir / name).read_text()
-    elif (run_dir / f"{name}.gz").is_file():
-        with gzip.open(run_dir / f"{name}.gz", "rt") as handle:
-            text = handle.read()
-    else:
-        return []
-    return list(csv.DictReader(io.StringIO(text)))
-
-
 #: the events of a run that the analysis reads (the rest of ``events.jsonl`` is not copied)
 ORDER_EVENTS = ("order_changed", "order_locked")
 
@@ -159,9 +147,7 @@ def collect(out: Path, dest: Path) -> Path:
                 shutil.copyfile(source / file, target / file)
         if (source / "batches.csv").is_file():
             target.mkdir(parents=True, exist_ok=True)
-            with open(source / "batches.csv", "rb") as plain, open(target / "batches.csv.gz", "wb") as raw:
-                with gzip.GzipFile(filename="batches.csv", fileobj=raw, mode="wb", mtime=0) as packed:
-                    shutil.copyfileobj(plain, packed)
+            gzip_copy(source / "batches.csv", target / "batches.csv.gz")
         if (source / "events.jsonl").is_file():
             target.mkdir(parents=True, exist_ok=True)
             kept = [line for line in (source / "events.jsonl").read_text().splitlines()
@@ -180,7 +166,7 @@ def progress(run_dir: Path) -> tuple[int, str, str]:
     far), read from ``batches.csv`` (or its gzipped copy; else ``episodes.csv``), ``evaluations.csv``
     and ``events.jsonl``."""
     frames = 0
-    for row in _csv_rows(run_dir, "batches.csv") or _csv_rows(run_dir, "episodes.csv"):
+    for row in csv_rows(run_dir, "batches.csv") or csv_rows(run_dir, "episodes.csv"):
         frames = int(row["frames"])
     latest = "—"
     if (run_dir / "evaluations.csv").is_file():

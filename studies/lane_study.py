@@ -35,6 +35,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from ahrm_stack.log_copies import gzip_copy
+
 BEST = ["ppo.actor_init_scale=0.01", "task.rewards.avoid_margin=0.02"]  # scratch study, round 13
 OWN_LANE = ["profile=scratch-own-lane", *BEST]
 ARMS: dict[str, list[str]] = {
@@ -125,10 +127,7 @@ def collect(runs: list[Path], out: Path) -> list[Path]:
                 shutil.copyfile(run_dir / name, target / name)
         for name in GZIPPED:
             if (run_dir / name).is_file():
-                with open(run_dir / name, "rb") as source, open(target / f"{name}.gz", "wb") as raw:
-                    # no time stamp: same data, same bytes
-                    with gzip.GzipFile(filename=name, fileobj=raw, mode="wb", mtime=0) as sink:
-                        shutil.copyfileobj(source, sink)
+                gzip_copy(run_dir / name, target / f"{name}.gz")
         for evaluation in sorted((run_dir / "lanes").glob("*/evaluation.json")):
             folder = target / "lanes" / evaluation.parent.name
             folder.mkdir(parents=True, exist_ok=True)

@@ -18,14 +18,14 @@ from __future__ import annotations
 
 import argparse
 import csv
-import gzip
-import io
 import json
 import shutil
 import sys
 from pathlib import Path
 
 import yaml
+
+from ahrm_stack.log_copies import csv_rows, gzip_copy
 
 
 def _paper() -> tuple[int, int, int]:
@@ -60,18 +60,6 @@ def _paper_setting() -> dict[str, object]:
     return _flat(load_config(["profile=paper"]).to_dict())
 
 
-def _rows(run_dir: Path, name: str) -> list[dict[str, str]]:
-    """The rows of ``run_dir/name`` or of its gzipped copy; [] when neither exists."""
-    if (run_dir / name).is_file():
-        text = (run_dir / name).read_text()
-    elif (run_dir / f"{name}.gz").is_file():
-        with gzip.open(run_dir / f"{name}.gz", "rt") as handle:
-            text = handle.read()
-    else:
-        return []
-    return list(csv.DictReader(io.StringIO(text)))
-
-
 def collect(runs: list[Path], out: Path) -> list[Path]:
     """Copy each run's ``config.yaml`` and ``evaluations.csv``, and its ``episodes.csv`` and
     ``batches.csv`` gzipped, to ``OUT/runs/<run>/``; returns the copies' folders."""
@@ -86,10 +74,7 @@ def collect(runs: list[Path], out: Path) -> list[Path]:
             shutil.copyfile(run_dir / name, target / name)
         for name in ("episodes.csv", "batches.csv"):
             if (run_dir / name).is_file():
-                with open(run_dir / name, "rb") as source, open(target / f"{name}.gz", "wb") as raw:
-                    # no time stamp: same data, same bytes
-                    with gzip.GzipFile(filename=name, fileobj=raw, mode="wb", mtime=0) as sink:
-                        shutil.copyfileobj(source, sink)
+                gzip_copy(run_dir / name, target / f"{name}.gz")
         copies.append(target)
     return copies
 
@@ -120,8 +105,8 @@ def table(copies: list[Path]) -> str:
     paper = _paper_setting()
     for run_dir in copies:
         config = yaml.safe_load((run_dir / "config.yaml").read_text())
-        episodes = _rows(run_dir, "episodes.csv")
-        steps = sum(int(row["updates"]) for row in _rows(run_dir, "batches.csv") if row.get("updates"))
+        episodes = csv_rows(run_dir, "episodes.csv")
+        steps = sum(int(row["updates"]) for row in csv_rows(run_dir, "batches.csv") if row.get("updates"))
         with open(run_dir / "evaluations.csv") as handle:
             evaluations = list(csv.DictReader(handle))
         frames = int(episodes[-1]["frames"]) if episodes else 0
