@@ -98,6 +98,11 @@ def write_json(path: Path, data: dict) -> None:
     os.replace(tmp, path)
 
 
+def _has_checkpoint(run_dir: Path) -> bool:
+    """Whether a run has a checkpoint to resume from (it stopped during training)."""
+    return any((run_dir / "checkpoints").glob("ckpt-*.pt"))
+
+
 def run_one(spec: dict) -> dict:
     """Train (or resume) and evaluate one (method, seed) run; never raises.
 
@@ -114,9 +119,7 @@ def run_one(spec: dict) -> dict:
             if not (run_dir / "policy.pt").is_file():
                 from ahrm_stack.learning.training import train
                 config = load_config(spec["overrides"])
-                checkpoints = run_dir / "checkpoints"
-                resume = checkpoints.is_dir() and any(checkpoints.glob("ckpt-*.pt"))
-                train(config, run_dir, resume=resume, progress=False)
+                train(config, run_dir, resume=_has_checkpoint(run_dir), progress=False)
             from ahrm_stack.evaluation import evaluate
             split = spec.get("split", "validation")
             evaluation = evaluate(run_dir, spec["eval_episodes"], spec["layout"], run_dir / "eval",
@@ -218,11 +221,8 @@ def schedule(grid: dict) -> list[dict]:
     computes (each run has its own seeds)."""
     methods = list(grid["methods"])
     pending = [spec for spec in grid["runs"] if not (Path(spec["run_dir"]) / DONE).is_file()]
-
-    def started(spec: dict) -> bool:
-        return any((Path(spec["run_dir"]) / "checkpoints").glob("ckpt-*.pt"))
-
-    return sorted(pending, key=lambda spec: (not started(spec), spec["seed"], methods.index(spec["method"])))
+    return sorted(pending, key=lambda spec: (not _has_checkpoint(Path(spec["run_dir"])), spec["seed"],
+                                             methods.index(spec["method"])))
 
 
 def run_grid(grid: dict, experiment: ExperimentConfig, address: str | None) -> list[dict]:
