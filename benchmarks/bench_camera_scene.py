@@ -199,7 +199,8 @@ def main(argv: list[str] | None = None) -> int:
     config, offset = load_config(args.checkpoint, args.family)
     _, actor = load_policy(args.checkpoint, runnable=False)
     perception = load_perception_settings()
-    shared = {"actor": actor, "perception": perception, "tmp": tempfile.mkdtemp(prefix="camera-scene-")}
+    scratch = tempfile.TemporaryDirectory(prefix="camera-scene-")  # removed at exit
+    shared = {"actor": actor, "perception": perception, "tmp": scratch.name}
     if "camera" in args.scenes:
         from ahrm_stack.perception.apriltag import TagDetector
 

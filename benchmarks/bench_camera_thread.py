@@ -157,7 +157,8 @@ def main() -> None:
     deploy_settings = dataclasses.replace(deploy_settings, watchdog=dataclasses.replace(
         deploy_settings.watchdog, max_deadline_misses=10**9))
     settings = load_perception_settings()
-    folder = Path(tempfile.mkdtemp(prefix="bench-camera-"))
+    scratch = tempfile.TemporaryDirectory(prefix="bench-camera-")  # removed at exit
+    folder = Path(scratch.name)
     video = folder / "rendered.avi"
     render_video(video, config.task, settings, 30 if args.quick else 60)
     perception = {isolation: dataclasses.replace(settings, source=dataclasses.replace(

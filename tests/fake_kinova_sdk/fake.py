@@ -69,10 +69,16 @@ def build(directory: Path) -> Path:
     return target
 
 
+_FOLDERS: list[tempfile.TemporaryDirectory] = []  # kept alive until exit, then removed
+
+
 @functools.lru_cache(maxsize=None)
 def session_library() -> Path:
-    """The fake, compiled once per process into a temporary folder."""
-    return build(Path(tempfile.mkdtemp(prefix="fake-kinova-")))
+    """The fake, compiled once per process into a temporary folder that is removed when the
+    process exits."""
+    folder = tempfile.TemporaryDirectory(prefix="fake-kinova-")
+    _FOLDERS.append(folder)
+    return build(Path(folder.name))
 
 
 class _Call(ctypes.Structure):
