@@ -76,3 +76,16 @@ def test_the_answer_line_from_its_test_evaluation(row, tmp_path):
     (tmp_path / "test" / "evaluation.json").write_text('{"split": "validation", "policy": "x"}')
     with pytest.raises(SystemExit, match="not test"):
         row.answer(tmp_path)
+
+
+def test_the_answers_robustness_table_is_its_committed_data():
+    """docs/paper-row/robustness: change 4's policy through the deploy loop (python -m
+    ahrm_stack.robustness RUN --no-dose); its table is rendered from its json."""
+    import json
+
+    from ahrm_stack import robustness
+
+    folder = ROOT / "docs" / "paper-row" / "robustness"
+    data = json.loads((folder / "robustness.json").read_text())
+    assert data["run"].endswith("paper-bc-ppo-ahrm-seed0")
+    assert (folder / "robustness.md").read_text() == robustness.table(data)
