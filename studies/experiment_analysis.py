@@ -278,6 +278,8 @@ def _share(k: int, n: int) -> str:
 
 def _interval(stat: Stat, p_adjusted: float | None = None) -> str:
     mean, lo, hi, p = stat
+    if math.isnan(lo):  # fewer than 2 seeds so far
+        return f"{mean:+.3f} (one seed: no interval, no test)"
     text = f"{mean:+.3f} [{lo:+.3f}, {hi:+.3f}], p = {p:.3g}"
     return text + (f", Holm p = {p_adjusted:.3g}" if p_adjusted is not None else "")
 

@@ -32,6 +32,7 @@ def test_statistics_by_hand(analysis):
     assert (mean, lo, hi) == pytest.approx((0.2, 0.2 - half, 0.2 + half), abs=1e-6)
     t = 0.2 / (0.1 / math.sqrt(3))
     assert p == pytest.approx(1 - t / math.sqrt(t * t + 2))  # two-sided, 2 df: closed form
+    assert analysis._interval(analysis.paired_t(np.array([0.05]))) == "+0.050 (one seed: no interval, no test)"
 
 
 def _evaluation(path: Path, success, touched):
