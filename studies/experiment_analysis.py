@@ -169,13 +169,11 @@ def progress(run_dir: Path) -> tuple[int, str, str]:
     for row in csv_rows(run_dir, "batches.csv") or csv_rows(run_dir, "episodes.csv"):
         frames = int(row["frames"])
     latest = "—"
-    if (run_dir / "evaluations.csv").is_file():
-        with open(run_dir / "evaluations.csv") as handle:
-            rows = list(csv.DictReader(handle))
-        if rows:
-            last = rows[-1]
-            latest = (f"{last['successes']}/{last['episodes']} ({last['touched_episodes']} touching) "
-                      f"at {int(last['frames']):,}")
+    rows = csv_rows(run_dir, "evaluations.csv")
+    if rows:
+        last = rows[-1]
+        latest = (f"{last['successes']}/{last['episodes']} ({last['touched_episodes']} touching) "
+                  f"at {int(last['frames']):,}")
     changed = order_changed(run_dir)
     return frames, latest, "—" if changed is None else "changed" if changed else "not yet"
 
