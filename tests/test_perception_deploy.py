@@ -106,3 +106,26 @@ def test_a_camera_that_cannot_see_the_tag_is_a_start_up_fault(tmp_path, capsys, 
     assert "not in the camera image at the start" in captured.err
     last = json.loads(telemetry.read_text().splitlines()[-1])
     assert "TagLostError" in last["summary"]["fault"]
+
+
+def test_a_survey_without_telemetry_lives_in_a_temporary_folder_removed_at_the_end(
+        tmp_path, capsys, monkeypatch):
+    import tempfile
+
+    import ahrm_stack.perception.sim_camera as sim_camera
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    written: list[Path] = []
+    survey = sim_camera.survey_obstacles
+
+    def recording_survey(arm, path):
+        written.append(Path(survey(arm, path)))
+        return written[-1]
+
+    monkeypatch.setattr(sim_camera, "survey_obstacles", recording_survey)
+    code = main(["--backend", "sim", "--fast", "--scene", "camera", "--duration", "0.3",
+                 "--telemetry", ""])
+    out = capsys.readouterr().out
+    assert code == 1 and "stop: duration of 0.3 s reached" in out, out
+    assert len(written) == 1 and written[0].parent.parent == tmp_path  # surveyed into tmp_path
+    assert list(tmp_path.iterdir()) == []  # and removed when the run ended

@@ -129,7 +129,8 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
     the AprilTag on frames of ``perception.source``, MuJoCo renders on the sim backend or a real
     camera or video file in its own thread on any backend, ``configs/perception.yaml``; the
     obstacles from ``layout_file``, or ``perception.layout_file``, or else, on the sim backend,
-    surveyed from the simulator at the start into ``layout.yaml`` beside the telemetry).
+    surveyed from the simulator at the start into ``layout.yaml`` beside the telemetry, or with no
+    telemetry into a temporary folder removed when the run ends).
 
     Bad input (the settings, the checkpoint, its safety settings, the backend's settings, the
     telemetry path) raises a one-line error before anything is written or the arm is touched. From
@@ -160,7 +161,7 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
                     "(task.episode.control_period %g s)", settings.rate_hz, 1.0 / control_period,
                     control_period)
     telemetry = open_telemetry(settings.telemetry)
-    arm = source = None
+    arm = source = scratch = None
     try:
         for note in notes if telemetry is not None else ():
             telemetry.write(json.dumps({"t": 0.0, "event": "safety setting", "key": note.key,
@@ -175,10 +176,13 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
                 from ahrm_stack.perception.sim_camera import survey_obstacles
 
                 if not layout_file:  # a survey of the simulated table stands in for a measurement
-                    import tempfile
+                    if settings.telemetry:
+                        folder = Path(settings.telemetry).parent
+                    else:  # read once below, then removed with the run
+                        import tempfile
 
-                    folder = (Path(settings.telemetry).parent if settings.telemetry
-                              else Path(tempfile.mkdtemp(prefix="deploy-layout-")))
+                        scratch = tempfile.TemporaryDirectory(prefix="deploy-layout-")
+                        folder = Path(scratch.name)
                     layout_file = survey_obstacles(arm, folder / "layout.yaml")
                 source = camera_scene(arm, config.task, perception, layout_file)
             loop = DeployLoop(arm, world, controller, config.safety, settings, telemetry, source)
@@ -195,6 +199,8 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
             source.close()
         if telemetry is not None:
             telemetry.close()
+        if scratch is not None:
+            scratch.cleanup()
     return loop
 
 
