@@ -368,7 +368,7 @@ def analyse(out: Path, reference: str = "ahrm") -> str:
     adjusted = holm([c[2][3] for c in comparisons])
     lines += ["", f"## {reference} − each method, paired by seed (95 % t-interval over seeds; success: "
               "H1–H3 with Holm; touching: secondary, uncorrected, with the exact sign test on paired episodes)",
-              "", "| comparison | seeds | success | touching | touching: discordant episodes |",
+              "", "| comparison | paired seeds | success | touching | touching: discordant episodes |",
               "|---|---|---|---|---|"]
     for (other, common, on_success, on_touching, a, b), p_holm in zip(comparisons, adjusted):
         lines.append(f"| {reference} − {other} | {', '.join(map(str, common))} | {_interval(on_success, p_holm)} | "
