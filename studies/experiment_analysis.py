@@ -323,7 +323,7 @@ def analyse(out: Path, reference: str = "ahrm") -> str:
                 lines.append(f"| {method}-seed{seed} | {frames:,}{share} | {latest} | "
                              f"{changed if method == 'ahrm' else '—'} |")
         lines.append("")
-    lines += ["## Every run", "", "| run | successes | touching | time (s) | lane agreement | order |",
+    lines += ["## Every run", "", "| run | successes | touching | time (s, won episodes) | lane agreement | order |",
               "|---|---|---|---|---|---|"]
     for method, by_seed in episodes.items():
         for seed, e in sorted(by_seed.items()):
@@ -332,9 +332,9 @@ def analyse(out: Path, reference: str = "ahrm") -> str:
             pushed = [a for a in e.lane_agrees if a]
             lanes = f"{sum(a == 'True' for a in pushed)}/{len(pushed)}" if pushed else "—"
             times = e.time[e.success]
-            time = float(times.mean()) if times.size else math.nan
+            time = f"{float(times.mean()):.2f}" if times.size else "— (no win)"
             lines.append(f"| {method}-seed{seed} | {int(e.success.sum())}/{e.success.size} | "
-                         f"{int(e.touched.sum())} | {time:.2f} | {lanes} | {order} |")
+                         f"{int(e.touched.sum())} | {time} | {lanes} | {order} |")
     lines += ["", "## Pooled over seeds (Clopper–Pearson 95 %); against the scripted controller on the same "
               "episodes (exact sign test: discordant episodes)", "",
               "| method | seeds | successes | touching | success vs scripted | touching vs scripted |",
