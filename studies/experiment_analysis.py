@@ -16,7 +16,9 @@ present), ``runs/<method>-seed<s>/events.jsonl`` (AHRM's ``order_changed`` event
   touching the same plus the exact sign test on paired episodes (same seed, same episode);
 * the goal: the reference's pooled success ≥ 95 % and touching ≤ 2 %.
 
-Missing runs are listed and the whole output is marked PARTIAL; nothing is called on it then.
+Missing runs are listed and the whole output is marked PARTIAL; nothing is called on it then. An
+attempt lost with its checkpoints before its test evaluation (``OUT/lost/<run>/``, see
+:data:`LOST`) is listed with how far it got; the run's rows are its restart's.
 
 ``--collect DIR`` first copies what the analysis reads into ``DIR`` (``grid.json``; per run its
 ``config.yaml``, ``evaluations.csv``, ``batches.csv`` gzipped, ``eval/evaluation.*``, ``done.json``
@@ -131,28 +133,41 @@ def _runs(out: Path) -> dict[str, dict[int, Path]]:
 ORDER_EVENTS = ("order_changed", "order_locked")
 
 
+#: an attempt of a run that was lost with its checkpoints before its test evaluation (the machine
+#: went away); the run restarted from frame 0 with the same seed (docs/protocol.md, Deviations).
+#: ``OUT/lost/<run>/`` holds what had been collected of it; the report lists how far it got.
+LOST = "lost"
+
+
+def _copy_run(source: Path, target: Path) -> None:
+    """Copy what the analysis reads of one run folder (files it does not have are skipped)."""
+    for file in ("config.yaml", "evaluations.csv", "done.json", "failed.json",
+                 "eval/evaluation.csv", "eval/evaluation.json", "batches.csv.gz"):
+        if (source / file).is_file():
+            (target / file).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(source / file, target / file)
+    if (source / "batches.csv").is_file():
+        target.mkdir(parents=True, exist_ok=True)
+        gzip_copy(source / "batches.csv", target / "batches.csv.gz")
+    if (source / "events.jsonl").is_file():
+        target.mkdir(parents=True, exist_ok=True)
+        kept = [line for line in (source / "events.jsonl").read_text().splitlines()
+                if line and json.loads(line).get("kind") in ORDER_EVENTS]
+        (target / "events.jsonl").write_text("".join(line + "\n" for line in kept))
+
+
 def collect(out: Path, dest: Path) -> Path:
     """Copy what :func:`analyse` and :func:`plot_curves` read from the experiment folder ``out``
     into ``dest`` (same layout; ``batches.csv`` gzipped without a time stamp, ``events.jsonl``
-    cut to :data:`ORDER_EVENTS`); returns ``dest``. Files a run does not have yet are skipped."""
+    cut to :data:`ORDER_EVENTS`; lost attempts under :data:`LOST`); returns ``dest``. Files a run
+    does not have yet are skipped."""
     dest.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(out / "grid.json", dest / "grid.json")
     grid = json.loads((out / "grid.json").read_text())
     for name in [spec["name"] for spec in grid["runs"]]:
-        source, target = out / "runs" / name, dest / "runs" / name
-        for file in ("config.yaml", "evaluations.csv", "done.json", "failed.json",
-                     "eval/evaluation.csv", "eval/evaluation.json"):
-            if (source / file).is_file():
-                (target / file).parent.mkdir(parents=True, exist_ok=True)
-                shutil.copyfile(source / file, target / file)
-        if (source / "batches.csv").is_file():
-            target.mkdir(parents=True, exist_ok=True)
-            gzip_copy(source / "batches.csv", target / "batches.csv.gz")
-        if (source / "events.jsonl").is_file():
-            target.mkdir(parents=True, exist_ok=True)
-            kept = [line for line in (source / "events.jsonl").read_text().splitlines()
-                    if line and json.loads(line).get("kind") in ORDER_EVENTS]
-            (target / "events.jsonl").write_text("".join(line + "\n" for line in kept))
+        _copy_run(out / "runs" / name, dest / "runs" / name)
+        if (out / LOST / name).is_dir():
+            _copy_run(out / LOST / name, dest / LOST / name)
     for file in ("evaluation.csv", "evaluation.json", "done.json"):
         if (out / "scripted" / file).is_file():
             (dest / "scripted").mkdir(parents=True, exist_ok=True)
@@ -322,6 +337,19 @@ def analyse(out: Path, reference: str = "ahrm") -> str:
                 share = f" ({frames / budget:.0%})" if budget else ""
                 lines.append(f"| {method}-seed{seed} | {frames:,}{share} | {latest} | "
                              f"{changed if method == 'ahrm' else '—'} |")
+        lines.append("")
+    lost = [(method, seed) for method, seeds in runs.items() for seed in sorted(seeds)
+            if (out / LOST / f"{method}-seed{seed}").is_dir()]
+    if lost:
+        lines += ["## Attempts lost with their checkpoints, before any test evaluation (docs/protocol.md, "
+                  "Deviations)", "", "Each run below restarted from frame 0 with the same seed and configuration "
+                  "(a new realisation: training is not bit-reproducible across machines); every other row of this "
+                  "report is the restarted run's. The lost attempt never read the test split; how far it got:", "",
+                  "| run | frames the lost attempt reached | its latest interim evaluation (validation) | AHRM order |",
+                  "|---|---|---|---|"]
+        for method, seed in lost:
+            reached, last_eval, order = progress(out / LOST / f"{method}-seed{seed}")
+            lines.append(f"| {method}-seed{seed} | {reached:,} | {last_eval} | {order if method == 'ahrm' else '—'} |")
         lines.append("")
     lines += ["## Every run", "", "| run | successes | touching | time (s, won episodes) | lane agreement | order |",
               "|---|---|---|---|---|---|"]

@@ -160,3 +160,23 @@ def test_the_committed_report_is_what_the_committed_data_give(analysis):
         "--curves docs/experiment-42/interim-curves.png")
     figure = "![interim evaluations against frames](experiment-42/interim-curves.png)"
     assert committed[len(text):].strip() in ("", figure)
+
+
+def test_a_lost_attempt_is_listed_with_how_far_it_got(analysis, tmp_path):
+    """An attempt lost with its checkpoints (OUT/lost/<run>/): collected, listed with its frames
+    and latest interim evaluation; the run's own rows stay the restart's."""
+    out = _experiment(tmp_path)
+    grid = json.loads((out / "grid.json").read_text())
+    (out / "grid.json").write_text(json.dumps({**grid, "out": "/somewhere/experiment-7"}))
+    lost = out / "lost" / "ahrm-seed1"
+    lost.mkdir(parents=True)
+    (lost / "batches.csv").write_text("batch,frames,episodes\n1,128,0\n2,256,1\n")
+    (lost / "evaluations.csv").write_text("episode,frames,episodes,successes,touched_episodes\n1,250,40,3,7\n")
+    (lost / "events.jsonl").write_text('{"kind": "order_changed"}\n')
+    text = analysis.analyse(out)
+    assert "## Attempts lost with their checkpoints" in text
+    assert "| ahrm-seed1 | 256 | 3/40 (7 touching) at 250 | changed |" in text
+    copy = analysis.collect(out, tmp_path / "copy")
+    assert (copy / "lost" / "ahrm-seed1" / "batches.csv.gz").is_file()
+    assert analysis.analyse(copy) == text
+    assert "Attempts lost" not in analysis.analyse(_experiment(tmp_path / "other"))
