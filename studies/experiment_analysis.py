@@ -18,13 +18,16 @@ present), ``runs/<method>-seed<s>/events.jsonl`` (AHRM's ``order_changed`` event
 
 Missing runs are listed and the whole output is marked PARTIAL; nothing is called on it then. An
 attempt lost with its checkpoints before its test evaluation (``OUT/lost/<run>/``, see
-:data:`LOST`) is listed with how far it got; the run's rows are its restart's.
+:data:`LOST`) is listed with how far it got; the run's rows are its restart's. Where runs have
+been through the deploy loop (``OUT/robustness/<run>/robustness.json``, see :data:`ROBUSTNESS`), a
+secondary, descriptive section gives each run's ``ideal`` and ``all`` rows and the pooled ``all``
+row per method; it reads no test episode.
 
 ``--collect DIR`` first copies what the analysis reads into ``DIR`` (``grid.json``; per run its
 ``config.yaml``, ``evaluations.csv``, ``batches.csv`` gzipped, ``eval/evaluation.*``, ``done.json``
 or ``failed.json``, and of ``events.jsonl`` only the priority-order events; the scripted
-controller's ``evaluation.*``), then analyses that copy, so that the committed report can be
-regenerated from committed data (``tests/test_experiment_analysis.py`` does it for
+controller's ``evaluation.*``; each ``robustness.json`` gzipped), then analyses that copy, so that
+the committed report can be regenerated from committed data (``tests/test_experiment_analysis.py`` does it for
 ``docs/experiment-42``).
 """
 
@@ -33,6 +36,7 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
+import gzip
 import json
 import math
 import os
@@ -44,6 +48,7 @@ import numpy as np
 from scipy import stats
 
 from ahrm_stack.log_copies import csv_rows, gzip_copy
+from ahrm_stack.robustness import Row, meets_goal
 
 GOAL_SUCCESS, GOAL_TOUCHING = 0.95, 0.02  # docs/protocol.md
 
@@ -139,6 +144,23 @@ ORDER_EVENTS = ("order_changed", "order_locked")
 LOST = "lost"
 
 
+#: each run's deploy-loop judgement (docs/protocol.md, "the experiment's policies through the deploy
+#: loop"): ``OUT/robustness/<run>/robustness.json`` from ``python -m ahrm_stack.robustness RUN
+#: --no-dose --out OUT/robustness/<run>`` (gzipped in a collected copy); secondary, descriptive.
+ROBUSTNESS = "robustness"
+
+
+def read_robustness(folder: Path) -> dict | None:
+    """``folder/robustness.json`` (or its gzipped copy) as written by ``ahrm_stack.robustness``; None
+    without either."""
+    if (folder / "robustness.json").is_file():
+        return json.loads((folder / "robustness.json").read_text())
+    if (folder / "robustness.json.gz").is_file():
+        with gzip.open(folder / "robustness.json.gz", "rt") as handle:
+            return json.loads(handle.read())
+    return None
+
+
 def _copy_run(source: Path, target: Path) -> None:
     """Copy what the analysis reads of one run folder (files it does not have are skipped)."""
     for file in ("config.yaml", "evaluations.csv", "done.json", "failed.json",
@@ -168,6 +190,9 @@ def collect(out: Path, dest: Path) -> Path:
         _copy_run(out / "runs" / name, dest / "runs" / name)
         if (out / LOST / name).is_dir():
             _copy_run(out / LOST / name, dest / LOST / name)
+        if (out / ROBUSTNESS / name / "robustness.json").is_file():
+            (dest / ROBUSTNESS / name).mkdir(parents=True, exist_ok=True)
+            gzip_copy(out / ROBUSTNESS / name / "robustness.json", dest / ROBUSTNESS / name / "robustness.json.gz")
     for file in ("evaluation.csv", "evaluation.json", "done.json"):
         if (out / "scripted" / file).is_file():
             (dest / "scripted").mkdir(parents=True, exist_ok=True)
@@ -302,6 +327,59 @@ def _per_seed(mine: dict[int, Episodes], theirs: dict[int, Episodes], seeds: lis
     return paired_t(np.array([getattr(mine[s], name).mean() - getattr(theirs[s], name).mean() for s in seeds]))
 
 
+def deploy_loop_section(out: Path, runs: dict[str, dict[int, Path]]) -> list[str]:
+    """The secondary, descriptive section on the runs that have been through the deploy loop
+    (:data:`ROBUSTNESS`): per run its ``ideal`` and ``all`` conditions against the scripted
+    controller on the same episodes and how many conditions meet the robustness goal
+    (:func:`ahrm_stack.robustness.meets_goal`); per method the ``all`` condition pooled over its
+    seeds (Clopper–Pearson 95 %) with the exact sign test against the scripted controller on the
+    paired episodes. [] when no run has been through it."""
+    judged = {(method, seed): data for method, seeds in runs.items() for seed in sorted(seeds)
+              if (data := read_robustness(out / ROBUSTNESS / f"{method}-seed{seed}")) is not None}
+    if not judged:
+        return []
+    waiting = [f"{m}-seed{s}" for m, seeds in runs.items() for s in sorted(seeds) if (m, s) not in judged]
+    lines = ["## Through the deploy loop (secondary, descriptive; docs/protocol.md)", "",
+             "Each run's final policy and the scripted controller through the deploy loop on the sim backend "
+             "with a real arm's imperfections (`python -m ahrm_stack.robustness RUN --no-dose`; episodes of the "
+             "`robustness` seed range, **not** the test split; counted in the simulator). Cells: policy wins / "
+             "scripted wins of the episodes (touching episodes in brackets)."
+             + (f" Not yet through it: {', '.join(waiting)}." if waiting else ""), "",
+             "| run | profile | ideal | all imperfections | conditions meeting the goal |", "|---|---|---|---|---|"]
+    pooled: dict[str, list[tuple[bool, bool, bool, bool]]] = {}
+    for (method, seed), data in judged.items():
+        def records(condition: str, controller: str, data: dict = data) -> list[dict]:
+            return [r for r in data["records"] if r["condition"] == condition and r["controller"] == controller]
+
+        everything = next(c for c in data["conditions"] if c.startswith("all ("))
+        cells = []
+        for condition in ("ideal", everything):
+            mine, theirs = Row.of(records(condition, "policy")), Row.of(records(condition, "scripted"))
+            cells.append(f"{mine.successes}/{theirs.successes} of {mine.episodes} ({mine.touching}/{theirs.touching})")
+        met = sum(meets_goal(records(c, "policy"), records(c, "scripted")) for c in data["conditions"])
+        lines.append(f"| {method}-seed{seed} | {data['profile']} | {cells[0]} | {cells[1]} | "
+                     f"{met} of {len(data['conditions'])} |")
+        theirs_by_seed = {r["seed"]: r for r in records(everything, "scripted")}
+        pooled.setdefault(method, []).extend(
+            (r["success"], r["touched"], theirs_by_seed[r["seed"]]["success"], theirs_by_seed[r["seed"]]["touched"])
+            for r in records(everything, "policy") if r["seed"] in theirs_by_seed)
+    lines += ["", "Pooled over each method's judged seeds, all imperfections together (Clopper–Pearson 95 %; "
+              "exact sign test against the scripted controller on the same episodes: episodes only the policy / "
+              "only the scripted controller won or touched in):", "",
+              "| method | seeds | wins | touching | wins vs scripted | touching vs scripted |",
+              "|---|---|---|---|---|---|"]
+    for method, rows in pooled.items():
+        table = np.array(rows, dtype=bool).reshape(-1, 4)
+        seeds = sum(1 for m, _ in judged if m == method)
+        versus = []
+        for policy, scripted in ((table[:, 0], table[:, 2]), (table[:, 1], table[:, 3])):
+            a, b = int((policy & ~scripted).sum()), int((~policy & scripted).sum())
+            versus.append(f"{a} / {b}, p = {sign_test(a, b):.3g}")
+        lines.append(f"| {method} | {seeds} | {_share(int(table[:, 0].sum()), len(table))} | "
+                     f"{_share(int(table[:, 1].sum()), len(table))} | {versus[0]} | {versus[1]} |")
+    return lines + [""]
+
+
 def analyse(out: Path, reference: str = "ahrm") -> str:
     """The markdown of the registered analysis of the experiment folder ``out``."""
     runs = _runs(out)
@@ -355,8 +433,8 @@ def analyse(out: Path, reference: str = "ahrm") -> str:
               "|---|---|---|---|---|---|"]
     for method, by_seed in episodes.items():
         for seed, e in sorted(by_seed.items()):
-            changed = order_changed(runs[method][seed]) if method == "ahrm" else None
-            order = ("changed" if changed else "order never changed (FHRM)" if changed is False else "—")
+            ever = order_changed(runs[method][seed]) if method == "ahrm" else None
+            order = ("changed" if ever else "order never changed (FHRM)" if ever is False else "—")
             pushed = [a for a in e.lane_agrees if a]
             lanes = f"{sum(a == 'True' for a in pushed)}/{len(pushed)}" if pushed else "—"
             times = e.time[e.success]
@@ -401,6 +479,7 @@ def analyse(out: Path, reference: str = "ahrm") -> str:
     for (other, common, on_success, on_touching, a, b), p_holm in zip(comparisons, adjusted):
         lines.append(f"| {reference} − {other} | {', '.join(map(str, common))} | {_interval(on_success, p_holm)} | "
                      f"{_interval(on_touching)} | {a} only {reference} / {b} only {other}, p = {sign_test(a, b):.3g} |")
+    deploy = deploy_loop_section(out, runs)
     if mine_by_seed:
         won = np.concatenate([e.success for e in mine_by_seed.values()])
         hit = np.concatenate([e.touched for e in mine_by_seed.values()])
@@ -409,7 +488,9 @@ def analyse(out: Path, reference: str = "ahrm") -> str:
                   "", f"success {_share(int(won.sum()), won.size)}, touching "
                   f"{_share(int(hit.sum()), hit.size)}: "
                   + ("not called (partial)" if partial else "met" if met else "not met")]
-    return "\n".join(lines) + "\n"
+    if deploy:
+        lines += [""] + deploy
+    return "\n".join(lines).rstrip("\n") + "\n"
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -180,3 +180,38 @@ def test_a_lost_attempt_is_listed_with_how_far_it_got(analysis, tmp_path):
     assert (copy / "lost" / "ahrm-seed1" / "batches.csv.gz").is_file()
     assert analysis.analyse(copy) == text
     assert "Attempts lost" not in analysis.analyse(_experiment(tmp_path / "other"))
+
+
+def _record(condition, controller, seed, success, touched, time):
+    return {"condition": condition, "controller": controller, "seed": seed, "success": success,
+            "touched": touched, "time": time if success else None, "judged_success": success,
+            "judged_touched": touched, "emergency_stops": 0}
+
+
+def test_runs_through_the_deploy_loop_get_a_secondary_section(analysis, tmp_path):
+    """OUT/robustness/<run>/robustness.json (ahrm_stack.robustness's format): each judged run's ideal
+    and all-imperfections rows, its count of conditions meeting the robustness goal, the pooled row
+    with its sign tests (by hand); runs not yet judged are named; collected gzipped."""
+    out = _experiment(tmp_path)
+    grid = json.loads((out / "grid.json").read_text())
+    (out / "grid.json").write_text(json.dumps({**grid, "out": "/somewhere/experiment-7"}))
+    records = [_record("ideal", "policy", s, True, False, 3.0) for s in (1, 2)]
+    records += [_record("ideal", "scripted", s, True, False, 4.0) for s in (1, 2)]
+    records += [_record("all (jaco2)", "policy", 1, True, True, 3.0),
+                _record("all (jaco2)", "policy", 2, False, False, 0)]
+    records += [_record("all (jaco2)", "scripted", s, True, False, 4.0) for s in (1, 2)]
+    judged = out / "robustness" / "ahrm-seed0"
+    judged.mkdir(parents=True)
+    (judged / "robustness.json").write_text(json.dumps(
+        {"profile": "jaco2", "conditions": ["ideal", "all (jaco2)"], "records": records}))
+    text = analysis.analyse(out)
+    assert "Not yet through it: ahrm-seed1, ls-seed0, ls-seed1." in text
+    # ideal: both won both, policy faster -> goal met; all: the policy won 1 of 2 and touched once -> missed
+    assert "| ahrm-seed0 | jaco2 | 2/2 of 2 (0/0) | 1/2 of 2 (1/0) | 1 of 2 |" in text
+    low, high = analysis.clopper_pearson(1, 2)
+    assert f"| ahrm | 1 | 1/2 (50.0% [{low:.1%}, {high:.1%}]) |" in text
+    assert "| 0 / 1, p = 1 | 1 / 0, p = 1 |" in text  # only scripted won seed 2; only the policy touched
+    copy = analysis.collect(out, tmp_path / "copy")
+    assert (copy / "robustness" / "ahrm-seed0" / "robustness.json.gz").is_file()
+    assert analysis.analyse(copy) == text
+    assert "deploy loop" not in analysis.analyse(_experiment(tmp_path / "other"))
