@@ -25,7 +25,7 @@ row per method; it reads no test episode.
 
 ``--collect DIR`` first copies what the analysis reads into ``DIR`` (``grid.json``; per run its
 ``config.yaml``, ``evaluations.csv``, ``batches.csv`` gzipped, ``eval/evaluation.*``, ``done.json``
-or ``failed.json``, and of ``events.jsonl`` only the priority-order events; the scripted
+or ``failed.json``, the final ``policy.pt``, and of ``events.jsonl`` only the priority-order events; the scripted
 controller's ``evaluation.*``; each ``robustness.json`` gzipped), then analyses that copy, so that
 the committed report can be regenerated from committed data (``tests/test_experiment_analysis.py`` does it for
 ``docs/experiment-42``).
@@ -163,7 +163,7 @@ def read_robustness(folder: Path) -> dict | None:
 
 def _copy_run(source: Path, target: Path) -> None:
     """Copy what the analysis reads of one run folder (files it does not have are skipped)."""
-    for file in ("config.yaml", "evaluations.csv", "done.json", "failed.json",
+    for file in ("config.yaml", "evaluations.csv", "done.json", "failed.json", "policy.pt",
                  "eval/evaluation.csv", "eval/evaluation.json", "batches.csv.gz"):
         if (source / file).is_file():
             (target / file).parent.mkdir(parents=True, exist_ok=True)
@@ -338,13 +338,18 @@ def deploy_loop_section(out: Path, runs: dict[str, dict[int, Path]]) -> list[str
               if (data := read_robustness(out / ROBUSTNESS / f"{method}-seed{seed}")) is not None}
     if not judged:
         return []
-    waiting = [f"{m}-seed{s}" for m, seeds in runs.items() for s in sorted(seeds) if (m, s) not in judged]
+    unjudged = [(f"{m}-seed{s}", path) for m, seeds in runs.items() for s, path in sorted(seeds.items())
+                if (m, s) not in judged]
+    lost = [name for name, path in unjudged if (path / "done.json").is_file() and not (path / "policy.pt").is_file()]
+    waiting = [name for name, _ in unjudged if name not in lost]
     lines = ["## Through the deploy loop (secondary, descriptive; docs/protocol.md)", "",
              "Each run's final policy and the scripted controller through the deploy loop on the sim backend "
              "with a real arm's imperfections (`python -m ahrm_stack.robustness RUN --no-dose`; episodes of the "
              "`robustness` seed range, **not** the test split; counted in the simulator). Cells: policy wins / "
              "scripted wins of the episodes (touching episodes in brackets)."
-             + (f" Not yet through it: {', '.join(waiting)}." if waiting else ""), "",
+             + (f" Not yet through it: {', '.join(waiting)}." if waiting else "")
+             + (f" Finished, but its final policy is lost (not in the run folder): {', '.join(lost)}." if lost else ""),
+             "",
              "| run | profile | ideal | all imperfections | conditions meeting the goal |", "|---|---|---|---|---|"]
     pooled: dict[str, list[tuple[bool, bool, bool, bool]]] = {}
     for (method, seed), data in judged.items():

@@ -204,8 +204,12 @@ def test_runs_through_the_deploy_loop_get_a_secondary_section(analysis, tmp_path
     judged.mkdir(parents=True)
     (judged / "robustness.json").write_text(json.dumps(
         {"profile": "jaco2", "conditions": ["ideal", "all (jaco2)"], "records": records}))
+    for name in ("ahrm-seed1", "ls-seed1"):  # finished; ls-seed1's policy is there, ahrm-seed1's lost
+        (out / "runs" / name / "done.json").write_text("{}")
+    (out / "runs" / "ls-seed1" / "policy.pt").write_bytes(b"weights")
     text = analysis.analyse(out)
-    assert "Not yet through it: ahrm-seed1, ls-seed0, ls-seed1." in text
+    assert "Not yet through it: ls-seed0, ls-seed1. Finished, but its final policy is lost" in text
+    assert "(not in the run folder): ahrm-seed1." in text
     # ideal: both won both, policy faster -> goal met; all: the policy won 1 of 2 and touched once -> missed
     assert "| ahrm-seed0 | jaco2 | 2/2 of 2 (0/0) | 1/2 of 2 (1/0) | 1 of 2 |" in text
     low, high = analysis.clopper_pearson(1, 2)
@@ -213,5 +217,24 @@ def test_runs_through_the_deploy_loop_get_a_secondary_section(analysis, tmp_path
     assert "| 0 / 1, p = 1 | 1 / 0, p = 1 |" in text  # only scripted won seed 2; only the policy touched
     copy = analysis.collect(out, tmp_path / "copy")
     assert (copy / "robustness" / "ahrm-seed0" / "robustness.json.gz").is_file()
+    assert (copy / "runs" / "ls-seed1" / "policy.pt").read_bytes() == b"weights"
     assert analysis.analyse(copy) == text
     assert "deploy loop" not in analysis.analyse(_experiment(tmp_path / "other"))
+
+
+def test_the_deploy_loop_script_skips_what_it_cannot_judge(tmp_path):
+    """tools/experiment_deploy_loop.sh names every run it skips and why (no policy is run here);
+    without a grid it stops with a one-line error."""
+    import subprocess
+    out = _experiment(tmp_path)
+    (out / "runs" / "ahrm-seed1" / "done.json").write_text("{}")
+    (out / "robustness" / "ls-seed0").mkdir(parents=True)
+    (out / "robustness" / "ls-seed0" / "robustness.json").write_text("{}")
+    script = ROOT / "tools" / "experiment_deploy_loop.sh"
+    done = subprocess.run(["bash", str(script), str(out)], capture_output=True, text=True,
+                          env={"PYTHON": sys.executable, "PATH": "/usr/bin:/bin"}, check=True)
+    assert done.stdout.splitlines() == ["ahrm-seed0: not finished, skipped",
+                                        "ahrm-seed1: finished, but its final policy is lost, skipped",
+                                        "ls-seed0: judged before, skipped", "ls-seed1: not finished, skipped"]
+    failed = subprocess.run(["bash", str(script), str(tmp_path / "nothing")], capture_output=True, text=True)
+    assert failed.returncode == 2 and failed.stderr.count("\n") == 1 and "grid.json not found" in failed.stderr
