@@ -29,6 +29,7 @@ import csv
 import json
 import os
 import random
+import shutil
 import signal
 import subprocess
 import sys
@@ -295,7 +296,8 @@ def main() -> int:
     cli.add_verbose_flag(parser)
     parser.add_argument("--kills", type=int, default=10)
     parser.add_argument("--seed", type=int, default=0, help="of the kill times")
-    parser.add_argument("--workdir", help="where the runs go (default: a temporary folder)")
+    parser.add_argument("--workdir", help="where the runs go, kept (default: a temporary folder, removed "
+                        "at the end unless a problem was found)")
     parser.add_argument("overrides", nargs="*", help="key=value on top of the tiny run")
     args = parser.parse_args()
     cli.quiet(args.verbose)
@@ -312,6 +314,8 @@ def main() -> int:
           f"each start is killed at a time drawn uniformly from [0, start-up + the share of the "
           f"training still to do]; folder {workdir}")
     report = kill_and_resume(workdir, kills, overrides, timing)
+    if not args.workdir and not report.problems:
+        shutil.rmtree(workdir, ignore_errors=True)
     print("    start    when                        folder at the kill                     the start said")
     for i, attempt in enumerate(report.attempts):
         when = f"killed at {attempt.killed_at:5.2f} s" if attempt.killed_at is not None else "ran to the end"
@@ -323,6 +327,7 @@ def main() -> int:
     if report.problems:
         for problem in report.problems:
             print(f"PROBLEM: {problem}")
+        print(f"the runs are kept for inspection in {workdir}")
         return 1
     print("every resume completed; episodes.csv numbers 1..N exactly once, N = the trainer's count")
     return 0
