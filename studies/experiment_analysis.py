@@ -13,7 +13,10 @@ present), ``runs/<method>-seed<s>/events.jsonl`` (AHRM's ``order_changed`` event
   the scripted controller the exact sign test on the paired episodes;
 * the reference (AHRM) against each other method: the mean per-seed difference (paired by seed)
   with its 95 % t-interval and p, Holm-adjusted over the comparisons (success: H1–H3), and for
-  touching the same plus the exact sign test on paired episodes (same seed, same episode);
+  touching the same plus the exact sign test on paired episodes (same seed, same episode); the
+  same t-interval for the time to success on the episodes both runs of a seed won, and the exact
+  sign test on episodes pushed out by the lane the planner did not choose;
+* per run, its time to success against the scripted controller's on the episodes both won;
 * the goal: the reference's pooled success ≥ 95 % and touching ≤ 2 %.
 
 Missing runs are listed and the whole output is marked PARTIAL; nothing is called on it then. An
@@ -43,6 +46,7 @@ import os
 import shutil
 import sys
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 from scipy import stats
@@ -385,6 +389,28 @@ def deploy_loop_section(out: Path, runs: dict[str, dict[int, Path]]) -> list[str
     return lines + [""]
 
 
+def both_won_times(mine: Episodes, theirs: Episodes) -> tuple[float, float, int]:
+    """(``mine``'s, ``theirs``' mean s to success, episodes) over the episodes both won, the same
+    episodes in the same order (nan, nan, 0 without one)."""
+    both = mine.success & theirs.success
+    if not both.any():
+        return math.nan, math.nan, 0
+    return float(mine.time[both].mean()), float(theirs.time[both].mean()), int(both.sum())
+
+
+def _wrong_lane(e: Episodes) -> np.ndarray:
+    """Per episode: the cube left by the lane the planner did not choose."""
+    return np.array([a == "False" for a in e.lane_agrees])
+
+
+def _discordant(mine: dict[int, Episodes], theirs: dict[int, Episodes], seeds: list[int],
+                event: Callable[[Episodes], np.ndarray]) -> tuple[int, int]:
+    """Paired episodes (same seed, same episode) with ``event`` only in ``mine`` / only in ``theirs``."""
+    a = sum(int((event(mine[s]) & ~event(theirs[s])).sum()) for s in seeds)
+    b = sum(int((~event(mine[s]) & event(theirs[s])).sum()) for s in seeds)
+    return a, b
+
+
 def analyse(out: Path, reference: str = "ahrm") -> str:
     """The markdown of the registered analysis of the experiment folder ``out``."""
     runs = _runs(out)
@@ -434,8 +460,10 @@ def analyse(out: Path, reference: str = "ahrm") -> str:
             reached, last_eval, order = progress(out / LOST / f"{method}-seed{seed}")
             lines.append(f"| {method}-seed{seed} | {reached:,} | {last_eval} | {order if method == 'ahrm' else '—'} |")
         lines.append("")
-    lines += ["## Every run", "", "| run | successes | touching | time (s, won episodes) | lane agreement | order |",
-              "|---|---|---|---|---|---|"]
+    lines += ["## Every run", "", "Time vs scripted: the run's and the scripted controller's mean s to success on the "
+              "test episodes both won (their number).", "",
+              "| run | successes | touching | time (s, won episodes) | time vs scripted (s) | lane agreement | order |",
+              "|---|---|---|---|---|---|---|"]
     for method, by_seed in episodes.items():
         for seed, e in sorted(by_seed.items()):
             ever = order_changed(runs[method][seed]) if method == "ahrm" else None
@@ -444,8 +472,12 @@ def analyse(out: Path, reference: str = "ahrm") -> str:
             lanes = f"{sum(a == 'True' for a in pushed)}/{len(pushed)}" if pushed else "—"
             times = e.time[e.success]
             time = f"{float(times.mean()):.2f}" if times.size else "— (no win)"
+            versus_time = "—"
+            if scripted is not None and scripted.success.size == e.success.size:
+                t_mine, t_scripted, both = both_won_times(e, scripted)
+                versus_time = f"{t_mine:.2f} / {t_scripted:.2f} ({both})" if both else "— (none both won)"
             lines.append(f"| {method}-seed{seed} | {int(e.success.sum())}/{e.success.size} | "
-                         f"{int(e.touched.sum())} | {time} | {lanes} | {order} |")
+                         f"{int(e.touched.sum())} | {time} | {versus_time} | {lanes} | {order} |")
     lines += ["", "## Pooled over seeds (Clopper–Pearson 95 %); against the scripted controller on the same "
               "episodes (exact sign test: discordant episodes)", "",
               "| method | seeds | successes | touching | success vs scripted | touching vs scripted |",
@@ -468,22 +500,32 @@ def analyse(out: Path, reference: str = "ahrm") -> str:
                      f"{_share(int(scripted.touched.sum()), scripted.touched.size)} | | |")
     others = [m for m in episodes if m != reference]
     mine_by_seed = episodes.get(reference, {})
-    comparisons: list[tuple[str, list[int], Stat, Stat, int, int]] = []
+    comparisons = []
     for other in others:
         theirs_by_seed = episodes[other]
         common = sorted(set(mine_by_seed) & set(theirs_by_seed))
-        a = sum(int((mine_by_seed[s].touched & ~theirs_by_seed[s].touched).sum()) for s in common)
-        b = sum(int((~mine_by_seed[s].touched & theirs_by_seed[s].touched).sum()) for s in common)
+        timed = [s for s in common if both_won_times(mine_by_seed[s], theirs_by_seed[s])[2]]
+        on_time = paired_t(np.array([np.subtract(*both_won_times(mine_by_seed[s], theirs_by_seed[s])[:2])
+                                     for s in timed]))
         comparisons.append((other, common, _per_seed(mine_by_seed, theirs_by_seed, common, "success"),
-                            _per_seed(mine_by_seed, theirs_by_seed, common, "touched"), a, b))
+                            _per_seed(mine_by_seed, theirs_by_seed, common, "touched"),
+                            _discordant(mine_by_seed, theirs_by_seed, common, lambda e: e.touched),
+                            (timed, on_time), _discordant(mine_by_seed, theirs_by_seed, common, _wrong_lane)))
     adjusted = holm([c[2][3] for c in comparisons])
     lines += ["", f"## {reference} − each method, paired by seed (95 % t-interval over seeds; success: "
-              "H1–H3 with Holm; touching: secondary, uncorrected, with the exact sign test on paired episodes)",
-              "", "| comparison | paired seeds | success | touching | touching: discordant episodes |",
-              "|---|---|---|---|---|"]
-    for (other, common, on_success, on_touching, a, b), p_holm in zip(comparisons, adjusted):
+              "H1–H3 with Holm; touching, time and lanes: secondary, uncorrected; exact sign tests on paired episodes)",
+              "", "Time: per seed, the difference of the mean s to success over the test episodes both runs of that "
+              "seed won (seeds without such an episode are left out). Wrong lane: the cube left by the lane the "
+              "planner did not choose.", "",
+              "| comparison | paired seeds | success | touching | touching: discordant episodes | time (s, both won) "
+              "| wrong lane: discordant episodes |", "|---|---|---|---|---|---|---|"]
+    for comparison, p_holm in zip(comparisons, adjusted):
+        other, common, on_success, on_touching, (a, b), (timed, on_time), (c, d) = comparison
+        time_cell = "— (no seed with a joint win)" if not timed else (
+            _interval(on_time) + ("" if timed == common else f" (seeds {', '.join(map(str, timed))})"))
         lines.append(f"| {reference} − {other} | {', '.join(map(str, common))} | {_interval(on_success, p_holm)} | "
-                     f"{_interval(on_touching)} | {a} only {reference} / {b} only {other}, p = {sign_test(a, b):.3g} |")
+                     f"{_interval(on_touching)} | {a} only {reference} / {b} only {other}, p = {sign_test(a, b):.3g} | "
+                     f"{time_cell} | {c} only {reference} / {d} only {other}, p = {sign_test(c, d):.3g} |")
     deploy = deploy_loop_section(out, runs)
     if mine_by_seed:
         won = np.concatenate([e.success for e in mine_by_seed.values()])

@@ -35,10 +35,13 @@ def test_statistics_by_hand(analysis):
     assert analysis._interval(analysis.paired_t(np.array([0.05]))) == "+0.050 (one seed: no interval, no test)"
 
 
-def _evaluation(path: Path, success, touched):
-    path.mkdir(parents=True)
+def _evaluation(path: Path, success, touched, times=None, lanes=None):
+    path.mkdir(parents=True, exist_ok=True)
+    times = times or [3.0] * len(success)
+    lanes = lanes or ["True"] * len(success)
     rows = ["success,touched_steps,time_to_success,lane_agrees"]
-    rows += [f"{s},{int(t)},{3.0 if s else 'nan'},{'True' if s else ''}" for s, t in zip(success, touched)]
+    rows += [f"{s},{int(t)},{time if s else 'nan'},{lane if s else ''}"
+             for s, t, time, lane in zip(success, touched, times, lanes)]
     (path / "evaluation.csv").write_text("\n".join(rows) + "\n")
 
 
@@ -63,9 +66,9 @@ def _experiment(tmp_path: Path, skip: str | None = None) -> Path:
 def test_the_analysis_of_a_synthetic_experiment(analysis, tmp_path):
     text = analysis.analyse(_experiment(tmp_path))
     assert "PARTIAL" not in text
-    assert "| ahrm-seed0 | 4/4 | 1 | 3.00 | 4/4 | changed |" in text
-    assert "| ahrm-seed1 | 3/4 | 0 | 3.00 | 3/3 | order never changed (FHRM) |" in text
-    assert "| ls-seed1 | 2/4 | 1 | 3.00 | 2/2 | — |" in text
+    assert "| ahrm-seed0 | 4/4 | 1 | 3.00 | 3.00 / 3.00 (4) | 4/4 | changed |" in text
+    assert "| ahrm-seed1 | 3/4 | 0 | 3.00 | 3.00 / 3.00 (3) | 3/3 | order never changed (FHRM) |" in text
+    assert "| ls-seed1 | 2/4 | 1 | 3.00 | 3.00 / 3.00 (2) | 2/2 | — |" in text
     # pooled: ahrm 7/8 successes, 1/8 touching; against the scripted controller 0 / 1 discordant
     assert "| ahrm | 2 | 7/8 (87.5%" in text and "| 0 / 1, p = 1 | 1 / 0, p = 1 |" in text
     # ahrm - ls per seed: success 1 - 0.25 = 0.75, 0.75 - 0.5 = 0.25; mean 0.5, 1 df
@@ -238,3 +241,26 @@ def test_the_deploy_loop_script_skips_what_it_cannot_judge(tmp_path):
                                         "ls-seed0: judged before, skipped", "ls-seed1: not finished, skipped"]
     failed = subprocess.run(["bash", str(script), str(tmp_path / "nothing")], capture_output=True, text=True)
     assert failed.returncode == 2 and failed.stderr.count("\n") == 1 and "grid.json not found" in failed.stderr
+
+
+def test_time_and_wrong_lanes_on_paired_episodes(analysis, tmp_path):
+    """Time on the episodes both runs of a seed won (by hand), against the scripted controller per
+    run, and the sign test on wrong-lane episodes."""
+    out = _experiment(tmp_path)
+    # seed 0: ahrm wins all four in 2, 2, 4, 4 s; ls wins episode 0 only, in 5 s -> both won: episode 0,
+    # difference 2 - 5 = -3. Seed 1: ahrm wins 0-2 in 3, 3, 3 s; ls wins 0-1 in 4, 6 s -> both won 0, 1:
+    # 3 - 5 = -2. Mean -2.5, 1 df, se = sd(-3, -2) / sqrt 2 = 0.5
+    _evaluation(out / "runs" / "ahrm-seed0" / "eval", [True] * 4, [False, False, False, True], [2, 2, 4, 4],
+                ["True", "False", "True", "True"])
+    _evaluation(out / "runs" / "ls-seed0" / "eval", [True, False, False, False], [True, True, False, True],
+                [5, 0, 0, 0])
+    _evaluation(out / "runs" / "ahrm-seed1" / "eval", [True, True, True, False], [False] * 4, [3, 3, 3, 0])
+    _evaluation(out / "runs" / "ls-seed1" / "eval", [True, True, False, False], [True, False, False, False],
+                [4, 6, 0, 0], ["False", "False", "", ""])
+    text = analysis.analyse(out)
+    assert "| ahrm-seed0 | 4/4 | 1 | 3.00 | 3.00 / 3.00 (4) | 3/4 | changed |" in text  # scripted: 3 s on all
+    assert "| ls-seed1 | 2/4 | 1 | 5.00 | 5.00 / 3.00 (2) | 0/2 | — |" in text
+    half = 12.7062 * 0.5
+    assert f"| {-2.5:+.3f} [{-2.5 - half:+.3f}, {-2.5 + half:+.3f}], p = " in text
+    # wrong lane: ahrm seed 0 episode 1 (ls did not push it); ls seed 1 episodes 0 and 1 -> 1 / 2
+    assert "| 1 only ahrm / 2 only ls, p = 1 |" in text
