@@ -269,19 +269,16 @@ def interim_curves(out: Path) -> dict[str, dict[int, list[tuple[int, float, floa
 
 
 def seed_band(values: list[float]) -> tuple[float, float, float]:
-    """(mean, low, high) over the seeds: the 95 % t-interval from three seeds on, the seeds' range
-    for two, the value itself for one."""
+    """(mean, lowest, highest) over the seeds: the registered band (docs/protocol.md, Metrics: "a
+    band from the lowest to the highest seed")."""
     v = np.asarray(values, dtype=float)
-    if v.size > 2:
-        mean, low, high, _ = paired_t(v)
-        return mean, low, high
     return float(v.mean()), float(v.min()), float(v.max())
 
 
 def plot_curves(out: Path, path: Path) -> Path | None:
     """Success and touching shares of the interim (validation) evaluations against frames, per
-    method: the mean over the seeds that reached each point, a band of the 95 % t-interval over
-    them (the seeds' range where only two have it, nothing for one), and each seed thin."""
+    method: the mean over the seeds that reached each point, a band from the lowest to the highest
+    of them (:func:`seed_band`), and each seed thin."""
     from ahrm_stack.learning.diagnostics import pyplot, save_figure
 
     curves = interim_curves(out)
@@ -303,8 +300,10 @@ def plot_curves(out: Path, path: Path) -> Path | None:
                 high.append(hi)
             ax.plot(frames, mean, color=color, lw=2, label=f"{method} ({len(by_seed)} seeds)")
             ax.fill_between(frames, low, high, color=color, alpha=0.2)
-    axes[0].set_title("success share, interim evaluations (validation episodes)")
-    axes[1].set_title("touching share, interim evaluations (validation episodes)")
+    fig.suptitle("interim evaluations on validation episodes: mean over seeds, band from the lowest to the "
+                 "highest seed, each seed thin", fontsize=10)
+    axes[0].set_title("success share")
+    axes[1].set_title("touching share")
     for ax in axes:
         ax.set_xlabel("training frames")
         ax.set_ylim(-0.02, 1.02)
