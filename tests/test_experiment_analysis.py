@@ -215,7 +215,9 @@ def test_runs_through_the_deploy_loop_get_a_secondary_section(analysis, tmp_path
     assert "| ahrm-seed0 | jaco2 | 2/2 of 2 (0/0) | 1/2 of 2 (1/0) | 1 of 2 |" in text
     low, high = analysis.clopper_pearson(1, 2)
     assert f"| ahrm | 1 | 1/2 (50.0% [{low:.1%}, {high:.1%}]) |" in text
-    assert "| 0 / 1, p = 1 | 1 / 0, p = 1 |" in text  # only scripted won seed 2; only the policy touched
+    deploy = text[text.index("## Through the deploy loop"):]
+    # only the scripted controller won seed 2; only the policy touched
+    assert deploy.rstrip().endswith("| 0 / 1, p = 1 | 1 / 0, p = 1 |")
     copy = analysis.collect(out, tmp_path / "copy")
     assert (copy / "robustness" / "ahrm-seed0" / "robustness.json.gz").is_file()
     assert (copy / "runs" / "ls-seed1" / "policy.pt").read_bytes() == b"weights"
@@ -255,10 +257,31 @@ def test_time_and_wrong_lanes_on_paired_episodes(analysis, tmp_path):
     _evaluation(out / "runs" / "ahrm-seed1" / "eval", [True, True, True, False], [False] * 4, [3, 3, 3, 0])
     _evaluation(out / "runs" / "ls-seed1" / "eval", [True, True, False, False], [True, False, False, False],
                 [4, 6, 0, 0], ["False", "False", "", ""])
+    _evaluation(out / "scripted", [True] * 4, [False] * 4, [1, 2, 3, 10])
     text = analysis.analyse(out)
-    assert "| ahrm-seed0 | 4/4 | 1 | 3.00 | 3.00 / 3.00 (4) | 3/4 | changed |" in text  # scripted: 3 s on all
-    assert "| ls-seed1 | 2/4 | 1 | 5.00 | 5.00 / 3.00 (2) | 0/2 | — |" in text
+    # against the scripted controller on the episodes both won: ahrm seed 0 all four (3 vs 16/4);
+    # ahrm seed 1 episodes 0-2 (3 vs 2); ls seed 1 episodes 0, 1 (5 vs 1.5)
+    assert "| ahrm-seed0 | 4/4 | 1 | 3.00 | 3.00 / 4.00 (4) | 3/4; 0 of 1 wrong-lane touching | changed |" in text
+    assert "| ahrm-seed1 | 3/4 | 0 | 3.00 | 3.00 / 2.00 (3) | 3/3 | order never changed (FHRM) |" in text
+    assert "| ls-seed1 | 2/4 | 1 | 5.00 | 5.00 / 1.50 (2) | 0/2; 1 of 2 wrong-lane touching | — |" in text
+    # each run against the scripted controller: ls seed 1 lost episodes 2, 3 (0 / 2, p = 0.5), touched
+    # in episode 0 (1 / 0), left episodes 0, 1 by a wrong lane (2 / 0, p = 0.5)
+    assert "| ls-seed1 | 0 / 2, p = 0.5 | 1 / 0, p = 1 | 2 / 0, p = 0.5 |" in text
     half = 12.7062 * 0.5
-    assert f"| {-2.5:+.3f} [{-2.5 - half:+.3f}, {-2.5 + half:+.3f}], p = " in text
+    t = 2.5 / 0.5
+    p = 2 * (0.5 - math.atan(t) / math.pi)  # two-sided, 1 df (Cauchy): closed form
+    assert (f"| {-2.5:+.3f} [{-2.5 - half:+.3f}, {-2.5 + half:+.3f}], p = {p:.3g} "
+            "(episodes both won, by seed: 0: 1, 1: 2) |") in text
     # wrong lane: ahrm seed 0 episode 1 (ls did not push it); ls seed 1 episodes 0 and 1 -> 1 / 2
     assert "| 1 only ahrm / 2 only ls, p = 1 |" in text
+
+
+def test_the_goal_is_not_applicable_to_planner_assisted_runs(analysis, tmp_path):
+    """The registered goal is for a policy without the planner: planner-assisted runs get no verdict."""
+    for overrides, verdict in ((["profile=scratch"], "not applicable: the goal is for a policy without the planner"),
+                               (["profile=scratch-own-lane"], "not met")):
+        out = _experiment(tmp_path / overrides[0])
+        grid = json.loads((out / "grid.json").read_text())
+        (out / "grid.json").write_text(json.dumps({**grid, "train_overrides": overrides}))
+        goal = analysis.analyse(out).split("## Goal")[1]
+        assert goal.startswith(" (without the planner, ahrm pooled") and verdict in goal
