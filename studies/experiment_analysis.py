@@ -397,7 +397,7 @@ def deploy_loop_section(out: Path, runs: dict[str, dict[int, Path]]) -> list[str
         seeds = sum(1 for m, _ in judged if m == method)
         versus = []
         for policy, scripted in ((table[:, 0], table[:, 2]), (table[:, 1], table[:, 3])):
-            a, b = int((policy & ~scripted).sum()), int((~policy & scripted).sum())
+            a, b = _only(policy, scripted)
             versus.append(f"{a} / {b}, p = {sign_test(a, b):.3g}")
         lines.append(f"| {method} | {seeds} | {_share(int(table[:, 0].sum()), len(table))} | "
                      f"{_share(int(table[:, 1].sum()), len(table))} | {versus[0]} | {versus[1]} |")
@@ -420,14 +420,18 @@ def _wrong_lane(e: Episodes) -> np.ndarray:
     return np.array([a == "False" for a in e.lane_agrees])
 
 
+def _only(mine: np.ndarray, theirs: np.ndarray) -> tuple[int, int]:
+    """Paired boolean outcomes: (true only in ``mine``, true only in ``theirs``), the sign test's counts."""
+    return int((mine & ~theirs).sum()), int((~mine & theirs).sum())
+
+
 def _discordant(mine: dict[int, Episodes], theirs: dict[int, Episodes], seeds: list[int],
                 event: Callable[[Episodes], np.ndarray]) -> tuple[int, int]:
     """Paired episodes (same seed, same episode) with ``event`` only in ``mine`` / only in ``theirs``."""
     if any(mine[s].success.size != theirs[s].success.size for s in seeds):
         raise ValueError("paired evaluations differ in length")
-    a = sum(int((event(mine[s]) & ~event(theirs[s])).sum()) for s in seeds)
-    b = sum(int((~event(mine[s]) & event(theirs[s])).sum()) for s in seeds)
-    return a, b
+    counts = [_only(event(mine[s]), event(theirs[s])) for s in seeds]
+    return sum(a for a, _ in counts), sum(b for _, b in counts)
 
 
 def analyse(out: Path, reference: str = "ahrm") -> str:
@@ -530,7 +534,7 @@ def analyse(out: Path, reference: str = "ahrm") -> str:
             for column, name in enumerate(("success", "touched")):
                 mine = np.concatenate([getattr(e, name) for e, _ in pairs]) if pairs else np.array([], bool)
                 theirs = np.concatenate([getattr(s, name) for _, s in pairs]) if pairs else np.array([], bool)
-                a, b = int((mine & ~theirs).sum()), int((~mine & theirs).sum())
+                a, b = _only(mine, theirs)
                 versus[column] = f"{a} / {b}, p = {sign_test(a, b):.3g}"
         lines.append(f"| {method} | {len(by_seed)} | {_share(int(success.sum()), success.size)} | "
                      f"{_share(int(touched.sum()), touched.size)} | {versus[0]} | {versus[1]} |")
@@ -543,9 +547,9 @@ def analyse(out: Path, reference: str = "ahrm") -> str:
     for other in others:
         theirs_by_seed = episodes[other]
         common = sorted(set(mine_by_seed) & set(theirs_by_seed))
-        timed = [s for s in common if both_won_times(mine_by_seed[s], theirs_by_seed[s])[2]]
-        on_time = paired_t(np.array([np.subtract(*both_won_times(mine_by_seed[s], theirs_by_seed[s])[:2])
-                                     for s in timed]))
+        joint = {s: both_won_times(mine_by_seed[s], theirs_by_seed[s]) for s in common}
+        timed = {s: joint[s] for s in common if joint[s][2]}  # seed -> (mine, theirs, episodes both won)
+        on_time = paired_t(np.array([mine - theirs for mine, theirs, _ in timed.values()]))
         comparisons.append((other, common, _per_seed(mine_by_seed, theirs_by_seed, common, "success"),
                             _per_seed(mine_by_seed, theirs_by_seed, common, "touched"),
                             _discordant(mine_by_seed, theirs_by_seed, common, lambda e: e.touched),
@@ -560,7 +564,7 @@ def analyse(out: Path, reference: str = "ahrm") -> str:
               "| wrong lane: discordant episodes |", "|---|---|---|---|---|---|---|"]
     for comparison, p_holm in zip(comparisons, adjusted):
         other, common, on_success, on_touching, (a, b), (timed, on_time), (c, d) = comparison
-        counts = ", ".join(f"{s}: {both_won_times(mine_by_seed[s], episodes[other][s])[2]}" for s in timed)
+        counts = ", ".join(f"{s}: {n}" for s, (_, _, n) in timed.items())
         time_cell = "— (no seed with a joint win)" if not timed else (
             f"{_interval(on_time)} (episodes both won, by seed: {counts})")
         lines.append(f"| {reference} − {other} | {', '.join(map(str, common))} | {_interval(on_success, p_holm)} | "
