@@ -19,6 +19,9 @@ present), ``runs/<method>-seed<s>/events.jsonl`` (AHRM's ``order_changed`` event
 * per run, its time to success against the scripted controller's on the episodes both won;
 * each run against the scripted controller on the same episodes: exact sign tests on success,
   touching and wrong-lane episodes;
+* the registered hypotheses called (:func:`call_success`, :func:`call_touching`): H1–H3
+  established or not at two-sided α = 0.05 after Holm, H4 (touching) secondary and uncorrected;
+  every call is "not called (partial)" while a run is missing;
 * the goal: without the planner, the reference's pooled success ≥ 95 % and touching ≤ 2 % (not
   applicable to planner-assisted runs, which the report says).
 
@@ -121,6 +124,40 @@ def holm(pvalues: list[float]) -> list[float]:
         running = max(running, min(1.0, (len(order) - rank) * p))
         adjusted[i] = running
     return adjusted
+
+
+ALPHA = 0.05  # two-sided, for H1–H3 after Holm and for H4 uncorrected (docs/protocol.md)
+HYPOTHESES = {"ls": "H1", "mhrm": "H2", "fhrm": "H3"}  # AHRM against each (docs/protocol.md)
+
+
+def call_success(stat: Stat, p_holm: float, partial: bool, reference: str) -> str:
+    """H1–H3's call on the seed-level success difference (``stat``: reference − other, from
+    :func:`paired_t`): established in the direction of its mean when the Holm-adjusted two-sided
+    p is below :data:`ALPHA`, else not established; never called on a partial experiment."""
+    if partial:
+        return "not called (partial)"
+    if math.isnan(p_holm):
+        return "not tested (fewer than 2 paired seeds)"
+    if p_holm < ALPHA:
+        return f"**established**: {reference} {'higher' if stat[0] > 0 else 'lower'} (Holm p = {p_holm:.3g})"
+    return f"not established (Holm p = {p_holm:.3g}; the 95 % interval [{stat[1]:+.3f}, {stat[2]:+.3f}] holds 0)"
+
+
+def call_touching(stat: Stat, only_mine: int, only_theirs: int, partial: bool, reference: str) -> str:
+    """H4's call, secondary and uncorrected: the exact sign test on the paired episodes only one
+    of the two touched in (the protocol's test for rare events), with whether the seed-level
+    t-interval of the touching difference (``stat``) also excludes 0."""
+    if partial:
+        return "not called (partial)"
+    p = sign_test(only_mine, only_theirs)
+    sign = (f"{only_mine} only {reference} / {only_theirs} only the other, p = {p:.3g}: "
+            + (f"{reference} touches {'less' if only_mine < only_theirs else 'more'}" if p < ALPHA
+               else "no difference shown"))
+    if math.isnan(stat[1]):
+        return sign + "; seed level: fewer than 2 seeds"
+    excludes = stat[1] > 0 or stat[2] < 0
+    return sign + f"; seed level {stat[0]:+.3f} [{stat[1]:+.3f}, {stat[2]:+.3f}]" + (
+        ", excludes 0" if excludes else ", holds 0")
 
 
 def order_changed(run_dir: Path) -> bool | None:
@@ -570,6 +607,18 @@ def analyse(out: Path, reference: str = "ahrm") -> str:
         lines.append(f"| {reference} − {other} | {', '.join(map(str, common))} | {_interval(on_success, p_holm)} | "
                      f"{_interval(on_touching)} | {a} only {reference} / {b} only {other}, p = {sign_test(a, b):.3g} | "
                      f"{time_cell} | {c} only {reference} / {d} only {other}, p = {sign_test(c, d):.3g} |")
+    if comparisons:
+        lines += ["", "## The registered hypotheses (docs/protocol.md: H1–H3 two-sided at α = 0.05 with Holm over the "
+                  "three; H4 secondary, uncorrected)", "", "| hypothesis | comparison | call |", "|---|---|---|"]
+        rows = []
+        for comparison, p_holm in zip(comparisons, adjusted):
+            other, _, on_success, on_touching, (a, b), _, _ = comparison
+            name = HYPOTHESES.get(other, "—") if reference == "ahrm" else "—"
+            rows.append((name, f"| {name} | {reference} wins more episodes than {other} | "
+                               f"{call_success(on_success, p_holm, partial, reference)} |"))
+            rows.append(("H4 " + name, f"| H4 (secondary) | {reference} touches in fewer episodes than {other} | "
+                                       f"{call_touching(on_touching, a, b, partial, reference)} |"))
+        lines += [row for _, row in sorted(rows, key=lambda r: (r[0].startswith("H4"), r[0]))]
     deploy = deploy_loop_section(out, runs)
     if mine_by_seed:
         won = np.concatenate([e.success for e in mine_by_seed.values()])

@@ -80,9 +80,34 @@ def test_the_analysis_of_a_synthetic_experiment(analysis, tmp_path):
     assert "touching 1/8" in text and text.rstrip().endswith("not met")
 
 
+def test_the_hypotheses_are_called_as_registered(analysis, tmp_path):
+    """H1–H3: Holm-adjusted two-sided p below 0.05, in the direction of the mean; H4: the exact
+    sign test on paired episodes, uncorrected, with the seed-level interval beside it."""
+    stat = (0.3, 0.1, 0.5, 0.01)
+    assert analysis.call_success(stat, 0.03, False, "ahrm") == "**established**: ahrm higher (Holm p = 0.03)"
+    assert analysis.call_success((-0.3, -0.5, -0.1, 0.01), 0.03, False, "ahrm").startswith(
+        "**established**: ahrm lower")
+    assert analysis.call_success(stat, 0.06, False, "ahrm").startswith("not established (Holm p = 0.06;")
+    assert analysis.call_success(stat, 0.01, True, "ahrm") == "not called (partial)"
+    assert analysis.call_success((0.3, math.nan, math.nan, math.nan), math.nan, False, "ahrm").startswith("not tested")
+    # 0 vs 6 discordant: p = 2 / 64 = 0.03125 < 0.05; 0 vs 5: p = 0.0625
+    assert analysis.call_touching((-0.1, -0.2, -0.01, 0.04), 0, 6, False, "ahrm") == (
+        "0 only ahrm / 6 only the other, p = 0.0312: ahrm touches less; seed level -0.100 [-0.200, -0.010], excludes 0")
+    assert "p = 0.0625: no difference shown; seed level -0.100 [-0.300, +0.100], holds 0" in analysis.call_touching(
+        (-0.1, -0.3, 0.1, 0.2), 0, 5, False, "ahrm")
+    assert analysis.call_touching(stat, 0, 6, True, "ahrm") == "not called (partial)"
+    text = analysis.analyse(_experiment(tmp_path))
+    # ahrm - ls: +0.5, se 0.25 on 1 df: t = 2, p = 2 * (1/2 - atan(2) / pi); one comparison, so Holm p = p
+    p = 2 * (0.5 - math.atan(2) / math.pi)
+    assert f"| H1 | ahrm wins more episodes than ls | not established (Holm p = {p:.3g};" in text
+    assert "| H4 (secondary) | ahrm touches in fewer episodes than ls | 0 only ahrm / 3 only the other, p = 0.25: " \
+           "no difference shown; seed level -0.375 [" in text
+
+
 def test_a_missing_run_makes_it_partial(analysis, tmp_path):
     text = analysis.analyse(_experiment(tmp_path, skip="ls-seed1"))
     assert "**PARTIAL**: missing ls-seed1" in text and text.rstrip().endswith("not called (partial)")
+    assert "| H1 | ahrm wins more episodes than ls | not called (partial) |" in text
     assert analysis.main([str(tmp_path / "nothing")]) == 2
 
 
