@@ -140,7 +140,7 @@ def call_success(stat: Stat, p_holm: float, partial: bool, reference: str) -> st
         return "not tested (fewer than 2 paired seeds)"
     if p_holm < ALPHA:
         return f"**established**: {reference} {'higher' if stat[0] > 0 else 'lower'} (Holm p = {p_holm:.3g})"
-    return f"not established (Holm p = {p_holm:.3g}; the 95 % interval [{stat[1]:+.3f}, {stat[2]:+.3f}] holds 0)"
+    return f"not established (Holm p = {p_holm:.3g}; unadjusted 95 % interval [{stat[1]:+.3f}, {stat[2]:+.3f}])"
 
 
 def call_touching(stat: Stat, only_mine: int, only_theirs: int, partial: bool, reference: str) -> str:
@@ -608,17 +608,19 @@ def analyse(out: Path, reference: str = "ahrm") -> str:
                      f"{_interval(on_touching)} | {a} only {reference} / {b} only {other}, p = {sign_test(a, b):.3g} | "
                      f"{time_cell} | {c} only {reference} / {d} only {other}, p = {sign_test(c, d):.3g} |")
     if comparisons:
-        lines += ["", "## The registered hypotheses (docs/protocol.md: H1–H3 two-sided at α = 0.05 with Holm over the "
-                  "three; H4 secondary, uncorrected)", "", "| hypothesis | comparison | call |", "|---|---|---|"]
-        rows = []
+        lines += ["", f"## The registered hypotheses (docs/protocol.md: H1–H3 two-sided at α = {ALPHA:g} with Holm "
+                  "over the three; H4 secondary, uncorrected)", "",
+                  "| hypothesis | comparison | call |", "|---|---|---|"]
+        calls = []  # (hypothesis, its success row, its touching row), in the protocol's order
         for comparison, p_holm in zip(comparisons, adjusted):
             other, _, on_success, on_touching, (a, b), _, _ = comparison
             name = HYPOTHESES.get(other, "—") if reference == "ahrm" else "—"
-            rows.append((name, f"| {name} | {reference} wins more episodes than {other} | "
-                               f"{call_success(on_success, p_holm, partial, reference)} |"))
-            rows.append(("H4 " + name, f"| H4 (secondary) | {reference} touches in fewer episodes than {other} | "
-                                       f"{call_touching(on_touching, a, b, partial, reference)} |"))
-        lines += [row for _, row in sorted(rows, key=lambda r: (r[0].startswith("H4"), r[0]))]
+            calls.append((name, f"| {name} | {reference} wins more episodes than {other} | "
+                                f"{call_success(on_success, p_holm, partial, reference)} |",
+                          f"| H4 (secondary) | {reference} touches in fewer episodes than {other} | "
+                          f"{call_touching(on_touching, a, b, partial, reference)} |"))
+        calls.sort()
+        lines += [row for _, row, _ in calls] + [row for _, _, row in calls]
     deploy = deploy_loop_section(out, runs)
     if mine_by_seed:
         won = np.concatenate([e.success for e in mine_by_seed.values()])
