@@ -310,3 +310,15 @@ def test_the_goal_is_not_applicable_to_planner_assisted_runs(analysis, tmp_path)
         (out / "grid.json").write_text(json.dumps({**grid, "train_overrides": overrides}))
         goal = analysis.analyse(out).split("## Goal")[1]
         assert goal.startswith(" (without the planner, ahrm pooled") and verdict in goal
+
+
+def test_the_methods_are_ranked_with_seed_level_intervals(analysis, tmp_path):
+    """Per method, the mean of its per-seed success shares with a t-interval over its seeds."""
+    text = analysis.analyse(_experiment(tmp_path))
+    # ahrm: seeds 4/4 and 3/4 -> mean 0.875, sd 0.1768, se 0.125, t(0.975, 1 df) 12.7062: the
+    # interval [-71.3 %, 246.3 %] is clipped to the shares' range
+    assert "| 1 | ahrm | 2 | 87.5% [0.0%, 100.0%]; seeds 75.0%–100.0% | " in text
+    assert analysis.seed_level([0.8, 0.9, 0.85]) == "85.0% [72.6%, 97.4%]; seeds 80.0%–90.0%"  # 4.3027 x 0.05 / sqrt 3
+    # ls: 1/4 and 2/4 -> 37.5 %, ranked second; touching 3/4 and 1/4 -> 50.0 %
+    assert "| 2 | ls | 2 | 37.5% [" in text and "; seeds 25.0%–75.0% |" in text
+    assert analysis.seed_level([0.5]) == "50.0% (one seed: no interval)"
