@@ -445,26 +445,26 @@ def seed_level(shares: list[float]) -> str:
     """Per-seed shares (one per seed, 0–1) as ``mean [95 % t-interval over seeds]`` (percent, the
     interval clipped to 0–100 %), with the lowest and highest seed; one seed: no interval."""
     mean, lo, hi, _ = paired_t(np.array(shares))
-    spread = f"; seeds {min(shares):.1%}–{max(shares):.1%}"
     if math.isnan(lo):
         return f"{mean:.1%} (one seed: no interval)"
-    return f"{mean:.1%} [{max(lo, 0.0):.1%}, {min(hi, 1.0):.1%}]{spread}"
+    return f"{mean:.1%} [{max(lo, 0.0):.1%}, {min(hi, 1.0):.1%}]; seeds {min(shares):.1%}–{max(shares):.1%}"
 
 
 def seed_level_ranking(episodes: dict[str, dict[int, Episodes]]) -> list[str]:
     """The methods ranked by their mean per-seed success share, each with a 95 % t-interval over its
     seeds (seeds are the units; descriptive: the registered tests are the paired comparisons); the
     same for touching."""
-    rows = sorted(((float(np.mean([e.success.mean() for e in by_seed.values()])), method, by_seed)
-                   for method, by_seed in episodes.items() if by_seed), key=lambda row: -row[0])
+    shares = {method: ([float(e.success.mean()) for e in by_seed.values()],
+                       [float(e.touched.mean()) for e in by_seed.values()])
+              for method, by_seed in episodes.items() if by_seed}
+    ranked = sorted(shares, key=lambda method: -float(np.mean(shares[method][0])))
     lines = ["", "## The methods ranked, seed level (per-seed shares of the test episodes: mean and 95 % t-interval "
              "over seeds, clipped to 0–100 %; seeds are the units here; descriptive: the paired comparisons and "
              "the hypotheses below say which differences are established)", "",
              "| rank | method | seeds | success | touching |", "|---|---|---|---|---|"]
-    for rank, (_, method, by_seed) in enumerate(rows, start=1):
-        lines.append(f"| {rank} | {method} | {len(by_seed)} | "
-                     f"{seed_level([e.success.mean() for e in by_seed.values()])} | "
-                     f"{seed_level([e.touched.mean() for e in by_seed.values()])} |")
+    for rank, method in enumerate(ranked, start=1):
+        success, touched = shares[method]
+        lines.append(f"| {rank} | {method} | {len(success)} | {seed_level(success)} | {seed_level(touched)} |")
     return lines
 
 
