@@ -35,6 +35,7 @@ RATIO_LINE = {  # a line each benchmark prints when it got to its figures
     "bench_physics.py": "ratio configured/noslip 0",
     "bench_policy.py": "ratio to the TorchRL deterministic actor",
     "bench_safety.py": "ratios osqp / daqp",
+    "bench_throughput.py": "ratio fast/reference frames/s",
     "bench_training.py": "ratio training/replay",
 }
 

@@ -137,6 +137,8 @@ class TrainConfig(Section):
     dagger_duration: Annotated[Pos, legacy(15.0)]  # s, a round's episode is cut after this much simulated time
     frames: Annotated[NonNegInt, legacy(0)]  # training stops once this many frames are collected (0: ``episodes`` decides)
     eval_every_frames: Annotated[NonNegInt, legacy(0)]  # ... or evaluate every this many frames (0: never); either triggers
+    eval_beside: Annotated[Bool, legacy(False)]  # interim evaluations in a worker process while
+    # training goes on (the same rows; ahrm_stack.learning.interim); false: in the training's process
     time_limit: Annotated[NonNeg, legacy(0.0)]  # s, training episodes are truncated here (0: task.episode.duration);
     # evaluation keeps task.episode.duration
     touch_end: Annotated[bool, legacy(False)]  # a touch of an obstacle ends a training episode as a terminal failure, its

@@ -196,6 +196,12 @@ class EpisodeConfig(Section):
     sleep: Annotated[Bool, legacy(False)]  # MuJoCo's body sleeping in the stepped physics (TaskRunner)
     noslip_iterations: Annotated[NonNegInt, le(LIMITS["noslip_iterations"]), legacy(5)]  # MuJoCo's noslip
     # passes per step (legacy: before 2026-12-03 dm_control's composer arena's 5)
+    integrator: Annotated[Literal["euler", "implicitfast"], legacy("euler")]  # MuJoCo's integrator
+    # (legacy: before 2026-12-06 MuJoCo's default, semi-implicit Euler); implicitfast integrates the
+    # velocity actuators' damping implicitly, stable at the coarser timestep
+    impratio: Annotated[Pos, legacy(1.0)]  # MuJoCo's ratio of frictional to normal constraint
+    # impedance (elliptic cones): above 1 the friction is harder, less slip without noslip passes
+    # (legacy: before 2026-12-06 MuJoCo's default 1)
 
     def check(self, key: str) -> None:
         ratio = self.control_period / self.physics_timestep

@@ -40,6 +40,7 @@ from ahrm_stack.robot import describe, make_arm
 
 CUBE_RGBA = (0.8, 0.1, 0.1, 1.0)
 OBSTACLE_RGBA = (0.2, 0.35, 0.8, 1.0)
+INTEGRATORS = {"euler": "Euler", "implicitfast": "implicitfast"}  # task.episode.integrator -> MJCF's name
 
 
 @dataclasses.dataclass
@@ -137,6 +138,8 @@ class PushOffTask(TaskObservation, composer.Task):
                            physics_timestep=config.episode.physics_timestep)
         # the composer arena sets 5 (with noslip_tolerance 0: every pass runs); the config decides
         self._arena.mjcf_model.option.noslip_iterations = config.episode.noslip_iterations
+        self._arena.mjcf_model.option.integrator = INTEGRATORS[config.episode.integrator]
+        self._arena.mjcf_model.option.impratio = config.episode.impratio
 
         regions = config.regions
         self._region_params = RegionParams(regions.target_half_width, regions.target_height,

@@ -30,7 +30,7 @@ from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.torchrl_env import PushOffEnv
 from ahrm_stack.learning.checkpoint import load
 from ahrm_stack.learning.lane_frame import lane_mirror_for
-from ahrm_stack.learning.ppo import lean_actor, make_modules
+from ahrm_stack.learning.ppo import LeanActor, lean_actor, make_modules
 from ahrm_stack.seeds import evaluation_range
 
 # configs/seeds.yaml: the run's own layouts, validation split (disjoint from training and from test)
@@ -114,9 +114,26 @@ def run_episodes(env: PushOffEnv, policy, episodes: int,
         for i in range(episodes):
             env.set_seed(seed_offset + i)
             env.completed.clear()
-            env.rollout(max_steps=env.task.config.max_steps, policy=policy, break_when_any_done=True)
+            if isinstance(policy, LeanActor):
+                _lean_episode(env, policy)
+            else:
+                env.rollout(max_steps=env.task.config.max_steps, policy=policy, break_when_any_done=True)
             summaries += env.completed
     return summaries
+
+
+def _lean_episode(env: PushOffEnv, policy: LeanActor) -> None:
+    """One episode of ``env.rollout(policy, break_when_any_done=True)`` without TorchRL's per-step
+    TensorDicts: the same resets, observations (one ``flat_observation`` call per state, as the
+    environment's ``_observation`` makes), float32 actions and steps, so the same
+    :attr:`PushOffEnv.completed` summary (``tests/test_rollouts_lean.py`` holds it to the rollout)."""
+    env.begin()
+    observation = torch.as_tensor(env.runner.flat_observation(), dtype=torch.float32)
+    for _ in range(env.task.config.max_steps):
+        _, _, terminated, truncated = env.advance(policy.act(observation).numpy())
+        observation = torch.as_tensor(env.runner.flat_observation(), dtype=torch.float32)
+        if terminated or truncated:
+            return
 
 
 def write_episodes_csv(path: Path, summaries: list[EpisodeSummary],

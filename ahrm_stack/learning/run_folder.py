@@ -19,7 +19,7 @@ import os
 import shutil
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 from ahrm_stack.config import Config, ConfigError
 from ahrm_stack.learning.checkpoint import CheckpointError, CheckpointManager, Restored
@@ -159,6 +159,48 @@ def repair_logs(run_dir: Path, episodes: int, batches: int) -> dict[str, int]:
     return dropped
 
 
+
+@dataclasses.dataclass
+class WallTime:
+    """Where a run's wall time went, in ``timing.json``: the training batches (collection and
+    update; ``batches.csv``'s ``seconds`` summed) and the interim evaluations (wall seconds, and
+    their control steps). Written at each checkpoint and at the end; a resumed run continues the
+    totals of its last write (an evaluation after that write is made again, and counted once)."""
+
+    FILE: ClassVar[str] = "timing.json"
+    batch_seconds: float = 0.0
+    frames: int = 0  # training frames collected in those batches
+    evaluation_seconds: float = 0.0
+    evaluations: int = 0
+    evaluation_steps: int = 0  # control steps the evaluations ran
+
+    @classmethod
+    def read(cls, run_dir: Path) -> "WallTime":
+        path = Path(run_dir) / cls.FILE
+        if not path.is_file():
+            return cls()
+        data = json.loads(path.read_text())
+        return cls(**{f.name: data[f.name] for f in dataclasses.fields(cls) if f.name in data})
+
+    def add_batch(self, seconds: float, frames: int) -> None:
+        self.batch_seconds += seconds
+        self.frames += frames
+
+    def add_evaluation(self, seconds: float, steps: int) -> None:
+        self.evaluation_seconds += seconds
+        self.evaluations += 1
+        self.evaluation_steps += steps
+
+    def write(self, run_dir: Path) -> None:
+        total = self.batch_seconds + self.evaluation_seconds
+        data = {**dataclasses.asdict(self),
+                "evaluation_share": self.evaluation_seconds / total if total > 0 else 0.0,
+                "frames_per_second": self.frames / total if total > 0 else 0.0}
+        path = Path(run_dir) / self.FILE
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(data, indent=2))
+        tmp.replace(path)
+
 class RunLog:
     """CSV, JSONL and TensorBoard logs of one run (appending on resume, after
     :func:`repair_logs` has cut them back to the checkpoint)."""
@@ -202,13 +244,14 @@ class RunLog:
             if isinstance(row.get(key), float):
                 self.tb.add_scalar(f"train/{key}", row[key], row["frames"])
 
-    def evaluation(self, trainer, table) -> None:
-        """One interim deterministic evaluation (``train.eval_every`` / ``eval_every_frames``)."""
-        row = {"episode": trainer.episodes, "frames": trainer.frames, **dataclasses.asdict(table),
+    def evaluation(self, episodes: int, frames: int, table) -> None:
+        """One interim deterministic evaluation (``train.eval_every`` / ``eval_every_frames``) of
+        the policy after ``episodes`` training episodes and ``frames`` frames."""
+        row = {"episode": episodes, "frames": frames, **dataclasses.asdict(table),
                "success_rate": table.success_rate}
         self.evaluations[1].writerow({k: row[k] for k in EVALUATION_FIELDS})
         self.evaluations[0].flush()
-        self.tb.add_scalar("evaluation/success_rate", table.success_rate, trainer.episodes)
+        self.tb.add_scalar("evaluation/success_rate", table.success_rate, episodes)
 
     def event(self, event) -> None:
         self.events.write(json.dumps({"episode": event.episode, "kind": event.kind,

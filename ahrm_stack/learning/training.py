@@ -28,12 +28,10 @@ with warnings.catch_warnings(record=True):
     import torch
     from tqdm import tqdm
 
-    from ahrm_stack.env.realism import nominal
-    from ahrm_stack.env.torchrl_env import PushOffEnv
     from ahrm_stack.learning.checkpoint import CheckpointError, CheckpointManager
     from ahrm_stack.learning.diagnostics import plot_run
-    from ahrm_stack.learning.run_folder import CLONE_POLICY, RunLog, start_run
-    from ahrm_stack.learning.rollouts import VALIDATION_SEED_OFFSET, EvaluationTable, run_episodes
+    from ahrm_stack.learning.run_folder import CLONE_POLICY, RunLog, WallTime, start_run
+    from ahrm_stack.learning.interim import Evaluated, InterimEvaluations
     from ahrm_stack.learning.pool import WorkerError
     from ahrm_stack.learning.trainer import DemonstrationsFailed, Trainer, TrainingDiverged
     from ahrm_stack.safety.constraints.base import ConstraintDefinitionError
@@ -139,14 +137,26 @@ def _train(config: Config, run_dir: Path, resume: bool, progress: bool, rewrite_
     recent: list[bool] = []
     every, every_frames = config.train.eval_every, config.train.eval_every_frames
     interim = bool((every or every_frames) and config.train.eval_episodes)
-    # built once: every interim evaluation replays the same evaluation seeds on this environment
-    eval_env = PushOffEnv(nominal(config.task), config.safety, seed=VALIDATION_SEED_OFFSET) if interim else None
+    timing = WallTime.read(run_dir) if resume else WallTime()  # where the run's wall time went (timing.json)
+
+    def logged(episodes: int, frames: int, evaluated: Evaluated) -> None:
+        log.evaluation(episodes, frames, evaluated.table)
+        timing.add_evaluation(evaluated.seconds, evaluated.steps)
+
+    # every interim evaluation replays the same evaluation seeds on one environment, here or in a
+    # worker process beside training (train.eval_beside)
+    evaluations = InterimEvaluations(config, run_dir, config.train.eval_beside, logged) if interim else None
 
     def evaluate_now() -> None:
-        """One interim deterministic evaluation, logged, with the policy it evaluated."""
-        summaries = run_episodes(eval_env, trainer.modules.actor, config.train.eval_episodes)
-        log.evaluation(trainer, EvaluationTable.from_summaries(summaries))
-        trainer.save_policy(run_dir / "policies" / f"episode-{trainer.episodes:05d}.pt")
+        """One interim deterministic evaluation of the policy now, saved first (what the row evaluated)."""
+        assert evaluations is not None
+        policy_file = run_dir / "policies" / f"episode-{trainer.episodes:05d}.pt"
+        trainer.save_policy(policy_file)
+        evaluations.ask(trainer.modules.actor, policy_file, trainer.episodes, trainer.frames)
+
+    def drain(wait: bool) -> None:
+        if evaluations is not None:
+            evaluations.drain(wait)
 
     evaluated, evaluated_frames = trainer.episodes, trainer.frames
 
@@ -176,6 +186,7 @@ def _train(config: Config, run_dir: Path, resume: bool, progress: bool, rewrite_
             for event in result.events:
                 log.event(event)
             log.batch(result.batch)
+            timing.add_batch(result.batch["seconds"], result.batch["frames"] - timing.frames)
             bar.update(min(result.batch["frames"] - bar.n if by_frames else len(result.episodes),
                            total - bar.n))
             phase = result.episodes[-1]["phases_visited"][-1] if result.episodes else "-"
@@ -184,12 +195,17 @@ def _train(config: Config, run_dir: Path, resume: bool, progress: bool, rewrite_
             if interim and evaluation_due():
                 evaluated, evaluated_frames = trainer.episodes, trainer.frames
                 evaluate_now()
+            drain(wait=False)
             if trainer.batches % config.train.checkpoint_every == 0:
+                drain(wait=True)  # a checkpoint never counts an evaluation whose row is not on disk
+                timing.write(run_dir)
                 log.flush()  # the rows first: a checkpoint never counts a row that is not on disk
                 checkpoints.save(trainer.state_dict(), trainer.batches)
+        drain(wait=True)
         log.flush()
         checkpoints.save(trainer.state_dict(), trainer.batches)
         trainer.save_policy(run_dir / "policy.pt")
+        timing.write(run_dir)
         try:
             plot_run(run_dir)
         except (ValueError, FileNotFoundError) as error:  # a plot is not worth losing the run over
@@ -199,6 +215,8 @@ def _train(config: Config, run_dir: Path, resume: bool, progress: bool, rewrite_
         raise SystemExit(f"training stopped: {first}. The last checkpoint is kept in "
                          f"{checkpoints.directory}; --resume continues from it.\n{rest}".rstrip()) from None
     finally:
+        if evaluations is not None:
+            evaluations.close()
         bar.close()
         log.close()
         trainer.close()
