@@ -32,6 +32,9 @@ class EpisodeSummary:
     constraint_phase: int | None
     interventions: int = 0  # safety-filter calls that modified the command
     joint_limit_violations: int = 0  # steps with a joint outside its position limits (simulator)
+    # the cube left by the planner's lane (ahrm_stack.lane_agreement; training's diagnostics): None
+    # when it was not pushed along a lane, or not measured
+    lane_agrees: bool | None = None
     events: list = dataclasses.field(default_factory=list)
     # the process-wide order in which episodes ended (PushOffEnv), for the trainer to log several
     # environments' episodes in the order the mechanism saw them; not a logged column

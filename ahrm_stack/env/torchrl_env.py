@@ -29,6 +29,7 @@ from torchrl.envs import EnvBase
 from ahrm_stack.config import SafetyConfig, TaskConfig
 from ahrm_stack.env.control_step import action_to_command, check_action_shape  # noqa: F401 (re-exported)
 from ahrm_stack.env.runner import TaskRunner
+from ahrm_stack.lane_agreement import taken_lane
 from ahrm_stack.env.episode import EpisodeRecorder, EpisodeSummary
 from ahrm_stack.names import NUM_OBJECTIVES
 from ahrm_stack.env.task import PushOffTask, StepInfo
@@ -113,6 +114,9 @@ class PushOffEnv(EnvBase):
         transition = self.runner.reset()
         self._monitor = self.mechanism.constraint_monitor() if self.mechanism is not None else None
         self._recorder = EpisodeRecorder(transition.info)
+        physics = self.runner.physics  # the planner's lane at the start (reading only): lane agreement
+        self._planned = self.task.config.layout.lane_directions[self.task.plan_lane(physics)]
+        self._cube_start = self.task.cube_xy(physics).tolist()
         return transition.info
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
@@ -158,6 +162,9 @@ class PushOffEnv(EnvBase):
         phase = self._monitor.violated_phase if constrained else None
         summary = self._recorder.summary(constraint_terminated=constrained, constraint_phase=phase,
                                          joint_limit_violations=self.runner.limit_violations)
+        taken = taken_lane(self._cube_start, self.task.cube_xy(self.runner.physics).tolist(),
+                           self.task.config.cube.size / 2)
+        summary.lane_agrees = None if taken is None else taken == self._planned
         if self.mechanism is not None:
             summary.events = self.mechanism.end_episode(
                 self._recorder.f, self._recorder.phase, constraint_terminated=constrained,

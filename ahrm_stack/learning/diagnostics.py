@@ -53,9 +53,11 @@ def read_episodes(run_dir: Path) -> dict[str, np.ndarray]:
                 out[key] = np.array([v == "True" for v in values])
             elif key in ("phases_visited", "failure_mode", "orders"):
                 out[key] = np.array(values)
+            elif key == "lane_agrees":  # True, False, or blank (not pushed along a lane): 1, 0, NaN
+                out[key] = np.array([{"True": 1.0, "False": 0.0, "": np.nan}[v] for v in values])
             else:
                 out[key] = np.array([float(v) for v in values])
-        except (ValueError, SyntaxError, TypeError) as error:
+        except (ValueError, SyntaxError, TypeError, KeyError) as error:
             raise ValueError(f"{path}: column {key!r} holds a malformed value ({error})") from None
     return out
 
@@ -87,11 +89,83 @@ def save_figure(fig, path: Path, dpi: int) -> Path:
     return path
 
 
+def episode_shares(rows: list[dict]) -> dict[str, float | str]:
+    """A batch's learning diagnostics from the episodes that ended in it (``episodes.csv`` rows):
+    the shares won, that reached the cube (entered phase 3, as :meth:`EpisodeSummary.failure_mode`
+    counts it), that touched an obstacle and that the hierarchy's constraint cut, and among those
+    that pushed the cube along a lane the share by the planner's lane. Blank ("") where no episode
+    counts."""
+    def share(values: list[bool]) -> float | str:
+        return float(np.mean(values)) if values else ""
+
+    lanes = [bool(r["lane_agrees"]) for r in rows if r.get("lane_agrees") is not None]
+    return {"success_share": share([bool(r["success"]) for r in rows]),
+            "reach_share": share([r["phase_steps"][2] > 0 for r in rows]),
+            "touch_share": share([r["touched_steps"] > 0 for r in rows]),
+            "constraint_share": share([bool(r["constraint_terminated"]) for r in rows]),
+            "lane_agreement": share(lanes)}
+
+
+def read_batches(run_dir: Path) -> dict[str, np.ndarray]:
+    """The numeric columns of ``batches.csv`` (blank cells NaN); empty without the file or rows.
+    Runs before a column existed lack it."""
+    path = Path(run_dir) / "batches.csv"
+    if not path.is_file():
+        return {}
+    with open(path, newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    if not rows:
+        return {}
+
+    def number(text: str) -> float:
+        try:
+            return float(text)
+        except ValueError:
+            return float("nan")
+
+    return {key: np.array([number(row[key] or "") for row in rows]) for key in rows[0]}
+
+
+BATCH_SHARES = ("success_share", "reach_share", "touch_share", "constraint_share", "lane_agreement")
+
+
+def _plot_batches(axes, batches: dict[str, np.ndarray]) -> None:
+    """The bottom row: PPO's approximate KL and the policy's std; the batch shares; the start
+    curriculum's level, all against frames."""
+    frames = batches["frames"]
+    ax = axes[0]
+    if "kl_approx" in batches:
+        ax.plot(frames, batches["kl_approx"], label="approximate KL")
+    ax.set_yscale("log")
+    ax.set_title("PPO: approximate KL (log) and policy std")
+    twin = ax.twinx()
+    if "std" in batches:
+        twin.plot(frames, batches["std"], color="tab:red", label="std")
+    twin.set_ylabel("std", color="tab:red")
+    ax.legend(fontsize=8, loc="upper left")
+    ax = axes[1]
+    for key in BATCH_SHARES:
+        if key in batches:
+            ax.plot(frames, batches[key], label=key.replace("_", " "))
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_title("per batch: shares of its episodes")
+    ax.legend(fontsize=7)
+    ax = axes[2]
+    if "curriculum_level" in batches:
+        ax.plot(frames, batches["curriculum_level"], label="start curriculum level")
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_title("start curriculum level")
+    for ax in axes:
+        ax.set_xlabel("frames")
+        ax.grid(alpha=0.3)
+
+
 def plot_run(run_dir: Path, window: int = 20) -> Path:
     plt = pyplot()
     data = read_episodes(run_dir)
     episode = data["episode"]
-    fig, axes = plt.subplots(3, 3, figsize=(15, 11))
+    batches = read_batches(run_dir)
+    fig, axes = plt.subplots(4 if batches else 3, 3, figsize=(15, 15 if batches else 11))
     fig.suptitle(f"{Path(run_dir).name}: {len(episode)} episodes", fontsize=13)
 
     ax = axes[0, 0]
@@ -143,6 +217,8 @@ def plot_run(run_dir: Path, window: int = 20) -> Path:
     for ax in axes.flat:
         ax.set_xlabel("episode")
         ax.grid(alpha=0.3)
+    if batches:
+        _plot_batches(axes[3], batches)
     return save_figure(fig, Path(run_dir) / "diagnostics.png", dpi=80)
 
 

@@ -148,6 +148,7 @@ def write_episodes_csv(path: Path, summaries: list[EpisodeSummary],
     for row in rows:
         row.pop("events", None)
         row.pop("end_order", None)
+        row.pop("lane_agrees", None)  # an evaluation writes its own lane columns (extra)
     with open(path, "w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
         writer.writeheader()

@@ -41,6 +41,7 @@ from torchrl.envs import SerialEnv
 
 from ahrm_stack.config import Config, ConfigError
 from ahrm_stack.env.torchrl_env import PushOffEnv, touch_penalty
+from ahrm_stack.learning.diagnostics import episode_shares
 from ahrm_stack.learning.demonstrations import (bc_loss, collect_corrections, collect_demonstrations,
                                                 warm_start)
 from ahrm_stack.learning.mechanisms import RewardMechanism
@@ -241,6 +242,7 @@ class Trainer:
         episodes, events = self._drain_episodes()
         self._update_curriculum(episodes)
         batch = {k: float(np.mean(v)) for k, v in totals.items()}
+        batch.update(episode_shares(episodes))
         batch.update(batch=self.batches, frames=self.frames, episodes=self.episodes,
                      std=float(self._std().detach()), updates=updates,
                      grad_norm=float(np.mean(grad_norms)) if grad_norms else float("nan"),
