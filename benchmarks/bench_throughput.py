@@ -1,21 +1,27 @@
-"""Training throughput, interim evaluations included, under the reference and a faster physics.
+"""Training throughput, interim evaluations included: today's setup against the faster ones.
 
 Issue 55's benchmark. Trains for a fixed number of frames with ``python -m ahrm_stack.train`` (each
-run a child process, its run folder in a temporary directory) under two physics — ``reference``
-(``configs/``: 2 ms, 25 substeps, 5 noslip passes, Euler: every run so far) and ``fast``
-(``profile=physics-fast``: 5 ms, 10 substeps, no noslip, implicitfast) —
-for two configurations: ``profile=scratch`` (from scratch, the experiment's recipe) and the
-default configuration (``make run``'s: cloning first, whose warm start is not counted). Each run
-has interim evaluations of ``--eval-episodes`` episodes every ``--eval-every`` frames, as the
-experiment's runs have. A run's frames/s is its frames over the wall time of its batches and its
-interim evaluations (``timing.json`` in the run folder); then two ``profile=scratch`` runs side
-by side (the experiment grid's way) under each physics: their frames over the pair's wall time.
+run a child process, its run folder in a temporary directory) in three setups:
 
-Also prints bare physics per control step (the scripted controller's commands replayed on the
-task's model, as ``bench_physics.py`` does) under each physics, and the ratio fast/reference of
-every figure. The physics' fidelity is not measured here: ``studies/physics_fidelity.py``.
+* ``today``: the reference physics (``configs/``: 2 ms, 25 substeps, 5 noslip passes, Euler: every
+  run so far) with the interim evaluations in the training's process (``train.eval_beside=false``,
+  as every run before 2026-12-06 had them; their episode loop is the lean one either way);
+* ``beside``: the same physics, the evaluations in a worker process beside training;
+* ``fast``: ``profile=physics-fast`` (5 ms, 10 substeps, no noslip, implicitfast; not validated,
+  ``docs/physics-fidelity.md``) with the evaluations beside.
 
-Usage: python benchmarks/bench_throughput.py [--frames N] [--eval-every N] [--eval-episodes N] [--quick]
+For ``profile=scratch`` (from scratch, the experiment's recipe) in every setup, and the default
+configuration (``make run``'s: cloning first, the warm start not counted) in ``today`` and
+``fast``. Each run has interim evaluations of ``--eval-episodes`` episodes every ``--eval-every``
+frames, as the experiment's runs have. A run's frames/s is its frames over its training loop's
+wall time (``timing.json`` in the run folder: from the first interim evaluation to the end);
+then two ``profile=scratch`` runs side by side (the experiment grid's way) in ``today`` and
+``fast``: the sum of their frames/s. Also bare physics per control step (the scripted
+controller's commands replayed on the task's model, as ``bench_physics.py`` does) under each
+physics, and the ratios to ``today``. Fidelity is not measured here: ``studies/physics_fidelity.py``.
+
+Usage: python benchmarks/bench_throughput.py [--frames N] [--eval-every N] [--eval-episodes N]
+       [--no-pair] [--quick]
 """
 
 from __future__ import annotations
@@ -38,7 +44,10 @@ from _scripted import QUICK_TRAINING, layout_configs, quick_parser, quiet, recor
 
 ROOT = Path(__file__).resolve().parents[1]
 PHYSICS = {"reference": [], "fast": ["profile=physics-fast"]}  # the overrides of each physics
-CONFIGS = {"scratch": ["profile=scratch"], "default": []}
+SETUPS = {"today": ["train.eval_beside=false"], "beside": ["train.eval_beside=true"],
+          "fast": ["profile=physics-fast", "train.eval_beside=true"]}
+CONFIGS = {"scratch": (["profile=scratch"], ("today", "beside", "fast")), "default": ([], ("today", "fast"))}
+PAIRED = ("today", "fast")  # the setups of the two runs side by side
 
 
 def train(overrides: list[str], runs_dir: Path, name: str) -> subprocess.Popen:
@@ -95,47 +104,47 @@ def main() -> None:
     if args.quick:
         args.frames, args.eval_every, args.eval_episodes = 128, 64, 1
         extra = [*QUICK_TRAINING, "task.episode.duration=6"]
+        args.no_pair = True  # and only the from-scratch runs, today and fast: it checks the benchmark works
     quiet()
     common = [f"train.frames={args.frames}", f"train.eval_every_frames={args.eval_every}",
               f"train.eval_episodes={args.eval_episodes}", "train.eval_every=0", "train.checkpoint_every=1000",
               *extra]
-    rates: dict[tuple[str, str], dict] = {}
+    rates: dict[tuple[str, str], float] = {}
     with tempfile.TemporaryDirectory(prefix="bench-throughput-") as tmp:
         runs_dir = Path(tmp)
-        for config, overrides in CONFIGS.items():
-            for physics, profile in PHYSICS.items():  # one run at a time: the machine to itself
-                name = f"{config}-{physics}"
-                timing = finished(train([*overrides, *profile, *common], runs_dir, name), runs_dir, name)
-                rates[(config, physics)] = timing
-                print(f"{name:18s}: {timing['frames_per_second']:7.1f} frames/s ({timing['frames']} frames, "
-                      f"batches {timing['batch_seconds']:.1f} s, {timing['evaluations']} evaluations "
-                      f"{timing['evaluation_seconds']:.1f} s = {100 * timing['evaluation_share']:.0f} % of "
-                      "the run)", flush=True)
+        for config, (overrides, setups) in CONFIGS.items():
+            if args.quick and config != "scratch":
+                continue
+            for setup in setups if not args.quick else PAIRED:  # one run at a time: the machine to itself
+                name = f"{config}-{setup}"
+                timing = finished(train([*overrides, *SETUPS[setup], *common], runs_dir, name), runs_dir, name)
+                rates[(config, setup)] = timing["frames_per_second"]
+                print(f"{name:15s}: {timing['frames_per_second']:7.1f} frames/s ({timing['frames']} frames in "
+                      f"{timing['loop_seconds']:.1f} s; batches {timing['batch_seconds']:.1f} s; "
+                      f"{timing['evaluations']} evaluations {timing['evaluation_seconds']:.1f} s, "
+                      f"{timing['evaluation_steps']} steps, the loop waited {timing['evaluation_wait_seconds']:.1f} s "
+                      f"= {100 * timing['evaluation_share']:.0f} %)", flush=True)
         pairs = {}
         if not args.no_pair:
-            for physics, profile in PHYSICS.items():
-                names = [f"pair-{physics}-{i}" for i in range(2)]
-                t0 = time.perf_counter()
-                processes = [train([*CONFIGS["scratch"], *profile, *common, f"train.seed={i}"], runs_dir, n)
+            for setup in PAIRED:
+                names = [f"pair-{setup}-{i}" for i in range(2)]
+                processes = [train([*CONFIGS["scratch"][0], *SETUPS[setup], *common, f"train.seed={i}"], runs_dir, n)
                              for i, n in enumerate(names)]
                 timings = [finished(p, runs_dir, n) for p, n in zip(processes, names)]
-                # the pair's rate: each run's frames over its batches and evaluations, summed (the
-                # start-up of the two processes is not training)
-                pairs[physics] = sum(t["frames_per_second"] for t in timings)
-                print(f"two scratch runs side by side, {physics}: {pairs[physics]:7.1f} frames/s in all "
-                      f"({', '.join(str(round(t['frames_per_second'])) for t in timings)}; wall "
-                      f"{time.perf_counter() - t0:.0f} s with start-up)", flush=True)
+                pairs[setup] = sum(t["frames_per_second"] for t in timings)
+                print(f"two scratch runs side by side, {setup}: {pairs[setup]:7.1f} frames/s in all "
+                      f"({', '.join(str(round(t['frames_per_second'])) for t in timings) } each)", flush=True)
     bare = bare_physics(1 if args.quick else 2)
     print(f"bare physics per control step: reference {bare['reference']:.0f} us, fast {bare['fast']:.0f} us")
-    print("ratios fast/reference:")
-    for config in CONFIGS:
-        ratio = rates[(config, "fast")]["frames_per_second"] / rates[(config, "reference")]["frames_per_second"]
-        print(f"  {config}: training frames/s (interim evaluations included) x{ratio:.2f}")
+    print("ratios to today:")
+    for (config, setup), rate in rates.items():
+        if setup != "today":
+            print(f"  {config}, {setup}: training frames/s (interim evaluations included) "
+                  f"x{rate / rates[(config, 'today')]:.2f}")
     if pairs:
-        print(f"  two scratch runs side by side: x{pairs['fast'] / pairs['reference']:.2f}")
-    print(f"  bare physics per control step: x{bare['reference'] / bare['fast']:.2f} faster")
-    scratch = rates[("scratch", "fast")]["frames_per_second"] / rates[("scratch", "reference")]["frames_per_second"]
-    print(f"ratio fast/reference frames/s, scratch: {scratch:.2f}")
+        print(f"  two scratch runs side by side, fast: x{pairs['fast'] / pairs['today']:.2f}")
+    print(f"  bare physics per control step, fast: x{bare['reference'] / bare['fast']:.2f}")
+    print(f"ratio fast/reference frames/s, scratch: {rates[('scratch', 'fast')] / rates[('scratch', 'today')]:.2f}")
 
 
 if __name__ == "__main__":

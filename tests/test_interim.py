@@ -32,3 +32,9 @@ def test_evaluations_beside_training_give_the_in_process_rows(tmp_path):
         assert timing["evaluations"] == 3 and timing["frames"] == 512
         assert timing["evaluation_steps"] == 3 * 2 * 60  # 3 s episodes, no success
         assert 0 < timing["evaluation_share"] < 1
+        assert timing["evaluation_wait_seconds"] <= timing["loop_seconds"]
+        assert timing["batch_seconds"] <= timing["loop_seconds"]
+        assert timing["frames_per_second"] == timing["frames"] / timing["loop_seconds"]
+    # in the training's process, the loop waits for every evaluation
+    inline_t = json.loads((runs[False] / "timing.json").read_text())
+    assert inline_t["evaluation_wait_seconds"] >= 0.9 * inline_t["evaluation_seconds"]

@@ -81,6 +81,7 @@ class InterimEvaluations:
             self._pool = concurrent.futures.ProcessPoolExecutor(
                 1, mp_context=multiprocessing.get_context("spawn"), initializer=_start_worker,
                 initargs=(config,))
+            self._pool.submit(int)  # start the worker (imports, environment) while training sets up
         else:
             self._env = evaluation_env(config)
 

@@ -12,14 +12,16 @@ atomically, and :func:`start_run` checks everything before the first write.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import json
 import os
+import time
 import shutil
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, ClassVar, Iterator
 
 from ahrm_stack.config import Config, ConfigError
 from ahrm_stack.learning.checkpoint import CheckpointError, CheckpointManager, Restored
@@ -166,17 +168,26 @@ def repair_logs(run_dir: Path, episodes: int, batches: int) -> dict[str, int]:
 
 @dataclasses.dataclass
 class WallTime:
-    """Where a run's wall time went, in ``timing.json``: the training batches (collection and
-    update; ``batches.csv``'s ``seconds`` summed) and the interim evaluations (wall seconds, and
-    their control steps). Written at each checkpoint and at the end; a resumed run continues the
-    totals of its last write (an evaluation after that write is made again, and counted once)."""
+    """Where a run's wall time went, in ``timing.json``: the training loop's wall seconds (from
+    the first batch or interim evaluation to the end, warm start and set-up excluded), the
+    batches' (collection and update: ``batches.csv``'s ``seconds`` summed) and their frames, the
+    interim evaluations' own wall seconds and control steps (wherever they ran), and the seconds
+    the loop spent running or waiting for them (with ``train.eval_beside`` only the waits).
+    ``frames_per_second`` is frames over the loop's seconds; ``evaluation_share`` the waited
+    share of them. Written at each checkpoint and at the end; a resumed run continues the totals
+    of its last write."""
 
     FILE: ClassVar[str] = "timing.json"
+    loop_seconds: float = 0.0
     batch_seconds: float = 0.0
     frames: int = 0  # training frames collected in those batches
     evaluation_seconds: float = 0.0
+    evaluation_wait_seconds: float = 0.0
     evaluations: int = 0
     evaluation_steps: int = 0  # control steps the evaluations ran
+
+    def __post_init__(self) -> None:
+        self._since: float | None = None  # perf_counter when this process's loop started
 
     @classmethod
     def read(cls, run_dir: Path) -> "WallTime":
@@ -185,6 +196,19 @@ class WallTime:
             return cls()
         data = json.loads(path.read_text())
         return cls(**{f.name: data[f.name] for f in dataclasses.fields(cls) if f.name in data})
+
+    def start(self) -> None:
+        """The training loop starts (or resumes) now."""
+        self._since = time.perf_counter()
+
+    @contextlib.contextmanager
+    def waiting(self) -> Iterator[None]:
+        """Time the loop spends on interim evaluations (running them, or waiting for them)."""
+        started = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.evaluation_wait_seconds += time.perf_counter() - started
 
     def add_batch(self, seconds: float, frames: int) -> None:
         self.batch_seconds += seconds
@@ -196,14 +220,15 @@ class WallTime:
         self.evaluation_steps += steps
 
     def write(self, run_dir: Path) -> None:
-        total = self.batch_seconds + self.evaluation_seconds
+        if self._since is not None:  # the loop's seconds so far, this process's included
+            now = time.perf_counter()
+            self.loop_seconds += now - self._since
+            self._since = now
+        loop = self.loop_seconds
         data = {**dataclasses.asdict(self),
-                "evaluation_share": self.evaluation_seconds / total if total > 0 else 0.0,
-                "frames_per_second": self.frames / total if total > 0 else 0.0}
-        path = Path(run_dir) / self.FILE
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(data, indent=2))
-        tmp.replace(path)
+                "evaluation_share": self.evaluation_wait_seconds / loop if loop > 0 else 0.0,
+                "frames_per_second": self.frames / loop if loop > 0 else 0.0}
+        _write_atomically(Path(run_dir) / self.FILE, json.dumps(data, indent=2))
 
 class RunLog:
     """CSV, JSONL and TensorBoard logs of one run (appending on resume, after

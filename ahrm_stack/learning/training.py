@@ -151,12 +151,14 @@ def _train(config: Config, run_dir: Path, resume: bool, progress: bool, rewrite_
         """One interim deterministic evaluation of the policy now, saved first (what the row evaluated)."""
         assert evaluations is not None
         policy_file = run_dir / "policies" / f"episode-{trainer.episodes:05d}.pt"
-        trainer.save_policy(policy_file)
-        evaluations.ask(trainer.modules.actor, policy_file, trainer.episodes, trainer.frames)
+        with timing.waiting():
+            trainer.save_policy(policy_file)
+            evaluations.ask(trainer.modules.actor, policy_file, trainer.episodes, trainer.frames)
 
     def drain(wait: bool) -> None:
         if evaluations is not None:
-            evaluations.drain(wait)
+            with timing.waiting():
+                evaluations.drain(wait)
 
     evaluated, evaluated_frames = trainer.episodes, trainer.frames
 
@@ -170,10 +172,9 @@ def _train(config: Config, run_dir: Path, resume: bool, progress: bool, rewrite_
             trainer.save_policy(run_dir / CLONE_POLICY)
             if trainer.warm_start_report is not None:
                 print(f"warm start: {trainer.warm_start_report}")
-            if interim:
-                evaluate_now()  # the curve's first point
-        elif interim and trainer.batches == 0:
-            evaluate_now()
+        timing.start()
+        if interim and trainer.batches == 0:
+            evaluate_now()  # the curve's first point
         while not trainer.finished():
             try:
                 result = trainer.iteration()
