@@ -89,8 +89,9 @@ class NearCubeStartConfig(Section):
 
     distance: Pair  # (lo, hi) of the tip's horizontal distance from the cube centre, m
     height: Pair  # (lo, hi) of the tip's height above the table top, m
-    bearing: Annotated[Literal["any", "behind"], legacy("any")]  # any: uniform | behind: opposite
-    # the episode's lane (legacy: before 2026-12-02 every bearing)
+    bearing: Annotated[Literal["any", "behind", "behind_free"], legacy("any")]  # any: uniform |
+    # behind: opposite the episode's lane as the planner chooses it | behind_free: opposite a lane
+    # drawn uniformly among the free ones (no planner; legacy: before 2026-12-02 every bearing)
     behind_spread_deg: Annotated[NonNeg, legacy(30.0)]  # deg, half-width of the behind bearings
 
     def check(self, key: str) -> None:

@@ -27,7 +27,7 @@ from ahrm_stack.env.arena import TableArena
 from ahrm_stack.env.clearance import Clearance
 from ahrm_stack.env.control_step import command_to_action
 from ahrm_stack.env.entities import BoxProp, Pusher
-from ahrm_stack.env.layout import Layout, LayoutSampler, choose_lane
+from ahrm_stack.env.layout import Layout, LayoutSampler, choose_lane, free_lanes
 from ahrm_stack.env.realism import DynamicsVariation, draw_dynamics
 from ahrm_stack.env.start_pose import solve_start_pose
 from ahrm_stack.env.task_observation import TaskObservation
@@ -321,14 +321,23 @@ class PushOffTask(TaskObservation, composer.Task):
         ``task.arm.near_cube.distance`` and height above the table top in
         ``task.arm.near_cube.height``; its bearing uniform (``bearing: any``) or within
         ``behind_spread_deg`` of the side opposite the episode's lane (``bearing: behind``; the
-        lane as :func:`~ahrm_stack.env.layout.choose_lane` plans it, ties as from the cube)."""
+        lane as :func:`~ahrm_stack.env.layout.choose_lane` plans it, ties as from the cube), or
+        opposite a lane drawn uniformly among the free ones (``bearing: behind_free``,
+        :func:`~ahrm_stack.env.layout.free_lanes`: no planner; every lane when none is free)."""
         near = self.config.arm.near_cube
         assert self.layout is not None, "drawn after the episode's layout"
-        if near.bearing == "behind":
+        if near.bearing in ("behind", "behind_free"):
             cfg = self.config
-            lane = choose_lane(self.layout, np.asarray(self.layout.cube_xy, dtype=float), cfg.cube.size / 2,
-                               self._obstacle_half_sizes[0, :2], cfg.table, cfg.layout)
-            back = np.pi if cfg.layout.lane_directions[lane] == "+x" else 0.0  # push toward the lane
+            lane: str
+            if near.bearing == "behind":
+                lane = cfg.layout.lane_directions[choose_lane(
+                    self.layout, np.asarray(self.layout.cube_xy, dtype=float), cfg.cube.size / 2,
+                    self._obstacle_half_sizes[0, :2], cfg.table, cfg.layout)]
+            else:
+                free = free_lanes(self.layout, cfg.cube.size / 2, self._obstacle_half_sizes[0, :2], cfg.table,
+                                  cfg.layout) or list(cfg.layout.lane_directions)
+                lane = free[random_state.randint(len(free))]
+            back = np.pi if lane == "+x" else 0.0  # push toward the lane
             spread = np.deg2rad(near.behind_spread_deg)
             bearing = back + random_state.uniform(-spread, spread)
         else:
