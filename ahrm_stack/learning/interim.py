@@ -103,8 +103,14 @@ class InterimEvaluations:
             self.log(episodes, frames, future.result())
 
     def close(self) -> None:
+        """Stop the worker. Pending evaluations (only on an error path: the run drains them before
+        it ends) are dropped, and a running one is not waited for: its process is terminated."""
         if self._pool is not None:
-            for _, _, future in self._pending:
-                future.cancel()
-            self._pool.shutdown(wait=True, cancel_futures=True)
+            running = bool(self._pending)
+            processes = list(getattr(self._pool, "_processes", {}).values())  # the executor's own
+            self._pool.shutdown(wait=not running, cancel_futures=True)
+            if running:
+                for process in processes:
+                    process.terminate()
             self._pool = None
+            self._pending.clear()
