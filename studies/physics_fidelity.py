@@ -64,9 +64,9 @@ VARIANTS: dict[str, list[str]] = {
     "5ms-implicitfast-sleep": ["task.episode.physics_timestep=0.005", "task.episode.noslip_iterations=0",
                                "task.episode.integrator=implicitfast", "task.episode.sleep=true"],
 }
-REST_LAYOUTS = int(os.environ.get("FID_N", 40))  # random layouts held at rest
+REST_LAYOUTS = 40  # random layouts held at rest
 REST_SECONDS = 5.0  # s of simulated time per layout
-PROBE_LAYOUTS = int(os.environ.get("FID_N", 40))  # touch probes
+PROBE_LAYOUTS = 40  # touch probes
 PROBE_SPEED = 0.1  # m/s, the pusher tip toward the obstacle
 PROBE_SECONDS = 6.0
 PATH_STRIDE = 1  # control steps between recorded cube positions
