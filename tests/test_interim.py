@@ -70,3 +70,38 @@ def test_closing_with_an_evaluation_running_stops_the_worker(tmp_path):
         process.join(timeout=30)
         assert not process.is_alive()
     assert logged == []
+
+
+def test_a_checkpoint_records_the_pending_evaluations_and_a_resumed_run_logs_each_once(tmp_path):
+    """Beside training, a checkpoint does not wait for an evaluation: it records it, and a run
+    resumed from that checkpoint asks for it again unless its row was written meanwhile."""
+    overrides = [*QUICK, "train.eval_beside=true", "train.checkpoint_every=1"]
+    run = train(load_config(overrides), tmp_path / "run", resume=False, progress=False)
+    state = torch.load(sorted((run / "checkpoints").glob("ckpt-*.pt"))[-1], weights_only=True)
+    assert state["pending_evaluations"] == []  # the end waits for every row
+    longer = load_config([*overrides, "train.frames=1024"])
+    train(longer, run, resume=True, progress=False, rewrite_config=True)
+    episodes = [int(row["episode"]) for row in _rows(run)]
+    assert episodes == sorted(set(episodes)) and len(episodes) == 5  # frames 0, 256, ..., 1024
+
+
+def test_pending_evaluations_are_listed_until_logged(tmp_path):
+    config = load_config(["train.eval_episodes=1", "task.episode.duration=1"])
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    (run_dir / "config.yaml").write_text(run_config_text(config))
+    env = PushOffEnv(config.task, config.safety, seed=0)
+    dims = int(env.observation_spec["observation"].shape[-1]), int(env.action_spec.shape[-1])
+    modules = make_modules(config.ppo, *dims)
+    policy_file = run_dir / "policy.pt"
+    torch.save({"actor": modules.actor.state_dict(), "observation_dim": dims[0], "action_dim": dims[1]},
+               policy_file)
+    logged: list = []
+    evaluations = InterimEvaluations(config, run_dir, True, lambda *row: logged.append(row[:2]))
+    try:
+        evaluations.ask_saved(policy_file, 7, 700)
+        assert evaluations.pending() == [{"episodes": 7, "frames": 700, "policy_file": str(policy_file)}]
+        evaluations.drain(wait=True)
+        assert evaluations.pending() == [] and logged == [(7, 700)]
+    finally:
+        evaluations.close()

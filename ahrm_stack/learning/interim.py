@@ -10,8 +10,10 @@ while training goes on: it loads the saved policy file and runs the same episode
 environment, built once like the in-process one, so the rows are the ones an in-process
 evaluation gives (``tests/test_interim.py``). Rows are logged in the order the evaluations were
 asked for, with the episode and frame counts of that moment; :meth:`InterimEvaluations.drain`
-with ``wait`` blocks until every pending row is logged (before each checkpoint and at the end, so
-a checkpoint never counts an evaluation whose row is not on disk).
+with ``wait`` blocks until every pending row is logged (at the end of the run). A checkpoint does
+not wait: it records the evaluations still pending (:meth:`InterimEvaluations.pending`, their
+saved policy files), and a run resumed from it asks for them again
+(:meth:`InterimEvaluations.ask_saved`), so no row is lost and none is written twice.
 """
 
 from __future__ import annotations
@@ -74,7 +76,7 @@ class InterimEvaluations:
 
     def __init__(self, config: Config, run_dir: Path, beside: bool, log) -> None:
         self.config, self.run_dir, self.log = config, Path(run_dir), log
-        self._pending: list[tuple[int, int, concurrent.futures.Future]] = []
+        self._pending: list[tuple[int, int, str, concurrent.futures.Future]] = []
         self._env: PushOffEnv | None = None
         self._pool: concurrent.futures.ProcessPoolExecutor | None = None
         if beside:
@@ -94,12 +96,25 @@ class InterimEvaluations:
             return
         future = self._pool.submit(_evaluate_file, str(self.run_dir), str(policy_file),
                                    self.config.train.eval_episodes)
-        self._pending.append((episodes, frames, future))
+        self._pending.append((episodes, frames, str(policy_file), future))
+
+    def ask_saved(self, policy_file: Path, episodes: int, frames: int) -> None:
+        """Evaluate the policy saved in ``policy_file`` (a resumed run's pending evaluation)."""
+        if self._pool is None:
+            _, policy = load_policy(self.run_dir, Path(policy_file))
+            self.ask(policy, Path(policy_file), episodes, frames)
+        else:
+            self.ask(None, Path(policy_file), episodes, frames)
+
+    def pending(self) -> list[dict]:
+        """The evaluations asked for and not logged yet: what a checkpoint records."""
+        return [{"episodes": episodes, "frames": frames, "policy_file": file}
+                for episodes, frames, file, _ in self._pending]
 
     def drain(self, wait: bool = False) -> None:
         """Log the finished evaluations, in order; ``wait``: every pending one."""
-        while self._pending and (wait or self._pending[0][2].done()):
-            episodes, frames, future = self._pending.pop(0)
+        while self._pending and (wait or self._pending[0][3].done()):
+            episodes, frames, _, future = self._pending.pop(0)
             self.log(episodes, frames, future.result())
 
     def close(self) -> None:

@@ -235,6 +235,7 @@ class RunLog:
     :func:`repair_logs` has cut them back to the checkpoint)."""
 
     def __init__(self, run_dir: Path) -> None:
+        self.run_dir = Path(run_dir)
         self.episodes = self._csv(run_dir / "episodes.csv", EPISODE_FIELDS)
         self.batches = self._csv(run_dir / "batches.csv", BATCH_FIELDS)
         self.evaluations = self._csv(run_dir / "evaluations.csv", EVALUATION_FIELDS)
@@ -272,6 +273,12 @@ class RunLog:
         for key in BATCH_FIELDS[3:]:
             if isinstance(row.get(key), float):
                 self.tb.add_scalar(f"train/{key}", row[key], row["frames"])
+
+    def evaluation_episodes(self) -> set[int]:
+        """The training episode counts of the interim evaluations logged so far."""
+        self.evaluations[0].flush()
+        with open(self.run_dir / "evaluations.csv", newline="") as handle:
+            return {int(row["episode"]) for row in csv.DictReader(handle)}
 
     def evaluation(self, episodes: int, frames: int, table) -> None:
         """One interim deterministic evaluation (``train.eval_every`` / ``eval_every_frames``) of

@@ -155,6 +155,17 @@ def _train(config: Config, run_dir: Path, resume: bool, progress: bool, rewrite_
             trainer.save_policy(policy_file)
             evaluations.ask(trainer.modules.actor, policy_file, trainer.episodes, trainer.frames)
 
+    def checkpoint_state() -> dict:
+        """The trainer's state, and the interim evaluations still running beside it (a resumed
+        run asks for them again)."""
+        return {**trainer.state_dict(), "pending_evaluations": evaluations.pending() if evaluations else []}
+
+    if evaluations is not None and restored.state is not None:  # rows the checkpoint did not count
+        logged_episodes = log.evaluation_episodes()
+        for item in restored.state.get("pending_evaluations", []):
+            if item["episodes"] not in logged_episodes:  # (written after the checkpoint: kept, not asked again)
+                evaluations.ask_saved(Path(item["policy_file"]), item["episodes"], item["frames"])
+
     def drain(wait: bool) -> None:
         if evaluations is not None:
             with timing.waiting():
@@ -198,13 +209,12 @@ def _train(config: Config, run_dir: Path, resume: bool, progress: bool, rewrite_
                 evaluate_now()
             drain(wait=False)
             if trainer.batches % config.train.checkpoint_every == 0:
-                drain(wait=True)  # a checkpoint never counts an evaluation whose row is not on disk
                 timing.write(run_dir)
                 log.flush()  # the rows first: a checkpoint never counts a row that is not on disk
-                checkpoints.save(trainer.state_dict(), trainer.batches)
+                checkpoints.save(checkpoint_state(), trainer.batches)
         drain(wait=True)
         log.flush()
-        checkpoints.save(trainer.state_dict(), trainer.batches)
+        checkpoints.save(checkpoint_state(), trainer.batches)
         trainer.save_policy(run_dir / "policy.pt")
         timing.write(run_dir)
         try:
