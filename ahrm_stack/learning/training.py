@@ -160,11 +160,20 @@ def _train(config: Config, run_dir: Path, resume: bool, progress: bool, rewrite_
         run asks for them again)."""
         return {**trainer.state_dict(), "pending_evaluations": evaluations.pending() if evaluations else []}
 
-    if evaluations is not None and restored.state is not None:  # rows the checkpoint did not count
+    def ask_pending() -> None:
+        """A resumed run's evaluations that its checkpoint recorded as pending, asked again unless
+        their row was written after the checkpoint."""
+        if evaluations is None or restored.state is None:
+            return
         logged_episodes = log.evaluation_episodes()
         for item in restored.state.get("pending_evaluations", []):
-            if item["episodes"] not in logged_episodes:  # (written after the checkpoint: kept, not asked again)
-                evaluations.ask_saved(Path(item["policy_file"]), item["episodes"], item["frames"])
+            policy_file = Path(item["policy_file"])
+            if item["episodes"] in logged_episodes:
+                continue
+            if not policy_file.is_file():
+                print(f"warning: {policy_file} is gone: its interim evaluation is not made again", file=sys.stderr)
+                continue
+            evaluations.ask_saved(policy_file, item["episodes"], item["frames"])
 
     def drain(wait: bool) -> None:
         if evaluations is not None:
@@ -178,6 +187,7 @@ def _train(config: Config, run_dir: Path, resume: bool, progress: bool, rewrite_
                     or (every_frames and trainer.frames // every_frames > evaluated_frames // every_frames))
 
     try:
+        ask_pending()
         if trainer.batches == 0 and config.train.warm_start == "bc":
             trainer.warm_start()  # the clone, kept: the policy before any PPO update
             trainer.save_policy(run_dir / CLONE_POLICY)
