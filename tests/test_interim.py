@@ -47,10 +47,8 @@ def test_evaluations_beside_training_give_the_in_process_rows(tmp_path):
 
 
 
-def test_closing_with_an_evaluation_running_stops_the_worker(tmp_path):
-    """An error path (Ctrl-C, a failed batch) closes the evaluations while one runs: the worker is
-    terminated, not waited for (200 episodes would take minutes), and no row is logged."""
-    config = load_config(["train.eval_episodes=200"])
+def _saved_policy(config, tmp_path):
+    """A run folder with ``config`` and an initial policy saved as training saves one."""
     run_dir = tmp_path / "run"
     run_dir.mkdir()
     (run_dir / "config.yaml").write_text(run_config_text(config))
@@ -60,6 +58,14 @@ def test_closing_with_an_evaluation_running_stops_the_worker(tmp_path):
     policy_file = run_dir / "policy.pt"
     torch.save({"actor": modules.actor.state_dict(), "observation_dim": dims[0], "action_dim": dims[1]},
                policy_file)
+    return run_dir, modules, policy_file
+
+
+def test_closing_with_an_evaluation_running_stops_the_worker(tmp_path):
+    """An error path (Ctrl-C, a failed batch) closes the evaluations while one runs: the worker is
+    terminated, not waited for (200 episodes would take minutes), and no row is logged."""
+    config = load_config(["train.eval_episodes=200"])
+    run_dir, modules, policy_file = _saved_policy(config, tmp_path)
     logged: list = []
     evaluations = InterimEvaluations(config, run_dir, True, lambda *row: logged.append(row))
     evaluations.ask(modules.actor, policy_file, 0, 0)
@@ -87,15 +93,7 @@ def test_a_checkpoint_records_the_pending_evaluations_and_a_resumed_run_logs_eac
 
 def test_pending_evaluations_are_listed_until_logged(tmp_path):
     config = load_config(["train.eval_episodes=1", "task.episode.duration=1"])
-    run_dir = tmp_path / "run"
-    run_dir.mkdir()
-    (run_dir / "config.yaml").write_text(run_config_text(config))
-    env = PushOffEnv(config.task, config.safety, seed=0)
-    dims = int(env.observation_spec["observation"].shape[-1]), int(env.action_spec.shape[-1])
-    modules = make_modules(config.ppo, *dims)
-    policy_file = run_dir / "policy.pt"
-    torch.save({"actor": modules.actor.state_dict(), "observation_dim": dims[0], "action_dim": dims[1]},
-               policy_file)
+    run_dir, modules, policy_file = _saved_policy(config, tmp_path)
     logged: list = []
     evaluations = InterimEvaluations(config, run_dir, True, lambda *row: logged.append(row[:2]))
     try:
