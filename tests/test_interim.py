@@ -103,3 +103,50 @@ def test_pending_evaluations_are_listed_until_logged(tmp_path):
         assert evaluations.pending() == [] and logged == [(7, 700)]
     finally:
         evaluations.close()
+
+
+_ORPHAN_PARENT = """
+import sys, time
+from pathlib import Path
+from ahrm_stack.config import load_config
+from ahrm_stack.learning.interim import InterimEvaluations
+config = load_config(["train.eval_episodes=200"])
+evaluations = InterimEvaluations(config, Path(sys.argv[1]), True, lambda *row: None)
+evaluations.ask_saved(Path(sys.argv[2]), 0, 0)
+print(*[p.pid for p in evaluations._pool._processes.values()], flush=True)
+time.sleep(600)
+"""
+
+
+def test_the_worker_ends_when_the_training_process_is_killed(tmp_path):
+    """A training killed outright (SIGKILL: no finally, no executor shutdown) leaves no evaluation
+    worker running on."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    config = load_config(["train.eval_episodes=200"])
+    run_dir, _, policy_file = _saved_policy(config, tmp_path)
+    parent = subprocess.Popen([sys.executable, "-c", _ORPHAN_PARENT, str(run_dir), str(policy_file)],
+                              stdout=subprocess.PIPE, text=True)
+    assert parent.stdout is not None
+    workers = [int(pid) for pid in parent.stdout.readline().split()]
+    assert workers
+    parent.send_signal(signal.SIGKILL)
+    parent.wait()
+    deadline = time.monotonic() + 60
+    alive = workers
+    while alive and time.monotonic() < deadline:
+        time.sleep(0.5)
+        alive = []
+        for pid in workers:
+            try:
+                os.kill(pid, 0)
+                with open(f"/proc/{pid}/stat") as handle:  # a zombie awaiting its reaper is gone
+                    if handle.read().split()[2] != "Z":
+                        alive.append(pid)
+            except (ProcessLookupError, FileNotFoundError):
+                pass
+    assert alive == [], f"evaluation workers {alive} outlived their killed parent"

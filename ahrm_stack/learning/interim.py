@@ -21,6 +21,8 @@ from __future__ import annotations
 import concurrent.futures
 import dataclasses
 import multiprocessing
+import os
+import threading
 import time
 from pathlib import Path
 
@@ -55,8 +57,18 @@ def evaluate(env: PushOffEnv, policy, episodes: int) -> Evaluated:
                      sum(s.steps for s in summaries))
 
 
-def _start_worker(config: Config) -> None:
+def _exit_with_parent(parent: int, period: float = 1.0) -> None:
+    """End this worker process when its parent (the training) is gone, whatever killed it: the
+    executor's own shutdown never runs then, and an evaluation would run on for minutes."""
+    while True:
+        time.sleep(period)
+        if os.getppid() != parent:
+            os._exit(0)
+
+
+def _start_worker(config: Config, parent: int) -> None:
     global _WORKER_ENV
+    threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
     torch.set_num_threads(1)
     from ahrm_stack.seeds import sealed
 
@@ -82,7 +94,7 @@ class InterimEvaluations:
         if beside:
             self._pool = concurrent.futures.ProcessPoolExecutor(
                 1, mp_context=multiprocessing.get_context("spawn"), initializer=_start_worker,
-                initargs=(config,))
+                initargs=(config, os.getpid()))
             self._pool.submit(int)  # start the worker (imports, environment) while training sets up
         else:
             self._env = evaluation_env(config)
