@@ -41,7 +41,7 @@ def _paper() -> tuple[int, int, int]:
 PAPER_EPISODES, PAPER_SUCCESSES, PAPER_EVALUATIONS = _paper()  # 300, 37, 40
 #: keys a run sets that are not part of its setting (its budget, seed and bookkeeping)
 BOOKKEEPING = ("schema_version", "train.seed", "train.episodes", "train.frames", "train.eval_every",
-               "train.eval_every_frames", "train.eval_episodes")
+               "train.eval_every_frames", "train.eval_episodes", "train.eval_beside")
 
 
 def _flat(mapping: dict, prefix: str = "") -> dict[str, object]:

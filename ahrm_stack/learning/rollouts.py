@@ -141,14 +141,13 @@ def write_episodes_csv(path: Path, summaries: list[EpisodeSummary],
     """One row per episode: the summary's fields and its failure mode, then ``extra``'s columns
     (one mapping per episode, e.g. the evaluation's lane agreement) when given."""
     rows = [dataclasses.asdict(s) | {"failure_mode": s.failure_mode()} for s in summaries]
+    for row in rows:  # an evaluation writes its own lane columns (extra); training's bookkeeping
+        for key in ("events", "end_order", "lane_agrees"):
+            row.pop(key, None)
     if extra is not None:
         if len(extra) != len(rows):
             raise ValueError(f"{len(extra)} extra rows for {len(rows)} episodes")
         rows = [row | more for row, more in zip(rows, extra)]
-    for row in rows:
-        row.pop("events", None)
-        row.pop("end_order", None)
-        row.pop("lane_agrees", None)  # an evaluation writes its own lane columns (extra)
     with open(path, "w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
         writer.writeheader()
