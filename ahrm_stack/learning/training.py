@@ -198,6 +198,7 @@ def _train(config: Config, run_dir: Path, resume: bool, progress: bool, rewrite_
             evaluate_now()  # the curve's first point
         while not trainer.finished():
             try:
+                frames_before = trainer.frames
                 result = trainer.iteration()
             except TrainingDiverged as error:
                 raise SystemExit(f"training stopped: {error}. The last good checkpoint is kept in "
@@ -208,7 +209,8 @@ def _train(config: Config, run_dir: Path, resume: bool, progress: bool, rewrite_
             for event in result.events:
                 log.event(event)
             log.batch(result.batch)
-            timing.add_batch(result.batch["seconds"], result.batch["frames"] - timing.frames)
+            timing.add_batch(result.batch["seconds"], trainer.frames - frames_before)  # this batch's own
+            # frames (a run resumed from before timing.json existed counts from its resume on)
             bar.update(min(result.batch["frames"] - bar.n if by_frames else len(result.episodes),
                            total - bar.n))
             phase = result.episodes[-1]["phases_visited"][-1] if result.episodes else "-"
