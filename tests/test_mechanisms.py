@@ -15,7 +15,7 @@ BASE = MechanismConfig(
                    ("manipulate", "avoid", "time")),
     initial_orders=(("avoid", "manipulate", "time"),) * 3,
     convergence_window=10, convergence_tolerance=0.05, constraint_window=10,
-    constraint_min_steps=20, constraint_margin=0.1, priority_period=30,
+    constraint_min_steps=20, constraint_margin=0.1, constraint_check="running", priority_period=30,
     priority_rule="magnitude", blend_band=0.05, blend_slope=40.0)
 
 FAR = np.array([1.0, 1.0])  # far from both regions: phase 1, no blending

@@ -44,6 +44,12 @@ class MechanismConfig(Section):
     constraint_window: Window  # episodes averaged for tau
     constraint_min_steps: Window  # steps in a phase before the constraint is checked
     constraint_margin: NonNeg  # a per-step average below tau - margin ends the episode
+    constraint_check: Annotated[Literal["running", "episode", "none"], legacy("running")]  # the priority
+    # constraint (spec §4): running: the running per-step average, from constraint_min_steps steps of
+    # a phase on, ends the episode as a truncation (the spec's [choice]) | episode: the paper's
+    # Algorithm 1, checked once at the episode's end on each phase's per-step average; a violating
+    # episode runs to its end and its transitions are left out of the update (those of the batch in
+    # which it ends: an earlier batch's were already learned from) | none: never checked
     priority_period: Window  # P: visiting episodes between priority determinations
     # magnitude (spec Eqs. 3-5): |mean episode sum of f_i| high to low | violation: the per-step
     # average of f_i low to high (the most often violated objective first)

@@ -35,6 +35,9 @@ class EpisodeSummary:
     # the cube left by the planner's lane (ahrm_stack.lane_agreement; training's diagnostics): None
     # when it was not pushed along a lane, or not measured
     lane_agrees: bool | None = None
+    # mechanism.constraint_check: episode: the priority constraint failed at the episode's end, and
+    # its transitions were left out of the update
+    constraint_excluded: bool = False
     events: list = dataclasses.field(default_factory=list)
     # the process-wide order in which episodes ended (PushOffEnv), for the trainer to log several
     # environments' episodes in the order the mechanism saw them; not a logged column

@@ -159,16 +159,18 @@ class PushOffEnv(EnvBase):
         return info, reward, bool(terminated), bool(truncated)
 
     def _finish_episode(self, constrained: bool) -> None:
-        phase = self._monitor.violated_phase if constrained else None
+        excluded = self._monitor is not None and self._monitor.violated_at_end()
+        phase = self._monitor.violated_phase if constrained or excluded else None
         summary = self._recorder.summary(constraint_terminated=constrained, constraint_phase=phase,
                                          joint_limit_violations=self.runner.limit_violations)
+        summary.constraint_excluded = excluded
         taken = taken_lane(self._cube_start, self.task.cube_xy(self.runner.physics).tolist(),
                            self.task.config.cube.size / 2)
         summary.lane_agrees = None if taken is None else taken == self._planned
         if self.mechanism is not None:
             summary.events = self.mechanism.end_episode(
                 self._recorder.f, self._recorder.phase, constraint_terminated=constrained,
-                terminated_phase=phase)
+                terminated_phase=phase, constraint_excluded=excluded)
         summary.end_order = next(_END_ORDER)
         self.completed.append(summary)
 

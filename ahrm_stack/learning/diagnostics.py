@@ -49,7 +49,7 @@ def read_episodes(run_dir: Path) -> dict[str, np.ndarray]:
         try:
             if key in ("phase_steps", "component_sums", "levels"):
                 out[key] = np.array([ast.literal_eval(v) for v in values], dtype=float)
-            elif key in ("success", "constraint_terminated"):
+            elif key in ("success", "constraint_terminated", "constraint_excluded"):
                 out[key] = np.array([v == "True" for v in values])
             elif key in ("phases_visited", "failure_mode", "orders"):
                 out[key] = np.array(values)
@@ -92,7 +92,8 @@ def save_figure(fig, path: Path, dpi: int) -> Path:
 def episode_shares(rows: list[dict]) -> dict[str, float | str]:
     """A batch's learning diagnostics from the episodes that ended in it (``episodes.csv`` rows):
     the shares won, that reached the cube (entered phase 3, as :meth:`EpisodeSummary.failure_mode`
-    counts it), that touched an obstacle and that the hierarchy's constraint cut, and among those
+    counts it), that touched an obstacle and that the hierarchy's constraint cut (or, checked at
+    the end, left out of the update), and among those
     that pushed the cube along a lane the share by the planner's lane. Blank ("") where no episode
     counts."""
     def share(values: list[bool]) -> float | str:
@@ -102,7 +103,8 @@ def episode_shares(rows: list[dict]) -> dict[str, float | str]:
     return {"success_share": share([bool(r["success"]) for r in rows]),
             "reach_share": share([r["phase_steps"][2] > 0 for r in rows]),
             "touch_share": share([r["touched_steps"] > 0 for r in rows]),
-            "constraint_share": share([bool(r["constraint_terminated"]) for r in rows]),
+            "constraint_share": share([bool(r["constraint_terminated"]) or bool(r.get("constraint_excluded"))
+                                       for r in rows]),
             "lane_agreement": share(lanes)}
 
 

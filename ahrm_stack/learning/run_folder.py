@@ -35,14 +35,15 @@ EPISODE_FIELDS = ["episode", "frames", "steps", "duration", "success", "time_to_
                   "touched_steps", "learning_return", "phase_steps", "phases_visited",
                   "component_sums", "closest_approach", "cube_displacement", "cube_travel",
                   "constraint_terminated", "interventions", "joint_limit_violations", "failure_mode",
-                  "orders", "levels", "lane_agrees"]
+                  "orders", "levels", "lane_agrees", "constraint_excluded"]
 BATCH_FIELDS = ["batch", "frames", "episodes", "loss_objective", "loss_critic", "loss_entropy",
                 "entropy", "kl_approx", "bc_loss", "std", "updates", "grad_norm", "seconds",
                 "curriculum_level", "success_share", "reach_share", "touch_share", "constraint_share",
                 "lane_agreement"]
 # the batch's learning diagnostics (issue 56), over the episodes that ended in it: won, reached the
-# cube (phase 3 entered), touched an obstacle, cut by the hierarchy's constraint, and among the
-# episodes that pushed the cube along a lane, the share by the planner's lane; blank with none
+# cube (phase 3 entered), touched an obstacle, cut or left out of the update by the hierarchy's
+# constraint, and among the episodes that pushed the cube along a lane, the share by the planner's
+# lane; blank with none
 
 CLONE_POLICY = "policies/clone.pt"  # the warm-started policy before any PPO update (warm_start: bc)
 EVALUATION_FIELDS = ["episode", "frames", "episodes", "successes", "success_rate", "touched_episodes",

@@ -147,6 +147,9 @@ class Trainer:
         self.compute_loss = lean_loss_for(config.ppo, self.modules) or self.loss
         self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=config.ppo.learning_rate)
         self.buffer = make_buffer(config.ppo)
+        # per environment, the constraint_excluded flags of the episodes drained since the last
+        # update, in the order each ended (mechanism.constraint_check: episode)
+        self._excluded_ends: dict[int, list[bool]] = {}
         self.episodes = 0
         self.frames = 0
         self.batches = 0
@@ -235,11 +238,13 @@ class Trainer:
         self.batches += 1
         if ppo.reward_scale != 1.0:
             data.set(("next", "reward"), data.get(("next", "reward")) * ppo.reward_scale)
+        # the episodes that ended in this batch (the update does not read them: drained first so
+        # that mechanism.constraint_check: episode can leave the violating ones out of it)
+        episodes, events = self._drain_episodes()
         with update_threads(self.config.train.update_threads):
-            totals, grad_norms, updates = self._update(data)
+            totals, grad_norms, updates = self._update(data, self._learned_steps(data))
         if ppo.update_normalizer or self.modules.normalizer.count == 0:
             self.modules.normalizer.update(self.modules.framed(data["observation"]))
-        episodes, events = self._drain_episodes()
         self._update_curriculum(episodes)
         batch = {k: float(np.mean(v)) for k, v in totals.items()}
         batch.update(episode_shares(episodes))
@@ -250,14 +255,42 @@ class Trainer:
                      seconds=time.perf_counter() - started)
         return IterationResult(episodes, events, batch)
 
-    def _update(self, data: TensorDict) -> tuple[dict[str, list[float]], list[float], int]:
-        """GAE on the collected ``data``, then the PPO epochs (with the BC anchor): the mini-batches'
-        loss terms, their gradient norms, and the number of optimiser steps."""
+    def _learned_steps(self, data: TensorDict) -> torch.Tensor | None:
+        """``mechanism.constraint_check: episode``: a (N, T) mask of the batch's steps to learn from,
+        False on the steps of each episode that ended in this batch with the priority constraint
+        violated (the paper's "restart episode" without an update; steps of it collected in an
+        earlier batch were learned from then). None (learn from all) otherwise."""
+        excluded = self._excluded_ends
+        self._excluded_ends = {}
+        if self.config.mechanism.constraint_check != "episode":
+            return None
+        done = data.get(("next", "done")).reshape(self.config.train.num_envs, -1).numpy()
+        keep = np.ones(done.shape, dtype=bool)
+        for i in range(done.shape[0]):
+            ends = np.flatnonzero(done[i])
+            flags = excluded.get(i, [])
+            if len(flags) != len(ends):
+                raise RuntimeError(f"environment {i}: {len(ends)} episode ends in the batch, "
+                                   f"{len(flags)} episodes drained")
+            start = 0
+            for end, flag in zip(ends, flags):
+                if flag:
+                    keep[i, start:end + 1] = False
+                start = end + 1
+        return torch.as_tensor(keep).reshape(data.shape)
+
+    def _update(self, data: TensorDict, keep: torch.Tensor | None = None
+                ) -> tuple[dict[str, list[float]], list[float], int]:
+        """GAE on the collected ``data``, then the PPO epochs (with the BC anchor) on its steps
+        where ``keep`` (N, T) is True (all without it): the mini-batches' loss terms, their
+        gradient norms, and the number of optimiser steps."""
         ppo = self.config.ppo
         with torch.no_grad():
             self.advantage(data)
         self.buffer.empty()
-        self.buffer.extend(data.reshape(-1))
+        learned = data.reshape(-1) if keep is None else data[keep]
+        if learned.numel():
+            self.buffer.extend(learned)
         totals: dict[str, list[float]] = {}
         grad_norms = []
         updates = 0
@@ -265,7 +298,7 @@ class Trainer:
         for _ in range(ppo.epochs):
             if kl_stopped:
                 break
-            for _ in range(ppo.frames_per_batch // ppo.mini_batch_size):
+            for _ in range(learned.numel() // ppo.mini_batch_size):
                 batch = self.buffer.sample()
                 losses = self.compute_loss(batch)
                 if ppo.target_kl > 0 and float(losses["kl_approx"]) > 1.5 * ppo.target_kl:
@@ -333,6 +366,8 @@ class Trainer:
         """The episodes completed since the last call, in this process or the workers' (whose
         ends are applied to the mechanism here, in the order they ended, and the new state sent)."""
         if not self.workers:  # in the order they ended (the order the mechanism saw them)
+            for i, env in enumerate(self.envs):
+                self._excluded_ends.setdefault(i, []).extend(s.constraint_excluded for s in env.completed)
             summaries = sorted((summary for env in self.envs for summary in env.completed),
                                key=lambda summary: -1 if summary.end_order is None else summary.end_order)
             for env in self.envs:
@@ -342,7 +377,8 @@ class Trainer:
         for pending in workers.drain(self.env):
             pending.summary.events = self.mechanism.end_episode(
                 pending.f, pending.phase, constraint_terminated=pending.constraint_terminated,
-                terminated_phase=pending.terminated_phase)
+                terminated_phase=pending.terminated_phase, constraint_excluded=pending.constraint_excluded)
+            self._excluded_ends.setdefault(pending.index, []).append(pending.constraint_excluded)
             summaries.append(pending.summary)
         self.env.load_mechanism(self.mechanism.state_dict())
         return summaries

@@ -42,6 +42,7 @@ class PendingEpisode:
     phase: np.ndarray  # (steps,)
     constraint_terminated: bool
     terminated_phase: int | None
+    constraint_excluded: bool = False
 
 
 class _DeferredMechanism:
@@ -59,11 +60,12 @@ class _DeferredMechanism:
         return self.local.constraint_monitor()
 
     def end_episode(self, f, phase, constraint_terminated: bool = False,
-                    terminated_phase: int | None = None) -> list:
+                    terminated_phase: int | None = None, constraint_excluded: bool = False) -> list:
         self.pending.append(dict(f=np.asarray(f, dtype=float).reshape(-1, 3),
                                  phase=np.asarray(phase, dtype=int).reshape(-1),
                                  constraint_terminated=bool(constraint_terminated),
-                                 terminated_phase=terminated_phase))
+                                 terminated_phase=terminated_phase,
+                                 constraint_excluded=bool(constraint_excluded)))
         return []  # the trainer's end_episode makes the events
 
 
