@@ -46,7 +46,7 @@ def test_network_width_and_activation():
 
 
 def test_learning_rate_reaches_the_optimiser():
-    assert _trainer("ppo.learning_rate=3.5e-5").optimizer.param_groups[0]["lr"] == pytest.approx(3.5e-5)
+    assert _trainer("ppo.learning_rate=3.5e-5").optimizers[0].param_groups[0]["lr"] == pytest.approx(3.5e-5)
 
 
 def test_observation_normalisation_on_and_off():

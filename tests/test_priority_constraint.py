@@ -134,3 +134,26 @@ def test_excluded_episodes_are_left_out_of_the_update():
         ends = torch.nonzero(done[i]).flatten().tolist()
         last = ends[-1] if ends else -1
         assert keep[i, last + 1:].all()
+
+
+def test_separate_optimisers_clip_and_step_each_network_on_its_own():
+    """``ppo.optimizer: separate``: two Adams, each network's gradient clipped by itself; a
+    checkpoint carries both and a shared-optimiser checkpoint is refused with a message."""
+    from ahrm_stack.learning.trainer import Trainer
+
+    base = ["profile=scratch", "ppo.frames_per_batch=32", "ppo.mini_batch_size=16", "train.num_envs=1",
+            "train.time_limit=0.5", "ppo.hidden_sizes=[16,16]", "train.frames=32"]
+    trainer = Trainer(load_config([*base, "ppo.optimizer=separate"]))
+    actor, critic = trainer._groups
+    assert len(trainer.optimizers) == 2
+    assert {id(p) for p in trainer.optimizers[0].param_groups[0]["params"]} == {id(p) for p in actor}
+    assert {id(p) for p in trainer.optimizers[1].param_groups[0]["params"]} == {id(p) for p in critic}
+    before = [p.detach().clone() for p in critic]
+    trainer.iteration()
+    assert any(not torch.equal(a, b) for a, b in zip(before, critic))
+    state = trainer.state_dict()
+    assert isinstance(state["optimizer"], list) and len(state["optimizer"]) == 2
+    shared = Trainer(load_config(base))
+    assert len(shared.optimizers) == 1
+    with pytest.raises(ValueError, match="ppo.optimizer"):
+        shared.load_state_dict(state)

@@ -76,7 +76,10 @@ class PPOConfig(Section):
     clip_epsilon: Pos
     entropy_coeff: NonNeg
     critic_coeff: NonNeg
-    max_grad_norm: Pos
+    max_grad_norm: Pos  # the gradient's norm is clipped to this (per network with optimizer: separate)
+    optimizer: Annotated[Literal["shared", "separate"], legacy("shared")]  # shared: one Adam and one
+    # gradient clip over the actor and the critic together | separate: one each, as the paper's
+    # MATLAB agent has (separate actor and critic representations, each with its own options)
     hidden_sizes: Annotated[tuple[Annotated[PosInt, le(LIMITS["hidden_width"])], ...],
                             count(1, LIMITS["hidden_layers"])]  # actor and critic layer widths
     activation: Literal["tanh", "relu", "elu"]

@@ -145,7 +145,14 @@ class Trainer:
         self.loss, self.advantage = make_loss(config.ppo, self.modules)
         # the same loss as plain torch ops where it applies (lean_loss.py; the same parameters)
         self.compute_loss = lean_loss_for(config.ppo, self.modules) or self.loss
-        self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=config.ppo.learning_rate)
+        # ppo.optimizer: one Adam (and one gradient clip) over all parameters, or one per network
+        if config.ppo.optimizer == "separate":
+            self._groups = [list(self.modules.actor.parameters()), list(self.modules.critic.parameters())]
+            assert ({id(p) for g in self._groups for p in g} == {id(p) for p in self.loss.parameters()}
+                    and not {id(p) for p in self._groups[0]} & {id(p) for p in self._groups[1]})
+        else:
+            self._groups = [list(self.loss.parameters())]
+        self.optimizers = [torch.optim.Adam(group, lr=config.ppo.learning_rate) for group in self._groups]
         self.buffer = make_buffer(config.ppo)
         # per environment, the constraint_excluded flags of the episodes drained since the last
         # update, in the order each ended (mechanism.constraint_check: episode)
@@ -316,11 +323,13 @@ class Trainer:
                     raise TrainingDiverged(
                         f"non-finite loss at batch {self.batches} (objective "
                         f"{float(losses['loss_objective'].detach()):.4g}, critic {float(losses['loss_critic'].detach()):.4g})")
-                self.optimizer.zero_grad()
+                for optimizer in self.optimizers:
+                    optimizer.zero_grad()
                 loss.backward()
-                grad_norms.append(float(torch.nn.utils.clip_grad_norm_(self.loss.parameters(),
-                                                                       ppo.max_grad_norm)))
-                self.optimizer.step()
+                norms = [float(torch.nn.utils.clip_grad_norm_(group, ppo.max_grad_norm)) for group in self._groups]
+                grad_norms.append(norms[0] if len(norms) == 1 else float(np.sqrt(np.sum(np.square(norms)))))
+                for optimizer in self.optimizers:
+                    optimizer.step()
                 updates += 1
                 for key in ("loss_objective", "loss_critic", "loss_entropy", "entropy", "kl_approx"):
                     if key in losses.keys():
@@ -407,7 +416,8 @@ class Trainer:
         return {
             "actor": self.modules.actor.state_dict(),
             "critic": self.modules.critic.state_dict(),
-            "optimizer": self.optimizer.state_dict(),
+            "optimizer": (self.optimizers[0].state_dict() if len(self.optimizers) == 1
+                          else [optimizer.state_dict() for optimizer in self.optimizers]),
             "mechanism": self.mechanism.state_dict(),
             "time_objective": [budget for _, budget, _ in self._env_states()],
             "counters": {"episodes": self.episodes, "frames": self.frames, "batches": self.batches},
@@ -428,7 +438,13 @@ class Trainer:
     def load_state_dict(self, state: dict) -> None:
         self.modules.actor.load_state_dict(state["actor"])
         self.modules.critic.load_state_dict(state["critic"])
-        self.optimizer.load_state_dict(state["optimizer"])
+        saved = state["optimizer"]
+        saved = saved if isinstance(saved, list) else [saved]
+        if len(saved) != len(self.optimizers):
+            raise ValueError(f"the checkpoint has {len(saved)} optimiser state(s), ppo.optimizer: "
+                             f"{self.config.ppo.optimizer} needs {len(self.optimizers)}")
+        for optimizer, optimizer_state in zip(self.optimizers, saved):
+            optimizer.load_state_dict(optimizer_state)
         self.mechanism.load_state_dict(state["mechanism"])
         budgets, rngs = state["time_objective"], state["env_rng"]
         if isinstance(budgets, dict):  # checkpoints of single-environment runs before num_envs
