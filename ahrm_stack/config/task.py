@@ -225,6 +225,18 @@ class EpisodeConfig(Section):
 
 
 @Frozen
+class StagedRewardConfig(Section):
+    """The oracle control's staged dense reward (``task.rewards.learning: staged``; issue 56), after
+    ManiSkill3's PushCube: reach a push pose behind the cube for the episode's lane, then push it
+    along the lane off the table. Per step, in [-1, 1]: (reach + reached x push) / 2, 1 on success,
+    minus 1 on a step that touches an obstacle."""
+
+    tanh_scale: Pos  # 1/m: reach = 1 - tanh(scale x the tip's distance to the push pose), push likewise
+    push_offset: Pos  # m: the push pose is this far behind the cube's back face, at the cube's centre
+    reached_distance: Pos  # m: the push term counts once the tip is this close to the push pose
+
+
+@Frozen
 class RewardConfig(Section):
     obstacle_speed_threshold: Pos  # m/s; a faster obstacle counts as touched
     progress_eps: Pos  # m; f2 needs progress above the best so far by more than this
@@ -232,6 +244,12 @@ class RewardConfig(Section):
     # sets f3's phase budgets (legacy: before 2026-12-02 the spec's previous episode)
     avoid_margin: Annotated[NonNeg, legacy(0.0)]  # m; f1 = -1 also while the cube or the pusher is
     # this close to an obstacle (legacy: before 2026-12-04 the touch alone)
+    learning: Annotated[Literal["mechanism", "staged"], legacy("mechanism")]  # the reward the learner
+    # gets: mechanism (the reward mechanism's, spec §4) | staged (the oracle control's staged dense
+    # reward, keyed on the planner's lane: a diagnosis of PPO, never a method; the mechanism still
+    # runs and logs)
+    staged: Annotated[StagedRewardConfig, legacy({"tanh_scale": 5.0, "push_offset": 0.03,
+                                                  "reached_distance": 0.03})]
 
 
 @Frozen

@@ -122,3 +122,27 @@ class TimeObjective:
             raise ValueError(f"time objective state has {budget.shape} budgets, expected "
                              f"{self.budget.shape}")
         self.budget = budget
+
+
+def staged_push_reward(tip: np.ndarray, cube: np.ndarray, lane_sign: float, cube_half: float,
+                       table_half_x: float, touched: bool, success: bool, tanh_scale: float,
+                       push_offset: float, reached_distance: float) -> float:
+    """The oracle control's staged dense reward of one step (``task.rewards.learning: staged``).
+
+    ``tip``, ``cube``: the pusher tip and the cube centre (m, world frame); ``lane_sign``: +1 to
+    push toward +x, -1 toward -x. Reach = 1 - tanh(scale d), d the tip's distance to the push pose
+    (``push_offset`` behind the cube's back face, at its centre); push = 1 - tanh(scale e), e how
+    far the cube's centre still is from leaving the table along the lane (0 once off). The step's
+    reward is (reach + push) / 2 once the tip is within ``reached_distance`` of the pose, reach / 2
+    before; 1 on success; minus 1 when an obstacle is touched. In [-1, 1]."""
+    if success:
+        value = 1.0
+    else:
+        tip, cube = np.asarray(tip, dtype=float), np.asarray(cube, dtype=float)
+        pose = cube - np.array([lane_sign * (cube_half + push_offset), 0.0, 0.0])
+        d = float(np.linalg.norm(tip - pose))
+        reach = 1.0 - np.tanh(tanh_scale * d)
+        remaining = max(0.0, table_half_x - lane_sign * float(cube[0]))
+        push = 1.0 - np.tanh(tanh_scale * remaining)
+        value = 0.5 * (reach + (push if d <= reached_distance else 0.0))
+    return float(value - (1.0 if touched else 0.0))

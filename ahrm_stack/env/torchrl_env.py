@@ -31,6 +31,7 @@ from ahrm_stack.env.control_step import action_to_command, check_action_shape  #
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.lane_agreement import taken_lane
 from ahrm_stack.env.episode import EpisodeRecorder, EpisodeSummary
+from ahrm_stack.env.rewards import staged_push_reward
 from ahrm_stack.names import NUM_OBJECTIVES
 from ahrm_stack.env.task import PushOffTask, StepInfo
 
@@ -142,6 +143,13 @@ class PushOffEnv(EnvBase):
             reward = float(info.g.sum())
         else:
             reward = float(self.mechanism.reward(info.g, info.distances))
+        rewards = self.task.config.rewards
+        if rewards.learning == "staged":  # the oracle control (the mechanism above still runs and logs)
+            staged = rewards.staged
+            reward = staged_push_reward(info.tip, info.target, 1.0 if self._planned == "+x" else -1.0,
+                                        self.task.config.cube.size / 2, self.task.config.table.half_extent[0],
+                                        info.touched, info.success, staged.tanh_scale, staged.push_offset,
+                                        staged.reached_distance)
         if self.touch_penalty > 0 and info.touched and not terminated:
             reward -= self.touch_penalty
             if not truncated:  # a step that hit the time limit has closed the episode already
