@@ -96,7 +96,7 @@ def _forbid_the_planner(monkeypatch):
         monkeypatch.setattr(module, "choose_lane", planner)
 
 
-@pytest.mark.parametrize("frame", ["none", "cube_side_no_joints"])
+@pytest.mark.parametrize("frame", ["none", "cube_side_no_joints", "tip_side_no_joints"])
 def test_the_planner_free_training_never_asks_the_planner(monkeypatch, frame):
     """A batch of the planner-free profile's training (near-cube curriculum starts, level 0), in
     the world frame and in the cube-side frame, with choose_lane made to raise; the

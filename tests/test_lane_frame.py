@@ -260,3 +260,35 @@ def test_the_cube_side_frame_is_keyed_on_the_cubes_x_not_the_plan():
     assert not any("key_" in name for name in mirror.state_dict())
     with pytest.raises(ConfigError, match=r"task\.action\.mode"):
         load_config(["profile=scratch-own-lane", "ppo.lane_frame=cube_side_no_joints", "task.action.mode=joint"])
+
+
+def test_the_tip_side_frame_is_keyed_on_the_tips_side_of_the_cube():
+    """ppo.lane_frame: tip_side_no_joints (issue 56): mirrored where the observed tip is at larger
+    x than the cube (relative_to_cube's x > 0), so a push away from the tip is +x in the frame; the
+    actor equivariant and deploy's NumPy forward the same; it needs the relative observation."""
+    config = load_config(["profile=scratch-own-lane", "ppo.lane_frame=tip_side_no_joints"])
+    layout = observation_layout(config.task, 6, 5)
+    assert "lane_choice" not in layout
+    dim, key = max(part.stop for part in layout.values()), layout["relative_to_cube"].start
+    modules = make_modules(config.ppo, dim, 3, lane_mirror_for(config, dim, 3, 6, 5))
+    mirror = modules.mirror
+    observation = torch.randn(64, dim)
+    observation[:32, key] = -0.08  # tip 8 cm on the cube's -x side
+    observation[32:, key] = 0.08
+    modules.normalizer.update(modules.framed(observation))
+    assert mirror.mirrored(observation).squeeze(-1).tolist() == [False] * 32 + [True] * 32
+    framed, action_sign = mirror.canonical(observation)
+    assert torch.all(framed[:, key] == -0.08)  # the tip always on the cube's -x side in the frame
+    assert action_sign[32:].tolist() == [[-1.0, 1.0, 1.0]] * 32
+    act = lean_actor(modules.actor).act
+    minus = observation[:32]
+    reflected = minus[:, mirror.permutation] * mirror.sign  # the same world reflected: tip on +x
+    a, b = act(minus), act(reflected)
+    assert torch.allclose(a[:, 0], -b[:, 0]) and torch.allclose(a[:, 1:], b[:, 1:])
+    policy = NumpyPolicy.from_actor(modules.actor)
+    assert policy is not None
+    for row, want in zip(observation.numpy().astype(np.float64), act(observation).numpy()):
+        np.testing.assert_allclose(policy(row), want, atol=1e-5, rtol=0)
+    with pytest.raises(ConfigError, match=r"task\.observation\.relative"):
+        load_config(["profile=scratch-own-lane", "ppo.lane_frame=tip_side_no_joints",
+                     "task.observation.relative=false"])

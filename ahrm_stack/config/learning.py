@@ -59,7 +59,7 @@ class MechanismConfig(Section):
     blend_slope: Pos  # alpha, 1/m
 
 
-LaneFrame = Literal["none", "mirror", "mirror_no_joints", "cube_side_no_joints"]  # ppo.lane_frame (learning/lane_frame.py)
+LaneFrame = Literal["none", "mirror", "mirror_no_joints", "cube_side_no_joints", "tip_side_no_joints"]  # ppo.lane_frame (learning/lane_frame.py)
 
 
 @Frozen
@@ -105,7 +105,8 @@ class PPOConfig(Section):
     # learns scaled returns)
     lane_frame: Annotated[LaneFrame, legacy("none")]  # the policy reads the world mirrored
     # x -> -x when the episode's lane is -x (learning/lane_frame.py); no_joints: joint entries zeroed;
-    # cube_side_no_joints: mirrored when the cube's observed x is < 0 instead (no planner input)
+    # cube_side_no_joints: mirrored when the cube's observed x is < 0 instead (no planner input);
+    # tip_side_no_joints: mirrored when the tip is on the cube's +x side, per step (no planner input)
 
     def check(self, key: str) -> None:
         if self.frames_per_batch % self.mini_batch_size:

@@ -39,6 +39,9 @@ class Config(Section):
             if ppo.lane_frame.startswith("mirror") and not task.observation.lane_choice:
                 raise ConfigError(f"ppo.lane_frame: {ppo.lane_frame} needs task.observation.lane_choice: "
                                   "true (the episode's lane decides whether the policy's frame is mirrored)")
+            if ppo.lane_frame == "tip_side_no_joints" and not task.observation.relative:
+                raise ConfigError("ppo.lane_frame: tip_side_no_joints needs task.observation.relative: true "
+                                  "(the tip's x relative to the cube decides whether the frame is mirrored)")
             if task.action.mode != "cartesian":
                 raise ConfigError(f"ppo.lane_frame: {ppo.lane_frame} needs task.action.mode: cartesian (a "
                                   f"joint-velocity action has no mirror image), got {task.action.mode}")

@@ -28,6 +28,14 @@ the cube's own side of the table, mirrored when the cube's observed x is below 0
 zeroed). It tells the network nothing about the lane (the choice depends on the obstacles); it
 only shows it one half of the table, so that pushes learned on one side serve the other.
 
+``ppo.lane_frame: tip_side_no_joints`` keys it on the pusher tip's side of the cube, per step:
+mirrored when the observed tip is at larger x than the cube (``relative_to_cube``'s x > 0). Every
+state is then seen with the tip on the cube's -x side, so that a push away from the tip is always
++x in the frame and the near-cube starts behind a free lane (``task.arm.near_cube.bearing:
+behind_free``) are one task, as the planner's lane makes them for ``mirror*``, without the
+planner: the key is the policy's own observation. Where the lane ahead (in the frame) is blocked,
+the way round the cube crosses x = cube x, and the frame turns with the tip.
+
 Everything here is torch on the policy's side: the environment, the rewards, the safety filter
 and the deploy loop stay in the world frame, and a checkpoint carries the mirror as buffers.
 """
@@ -52,9 +60,10 @@ class LaneMirror(nn.Module):
     ``permutation[i]``: the world entry that entry i of the mirrored observation reads;
     ``sign[i]``: -1 for x coordinates, else +1; ``keep[i]``: 0 for entries dropped in the frame
     (whether mirrored or not); ``minus_index``: the entry that decides the mirror, the
-    ``lane_choice`` entry of the -x lane (or, ``cube_side_no_joints``, the cube's x): mirrored where
-    ``key_sign`` x that entry > ``key_threshold`` (1 and 0.5: the -x lane; -1 and 0 m: the cube at
-    x < 0; both rebuilt from the config, not stored in checkpoints); ``action_sign``: -1 for the
+    ``lane_choice`` entry of the -x lane (or, ``cube_side_no_joints``, the cube's x; ``tip_side_no_joints``,
+    the tip's x relative to the cube): mirrored where ``key_sign`` x that entry > ``key_threshold``
+    (1 and 0.5: the -x lane; -1 and 0 m: the cube at x < 0; 1 and 0 m: the tip on the cube's +x side;
+    rebuilt from the config, not stored in checkpoints); ``action_sign``: -1 for the
     action's x entry."""
 
     permutation: torch.Tensor
@@ -137,6 +146,11 @@ def make_lane_mirror(task: TaskConfig, frame: LaneFrame, num_joints: int, num_co
     if by_lane:
         return LaneMirror(permutation, sign, keep, layout["lane_choice"].start + directions.index("-x"),
                           action_sign)
+    if frame == "tip_side_no_joints":  # tip - cube, x (m): mirrored on the cube's +x side
+        if "relative_to_cube" not in layout:  # Config.check names the key
+            raise ValueError("ppo.lane_frame: tip_side_no_joints needs task.observation.relative")
+        return LaneMirror(permutation, sign, keep, layout["relative_to_cube"].start, action_sign,
+                          key_sign=1.0, key_threshold=0.0)
     return LaneMirror(permutation, sign, keep, layout["cube"].start, action_sign, key_sign=-1.0, key_threshold=0.0)
 
 
