@@ -103,6 +103,9 @@ class PPOConfig(Section):
     bc_decay_frames: Annotated[NonNegInt, legacy(0)]  # ... over this many frames (0: constant bc_coeff)
     reward_scale: Annotated[Pos, legacy(1.0)]  # rewards are multiplied by this before GAE (the critic
     # learns scaled returns)
+    critic_privileged: Annotated[Bool, legacy(False)]  # an asymmetric critic: it also reads the
+    # planner's lane (one-hot, in the lane frame), which the policy never sees; the critic is not
+    # deployed, so a policy trained so stays planner-free at deployment (not "planner-free throughout")
     lane_frame: Annotated[LaneFrame, legacy("none")]  # the policy reads the world mirrored
     # x -> -x when the episode's lane is -x (learning/lane_frame.py); no_joints: joint entries zeroed;
     # cube_side_no_joints: mirrored when the cube's observed x is < 0 instead (no planner input);

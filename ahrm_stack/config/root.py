@@ -34,6 +34,9 @@ class Config(Section):
             raise ConfigError(f"safety.acceleration_limit has {len(self.safety.acceleration_limit)} "
                               f"values, task.arm.home_deg {len(self.task.arm.home)}: both give one "
                               f"value per joint of task.robot ({self.task.robot})")
+        if ppo.critic_privileged and uses_demos:
+            raise ConfigError("ppo.critic_privileged needs train.warm_start: none and ppo.bc_coeff: 0 (the "
+                              "demonstrations hold no privileged entries for the critic's refit)")
         if ppo.lane_frame != "none":
             task = self.task
             if ppo.lane_frame.startswith("mirror") and not task.observation.lane_choice:

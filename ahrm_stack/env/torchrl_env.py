@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import itertools
 
+import numpy as np
+
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Binary, Bounded, Composite, Unbounded
@@ -78,6 +80,7 @@ class PushOffEnv(EnvBase):
         self.robot = self.task.robot
         action_dim = self.runner.control.action_size
         self.runner.reset()
+        self.privileged = np.zeros(len(config.layout.lane_directions), dtype=np.float32)
         obs_dim = self.runner.flat_observation().shape[0]
         self.observation_spec = Composite(
             observation=Unbounded(shape=(obs_dim,), dtype=torch.float32),
@@ -88,6 +91,8 @@ class PushOffEnv(EnvBase):
             distances=Unbounded(shape=(2,), dtype=torch.float32),
             success=Binary(n=1, shape=(1,), dtype=torch.bool),
             touched=Binary(n=1, shape=(1,), dtype=torch.bool),
+            # the critic's privileged input (ppo.critic_privileged): the planner's lane, one-hot
+            privileged=Unbounded(shape=(len(config.layout.lane_directions),), dtype=torch.float32),
         )
         self.action_spec = Bounded(low=-1.0, high=1.0, shape=(action_dim,), dtype=torch.float32)
         self.reward_spec = Unbounded(shape=(1,), dtype=torch.float32)
@@ -108,6 +113,7 @@ class PushOffEnv(EnvBase):
             "distances": torch.as_tensor(info.distances, dtype=torch.float32),
             "success": torch.tensor([info.success]),
             "touched": torch.tensor([info.touched]),
+            "privileged": torch.as_tensor(self.privileged),
         }
 
     def begin(self) -> StepInfo:
@@ -116,7 +122,10 @@ class PushOffEnv(EnvBase):
         self._monitor = self.mechanism.constraint_monitor() if self.mechanism is not None else None
         self._recorder = EpisodeRecorder(transition.info)
         physics = self.runner.physics  # the planner's lane at the start (reading only): lane agreement
-        self._planned = self.task.config.layout.lane_directions[self.task.plan_lane(physics)]
+        directions = self.task.config.layout.lane_directions
+        self._planned = directions[self.task.plan_lane(physics)]
+        # what only the critic may read (ppo.critic_privileged; never the policy): the planner's lane
+        self.privileged = np.array([float(d == self._planned) for d in directions], dtype=np.float32)
         self._cube_start = self.task.cube_xy(physics).tolist()
         return transition.info
 

@@ -31,7 +31,7 @@ from ahrm_stack.env.torchrl_env import PushOffEnv
 from ahrm_stack.learning.ppo import LeanCollectionActor
 
 # the per-step entries of the environment (root and "next")
-STEP_KEYS = ("observation", "f", "g", "phase", "x", "distances", "success", "touched")
+STEP_KEYS = ("observation", "f", "g", "phase", "x", "distances", "success", "touched", "privileged")
 NUMPY_DTYPES = {torch.float32: np.float32, torch.int64: np.int64, torch.bool: np.bool_}
 
 Values = dict[str, np.ndarray]
@@ -89,6 +89,7 @@ class LocalEnvs:
         out["f"][row], out["g"][row], out["phase"][row] = info.f, info.g, info.phase
         out["x"][row], out["distances"][row] = info.x, info.distances
         out["success"][row], out["touched"][row] = info.success, info.touched
+        out["privileged"][row] = env.privileged
 
     def begin(self) -> Values:
         """Every environment starts an episode: its first values."""

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Sequence
 
 import numpy as np
 import torch
@@ -109,6 +110,23 @@ class FramedNorm(nn.Module):
         return self.normalizer(framed), action_sign
 
 
+class PrivilegedInput(nn.Module):
+    """The asymmetric critic's input (``ppo.critic_privileged``): the normalised observation and the
+    privileged one-hot (the planner's lane), its entries swapped where the lane frame is mirrored
+    (``action_sign``'s x entry -1), so that the critic reads the lane in the policy's frame."""
+
+    def __init__(self, swap: Sequence[int] | None = None) -> None:
+        super().__init__()
+        self.swap = None if swap is None else list(swap)
+
+    def forward(self, observation_norm: torch.Tensor, privileged: torch.Tensor,
+                action_sign: torch.Tensor | None = None) -> torch.Tensor:
+        if action_sign is not None and self.swap is not None:
+            mirrored = action_sign[..., :1] < 0
+            privileged = torch.where(mirrored, privileged[..., self.swap], privileged)
+        return torch.cat([observation_norm, privileged], dim=-1)
+
+
 class SignedLoc(nn.Module):
     """The Gaussian's mean mapped from the lane frame to the world: ``loc * action_sign``."""
 
@@ -131,10 +149,14 @@ class Modules:
 
 
 def make_modules(config: PPOConfig, observation_dim: int, action_dim: int,
-                 mirror: LaneMirror | None = None) -> Modules:
+                 mirror: LaneMirror | None = None, privileged_swap: Sequence[int] | None = None) -> Modules:
     """Actor (TanhNormal over [-1, 1]) and critic, sharing one observation normaliser; with a
     ``mirror`` (``ppo.lane_frame``, :func:`~ahrm_stack.learning.lane_frame.lane_mirror_for`) both
-    read the observation in the lane frame and the actor's mean is mapped back to the world."""
+    read the observation in the lane frame and the actor's mean is mapped back to the world.
+
+    ``privileged_swap`` (``ppo.critic_privileged``; the permutation of the environment's
+    ``privileged`` entries under the mirror): the critic also reads them (:class:`PrivilegedInput`);
+    the actor never does. Left out (inference: only the actor is loaded), the critic is the plain one."""
     normalizer = RunningNorm(observation_dim, config.normalizer_clip, config.normalize_observations,
                              config.normalizer_min_std)
     if mirror is None:
@@ -160,10 +182,17 @@ def make_modules(config: PPOConfig, observation_dim: int, action_dim: int,
     actor = ProbabilisticActor(
         actor_body, in_keys=["loc", "scale"], distribution_class=TanhNormal,
         distribution_kwargs={"low": -1.0, "high": 1.0}, return_log_prob=True)
-    critic_net = MLP(in_features=observation_dim, out_features=1, num_cells=list(config.hidden_sizes),
-                     activation_class=activation)
-    critic = TensorDictSequential(
-        norm_module, TensorDictModule(critic_net, in_keys=["observation_norm"], out_keys=["state_value"]))
+    privileged = privileged_swap is not None
+    critic_net = MLP(in_features=observation_dim + (len(privileged_swap) if privileged else 0), out_features=1,
+                     num_cells=list(config.hidden_sizes), activation_class=activation)
+    if privileged:
+        keys = ["observation_norm", "privileged"] + (["action_sign"] if mirror is not None else [])
+        critic = TensorDictSequential(
+            norm_module, TensorDictModule(PrivilegedInput(privileged_swap), in_keys=keys, out_keys=["critic_input"]),
+            TensorDictModule(critic_net, in_keys=["critic_input"], out_keys=["state_value"]))
+    else:
+        critic = TensorDictSequential(
+            norm_module, TensorDictModule(critic_net, in_keys=["observation_norm"], out_keys=["state_value"]))
     return Modules(normalizer, head, actor, critic, mirror)
 
 

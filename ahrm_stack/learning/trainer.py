@@ -47,7 +47,7 @@ from ahrm_stack.learning.demonstrations import (bc_loss, collect_corrections, co
 from ahrm_stack.learning.mechanisms import RewardMechanism
 from ahrm_stack.learning import workers
 from ahrm_stack.learning.collection import LeanCollector
-from ahrm_stack.learning.lane_frame import lane_mirror_for
+from ahrm_stack.learning.lane_frame import MIRRORED_LANE, lane_mirror_for
 from ahrm_stack.learning.lean_loss import lean_loss_for
 from ahrm_stack.learning.pool import EnvPool
 from ahrm_stack.learning.ppo import (anchor_coeff, lean_collection_actor, make_buffer, make_loss,
@@ -141,7 +141,11 @@ class Trainer:
         joints = {} if robot is None else {"num_joints": robot.num_joints,
                                            "num_commanded": len(robot.commanded_joints)}
         mirror = lane_mirror_for(config, observation_dim, action_dim, **joints)  # ppo.lane_frame
-        self.modules = make_modules(config.ppo, observation_dim, action_dim, mirror)
+        swap = None
+        if config.ppo.critic_privileged:  # the planner's lane per lane_directions; mirrored: +x <-> -x
+            directions = list(config.task.layout.lane_directions)
+            swap = [directions.index(MIRRORED_LANE.get(d, d)) for d in directions]
+        self.modules = make_modules(config.ppo, observation_dim, action_dim, mirror, swap)
         self.loss, self.advantage = make_loss(config.ppo, self.modules)
         # the same loss as plain torch ops where it applies (lean_loss.py; the same parameters)
         self.compute_loss = lean_loss_for(config.ppo, self.modules) or self.loss
