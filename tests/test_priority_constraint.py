@@ -28,10 +28,11 @@ OVERRIDES = ["profile=scratch-own-lane", "task.arm.near_cube.bearing=behind_free
              "task.rewards.avoid_margin=0.02", "mechanism.method=ahrm"]
 
 
-def expert_episodes(check: str) -> list:
+def expert_episodes(check: str | None, overrides: list[str] = OVERRIDES) -> list:
     """The scripted controller's episodes from near-cube starts through a training environment
-    (``train.time_limit``) whose mechanism sits at level 3, order M > A > T, in every phase."""
-    config = load_config([*OVERRIDES, f"mechanism.constraint_check={check}"])
+    (``train.time_limit``) whose mechanism sits at level 3, order M > A > T, in every phase
+    (``check``: ``mechanism.constraint_check``, None: the profile's)."""
+    config = load_config([*overrides, *([] if check is None else [f"mechanism.constraint_check={check}"])])
     mechanism = RewardMechanism(config.mechanism)
     mechanism.orders = [(1, 0, 2)] * 3  # manipulate > avoid > time
     mechanism.levels = [3, 3, 3]
@@ -56,6 +57,17 @@ def test_an_expert_keeps_its_wins(check):
     episodes = expert_episodes(check)
     assert not any(e.constraint_terminated for e in episodes)
     assert np.mean([e.success for e in episodes]) >= 0.9  # the curriculum's 0.5 is reachable
+
+
+def test_the_planner_free_profile_lets_an_expert_raise_the_curriculum():
+    """The fix, on the profile: under ``profile=planner-free`` the expert's near-cube episodes win
+    often enough for the start curriculum (train.curriculum_threshold) to rise; under the lane
+    study's ``profile=scratch-own-lane`` (the check online) they did not."""
+    config = load_config(["profile=planner-free", "mechanism.method=ahrm"])
+    episodes = expert_episodes(None, ["profile=planner-free", "mechanism.method=ahrm"])
+    assert np.mean([e.success for e in episodes]) >= max(0.9, config.train.curriculum_threshold)
+    before = expert_episodes(None, OVERRIDES)  # scratch-own-lane + behind_free, the check online
+    assert np.mean([e.success for e in before]) < config.train.curriculum_threshold
 
 
 def test_the_online_check_ends_most_of_an_experts_wins():
