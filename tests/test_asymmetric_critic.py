@@ -3,7 +3,6 @@ the policy never does."""
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 import torch
 
