@@ -23,10 +23,10 @@ import numpy as np
 
 from ahrm_stack.cli import quiet_argv
 from ahrm_stack.config import ConfigError, ExperimentConfig, PaperRow, load_extra
+from ahrm_stack.learning.mechanisms import MECHANISMS, label
 from ahrm_stack.names import OBJECTIVE_NAMES, PHASE_NAMES
 
 OBJECTIVE_LETTERS = {name[0].upper(): name for name in OBJECTIVE_NAMES}  # A: avoid, M: manipulate, T: time
-METHOD_NAMES = {"ahrm": "AHRM", "mhrm": "MHRM", "fhrm": "FHRM", "ls": "LS"}
 
 
 @dataclasses.dataclass
@@ -120,52 +120,55 @@ def rank_methods(summaries: dict[str, dict]) -> list[str]:
     return sorted(done, key=lambda m: (-summaries[m]["success_rate"][0], summaries[m]["touched_episodes"][0]))
 
 
-def findings(summaries: dict[str, dict], paper: dict[str, PaperRow], runs: list[RunRecord]) -> list[str]:
-    """Plain statements about the outcome, AHRM's rank and its distance to the paper first."""
+def findings(summaries: dict[str, dict], paper: dict[str, PaperRow], runs: list[RunRecord],
+             reference: str = "ahrm") -> list[str]:
+    """Plain statements about the outcome, the ``reference`` method's rank (``experiment.reference``,
+    the paper's AHRM) and its distance to the paper first."""
     lines = []
     ranking = rank_methods(summaries)
-    if "ahrm" not in summaries or not summaries["ahrm"]["seeds_done"]:
-        lines.append("AHRM has no finished run in this grid, so the paper's main claim is not tested here.")
+    ref = label(reference)
+    if reference not in summaries or not summaries[reference]["seeds_done"]:
+        lines.append(f"{ref} has no finished run in this grid, so the paper's main claim is not tested here.")
     else:
-        rate = summaries["ahrm"]["success_rate"][0]
-        position = ranking.index("ahrm") + 1
+        rate = summaries[reference]["success_rate"][0]
+        position = ranking.index(reference) + 1
         top_rate = summaries[ranking[0]]["success_rate"][0]
-        tied = [m for m in ranking if m != "ahrm" and summaries[m]["success_rate"][0] == rate]
+        tied = [m for m in ranking if m != reference and summaries[m]["success_rate"][0] == rate]
         if top_rate == 0:
             lines.append("**No method succeeded in any evaluation episode**: the ranking below rests on "
                          "the tiebreak (fewer episodes touching an obstacle) alone.")
         if tied and rate == top_rate:
-            touches = ", ".join(f"{METHOD_NAMES.get(m, m)} {summaries[m]['touched_episodes'][0]:.1f}"
-                                for m in ranking if m == "ahrm" or m in tied)
-            touched = summaries["ahrm"]["touched_episodes"][0]
+            touches = ", ".join(f"{label(m)} {summaries[m]['touched_episodes'][0]:.1f}"
+                                for m in ranking if m == reference or m in tied)
+            touched = summaries[reference]["touched_episodes"][0]
             if all(summaries[m]["touched_episodes"][0] == touched for m in tied):
                 ahead, place = "it is not ahead of them", "they tie on it too"
             else:
                 ahead = "it is not ahead of them" if position == 1 else "**it is not the best method here**"
                 place = f"it ranks {position} of {len(ranking)}"
-            lines.append(f"AHRM ties with {', '.join(METHOD_NAMES.get(m, m) for m in tied)} on mean "
+            lines.append(f"{ref} ties with {', '.join(label(m) for m in tied)} on mean "
                          f"evaluation success rate ({rate:.1%}): {ahead}. On the tiebreak (mean episodes "
                          f"touching an obstacle: {touches}) {place}.")
         elif position == 1:
-            lines.append(f"AHRM ranks first of {len(ranking)} methods by mean evaluation success rate "
+            lines.append(f"{ref} ranks first of {len(ranking)} methods by mean evaluation success rate "
                          f"({rate:.1%}).")
         else:
             best = ranking[0]
-            lines.append(f"**AHRM is not the best method here**: it ranks {position} of {len(ranking)} by "
-                         f"mean evaluation success rate ({rate:.1%}); {METHOD_NAMES.get(best, best)} ranks "
+            lines.append(f"**{ref} is not the best method here**: it ranks {position} of {len(ranking)} by "
+                         f"mean evaluation success rate ({rate:.1%}); {label(best)} ranks "
                          f"first ({summaries[best]['success_rate'][0]:.1%}).")
-        if "ahrm" in paper:
-            target = paper["ahrm"].successes / paper["ahrm"].episodes
+        if reference in paper:
+            target = paper[reference].successes / paper[reference].episodes
             if rate < target:
-                lines.append(f"**AHRM's mean success rate ({rate:.1%}) is below the paper's "
+                lines.append(f"**{ref}'s mean success rate ({rate:.1%}) is below the paper's "
                              f"{target:.1%}.** The paper's result is not reproduced by this run.")
             else:
-                lines.append(f"AHRM's mean success rate ({rate:.1%}) reaches the paper's {target:.1%}.")
+                lines.append(f"{ref}'s mean success rate ({rate:.1%}) reaches the paper's {target:.1%}.")
     for method in ranking:
         if method in paper:
             ours = summaries[method]["success_rate"][0]
             theirs = paper[method].successes / paper[method].episodes
-            lines.append(f"{METHOD_NAMES.get(method, method)}: {ours:.1%} here vs {theirs:.1%} in the paper.")
+            lines.append(f"{label(method)}: {ours:.1%} here vs {theirs:.1%} in the paper.")
     failed = [r.name for r in runs if r.status == "failed"]
     missing = [r.name for r in runs if r.status == "missing"]
     if failed:
@@ -235,7 +238,7 @@ def _table2_rows(methods: list[str], summaries: dict, paper: dict[str, PaperRow]
     rows = []
     for method in methods:
         s = summaries[method]
-        name = METHOD_NAMES.get(method, method)
+        name = label(method)
         rows.append([f"{name} (here, {s['seeds_done']}/{s['seeds']} seeds)", _pm(s["successes"], 1),
                      _pm(s["success_rate"], 1, percent=True), _pm(s["touched_episodes"], 1),
                      _pm(s["time_mean"], 2), _pm(s["travel_mean"], 4)])
@@ -300,7 +303,7 @@ def _threshold_rows(runs: list[RunRecord], methods: list[str], threshold: float,
             reached += [first] if first is not None else []
             held += [kept] if kept is not None else []
         seeds = len(per_seed)
-        rows.append([METHOD_NAMES.get(method, method), mean_of(reached, seeds), mean_of(held, seeds),
+        rows.append([label(method), mean_of(reached, seeds), mean_of(held, seeds),
                      "; ".join(per_seed) or "—"])
     return rows
 
@@ -313,7 +316,7 @@ def _safety_rows(runs: list[RunRecord], methods: list[str], summaries: dict, scr
                                if r.method == method and r.episodes is not None]
         terminations = [np.mean(r.episodes["constraint_terminated"]) for r in runs
                         if r.method == method and r.episodes is not None]
-        rows.append([METHOD_NAMES.get(method, method), _pm(s["interventions_per_episode"], 1),
+        rows.append([label(method), _pm(s["interventions_per_episode"], 1),
                      _pm(s["touched_episodes"], 1), _pm(s["joint_limit_violations"], 1),
                      _pm(mean_std(train_interventions), 1), _pm(mean_std(terminations), 2)])
     if scripted is not None:
@@ -347,6 +350,8 @@ def _suite_lines(out: Path, grid: dict, runs: list[RunRecord], methods: list[str
                       key=lambda f: next((i for i, s in enumerate(_suite_order()) if s == f), 99))
     compared = [m for m in methods if m in columns]
     order = rank(columns, families, compared)
+    reference = experiment.reference
+    baselines = [m for m in compared if m in MECHANISMS and not MECHANISMS[m].hierarchical]  # LS
     lines = ["", "## Evaluation suite", "",
              f"Every run's final deterministic policy on every family of the evaluation suite "
              f"(`configs/layouts.yaml`, {grid['eval_episodes']} episodes each, each family on its own "
@@ -354,10 +359,12 @@ def _suite_lines(out: Path, grid: dict, runs: list[RunRecord], methods: list[str
              "behaviour cloning, plus DAgger when `train.dagger_rounds` > 0), `scripted` the scripted "
              "controller on the same episodes.",
              "", f"Ranking on the suite (success, then fewer touching episodes): "
-             f"{' > '.join(METHOD_NAMES.get(m, m) for m in order)}. "
-             + ("AHRM ranks first" if order and order[0] == "ahrm" else "AHRM does not rank first")
-             + ("" if "ls" not in order else " and LS last" if order[-1] == "ls" else "; LS is not last")
-             + " (the paper: AHRM first, LS last). Where the intervals below include 0 the "
+             f"{' > '.join(label(m) for m in order)}. "
+             + (f"{label(reference)} ranks first" if order and order[0] == reference
+                else f"{label(reference)} does not rank first")
+             + ("" if not baselines else f" and {label(baselines[0])} last" if order[-1] == baselines[0]
+                else f"; {label(baselines[0])} is not last")
+             + f" (the paper: {label(reference)} first, LS last). Where the intervals below include 0 the "
              "difference is not resolved by these seeds.", ""]
     support: dict[str, str] = {}
     for r in sorted(runs, key=lambda r: r.seed):  # the grid's runs share one training config
@@ -393,7 +400,7 @@ def write_report(out: Path | str, experiment: ExperimentConfig | None = None) ->
                plot_objectives(out, runs, methods, experiment.curve_window),
                plot_orders(out, runs, methods)]
 
-    lines = [f"# AHRM experiment: {', '.join(METHOD_NAMES.get(m, m) for m in methods)}", "",
+    lines = [f"# AHRM experiment: {', '.join(label(m) for m in methods)}", "",
              f"Generated {time.strftime('%Y-%m-%d %H:%M')} by `python -m ahrm_stack.experiment` from the "
              f"files in this folder. {grid['seeds']} seed(s) per method, {budget(grid)} of "
              f"training per run, {grid['eval_episodes']} deterministic evaluation episodes per run on the "
@@ -403,7 +410,7 @@ def write_report(out: Path | str, experiment: ExperimentConfig | None = None) ->
              + "), every command through the safety filter.",
              f"Training overrides: `{' '.join(grid['train_overrides']) or 'none'}`.", "",
              "## Findings", ""]
-    lines += [f"- {line}" for line in findings(summaries, paper, runs)]
+    lines += [f"- {line}" for line in findings(summaries, paper, runs, experiment.reference)]
     lines += ["", f"## Table II: this reproduction ({split} split, mean ± std over seeds) and the paper", "",
               "Successes and touches are per 40-episode evaluation in the paper and per "
               f"{grid['eval_episodes']}-episode evaluation here. Time: mean time to success (over "

@@ -392,3 +392,19 @@ def test_the_constraint_monitor_ignores_a_phase_without_threshold_and_ends_only_
 def test_one_order_per_phase_is_required():
     with pytest.raises(ValueError, match=r"^mechanism\.manual_orders: expected 3 orders \(one per phase\), got 2"):
         make("mhrm", manual_orders=(("avoid", "manipulate", "time"),) * 2)
+
+
+def test_the_methods_are_registered_classes():
+    from ahrm_stack.learning.mechanisms import (MECHANISMS, AdaptiveHierarchy, FixedHierarchy, LinearSum,
+                                                ManualHierarchy, label)
+
+    assert {name: cls for name, cls in MECHANISMS.items()} == {
+        "ls": LinearSum, "fhrm": FixedHierarchy, "mhrm": ManualHierarchy, "ahrm": AdaptiveHierarchy}
+    for name, cls in MECHANISMS.items():
+        mechanism = make(name)
+        assert type(mechanism) is cls and isinstance(mechanism, RewardMechanism)
+        assert label(name) == name.upper() and mechanism.method == name
+    assert not LinearSum.hierarchical and AdaptiveHierarchy.adaptive and not FixedHierarchy.adaptive
+    assert make("fhrm").orders == [(0, 1, 2)] * 3
+    assert make("mhrm").orders == [(2, 0, 1), (0, 1, 2), (1, 0, 2)]
+    assert label("not-a-method") == "not-a-method"

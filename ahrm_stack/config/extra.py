@@ -12,7 +12,7 @@ from pydantic import AfterValidator
 
 from ahrm_stack.config.fields import Frozen, Method, NonNegInt, Pair, Pos, PosInt
 from ahrm_stack.config.files import CONFIG_DIR
-from ahrm_stack.schema import Bool, ConfigError, Float, Int, Section, Str, count, fail, ge, load_file, within
+from ahrm_stack.schema import Bool, ConfigError, Float, Int, Section, Str, count, fail, ge, legacy, load_file, within
 
 
 def _even(value: int) -> int:
@@ -51,6 +51,7 @@ class ExperimentConfig(Section):
     """The four-method grid, its budgets and its report (``configs/experiment.yaml``)."""
 
     methods: Annotated[tuple[Method, ...], count(1)]  # mechanism.method values, distinct
+    reference: Annotated[Method, legacy("ahrm")]  # the method the report's findings are about (the paper's)
     seeds: PosInt  # training seeds 0 .. seeds-1
     episodes: PosInt  # training episodes per run (when frames is 0)
     frames: NonNegInt  # training frames per run, the same for every method (0: episodes decides)

@@ -10,6 +10,13 @@ per-step reward reads that state and never changes it; the state changes only in
 :meth:`RewardMechanism.end_episode`, called once per completed episode in a fixed order, so the
 result is the same with one or several environment workers.
 
+The methods are a registry of small subclasses (:data:`MECHANISMS`, by ``mechanism.method``):
+the base holds the hierarchy (levels, their convergence, the history, the priority constraint);
+a subclass says where its orders come from and whether it is a hierarchy at all, and AHRM adds the
+priority determination. ``RewardMechanism(config)`` builds the registered class of
+``config.method``. A new mechanism is one class with :func:`register` (and its name in
+``config.fields.Method``); the report takes its label from here.
+
 Objectives are indexed 0 = avoid, 1 = manipulate, 2 = time; phases are 1-based (1 approach,
 2 pre-manipulate, 3 manipulate). An order is a permutation of objective indices, highest priority
 first.
@@ -19,7 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections import deque
-from typing import Literal
+from typing import Callable, ClassVar, Literal
 
 import numpy as np
 
@@ -27,8 +34,8 @@ from ahrm_stack.config import MechanismConfig
 from ahrm_stack.names import NUM_OBJECTIVES, NUM_PHASES
 from ahrm_stack.names import OBJECTIVE_NAMES as OBJECTIVES
 
-__all__ = ["MechanismConfig", "RewardMechanism", "ConstraintMonitor", "Event", "EpisodeStats",
-           "blend_weight", "parse_order"]
+__all__ = ["MECHANISMS", "MechanismConfig", "RewardMechanism", "ConstraintMonitor", "Event", "EpisodeStats",
+           "blend_weight", "label", "parse_order", "register"]
 
 
 def parse_order(names: tuple[str, ...], where: str) -> tuple[int, ...]:
@@ -73,22 +80,52 @@ class EpisodeStats:
         return cls(steps, sums)
 
 
+MECHANISMS: dict[str, type["RewardMechanism"]] = {}
+"""The registered mechanisms by ``mechanism.method`` name."""
+
+
+def register(name: str, label: str) -> Callable[[type["RewardMechanism"]], type["RewardMechanism"]]:
+    """Class decorator: the mechanism ``name`` (a ``mechanism.method`` value), shown as ``label``."""
+    def add(cls: type["RewardMechanism"]) -> type["RewardMechanism"]:
+        cls.name, cls.label = name, label
+        MECHANISMS[name] = cls
+        return cls
+    return add
+
+
+def label(method: str) -> str:
+    """A method's display name (``AHRM``); the name itself when it is not registered."""
+    return MECHANISMS[method].label if method in MECHANISMS else method
+
+
 class RewardMechanism:
-    """The adaptive state and the reward of one method (``ls``, ``fhrm``, ``mhrm``, ``ahrm``)."""
+    """The adaptive state and the reward of one method; ``RewardMechanism(config)`` is the
+    registered subclass of ``config.method`` (:data:`MECHANISMS`)."""
+
+    name: ClassVar[str] = ""
+    label: ClassVar[str] = ""
+    hierarchical: ClassVar[bool] = True  # levels learned one by one, the priority constraint
+    adaptive: ClassVar[bool] = False  # orders determined from the episodes (AHRM)
+
+    def __new__(cls, config: MechanismConfig) -> "RewardMechanism":
+        if cls is RewardMechanism:
+            if config.method not in MECHANISMS:
+                raise ValueError(f"mechanism.method: {config.method!r} is not registered; choose one of "
+                                 f"{sorted(MECHANISMS)}")
+            cls = MECHANISMS[config.method]
+        return super().__new__(cls)
+
+    def initial_orders(self, config: MechanismConfig) -> list[tuple[int, ...]]:
+        """Each phase's order before any episode (from the config)."""
+        return self._phase_orders(config.initial_orders, "mechanism.initial_orders")
 
     def __init__(self, config: MechanismConfig) -> None:
         self.config = config
         self.method = config.method
-        if config.method == "fhrm":
-            orders = [parse_order(config.fixed_order, "mechanism.fixed_order")] * NUM_PHASES
-        elif config.method == "mhrm":
-            orders = self._phase_orders(config.manual_orders, "mechanism.manual_orders")
-        else:
-            orders = self._phase_orders(config.initial_orders, "mechanism.initial_orders")
-        self.orders = [tuple(o) for o in orders]
+        self.orders = [tuple(o) for o in self.initial_orders(config)]
         # LS sums all objectives from the start; the hierarchies learn level by level.
-        self.levels = [NUM_OBJECTIVES if self.method == "ls" else 1] * NUM_PHASES
-        self.locked = [self.method != "ahrm"] * NUM_PHASES
+        self.levels = [1 if self.hierarchical else NUM_OBJECTIVES] * NUM_PHASES
+        self.locked = [not self.adaptive] * NUM_PHASES
         self.episodes = 0
         self.visits = [0] * NUM_PHASES
         self._level_sums: list[list[float]] = [[] for _ in range(NUM_PHASES)]
@@ -126,7 +163,7 @@ class RewardMechanism:
         step's phase; within one band it is spec §4's (1 - w) R^k + w R^(k+1).
         """
         rewards = self.phase_rewards(g)
-        if self.method == "ls":
+        if not self.hierarchical:  # one sum of every objective, the same in every phase
             return rewards[..., 0]
         distances = np.asarray(distances, dtype=float)
         w12 = blend_weight(distances[..., 0], self.config.blend_band, self.config.blend_slope)
@@ -139,7 +176,7 @@ class RewardMechanism:
         """tau_k per phase (nan where no constraint applies): the mean over the last W episodes
         visiting phase k of the per-step average of R_{j-1}^k, computed with the ±1 components."""
         tau = np.full(NUM_PHASES, np.nan)
-        if self.method == "ls":
+        if not self.hierarchical:
             return tau
         window = self.config.constraint_window
         for k in range(NUM_PHASES):
@@ -182,11 +219,11 @@ class RewardMechanism:
                 continue
             self.visits[k] += 1
             self._history[k].append((stats.steps[k], stats.sums[k].copy()))
-            if self.method != "ls":
+            if self.hierarchical:
                 level_sum = stats.sums[k][list(self.orders[k][: self.levels[k]])].sum()
                 self._level_sums[k].append(float(level_sum))
                 events += self._advance_level(k)
-            if self.method == "ahrm" and not self.locked[k] and self.visits[k] % self.config.priority_period == 0:
+            if self.adaptive and not self.locked[k] and self.visits[k] % self.config.priority_period == 0:
                 events += self._determine_priority(k)
         self.events += events
         return events
@@ -260,6 +297,37 @@ class RewardMechanism:
         self._history = [deque(((steps, np.asarray(sums, dtype=float)) for steps, sums in h), maxlen=maxlen)
                          for h in state["history"]]
         self._last_determined = [None if o is None else tuple(o) for o in state["last_determined"]]
+
+
+@register("ls", "LS")
+class LinearSum(RewardMechanism):
+    """LS: every objective summed from the start, in every phase; no levels, no constraint."""
+
+    hierarchical = False
+
+
+@register("fhrm", "FHRM")
+class FixedHierarchy(RewardMechanism):
+    """FHRM: one fixed order (``mechanism.fixed_order``) in every phase, learned level by level."""
+
+    def initial_orders(self, config: MechanismConfig) -> list[tuple[int, ...]]:
+        return [parse_order(config.fixed_order, "mechanism.fixed_order")] * NUM_PHASES
+
+
+@register("mhrm", "MHRM")
+class ManualHierarchy(RewardMechanism):
+    """MHRM: a hand-set order per phase (``mechanism.manual_orders``), learned level by level."""
+
+    def initial_orders(self, config: MechanismConfig) -> list[tuple[int, ...]]:
+        return self._phase_orders(config.manual_orders, "mechanism.manual_orders")
+
+
+@register("ahrm", "AHRM")
+class AdaptiveHierarchy(RewardMechanism):
+    """AHRM: the orders start at ``mechanism.initial_orders`` and are determined from the episodes
+    every ``priority_period`` visits of a phase (``priority_rule``), locked once repeated."""
+
+    adaptive = True
 
 
 def _names(order: tuple[int, ...]) -> str:
