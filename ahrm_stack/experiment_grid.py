@@ -15,6 +15,7 @@ import traceback
 from pathlib import Path
 from typing import Sequence
 
+from ahrm_stack.atomic import write_atomically
 from ahrm_stack.cli import library_log_level
 from ahrm_stack.config import ConfigError, ExperimentConfig, VideoConfig, load_config, load_extra, load_raw
 
@@ -93,9 +94,7 @@ def _logged(run_dir: Path):
 
 
 def write_json(path: Path, data: dict) -> None:
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(data, indent=2))
-    os.replace(tmp, path)
+    write_atomically(path, json.dumps(data, indent=2))
 
 
 def _has_checkpoint(run_dir: Path) -> bool:

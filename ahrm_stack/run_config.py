@@ -16,13 +16,13 @@ that each loads to the same :class:`~ahrm_stack.config.Config` as before::
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from pathlib import Path
 from typing import Callable, Sequence
 
 import yaml
 
+from ahrm_stack.atomic import write_atomically
 from ahrm_stack.config import (SCHEMA_VERSION, Config, ConfigError, apply_overrides, config_from_dict, config_source,
                                fill_missing)
 from ahrm_stack.schema import read_yaml
@@ -77,9 +77,7 @@ def migrate_run_config(run_dir: Path | str) -> bool:
     after = config_from_dict(yaml.safe_load(text), runnable=False, source=path)
     if after != before:
         raise ConfigError(f"{path}: the migrated file would load to another configuration; left as it was")
-    staging = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    staging.write_text(text)
-    os.replace(staging, path)
+    write_atomically(path, text)
     return True
 
 

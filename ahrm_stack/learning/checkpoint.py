@@ -25,6 +25,8 @@ from pathlib import Path
 
 import torch
 
+from ahrm_stack.atomic import write_atomically
+
 STATE_KEYS = ("actor", "critic", "optimizer", "mechanism", "time_objective", "counters", "torch_rng",
               "env_rng")  # what Trainer.state_dict writes
 COUNTERS = ("episodes", "frames", "batches")
@@ -150,12 +152,7 @@ def _digest_path(path: Path) -> Path:
 def _write_durably(path: Path, payload: bytes) -> None:
     """``path`` holds ``payload`` or is untouched, whenever the process dies (temp file, fsync,
     rename)."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "wb") as handle:
-        handle.write(payload)
-        handle.flush()
-        os.fsync(handle.fileno())
-    os.replace(tmp, path)
+    write_atomically(path, payload)
 
 
 def _load_verified(path: Path) -> dict:

@@ -23,6 +23,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar, Iterator
 
+from ahrm_stack.atomic import write_atomically
 from ahrm_stack.config import Config, ConfigError
 from ahrm_stack.learning.checkpoint import CheckpointError, CheckpointManager, Restored
 from ahrm_stack.names import NUM_PHASES, OBJECTIVE_NAMES
@@ -61,12 +62,7 @@ LOGS = {"episodes.csv": (EPISODE_FIELDS, "episode"), "batches.csv": (BATCH_FIELD
 
 def _write_atomically(path: Path, text: str) -> None:
     """Replace ``path`` by ``text`` so that a kill at any moment leaves the old or the new file."""
-    tmp = path.with_name(f".{path.name}.tmp")  # one writer per run folder
-    with open(tmp, "w", newline="") as handle:
-        handle.write(text)
-        handle.flush()
-        os.fsync(handle.fileno())
-    os.replace(tmp, path)
+    write_atomically(path, text)
 
 
 def _complete_lines(path: Path) -> tuple[list[str], int]:

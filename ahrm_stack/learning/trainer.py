@@ -39,6 +39,7 @@ import torch
 from tensordict import TensorDict
 from torchrl.envs import SerialEnv
 
+from ahrm_stack.atomic import replacing
 from ahrm_stack.config import Config, ConfigError
 from ahrm_stack.env.torchrl_env import PushOffEnv, touch_penalty
 from ahrm_stack.learning.diagnostics import episode_shares
@@ -477,12 +478,11 @@ class Trainer:
     def save_policy(self, path: Path) -> None:
         """The final policy: actor weights (normaliser included) and what is needed to rebuild it."""
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.tmp")  # written whole, then renamed: never torn
-        torch.save({"actor": self.modules.actor.state_dict(),
-                    "observation_dim": int(self.env.observation_spec["observation"].shape[-1]),
-                    "action_dim": int(self.env.action_spec.shape[-1]),
-                    "episodes": self.episodes, "frames": self.frames}, tmp)
-        os.replace(tmp, path)
+        with replacing(path) as tmp:  # written whole, then renamed: never torn
+            torch.save({"actor": self.modules.actor.state_dict(),
+                        "observation_dim": int(self.env.observation_spec["observation"].shape[-1]),
+                        "action_dim": int(self.env.action_spec.shape[-1]),
+                        "episodes": self.episodes, "frames": self.frames}, tmp)
 
     def close(self) -> None:
         threads = torch.get_num_threads()  # closing worker processes may change this process's count
