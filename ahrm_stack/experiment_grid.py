@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Sequence
 
 from ahrm_stack.atomic import write_atomically
+from ahrm_stack.learning.run_folder import has_checkpoint, trained
 from ahrm_stack.cli import library_log_level
 from ahrm_stack.config import ConfigError, ExperimentConfig, VideoConfig, load_config, load_extra, load_raw
 
@@ -97,11 +98,6 @@ def write_json(path: Path, data: dict) -> None:
     write_atomically(path, json.dumps(data, indent=2))
 
 
-def _has_checkpoint(run_dir: Path) -> bool:
-    """Whether a run has a checkpoint to resume from (it stopped during training)."""
-    return any((run_dir / "checkpoints").glob("ckpt-*.pt"))
-
-
 def run_one(spec: dict) -> dict:
     """Train (or resume) and evaluate one (method, seed) run; never raises.
 
@@ -115,10 +111,10 @@ def run_one(spec: dict) -> dict:
     try:
         with _logged(run_dir):
             (run_dir / FAILED).unlink(missing_ok=True)
-            if not (run_dir / "policy.pt").is_file():
+            if not trained(run_dir):
                 from ahrm_stack.learning.training import train
                 config = load_config(spec["overrides"])
-                train(config, run_dir, resume=_has_checkpoint(run_dir), progress=False)
+                train(config, run_dir, resume=has_checkpoint(run_dir), progress=False)
             from ahrm_stack.evaluation import evaluate
             split = spec.get("split", "validation")
             evaluation = evaluate(run_dir, spec["eval_episodes"], spec["layout"], run_dir / "eval",
@@ -220,7 +216,7 @@ def schedule(grid: dict) -> list[dict]:
     computes (each run has its own seeds)."""
     methods = list(grid["methods"])
     pending = [spec for spec in grid["runs"] if not (Path(spec["run_dir"]) / DONE).is_file()]
-    return sorted(pending, key=lambda spec: (not _has_checkpoint(Path(spec["run_dir"])), spec["seed"],
+    return sorted(pending, key=lambda spec: (not has_checkpoint(Path(spec["run_dir"])), spec["seed"],
                                              methods.index(spec["method"])))
 
 

@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ahrm_stack.learning.run_folder import has_checkpoint, trained
+
 BASE = ["profile=paper", "mechanism.method=ahrm"]
 FRAMES = 400_000  # the registered budget
 EVAL = ["train.eval_every_frames=50000", "train.eval_every=300"]
@@ -50,14 +52,14 @@ DEFAULT_RUNS = Path("/work/study-paper-diagnosis")
 def run_command(arm: str, seed: int, runs_dir: Path) -> list[str]:
     """The training command of ``arm``'s run with ``seed``: a resume when its folder has a checkpoint."""
     run_dir = runs_dir / f"{arm}-seed{seed}"
-    if (run_dir / "checkpoints").is_dir() and any((run_dir / "checkpoints").glob("*.pt")):
+    if has_checkpoint(run_dir):
         return [sys.executable, "-m", "ahrm_stack.train", "--resume", str(run_dir), "--no-progress"]
     return [sys.executable, "-m", "ahrm_stack.train", *BASE, *ARMS[arm], f"train.seed={seed}",
             f"train.frames={FRAMES}", *EVAL, "--run-dir", str(run_dir), "--no-progress"]
 
 
 def finished(run_dir: Path) -> bool:
-    return (run_dir / "policy.pt").is_file()
+    return trained(run_dir)
 
 
 def _rows(path: Path) -> list[dict]:

@@ -43,6 +43,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ahrm_stack.learning.run_folder import has_checkpoint
+
 METHODS = ("ahrm", "ls", "mhrm", "fhrm")
 # the first round's settings (2026-12-01), pinned: profile=scratch has since moved to the second's
 # (and the observation without lane_choice, added after it; the other keys that changed since do
@@ -166,7 +168,7 @@ def branch(source: Path, destination: Path, overrides: list[str]) -> int:
     from ahrm_stack.config import ConfigError
     from ahrm_stack.learning.training import resolve_config
 
-    if not (source / "config.yaml").is_file() or not any((source / "checkpoints").glob("ckpt-*.pt")):
+    if not (source / "config.yaml").is_file() or not has_checkpoint(source):
         raise ConfigError(f"branch: {source} is not a run folder with a checkpoint")
     if destination.exists():
         raise ConfigError(f"branch: {destination} exists; give a new folder")

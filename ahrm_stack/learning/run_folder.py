@@ -60,6 +60,17 @@ LOGS = {"episodes.csv": (EPISODE_FIELDS, "episode"), "batches.csv": (BATCH_FIELD
         "evaluations.csv": (EVALUATION_FIELDS, "episode")}  # file: (columns, the row's number)
 
 
+def has_checkpoint(run_dir: Path | str) -> bool:
+    """Whether a run folder holds a checkpoint to resume from (training started and was saved)."""
+    return any((Path(run_dir) / "checkpoints").glob("ckpt-*.pt"))
+
+
+def trained(run_dir: Path | str) -> bool:
+    """Whether a run's training finished: its final ``policy.pt`` is written (the last thing
+    training writes, atomically)."""
+    return (Path(run_dir) / "policy.pt").is_file()
+
+
 def _write_atomically(path: Path, text: str) -> None:
     """Replace ``path`` by ``text`` so that a kill at any moment leaves the old or the new file."""
     write_atomically(path, text)
