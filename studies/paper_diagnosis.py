@@ -4,7 +4,7 @@ paper row diagnosed"; report docs/paper-diagnosis.md)
     python studies/paper_diagnosis.py list
     python studies/paper_diagnosis.py run ARM --seed 0 [--runs-dir /work/study-paper-diagnosis]
     python studies/paper_diagnosis.py grid --slot 0 --slots 2 [--runs-dir ...]   # the registered order
-    python studies/paper_diagnosis.py summarise RUNS_DIR... [--out docs/paper-diagnosis]
+    python studies/paper_diagnosis.py summarise NAME=RUN_DIR ... [--out docs/paper-diagnosis]
 
 An arm is ``profile=paper mechanism.method=ahrm`` plus one change (``ARMS``); ``oracle`` is the
 control with the staged dense reward. ``run`` trains ``RUNS_DIR/ARM-seedN`` to the registered budget,
@@ -17,8 +17,10 @@ reads the runs' CSV files (nothing typed by hand), copies them into ``--out/runs
 from __future__ import annotations
 
 import argparse
+import ast
 import csv
 import gzip
+import io
 import shutil
 import subprocess
 import sys
@@ -88,7 +90,6 @@ def summarise_run(run_dir: Path, budget: int = FRAMES) -> dict:
     nearest = at300[-1] if at300 else None
     last = evaluations[-1] if evaluations else None
     first37 = next((int(r["frames"]) for r in evaluations if int(r["successes"]) >= 37), None)
-    tail = batches[-50:]
     constraint = [r.get("constraint_terminated") == "True" or r.get("constraint_excluded") == "True"
                   for r in episodes]
     return {
@@ -103,13 +104,15 @@ def summarise_run(run_dir: Path, budget: int = FRAMES) -> dict:
         "kl_median": float(np.nanmedian([_number(r["kl_approx"]) for r in batches])) if batches else float("nan"),
         "std_last": _number(batches[-1]["std"]) if batches else float("nan"),
         "constraint_share": float(np.mean(constraint)) if constraint else float("nan"),
-        "reach_share": float(np.nanmean([_number(r.get("reach_share", "")) for r in tail])) if tail else float("nan"),
+        # episodes that entered phase 3 (reached the cube), of the last 200 before the budget
+        "reach_share": (float(np.mean([ast.literal_eval(r["phase_steps"])[2] > 0 for r in episodes[-200:]]))
+                        if episodes else float("nan")),
     }
 
 
 def table(runs: dict[str, dict]) -> str:
     lines = ["| run | frames | episodes | won at ep. ≤300 (ep.) | won at budget (frames) | best | first ≥37/40 | "
-             "median KL | std at end | constraint share | reach share (last 50 batches) |",
+             "median KL | std at end | constraint share | reach share (last 200 episodes) |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for name, s in runs.items():
         at300 = "—" if s["at300"] is None else f"{s['at300'][1]}/40, {s['at300'][2]} touching ({s['at300'][0]})"
@@ -121,20 +124,33 @@ def table(runs: dict[str, dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def summarise(run_dirs: list[Path], out: Path) -> str:
-    """Copy each run's CSV files and config into ``out/runs/<name>/`` (gzip for the large ones)
-    and write ``out/table.md`` from the copies."""
-    runs = out / "runs"
-    for run_dir in run_dirs:
-        target = runs / run_dir.name
+def _write_rows(path: Path, rows: list[dict], compress: bool) -> None:
+    if not rows:
+        return
+    text = io.StringIO()
+    writer = csv.DictWriter(text, fieldnames=list(rows[0]), lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    if compress:
+        with gzip.GzipFile(path.with_name(path.name + ".gz"), "wb", mtime=0) as sink:
+            sink.write(text.getvalue().encode())
+    else:
+        path.write_text(text.getvalue())
+
+
+def summarise(run_dirs: dict[str, Path], out: Path, budget: int = FRAMES) -> str:
+    """Copy each run's config and its CSV rows up to the ``budget`` (gzip for the large ones) into
+    ``out/runs/<name>/`` and write ``out/table.md`` from the copies."""
+    for name, run_dir in run_dirs.items():
+        target = out / "runs" / name
         target.mkdir(parents=True, exist_ok=True)
-        for name in ("config.yaml", "evaluations.csv", "timing.json"):
-            if (run_dir / name).is_file():
-                shutil.copyfile(run_dir / name, target / name)
-        for name in ("batches.csv", "episodes.csv"):
-            if (run_dir / name).is_file():
-                with open(run_dir / name, "rb") as source, gzip.GzipFile(target / f"{name}.gz", "wb", mtime=0) as sink:
-                    shutil.copyfileobj(source, sink)
+        for file in ("config.yaml", "timing.json"):
+            if (run_dir / file).is_file():
+                shutil.copyfile(run_dir / file, target / file)
+        for file, slack, compress in (("batches.csv", 0, True), ("episodes.csv", 0, True),
+                                      ("evaluations.csv", 2048, False)):
+            rows = [r for r in _rows(run_dir / file) if int(r["frames"]) <= budget + slack]
+            _write_rows(target / file, rows, compress)
     return write_table(out)
 
 
@@ -159,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
     grid.add_argument("--slots", type=int, default=1)
     grid.add_argument("--runs-dir", type=Path, default=DEFAULT_RUNS)
     summary = sub.add_parser("summarise")
-    summary.add_argument("runs", type=Path, nargs="+")
+    summary.add_argument("runs", nargs="+", help="NAME=RUN_DIR (its rows up to the budget are copied)")
     summary.add_argument("--out", type=Path, default=Path("docs/paper-diagnosis"))
     args = parser.parse_args(argv)
     if args.command == "list":
@@ -179,11 +195,14 @@ def main(argv: list[str] | None = None) -> int:
             if code:
                 return code
         return 0
-    missing = [str(p) for p in args.runs if not p.is_dir()]
-    if missing:
-        print(f"error: no run folder {missing[0]}", file=sys.stderr)
-        return 2
-    print(summarise(args.runs, args.out), end="")
+    named = {}
+    for item in args.runs:
+        name, _, path = item.partition("=")
+        if not name or not path or not Path(path).is_dir():
+            print(f"error: {item!r} is not NAME=RUN_DIR with an existing folder", file=sys.stderr)
+            return 2
+        named[name] = Path(path)
+    print(summarise(named, args.out), end="")
     return 0
 
 
