@@ -4,8 +4,8 @@
     with replacing(path) as tmp:      # for writers that want a path (torch.save, ...)
         torch.save(obj, tmp)
 
-The data goes to a hidden sibling (``.NAME.PID.tmp``, same folder, so the rename is atomic), is
-fsynced, and is renamed over ``path``; on an error the sibling is removed and ``path`` is left as
+The data goes to a hidden sibling (``.NAME.tmp``, same folder, so the rename is atomic; one writer
+per file), is fsynced, and is renamed over ``path``; on an error the sibling is removed and ``path`` is left as
 it was. Used by every file the project rewrites in place: run configs, run-folder logs,
 checkpoints, policies, the experiment grid's records.
 """
@@ -23,7 +23,9 @@ def replacing(path: Path | str) -> Iterator[Path]:
     """A temporary sibling of ``path`` to write; on leaving the block without an error it is
     fsynced and renamed over ``path``."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    # no process id in the name: torch.save names its archive after the file it writes, and a
+    # policy must come out byte for byte the same from the same training
+    tmp = path.with_name(f".{path.name}.tmp")
     try:
         yield tmp
         with open(tmp, "rb+") as handle:
