@@ -85,7 +85,7 @@ def run_folders(root: Path | str) -> list[Path]:
     """Every folder at or below ``root`` that holds a ``config.yaml`` of a run (a sibling policy,
     checkpoint folder, evaluation or training log marks it as one), sorted."""
     marks = ("policy.pt", "checkpoints", "evaluation.yaml", "evaluation.json", "episodes.csv", "episodes.csv.gz",
-             "batches.csv", "events.jsonl", "events.jsonl.gz")
+             "batches.csv", "batches.csv.gz", "events.jsonl", "events.jsonl.gz")
     found = [p.parent for p in Path(root).rglob(RUN_CONFIG)]
     return sorted(folder for folder in found if any((folder / mark).exists() for mark in marks))
 
