@@ -95,3 +95,16 @@ def quiet_argv(argv: Sequence[str] | None = None) -> list[str]:
     args = list(sys.argv[1:] if argv is None else argv)
     quiet(VERBOSE_FLAG in args)
     return [a for a in args if a != VERBOSE_FLAG]
+
+
+def named_folders(items: Sequence[str]) -> dict[str, Path]:
+    """``NAME=FOLDER`` arguments (the studies' ``summarise``) as a mapping; a ``SystemExit(2)`` with
+    a one-line error naming the first item that is not one with an existing folder."""
+    named: dict[str, Path] = {}
+    for item in items:
+        name, _, path = item.partition("=")
+        if not name or not path or not Path(path).is_dir():
+            print(f"error: {item!r} is not NAME=RUN_DIR with an existing folder", file=sys.stderr)
+            raise SystemExit(2)
+        named[name] = Path(path)
+    return named

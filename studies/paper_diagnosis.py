@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ahrm_stack.cli import named_folders
 from ahrm_stack.learning.run_folder import has_checkpoint, trained
 
 BASE = ["profile=paper", "mechanism.method=ahrm"]
@@ -197,14 +198,7 @@ def main(argv: list[str] | None = None) -> int:
             if code:
                 return code
         return 0
-    named = {}
-    for item in args.runs:
-        name, _, path = item.partition("=")
-        if not name or not path or not Path(path).is_dir():
-            print(f"error: {item!r} is not NAME=RUN_DIR with an existing folder", file=sys.stderr)
-            return 2
-        named[name] = Path(path)
-    print(summarise(named, args.out), end="")
+    print(summarise(named_folders(args.runs), args.out), end="")
     return 0
 
 

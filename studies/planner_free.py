@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ahrm_stack.cli import named_folders
+
 DEFAULT_OUT = Path("docs/planner-free")
 
 
@@ -103,14 +105,7 @@ def main(argv: list[str] | None = None) -> int:
     summary.add_argument("runs", nargs="+", help="NAME=RUN_DIR")
     summary.add_argument("--out", type=Path, default=DEFAULT_OUT)
     args = parser.parse_args(argv)
-    named = {}
-    for item in args.runs:
-        name, _, path = item.partition("=")
-        if not name or not path or not Path(path).is_dir():
-            print(f"error: {item!r} is not NAME=RUN_DIR with an existing folder", file=sys.stderr)
-            return 2
-        named[name] = Path(path)
-    print(summarise(named, args.out), end="")
+    print(summarise(named_folders(args.runs), args.out), end="")
     return 0
 
 
