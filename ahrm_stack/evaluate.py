@@ -17,7 +17,9 @@ subfolder of the run, or ``runs/scripted-eval-test``, for ``--split test``).
 ``--split``: the seeds of ``configs/seeds.yaml`` the episodes use. ``validation`` (the default)
 is what interim evaluations, checkpoint choice, studies and benchmarks use; ``test`` is sealed:
 only this final evaluation of a frozen policy reads it (and the experiment's final table, through
-it). Every output names its split.
+it), each read is appended to the test ledger (``configs/seeds.yaml`` ``test_ledger``; ``python -m
+ahrm_stack.test_ledger``), and a policy's second read of a set is refused unless ``--reason TEXT``
+says why (recorded beside it). Every output names its split.
 
 ``--layout`` names an entry of ``configs/layouts.yaml``: ``fixed`` / ``random`` (the run's own
 modes), fixed layouts (``default``, ``mirrored``, ``corridor``, ``offset_cube``) or held-out random
@@ -67,6 +69,9 @@ def _parse(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--split", choices=list(SPLITS), default="validation",
                         help="the seeds: validation (default) or the sealed test split (final evaluation "
                              "of a frozen policy only)")
+    parser.add_argument("--reason", default="", metavar="TEXT",
+                        help="why a policy reads a test set it has read before (recorded in the test "
+                             "ledger, python -m ahrm_stack.test_ledger); refused without it")
     parser.add_argument("--out", help="folder for evaluation.csv and evaluation.json")
     parser.add_argument("--video", metavar="PATH", help="render the chosen episodes into this MP4")
     parser.add_argument("--video-episodes", type=_episode_list, default=[0], metavar="I,J",
@@ -90,6 +95,8 @@ def _parse(argv: list[str]) -> argparse.Namespace:
     args = parser.parse_args(argv)
     if (args.run_dir is None) == (args.policy is None):
         parser.error("give either RUN_DIR or --policy scripted")
+    if args.reason and args.split != "test":
+        parser.error("--reason is for a re-read of the sealed test split: give it with --split test")
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
     if args.robustness and not (args.suite and args.run_dir):
@@ -114,12 +121,13 @@ def main(argv: list[str] | None = None) -> int:
                            Path(args.out) if args.out else None, args.config,
                            with_scripted=not args.no_scripted,
                            policy_file=Path(args.policy_file) if args.policy_file else None,
-                           robustness=args.robustness, split=args.split)
+                           robustness=args.robustness, split=args.split, reason=args.reason)
             return 0
         evaluate(Path(args.run_dir) if args.run_dir else None, args.episodes, args.layout,
                  Path(args.out) if args.out else None, Path(args.video) if args.video else None,
                  args.video_episodes, args.video_config, overrides=args.config,
-                 policy_file=Path(args.policy_file) if args.policy_file else None, split=args.split)
+                 policy_file=Path(args.policy_file) if args.policy_file else None, split=args.split,
+                 reason=args.reason)
     except (ConfigError, RenderError, CheckpointError) as error:  # a refused pickle among them
         print(f"error: {error}", file=sys.stderr)
         return 2

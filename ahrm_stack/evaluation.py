@@ -153,11 +153,27 @@ def _write_outputs(out: Path, summaries, lanes: Sequence[LaneOutcome], table, he
          "lanes": LaneTable.from_outcomes(lanes).as_dict()}, indent=2))
 
 
+def _test_read_key(config: Config, run_dir: Path | None, scripted: bool, policy_file: Path | None,
+                   evaluation_set: str, reason: str) -> str:
+    """The ledger's key of this test-split read, after checking that the policy has not read
+    ``evaluation_set``'s test split before (or that a ``reason`` is given): refused before any
+    episode runs."""
+    from ahrm_stack import test_ledger
+    from ahrm_stack.run_config import run_config_text
+
+    if run_dir is None or scripted:
+        key = test_ledger.policy_key(None, run_config_text(config))
+    else:
+        key = test_ledger.policy_key(Path(policy_file) if policy_file else Path(run_dir) / "policy.pt")
+    test_ledger.check_read(key, evaluation_set, reason, scripted=run_dir is None or scripted)
+    return key
+
+
 def evaluate(run_dir: Path | None, episodes: int, layout: str | None = None, out: Path | None = None,
              video_path: Path | None = None, video_episodes: Sequence[int] = (0,),
              video_overrides: Sequence[str] = (), quiet: bool = False,
              overrides: Sequence[str] = (), scripted: bool = False,
-             policy_file: Path | None = None, split: Split = "validation") -> dict:
+             policy_file: Path | None = None, split: Split = "validation", reason: str = "") -> dict:
     """Evaluate a run (``run_dir``) or the scripted controller (``None``) on ``split``'s seeds of
     ``layout`` (default: the run's own layouts) and write the outputs.
 
@@ -166,7 +182,9 @@ def evaluate(run_dir: Path | None, episodes: int, layout: str | None = None, out
     own config (the same episodes the run's policy gets); ``policy_file`` evaluates another policy
     file of the run (e.g. ``policies/episode-00000.pt``, the clone before any PPO update). ``split``:
     ``validation`` or the sealed ``test`` (refused while a training runs, see
-    :func:`ahrm_stack.seeds.evaluation_range`). Returns the contents of ``evaluation.json``, which
+    :func:`ahrm_stack.seeds.evaluation_range`; every read is appended to the test ledger, and a
+    policy's second read of one evaluation set needs a ``reason``, see :mod:`ahrm_stack.test_ledger`).
+    Returns the contents of ``evaluation.json``, which
     names the split, the seeds and the layout's training support (the run's config, or for the
     scripted controller the default config with ``overrides``, against the evaluation's; see
     :mod:`ahrm_stack.env.support`). Raises :class:`ConfigError` on bad input (a missing run, an
@@ -191,6 +209,8 @@ def evaluate(run_dir: Path | None, episodes: int, layout: str | None = None, out
     config = dataclasses.replace(config, task=evaluation_task(config.task, entry))
     support = as_dict(training_support(trained.task, config.task))
     seed_offset = evaluation_range(layout or RUN, split).start  # the test split: sealed but here
+    read_key = (_test_read_key(config, run_dir, scripted, policy_file, layout or RUN, reason)
+                if split == "test" else None)  # recorded in the test ledger once the read is done
 
     from ahrm_stack.learning.rollouts import EvaluationTable
 
@@ -213,7 +233,8 @@ def evaluate(run_dir: Path | None, episodes: int, layout: str | None = None, out
     seconds = time.perf_counter() - started
     table = EvaluationTable.from_summaries(summaries)
     header = {"policy": name, "layout": layout or config.task.layout.mode,
-              "layout_mode": config.task.layout.mode, "split": split, "seed_offset": seed_offset,
+              "layout_mode": config.task.layout.mode, "evaluation_set": layout or RUN, "split": split,
+              "seed_offset": seed_offset,
               "training_support": support, "wall_seconds": seconds}
     if camera is not None:
         from ahrm_stack.env.video import write_mp4
@@ -225,6 +246,11 @@ def evaluate(run_dir: Path | None, episodes: int, layout: str | None = None, out
                            "render_seconds": camera.render_seconds}
     _write_outputs(out, summaries, lanes, table, header)
     result = json.loads((out / "evaluation.json").read_text())
+    if read_key is not None:
+        from ahrm_stack import test_ledger
+        test_ledger.record(test_ledger.new_read(
+            read_key, name, layout or RUN, seed_offset, episodes, reason,
+            {k: result[k] for k in ("successes", "touched_episodes", "episodes", "time_mean") if k in result}))
     if not quiet:
         print(f"{name} ({header['layout']} layout, {split} split, seeds {seed_offset}+; training support: "
               f"{support['verdict']}): {table}")
@@ -284,7 +310,8 @@ def suite_markdown(suite: dict) -> str:
 def evaluate_suite(run_dir: Path | None, episodes: int, out: Path | None = None,
                    overrides: Sequence[str] = (), with_scripted: bool = True,
                    policy_file: Path | None = None, families: Sequence[str] | None = None,
-                   quiet: bool = False, robustness: bool = False, split: Split = "validation") -> dict:
+                   quiet: bool = False, robustness: bool = False, split: Split = "validation",
+                   reason: str = "") -> dict:
     """Evaluate a run (or the scripted controller) on every family of the evaluation suite
     (``configs/layouts.yaml`` entries with ``suite: true``), each on its own seed range of
     ``split``, and for a run the scripted controller on the same episodes (the run's config).
@@ -305,8 +332,10 @@ def evaluate_suite(run_dir: Path | None, episodes: int, out: Path | None = None,
     if policy_file is not None and not Path(policy_file).is_file():
         raise ConfigError(f"--policy-file {policy_file} not found")
     for family in names:  # every family applies and has seeds in the split, before anything runs
-        evaluation_configs(evaluated, overrides, family)
+        family_config, _, _ = evaluation_configs(evaluated, overrides, family)
         evaluation_range(family, split)
+        if split == "test" and evaluated is not None:  # and the policy has not read its test seeds
+            _test_read_key(family_config, evaluated, False, policy_file, family, reason)
     suffix = "-test" if split == "test" else ""
     if run_dir is not None:
         run_dir = Path(run_dir)
@@ -319,7 +348,8 @@ def evaluate_suite(run_dir: Path | None, episodes: int, out: Path | None = None,
              "scripted": {} if run_dir and with_scripted else None}
     for family in names:
         suite["results"][family] = evaluate(run_dir, episodes, family, out / family, quiet=True,
-                                            overrides=overrides, policy_file=policy_file, split=split)
+                                            overrides=overrides, policy_file=policy_file, split=split,
+                                            reason=reason)
         if run_dir is not None and with_scripted:
             suite["scripted"][family] = evaluate(run_dir, episodes, family, out / family / "scripted",
                                                  quiet=True, overrides=overrides, scripted=True, split=split)

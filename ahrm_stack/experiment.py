@@ -9,8 +9,9 @@ Defaults come from ``configs/experiment.yaml``. ``--config`` overrides go to the
 ``video.*`` (``video.width=320``). Every (method, seed) run is one Ray task (``cpus_per_run`` CPUs;
 a local Ray instance by default, a cluster with ``--address``) that trains in-process
 (``ahrm_stack.learning.training.train``) into ``OUT/runs/<method>-seed<seed>/``, then evaluates the frozen
-deterministic policy (``eval/``, and the suite) on ``experiment.split``'s seeds (``test`` by
-default: the sealed split, read only here, after training) and, for the first seed, renders one
+deterministic policy (``eval/``, and the suite) on ``experiment.split``'s seeds (``validation`` by
+default; ``test``, the sealed split, is read only here, after training, once per policy, and
+recorded in the test ledger) and, for the first seed, renders one
 evaluation episode to ``OUT/videos/<method>.mp4``. A finished run writes ``done.json`` and is skipped on a rerun; a run
 stopped during training resumes from its last checkpoint, and those start first; the others start
 seed by seed (every method of seed 0, then of seed 1, ...), so that a grid stopped part-way holds

@@ -27,7 +27,7 @@ from typing import Annotated, Any, Iterator, Literal
 from pydantic import PlainValidator
 
 from ahrm_stack.config import CONFIG_DIR, ConfigError
-from ahrm_stack.schema import Int, Section, fail, ge, load_file
+from ahrm_stack.schema import Int, Section, Str, fail, ge, load_file
 
 SEEDS_FILE = CONFIG_DIR / "seeds.yaml"
 
@@ -90,6 +90,7 @@ class SeedTable(Section):
     env_stride: Annotated[Int, ge(1)]  # training environment i is seeded train.seed + i * this
     ranges: dict[str, RangeField]  # name: [start, size]; training, demonstrations, ...
     evaluation: dict[str, SplitRanges]  # evaluation set (run, or a family): its two splits
+    test_ledger: Str  # the test split's reads (ahrm_stack.test_ledger), relative to the repository
 
     def derive(self) -> None:
         object.__setattr__(self, "ranges", {name: dataclasses.replace(r, name=name)
@@ -123,7 +124,8 @@ class SeedTable(Section):
         return {"env_stride": self.env_stride,
                 "ranges": {name: [r.start, r.size] for name, r in self.ranges.items()},
                 "evaluation": {name: {split: [getattr(s, split).start, getattr(s, split).size]
-                                      for split in SPLITS} for name, s in self.evaluation.items()}}
+                                      for split in SPLITS} for name, s in self.evaluation.items()},
+                "test_ledger": self.test_ledger}
 
     def __getitem__(self, name: str) -> SeedRange:
         """A range of ``ranges`` (training, demonstrations, ...); evaluation seeds come from

@@ -47,6 +47,14 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.xdist_group(item.path.stem))
 
 
+@pytest.fixture(autouse=True)
+def own_test_ledger(tmp_path_factory, monkeypatch):
+    """Each test reads the test split into a ledger of its own (never docs/test-ledger.jsonl): a
+    policy trained twice from one seed is the same policy to the ledger."""
+    from ahrm_stack.test_ledger import LEDGER_ENV
+    monkeypatch.setenv(LEDGER_ENV, str(tmp_path_factory.mktemp("ledger") / "test-ledger.jsonl"))
+
+
 @pytest.fixture(scope="session")
 def config():
     # the nominal simulation: the task's, the physics' and the controllers' tests check exact

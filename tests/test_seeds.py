@@ -66,23 +66,27 @@ def test_training_seeds_outside_the_range_are_refused():
         training_seeds(0, table["training"].size // table.env_stride + 1)
 
 
+LEDGER = {"test_ledger": "l.jsonl"}  # the file's one non-range key
+
+
 def test_overlapping_ranges_fail_naming_both(tmp_path):
     path = tmp_path / "seeds.yaml"
     run = {"run": {"validation": [1000, 10], "test": [2000, 10]}}
     path.write_text(yaml.safe_dump({"env_stride": 10, "ranges": {
-        "training": [0, 100], "demonstrations": [50, 100]}, "evaluation": run}))
+        "training": [0, 100], "demonstrations": [50, 100]}, "evaluation": run, **LEDGER}))
     with pytest.raises(ConfigError, match="'training' .* and 'demonstrations' .* overlap"):
         load_seed_table(path)
-    path.write_text(yaml.safe_dump({"env_stride": 10, "ranges": {"training": [0, -1]}, "evaluation": run}))
+    path.write_text(yaml.safe_dump({"env_stride": 10, "ranges": {"training": [0, -1]}, "evaluation": run, **LEDGER}))
     with pytest.raises(ConfigError, match="training size must be an integer >= 1"):
         load_seed_table(path)
     # a family's test range inside another family's validation range
     path.write_text(yaml.safe_dump({"env_stride": 10, "ranges": {"training": [0, 100], "demonstrations": [100, 100]},
-                                    "evaluation": {**run, "a": {"validation": [3000, 10], "test": [3005, 10]}}}))
+                                    "evaluation": {**run, "a": {"validation": [3000, 10], "test": [3005, 10]}},
+                                    **LEDGER}))
     with pytest.raises(ConfigError, match=r"'a \(validation\)' .* and 'a \(test\)' .* overlap"):
         load_seed_table(path)
     path.write_text(yaml.safe_dump({"env_stride": 10, "ranges": {"training": [0, 100], "demonstrations": [100, 100]},
-                                    "evaluation": {**run, "a": {"validation": [3000, 10]}}}))
+                                    "evaluation": {**run, "a": {"validation": [3000, 10]}}, **LEDGER}))
     with pytest.raises(ConfigError, match="evaluation.a.test"):
         load_seed_table(path)
 
