@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
+import importlib.util
 import json
 import re
 import sys
@@ -258,13 +259,41 @@ def test_split_rows(root: Path = ROOT, folders: tuple[str, ...] | None = None) -
         seed_ratios.append(t.ratio)
         rows.append(f"| {seed} | {t.won}/{t.n} | {t.touched} | {t.only_p} / {t.only_s} "
                     f"(p = {_sign(t.only_p, t.only_s):.2g}) | {t.ratio:.2f} |")
-    rows += ["", f"Seed level ({seeds} of the {REGISTERED_SEEDS} registered seeds; mean [95 % t-interval]): "
+    rows += ["", f"Seed level ({seeds} of the {REGISTERED_SEEDS} registered seeds; mean [95 % t-interval]; the "
+             "scripted controller's outcomes, one draw shared by every seed, taken as exact): "
              f"success share minus the scripted controller's {_t_interval(gains)}; touching share minus "
              f"the scripted controller's {_t_interval(touch_gains)}; time / scripted (both won) "
              f"{_t_interval(seed_ratios, sign='', null=1.0)}."]
+    rows += ["", _episode_level_line([root / f for f in (folders or DEFAULT_TEST_SUITES)])]
     rows += ["", "Files: " + ", ".join(f"`{name}/suite.md`" for name in (folders or DEFAULT_TEST_SUITES))
              + " (per family, with each family's support) and the per-episode `evaluation.csv` files beside them."]
     return rows
+
+
+def _episode_level_line(suites: list[Path]) -> str:
+    """The same comparison with the test episode as the unit (studies/reanalysis.py: each episode the
+    policy's mean over its seeds against the scripted controller's one outcome, a two-way bootstrap
+    interval and the exact sign test), and the two speed caps the time ratio compares."""
+    spec = importlib.util.spec_from_file_location("reanalysis", ROOT / "studies" / "reanalysis.py")
+    reanalysis = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
+    spec.loader.exec_module(reanalysis)  # type: ignore[union-attr]
+    d = reanalysis.default_policy(suites)
+
+    def part(name: str) -> str:
+        x = d[name]
+        iv, sign = x["interval"], x["sign_test"]
+        called = "established" if iv[0] > 0 or iv[1] < 0 else "not established"
+        return (f"{name} {100 * x['policy_minus_teacher']:+.2f} pp [{100 * iv[0]:+.2f}, {100 * iv[1]:+.2f}], "
+                f"episodes above / below the scripted controller {sign['above']} / {sign['below']} "
+                f"(sign test p = {sign['p']:.2g}), {called}")
+
+    task = yaml.safe_load((ROOT / "configs" / "task.yaml").read_text())
+    scripted = yaml.safe_load((ROOT / "configs" / "scripted.yaml").read_text())
+    cap, teacher_cap = task["action"]["cartesian_max_speed"], scripted["push_speed"]
+    return (f"Episode level ({d['episodes']} test episodes, each one unit: the policy's mean over its seeds against "
+            f"the scripted controller's outcome; 95 % two-way bootstrap over episodes and seeds; "
+            f"studies/reanalysis.py): {part('success')}; {part('touching')}. The time ratio compares unequal speed "
+            f"caps: the policy may move the tip at {cap} m/s, the scripted controller at {teacher_cap} m/s.")
 
 
 def method_rows(root: Path = ROOT) -> list[str]:
