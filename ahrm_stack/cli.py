@@ -1,4 +1,5 @@
-"""Quiet command lines: the libraries' warnings and INFO logs are hidden unless ``--verbose``.
+"""Quiet command lines (the libraries' warnings and INFO logs hidden unless ``--verbose``), and the
+one argument parser of every entry point (:class:`Parser`: one-line errors).
 
 Every entry point (``python -m ahrm_stack.<name>``, the benchmarks and studies) calls :func:`quiet`
 first (the scripts before their heavy imports, through :func:`quiet_argv`), so that its first line
@@ -81,6 +82,14 @@ def quiet(verbose: bool = False) -> None:
 def library_log_level() -> int:
     """The level the libraries log at now: WARNING after ``quiet()``, else INFO (for ``ray.init``)."""
     return _LEVEL
+
+
+class Parser(argparse.ArgumentParser):
+    """Every entry point's argument parser: a bad argument is one line on stderr naming it (exit
+    status 2), not argparse's usage block."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message}\n")
 
 
 def add_verbose_flag(parser: argparse.ArgumentParser) -> None:

@@ -22,21 +22,14 @@ from typing import Sequence
 
 import numpy as np
 
-from ahrm_stack.cli import add_verbose_flag, quiet
+from ahrm_stack.cli import Parser, add_verbose_flag, quiet
 from ahrm_stack.config import Config, ConfigError, load_config
 
 LAYOUTS = ("fixed", "random")
 
 
-class _Parser(argparse.ArgumentParser):
-    """An argument parser whose errors are one line on stderr (exit status 2)."""
-
-    def error(self, message: str) -> None:  # type: ignore[override]
-        self.exit(2, f"{self.prog}: error: {message}\n")
-
-
 def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = _Parser(prog="python -m ahrm_stack.demo",
+    parser = Parser(prog="python -m ahrm_stack.demo",
                      description="Run the scripted mink pusher on seeded episodes.")
     parser.add_argument("--episodes", type=int, default=20, help="episodes per layout (default 20)")
     parser.add_argument("--layout", choices=LAYOUTS, help="one layout mode (default: both)")

@@ -37,17 +37,10 @@ import argparse
 import sys
 from pathlib import Path
 
-from ahrm_stack.cli import add_verbose_flag, quiet
+from ahrm_stack.cli import Parser, add_verbose_flag, quiet
 from ahrm_stack.config import ConfigError
 from ahrm_stack.evaluation import evaluate, evaluate_suite
 from ahrm_stack.seeds import SPLITS
-
-
-class _Parser(argparse.ArgumentParser):
-    """Errors are one line on stderr (exit status 2)."""
-
-    def error(self, message: str) -> None:  # type: ignore[override]
-        self.exit(2, f"{self.prog}: error: {message}\n")
 
 
 def _episode_list(text: str) -> list[int]:
@@ -61,7 +54,7 @@ def _episode_list(text: str) -> list[int]:
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
-    parser = _Parser(prog="python -m ahrm_stack.evaluate", description=__doc__.split("\n\n")[0])
+    parser = Parser(prog="python -m ahrm_stack.evaluate", description=__doc__.split("\n\n")[0])
     parser.add_argument("run_dir", nargs="?", help="a training run folder (with policy.pt)")
     parser.add_argument("--policy", choices=["scripted"], help="evaluate the scripted controller")
     parser.add_argument("--episodes", type=int, default=40)

@@ -28,18 +28,13 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-from ahrm_stack.cli import add_verbose_flag, quiet
+from ahrm_stack.cli import Parser, add_verbose_flag, quiet
 from ahrm_stack.config import ConfigError, ExperimentConfig, VideoConfig, load_extra
 from ahrm_stack.experiment_grid import FAILED, GRID, build_grid, check_finished, run_grid, write_json
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # type: ignore[override]
-        self.exit(2, f"{self.prog}: error: {message}\n")
-
-
 def _parse(argv: Sequence[str]) -> argparse.Namespace:
-    parser = _Parser(prog="python -m ahrm_stack.experiment", description=__doc__.split("\n\n")[0])
+    parser = Parser(prog="python -m ahrm_stack.experiment", description=__doc__.split("\n\n")[0])
     parser.add_argument("--methods", nargs="+", help="reward mechanisms (default: configs/experiment.yaml)")
     parser.add_argument("--seeds", type=int, help="training seeds 0..N-1 per method")
     parser.add_argument("--episodes", type=int, help="training episodes per run (with frames 0)")

@@ -24,7 +24,6 @@ and ``robustness.md`` (the table, generated from the json) to ``--out`` (default
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import math
@@ -34,6 +33,7 @@ import time
 from pathlib import Path
 from typing import Any, Sequence
 
+from ahrm_stack.cli import Parser
 from ahrm_stack.env.realism import GROUPS, REALISM_FILE, RealismConfig, realism_profiles
 from ahrm_stack.schema import ConfigError, read_yaml
 
@@ -242,13 +242,8 @@ def render(folder: Path, prog: str = "python -m ahrm_stack.robustness") -> int:
     return 0
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # type: ignore[override]
-        self.exit(2, f"{self.prog}: error: {message}\n")
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = _Parser(prog="python -m ahrm_stack.robustness", description=__doc__.split("\n\n")[0])
+    parser = Parser(prog="python -m ahrm_stack.robustness", description=__doc__.split("\n\n")[0])
     parser.add_argument("run_dir", type=Path, nargs="?", help="a training run folder (config.yaml, policy.pt)")
     parser.add_argument("--render", type=Path, metavar="DIR", help="write DIR/robustness.md from "
                         "DIR/robustness.json and print it (no episode is run)")

@@ -15,7 +15,6 @@ that each loads to the same :class:`~ahrm_stack.config.Config` as before::
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 from typing import Callable, Sequence
@@ -23,6 +22,7 @@ from typing import Callable, Sequence
 import yaml
 
 from ahrm_stack.atomic import write_atomically
+from ahrm_stack.cli import Parser
 from ahrm_stack.config import (SCHEMA_VERSION, Config, ConfigError, apply_overrides, config_from_dict, config_source,
                                fill_missing)
 from ahrm_stack.schema import read_yaml
@@ -93,7 +93,7 @@ def run_folders(root: Path | str) -> list[Path]:
 def main(argv: Sequence[str] | None = None) -> int:
     """Migrate the run folders at or below each given folder (default ``docs/``); prints each
     rewritten file. Exit status 0, or 2 with a one-line error."""
-    parser = argparse.ArgumentParser(prog="python -m ahrm_stack.run_config", description=__doc__.split("\n\n")[0])
+    parser = Parser(prog="python -m ahrm_stack.run_config", description=__doc__.split("\n\n")[0])
     parser.add_argument("folders", nargs="*", type=Path, default=[DOCS], help="default: docs/")
     args = parser.parse_args(argv)
     changed = total = 0

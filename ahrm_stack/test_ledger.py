@@ -17,7 +17,6 @@ the environment variable :data:`LEDGER_ENV` (the test suite's own ledger per tes
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import datetime
 import hashlib
@@ -28,6 +27,7 @@ import sys
 from pathlib import Path
 from typing import Iterator
 
+from ahrm_stack.cli import Parser
 from ahrm_stack.config import CONFIG_DIR, ConfigError
 
 LEDGER_ENV = "AHRM_TEST_LEDGER"  # a ledger file other than the committed one (the tests set it)
@@ -154,7 +154,7 @@ def _rows(entries: list[Read]) -> Iterator[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m ahrm_stack.test_ledger",
+    parser = Parser(prog="python -m ahrm_stack.test_ledger",
                                      description="The sealed test split's reads, as a table.")
     parser.add_argument("--policy", metavar="FILE", help="only the reads of this policy file (by its hash)")
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)

@@ -32,7 +32,7 @@ import sys
 import time
 import warnings
 
-from ahrm_stack.cli import add_verbose_flag, quiet
+from ahrm_stack.cli import Parser, add_verbose_flag, quiet
 
 # torchrl and dm_control warn at import (see ahrm_stack.learning.training): recorded and dropped.
 with warnings.catch_warnings(record=True):
@@ -40,7 +40,7 @@ with warnings.catch_warnings(record=True):
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="python -m ahrm_stack.train", description=__doc__.split("\n\n")[0])
+    parser = Parser(prog="python -m ahrm_stack.train", description=__doc__.split("\n\n")[0])
     parser.add_argument("overrides", nargs="*", help="dotted config overrides, key=value")
     parser.add_argument("--run-dir", help="run folder (default: <train.runs_dir>/<method>-seed<seed>-<time>)")
     parser.add_argument("--resume", metavar="RUN_DIR", help="continue the run in RUN_DIR")

@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
+from ahrm_stack.cli import Parser
 from ahrm_stack.config import ConfigError
 from ahrm_stack.deploy.loop import DeployFault, DeployLoop
 from ahrm_stack.deploy.run import deploy
@@ -30,13 +31,8 @@ def run_backend(backend: str, settings: DeploySettings, checkpoint: Path | None,
                   layout_file=layout_file, policy_file=policy_file)
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # type: ignore[override]
-        self.exit(2, f"{self.prog}: error: {message}\n")
-
-
 def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = _Parser(prog="python -m ahrm_stack.deploy",
+    parser = Parser(prog="python -m ahrm_stack.deploy",
                      description="Run the deployment loop (policy or scripted controller → safety "
                                  "filter → arm adapter).")
     parser.add_argument("--backend", choices=list(BACKENDS), required=True,

@@ -17,7 +17,6 @@ status 2, with nothing written; a board or tag seen too rarely is one line and e
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import math
 import sys
@@ -26,6 +25,8 @@ from pathlib import Path
 from typing import Iterator, Sequence
 
 import numpy as np
+
+from ahrm_stack.cli import Parser
 
 PROG = "python -m ahrm_stack.perception.calibrate"
 VIDEO_SUFFIXES = (".avi", ".mp4", ".mkv", ".mov", ".webm")
@@ -145,7 +146,7 @@ def _sized(frames, width: int, height: int) -> Iterator[np.ndarray]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
+    parser = Parser(prog=PROG, description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     intrinsics = sub.add_parser("intrinsics", help="intrinsics and lens distortion from board views")
     intrinsics.add_argument("--out", type=Path, required=True, help="the calibration file to write")

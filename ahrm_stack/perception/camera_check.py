@@ -13,18 +13,19 @@ seen, 1 never seen, 2 bad settings or no camera (one line).
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from typing import Sequence
 
 import numpy as np
 
+from ahrm_stack.cli import Parser
+
 PROG = "python -m ahrm_stack.perception.camera_check"
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0])
+    parser = Parser(prog=PROG, description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=20.0, help="how long to watch (default 20)")
     args = parser.parse_args(argv)
     from ahrm_stack.config import ConfigError, load_config

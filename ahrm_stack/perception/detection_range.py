@@ -17,7 +17,6 @@ A real camera: hold the cube (or the printed tag) at increasing distance and wat
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import math
 import sys
@@ -25,6 +24,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ahrm_stack.cli import Parser
 from ahrm_stack.perception.geometry import CameraPose, look_at_rotation, quaternion_to_matrix
 from ahrm_stack.perception.settings import PerceptionSettings
 
@@ -95,7 +95,7 @@ def measure_range(task_config, settings: PerceptionSettings,
 def main(argv: Sequence[str] | None = None) -> int:
     import os
 
-    parser = argparse.ArgumentParser(prog="python -m ahrm_stack.perception.detection_range",
+    parser = Parser(prog="python -m ahrm_stack.perception.detection_range",
                                      description=__doc__.splitlines()[0])
     parser.add_argument("--from", dest="start", type=float, default=0.4, help="m (default 0.4)")
     parser.add_argument("--to", dest="stop", type=float, default=3.0, help="m (default 3.0)")
