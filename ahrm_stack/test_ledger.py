@@ -28,7 +28,8 @@ from pathlib import Path
 from typing import Iterator
 
 from ahrm_stack.cli import Parser
-from ahrm_stack.config import CONFIG_DIR, ConfigError
+from ahrm_stack.config import ConfigError
+from ahrm_stack.paths import PROJECT_ROOT
 
 LEDGER_ENV = "AHRM_TEST_LEDGER"  # a ledger file other than the committed one (the tests set it)
 SCRIPTED = "scripted controller"  # the policy field of the scripted controller's reads
@@ -40,12 +41,12 @@ class RereadError(ConfigError):
 
 def ledger_path() -> Path:
     """The ledger file: :data:`LEDGER_ENV` when set, else ``configs/seeds.yaml``'s ``test_ledger``
-    (relative to the repository, the folder above ``configs/``)."""
+    (relative to the project root: the repository, or for an installed wheel the working folder)."""
     override = os.environ.get(LEDGER_ENV)
     if override:
         return Path(override)
     from ahrm_stack.seeds import seed_table
-    return CONFIG_DIR.parent / seed_table().test_ledger
+    return PROJECT_ROOT / seed_table().test_ledger
 
 
 def policy_key(policy_file: Path | None, config_text: str = "") -> str:
@@ -115,7 +116,7 @@ def check_read(key: str, evaluation_set: str, reason: str = "", scripted: bool =
 
 def _commit() -> str:
     try:
-        done = subprocess.run(["git", "rev-parse", "HEAD"], cwd=CONFIG_DIR.parent, capture_output=True,
+        done = subprocess.run(["git", "rev-parse", "HEAD"], cwd=PROJECT_ROOT, capture_output=True,
                               text=True, timeout=10)
     except (OSError, subprocess.SubprocessError):
         return ""

@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 
-CONFIG_DIR = Path(__file__).resolve().parent.parent.parent / "configs"
+from ahrm_stack.paths import CONFIG_DIR  # noqa: F401 - decided there (checkout, packaged copy, or $AHRM_CONFIG_DIR)
 
 SECTIONS = {"task": "task.yaml", "scripted": "scripted.yaml", "safety": "safety.yaml",
             "mechanism": "mechanism.yaml", "ppo": "ppo.yaml", "train": "train.yaml"}

@@ -27,9 +27,10 @@ from typing import Annotated, Any
 
 import numpy as np
 
+from ahrm_stack.paths import CONFIG_DIR
 from ahrm_stack.schema import ConfigError, Float, Section, ge, gt, read_yaml
 
-REALISM_FILE = Path(__file__).resolve().parents[2] / "configs" / "realism.yaml"
+REALISM_FILE = CONFIG_DIR / "realism.yaml"
 
 NonNeg = Annotated[Float, ge(0)]
 Scale = tuple[Annotated[Float, gt(0)], Annotated[Float, gt(0)]]
