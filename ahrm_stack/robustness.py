@@ -79,11 +79,10 @@ def _episodes(job: tuple[str | None, str, dict, list[int], float]) -> list[dict[
 
     import numpy as np
 
-    from ahrm_stack.deploy.controllers import PolicyController, ScriptedController
-    from ahrm_stack.deploy.loop import DeployFault, DeployLoop
+    from ahrm_stack.deploy.loop import DeployFault
     from ahrm_stack.deploy.run import load_controller_config
+    from ahrm_stack.deploy.session import DeploySession
     from ahrm_stack.deploy.settings import load_deploy_settings
-    from ahrm_stack.deploy.world import WorldModel
     from hardware.protocol import FastClock
     from hardware.sim import SimArm
 
@@ -92,9 +91,8 @@ def _episodes(job: tuple[str | None, str, dict, list[int], float]) -> list[dict[
     settings = load_deploy_settings(realtime=False, telemetry="", duration=duration)
     realism = RealismConfig.from_dict(realism_data, "realism")
     arm = SimArm(config.task, seed=seeds[0], clock=FastClock(), realism=realism)
-    world = WorldModel(config.task, seed=0)
-    controller = (PolicyController(world, actor, config) if controller_name == "policy"
-                  else ScriptedController(world, config))
+    session = DeploySession.open(arm, config, actor if controller_name == "policy" else None, settings,
+                                 world_seed=0)
     records = []
     for seed in seeds:
         if arm.is_connected:
@@ -102,7 +100,7 @@ def _episodes(job: tuple[str | None, str, dict, list[int], float]) -> list[dict[
         arm.reset_scene(seed)
         arm.connect()
         arm.clear_faults()
-        loop = DeployLoop(arm, world, controller, config.safety, settings, None, None)
+        loop = session.loop()
         start = float(arm.physics.data.time)
         fault = ""
         try:

@@ -72,8 +72,8 @@ def load_config(checkpoint: Path, family: str):
 
 def run_episode(config, checkpoint: Path, seed: int, duration: float, camera_scene: bool,
                 shared: dict) -> Episode:
-    from ahrm_stack.deploy import (DeployFault, DeployLoop, PolicyController, WorldModel,
-                                   load_deploy_settings, merge_safety)
+    from ahrm_stack.deploy import DeployFault, load_deploy_settings, merge_safety
+    from ahrm_stack.deploy.session import DeploySession
     from ahrm_stack.config import load_config as load_repo_config
     from ahrm_stack.env.rewards import obstacle_touched
     from hardware.protocol import FastClock
@@ -83,8 +83,7 @@ def run_episode(config, checkpoint: Path, seed: int, duration: float, camera_sce
     config = dataclasses.replace(config, safety=safety)
     settings = load_deploy_settings(realtime=False, telemetry="", duration=duration)
     arm = SimArm(config.task, seed=seed, clock=FastClock())
-    world = WorldModel(config.task, seed=seed)
-    controller = PolicyController(world, shared["actor"], config)
+    session = DeploySession.open(arm, config, shared["actor"], settings, world_seed=seed)
     arm.connect()
     task = arm.task
     threshold = config.task.rewards.obstacle_speed_threshold
@@ -126,7 +125,7 @@ def run_episode(config, checkpoint: Path, seed: int, duration: float, camera_sce
         source.poses = compared_poses
         render_before = shared["camera"].render_seconds
         frames_before = shared["camera"].frames
-    loop = DeployLoop(arm, world, controller, config.safety, settings, None, source)
+    loop = session.loop(None, source)
     start = time.perf_counter()
     try:
         summary = loop.run(duration)

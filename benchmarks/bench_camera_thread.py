@@ -91,21 +91,19 @@ def in_tick_cost(task_config, settings, frames: int) -> np.ndarray:
 def run_scene(kind: str, duration: float, config, deploy_settings, perception, layout: Path) -> dict:
     """One round of ``duration`` s with scene ``kind``: none (``perception`` None), or the camera
     of ``perception`` (its ``source.isolation``: thread or process)."""
-    from ahrm_stack.deploy import DeployLoop, WorldModel
-    from ahrm_stack.deploy.controllers import make_controller
+    from ahrm_stack.deploy.session import DeploySession
     from ahrm_stack.perception.camera_scene import camera_scene
     from hardware.protocol import WallClock
     from hardware.sim import SimArm
 
     arm = SimArm(config.task, seed=0, clock=WallClock())
-    world = WorldModel(config.task)
-    controller = make_controller(world, config, None)
+    session = DeploySession.open(arm, config, None, deploy_settings, world_seed=0)
     arm.connect()
     scene = camera_scene(arm, config.task, perception, layout) if perception is not None else None
     latencies, misses, left = [], 0, duration
     try:
         while left > 1e-9:
-            loop = DeployLoop(arm, world, controller, config.safety, deploy_settings, None, scene)
+            loop = session.loop(None, scene)
             summary = loop.run(left)
             latencies += loop.latencies
             misses += loop.deadline_misses

@@ -39,8 +39,8 @@ cli.quiet_argv()  # before the heavy imports: the libraries' warnings and INFO l
 
 import numpy as np  # noqa: E402
 
-from ahrm_stack.deploy import (DeployLoop, WorldModel, load_controller_config,  # noqa: E402
-                               load_deploy_settings, make_controller)
+from ahrm_stack.deploy import load_controller_config, load_deploy_settings  # noqa: E402
+from ahrm_stack.deploy.session import DeploySession  # noqa: E402
 from hardware.protocol import FastClock, WallClock  # noqa: E402
 from hardware.sim import SimArm  # noqa: E402
 
@@ -128,11 +128,12 @@ def bench_rate(rate: float, duration: float, realtime: bool, checkpoint, policy_
     config, actor = load_controller_config(checkpoint, policy_file=policy_file)
     clock = WallClock() if realtime else FastClock()
     arm = SimArm(config.task, seed=0, clock=clock)
-    world = WorldModel(config.task)
+    session = DeploySession.open(arm, config, actor, settings, world_seed=0)
+    world = session.world
     loop = None  # the loop of the current episode: only its ticks are timed, not its start()
     in_tick = lambda: loop is not None and loop._started  # noqa: E731
-    controller = _Timed(make_controller(world, config, actor), in_tick)
-    world.update = _Timed(world.update, in_tick)  # the loop calls self.world.update(...)
+    controller = session.controller = _Timed(session.controller, in_tick)
+    session.world.update = _Timed(session.world.update, in_tick)  # the loop calls self.world.update(...)
     latencies, filter_times = [], []
     ticking = [False]  # inside a DeployLoop.tick call (the loop collects garbage between ticks)
     collections = _GcTimes(lambda: ticking[0])
@@ -144,7 +145,7 @@ def bench_rate(rate: float, duration: float, realtime: bool, checkpoint, policy_
     left = duration
     while left > 1e-9:
         arm.reset_scene(seed=episodes)
-        loop = DeployLoop(arm, world, controller, config.safety, settings)
+        loop = session.loop()
         # The loop calls self._solve: the filter, or its cartesian entry (differential IK).
         loop._solve = solve = _Timed(loop._solve, in_tick)
         loop.tick = _flagged(loop.tick, ticking)

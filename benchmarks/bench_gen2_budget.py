@@ -89,7 +89,8 @@ def budget_run(duration: float, rate_hz: float = 20.0, fault_every: float = 30.0
     from fake_kinova_sdk.fake import SERIAL, FakeSdk, session_library
 
     from ahrm_stack.config import load_config
-    from ahrm_stack.deploy import DeployLoop, ScriptedController, WorldModel, load_deploy_settings
+    from ahrm_stack.deploy import DeployLoop, load_deploy_settings
+    from ahrm_stack.deploy.session import DeploySession
     from hardware import backends
     from hardware.kinova_gen2 import SYSTEM_ERROR_TYPES
     from hardware.kinova_gen2.bus import POINT_PERIOD
@@ -112,7 +113,7 @@ def budget_run(duration: float, rate_hz: float = 20.0, fault_every: float = 30.0
              ("e-stop", lambda: fake.set_estop(True), lambda: fake.set_estop(False)),
              ("link lost", lambda: fake.set_unplugged(True), lambda: fake.set_unplugged(False))]
     arm = backends.get("kinova-gen2").make(config, settings)
-    world = WorldModel(config.task, seed=settings.seed)
+    session = DeploySession.open(arm, config, None, settings)  # the scripted controller; reset by each loop
     arm.connect()
     mark = fake.call_count()
     faults: list[FaultRecord] = []
@@ -138,7 +139,7 @@ def budget_run(duration: float, rate_hz: float = 20.0, fault_every: float = 30.0
     arm.refresh_feedback, arm.send_joint_speeds = timed_refresh, timed_send
     collecting = gc.isenabled()
     try:
-        loop = DeployLoop(arm, world, ScriptedController(world, config), config.safety, settings)
+        loop = session.loop()
         loop.start()
         if collecting:
             gc.freeze()

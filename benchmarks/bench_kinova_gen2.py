@@ -44,7 +44,8 @@ def deploy_on_fake(duration: float, freezes: int, resume_ticks: int = 10) -> dic
     from fake_kinova_sdk.fake import SERIAL, FakeSdk, session_library
 
     from ahrm_stack.config import load_config
-    from ahrm_stack.deploy import DeployLoop, ScriptedController, WorldModel, load_deploy_settings
+    from ahrm_stack.deploy import load_deploy_settings
+    from ahrm_stack.deploy.session import DeploySession
     from ahrm_stack.safety.filter import velocity_margin
     from hardware import backends
 
@@ -61,13 +62,12 @@ def deploy_on_fake(duration: float, freezes: int, resume_ticks: int = 10) -> dic
         settings.kinova_gen2, library=str(library), serial=SERIAL,
         scene=str(ROOT / "configs" / "scenes" / "default.yaml")))
     arm = backends.get("kinova-gen2").make(config, settings)
-    world = WorldModel(config.task, seed=settings.seed)
-    controller = ScriptedController(world, config)
-    robot = world.robot
+    session = DeploySession.open(arm, config, None, settings)
+    robot = session.world.robot
     bound_deg = np.degrees(robot.velocity_limit * (1.0 - velocity_margin(robot, config.safety)))
     arm.connect()
     try:
-        loop = DeployLoop(arm, world, controller, config.safety, settings)
+        loop = session.loop()
         loop.start()
         mark = fake.call_count()
         start_deg = fake.state()[0]

@@ -13,11 +13,10 @@ from typing import Sequence
 
 
 from ahrm_stack.config import Config, ConfigError, load_config
-from ahrm_stack.deploy.controllers import make_controller
 from ahrm_stack.deploy.loop import DeployFault, DeployLoop, DeploySummary
 from ahrm_stack.deploy.safety_settings import SafetyNote, merge_safety, require_filter
+from ahrm_stack.deploy.session import DeploySession
 from ahrm_stack.deploy.settings import DeployConfigError, DeploySettings
-from ahrm_stack.deploy.world import WorldModel
 
 log = logging.getLogger("ahrm_stack.deploy")
 
@@ -168,8 +167,7 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
                                         "kind": note.kind, "reason": note.text}) + "\n")
         try:
             arm = chosen.make(config, settings)
-            world = WorldModel(config.task, seed=settings.seed)
-            controller = make_controller(world, config, actor)
+            session = DeploySession.open(arm, config, actor, settings)
             arm.connect()
             if perception is not None:
                 from ahrm_stack.perception.camera_scene import camera_scene
@@ -185,7 +183,7 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
                         folder = Path(scratch.name)
                     layout_file = survey_obstacles(arm, folder / "layout.yaml")
                 source = camera_scene(arm, config.task, perception, layout_file)
-            loop = DeployLoop(arm, world, controller, config.safety, settings, telemetry, source)
+            loop = session.loop(telemetry, source)
         except Exception as error:  # noqa: BLE001 - recorded, then raised as a fault
             raise _start_up_fault(arm, telemetry, error) from error
         except KeyboardInterrupt as error:  # Ctrl-C during set-up: stopped and recorded too
