@@ -12,7 +12,7 @@ GL_PACKAGES := libegl1 libegl-mesa0 libgl1-mesa-dri libopengl0 libgl1
 # A C compiler for the tests' fake Kinova Gen2 SDK (tests/fake_kinova_sdk), installed only when no
 # cc is on PATH; without one those tests skip, saying so.
 CC_PACKAGES := gcc libc6-dev
-# libusb for Kinova's Gen2 USB communication layer (hardware/vendor/kinova_gen2/, loaded by the
+# libusb for Kinova's Gen2 USB communication layer (ahrm_stack/hardware/vendor/kinova_gen2/, loaded by the
 # Gen2 backend and by its tests), installed only when missing.
 USB_PACKAGES := libusb-1.0-0
 

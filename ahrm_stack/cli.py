@@ -40,7 +40,7 @@ LIBRARY_LOGGERS = ("absl", "ray", "torchrl", "tensordict", "torch", "matplotlib"
 """Loggers held at WARNING unless verbose."""
 
 _ROOT = Path(__file__).resolve().parent.parent
-_OURS = tuple(str(_ROOT / name) + os.sep for name in ("ahrm_stack", "hardware", "benchmarks", "studies", "tests"))
+_OURS = tuple(str(_ROOT / name) + os.sep for name in ("ahrm_stack", "benchmarks", "studies", "tests"))
 _SHOW_ALL = warnings.showwarning  # the interpreter's (or pytest's) hook when this module is imported
 _TORCHRL_LEVEL, _QUIET_TORCHRL = "RL_LOGGING_LEVEL", "WARNING"
 _LEVEL = logging.INFO

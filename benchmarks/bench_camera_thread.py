@@ -46,8 +46,8 @@ def render_video(path: Path, task_config, settings, frames: int) -> None:
     import cv2
 
     from ahrm_stack.perception.sim_camera import SimCamera
-    from hardware.protocol import FastClock
-    from hardware.sim import SimArm
+    from ahrm_stack.hardware.protocol import FastClock
+    from ahrm_stack.hardware.sim import SimArm
 
     arm = SimArm(task_config, seed=0, clock=FastClock())
     arm.connect()
@@ -70,8 +70,8 @@ def in_tick_cost(task_config, settings, frames: int) -> np.ndarray:
     """s per frame of the old in-tick path: render + detect (``source.kind sim``)."""
     from ahrm_stack.perception.apriltag import TagDetector
     from ahrm_stack.perception.sim_camera import SimCamera
-    from hardware.protocol import FastClock
-    from hardware.sim import SimArm
+    from ahrm_stack.hardware.protocol import FastClock
+    from ahrm_stack.hardware.sim import SimArm
 
     arm = SimArm(task_config, seed=0, clock=FastClock())
     arm.connect()
@@ -93,8 +93,8 @@ def run_scene(kind: str, duration: float, config, deploy_settings, perception, l
     of ``perception`` (its ``source.isolation``: thread or process)."""
     from ahrm_stack.deploy.session import DeploySession
     from ahrm_stack.perception.camera_scene import camera_scene
-    from hardware.protocol import WallClock
-    from hardware.sim import SimArm
+    from ahrm_stack.hardware.protocol import WallClock
+    from ahrm_stack.hardware.sim import SimArm
 
     arm = SimArm(config.task, seed=0, clock=WallClock())
     session = DeploySession.open(arm, config, None, deploy_settings, world_seed=0)
@@ -147,8 +147,8 @@ def main() -> None:
     from ahrm_stack.deploy import load_deploy_settings
     from ahrm_stack.perception.settings import load_perception_settings
     from ahrm_stack.perception.scene_source import write_layout_file
-    from hardware.protocol import FastClock
-    from hardware.sim import SimArm
+    from ahrm_stack.hardware.protocol import FastClock
+    from ahrm_stack.hardware.sim import SimArm
 
     config = load_config()
     deploy_settings = load_deploy_settings(realtime=True, telemetry="")

@@ -91,9 +91,9 @@ def budget_run(duration: float, rate_hz: float = 20.0, fault_every: float = 30.0
     from ahrm_stack.config import load_config
     from ahrm_stack.deploy import DeployLoop, load_deploy_settings
     from ahrm_stack.deploy.session import DeploySession
-    from hardware import backends
-    from hardware.kinova_gen2 import SYSTEM_ERROR_TYPES
-    from hardware.kinova_gen2.bus import POINT_PERIOD
+    from ahrm_stack.hardware import backends
+    from ahrm_stack.hardware.kinova_gen2 import SYSTEM_ERROR_TYPES
+    from ahrm_stack.hardware.kinova_gen2.bus import POINT_PERIOD
 
     library = session_library()
     fake = FakeSdk(library)
@@ -259,7 +259,7 @@ def main() -> None:
     if args.quick:
         args.duration, args.fault_every = 10.0, 2.5
     logging.basicConfig(level=logging.ERROR)
-    for name in ("hardware.kinova_gen2", "ahrm_stack.deploy"):  # the injected faults' stops: expected
+    for name in ("ahrm_stack.hardware.kinova_gen2", "ahrm_stack.deploy"):  # the injected faults' stops: expected
         logging.getLogger(name).setLevel(logging.CRITICAL)
     r = budget_run(args.duration, args.rate, args.fault_every, args.latency_ms * 1e-3)
     period_ms = r["period"] * 1e3

@@ -13,7 +13,7 @@ of a 5 ms one), an error in dt that real time does not have; at x20 on a load of
 false e-stops in 40,000 ticks, even at 1x noise, where the noise alone cannot (9 sigma).
 
 Conditions, ``--ticks`` ticks at the limit and a tenth of that held still (the easier case), on
-the fake SDK through :class:`~hardware.kinova_gen2.KinovaGen2Arm`:
+the fake SDK through :class:`~ahrm_stack.hardware.kinova_gen2.KinovaGen2Arm`:
 angle noise at 1x (the level whose one-period difference is the fake's 1 deg/s velocity-feedback
 noise, tests/test_kinova_gen2_estop.py BASE_NOISE) and 3x; the arm held still, and moving by itself
 at exactly its velocity limit on every joint (the fastest a filtered command moves it: the worst
@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
     from ahrm_stack.config import load_config
     from ahrm_stack.deploy import load_deploy_settings
     from ahrm_stack.robot import describe, make_arm
-    from hardware.kinova_gen2 import KinovaGen2Arm
+    from ahrm_stack.hardware.kinova_gen2 import KinovaGen2Arm
 
     config = load_config()
     settings = load_deploy_settings(realtime=True, telemetry="")

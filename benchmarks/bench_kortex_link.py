@@ -1,7 +1,7 @@
 """The cost of running ``kortex_api`` in its own process: one ``RefreshFeedback`` (the plain-valued
 frame of a 6-joint arm) and one ``SendJointSpeedsCommand`` through the child-process link
-(hardware/kortex/child_link.py: a JSON line each way over a pipe) against the same call on the same
-vendor code in this process (hardware/kortex/vendor_link.py), both on the fake ``kortex_api``
+(ahrm_stack/hardware/kortex/child_link.py: a JSON line each way over a pipe) against the same call on the same
+vendor code in this process (ahrm_stack/hardware/kortex/vendor_link.py), both on the fake ``kortex_api``
 (tests/fake_kortex_api; its simulated arm answers at once, so the figures are the link's own
 overhead, without the network's round trip to a real arm).
 
@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 
 from fake_kortex_api.rig import HERE, fake_api  # noqa: E402
-from hardware.kortex import ChildLink, VendorLink, joint_speeds_message  # noqa: E402
+from ahrm_stack.hardware.kortex import ChildLink, VendorLink, joint_speeds_message  # noqa: E402
 
 JOINTS = 6
 SPEC = ('{"positions_deg": [0, 180, 180, 0, 0, 0], "continuous": [true, false, false, true, true, '

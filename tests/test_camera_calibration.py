@@ -212,8 +212,8 @@ def rendered():
     from ahrm_stack.perception.geometry import OPTICAL_TO_MUJOCO, quaternion_to_matrix
     from ahrm_stack.perception.settings import ReferenceTagSettings
     from ahrm_stack.perception.sim_camera import SimCamera
-    from hardware.protocol import FastClock
-    from hardware.sim import SimArm
+    from ahrm_stack.hardware.protocol import FastClock
+    from ahrm_stack.hardware.sim import SimArm
 
     config = load_config()
     settings = load_perception_settings()

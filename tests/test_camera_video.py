@@ -22,7 +22,7 @@ from ahrm_stack.perception.detection_thread import (CameraThreadError, Detection
 from ahrm_stack.perception.frames import FrameError, VideoFileFrames  # noqa: E402
 from ahrm_stack.perception.settings import PerceptionConfigError, load_perception_settings  # noqa: E402
 from ahrm_stack.perception.tracker import CubeTracker, TagLostError  # noqa: E402
-from hardware.protocol import FastClock, WallClock  # noqa: E402
+from ahrm_stack.hardware.protocol import FastClock, WallClock  # noqa: E402
 
 SEEN, HIDDEN = 18, 12  # frames with the cube in view, then without it
 STEP = 0.004  # m per frame along world -x
@@ -33,7 +33,7 @@ def video(tmp_path_factory):
     """(video path, true cube centres per frame (None: hidden), settings, task config)."""
     from ahrm_stack.config import load_config
     from ahrm_stack.perception.sim_camera import SimCamera
-    from hardware.sim import SimArm
+    from ahrm_stack.hardware.sim import SimArm
 
     config = load_config()
     settings = load_perception_settings()

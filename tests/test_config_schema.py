@@ -19,7 +19,7 @@ from ahrm_stack.env.layout_catalog import load_layouts
 from ahrm_stack.perception.settings import load_perception_settings
 from ahrm_stack.schema import Float, Int, Section, gt, le, load_file, validate
 from ahrm_stack.seeds import load_seed_table
-from hardware.scene import StaticScene
+from ahrm_stack.hardware.scene import StaticScene
 
 
 @pytest.fixture

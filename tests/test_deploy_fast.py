@@ -27,8 +27,8 @@ from ahrm_stack.deploy import (DeployFault, DeployLoop, PolicyController, Script
 from ahrm_stack.deploy.policy import NumpyPolicy
 from ahrm_stack.env.layout import lane_clearance
 from ahrm_stack.learning.ppo import GaussianHead, LeanActor, RunningNorm, lean_actor, make_modules
-from hardware.protocol import FastClock, WallClock, check_joint_speeds
-from hardware.sim import SimArm
+from ahrm_stack.hardware.protocol import FastClock, WallClock, check_joint_speeds
+from ahrm_stack.hardware.sim import SimArm
 
 
 # --------------------------------------------------------------------------- the policy

@@ -1,7 +1,7 @@
 """Every way a deploy run can fail ends in a recorded stop.
 
 Each scenario below breaks one thing in a running loop (or at start-up): every fault the sim
-adapter offers (:class:`~hardware.sim.InjectedFault`), an adapter call that raises, perception
+adapter offers (:class:`~ahrm_stack.hardware.sim.InjectedFault`), an adapter call that raises, perception
 that raises or returns the wrong number of obstacles or a NaN pose, a controller that raises,
 returns the wrong size or NaN (the scripted one wrapped, and a policy whose action is NaN or
 infinite), a safety filter that raises, and faults during start-up. For each run it measures:
@@ -11,7 +11,7 @@ command deadline for a delayed command), a stop event in the telemetry, the summ
 the telemetry's last line, :class:`~ahrm_stack.deploy.DeployFault` raised for a software fault,
 and no limit violation in the simulated arm.
 
-In CI every scenario runs once on a :class:`~hardware.protocol.FastClock`. The full measurement,
+In CI every scenario runs once on a :class:`~ahrm_stack.hardware.protocol.FastClock`. The full measurement,
 paced to the wall clock, is ``python tests/test_deploy_faults.py --realtime --repeats 10``.
 """
 
@@ -35,9 +35,9 @@ import pytest  # noqa: E402
 from ahrm_stack.config import load_config  # noqa: E402
 from ahrm_stack.deploy import (DeployFault, DeployLoop, PolicyController,  # noqa: E402
                                ScriptedController, WorldModel, load_deploy_settings)
-from hardware.protocol import (FastClock, FeedbackTimeoutError, HardwareError,  # noqa: E402
+from ahrm_stack.hardware.protocol import (FastClock, FeedbackTimeoutError, HardwareError,  # noqa: E402
                                WallClock)
-from hardware.sim import InjectedFault, SimArm  # noqa: E402
+from ahrm_stack.hardware.sim import InjectedFault, SimArm  # noqa: E402
 
 RATE_HZ = 20.0
 WARM_TICKS = 5  # healthy ticks before the fault

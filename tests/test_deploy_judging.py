@@ -19,8 +19,8 @@ from ahrm_stack.config import load_config
 from ahrm_stack.deploy import (DEPLOY_CONFIG, DeployConfigError, DeployFault, DeployLoop,
                                ScriptedController, WorldModel, load_deploy_settings)
 from ahrm_stack.deploy.loop import DeploySummary
-from hardware.protocol import FastClock
-from hardware.sim import SimArm
+from ahrm_stack.hardware.protocol import FastClock
+from ahrm_stack.hardware.sim import SimArm
 
 CONFIG = load_config()
 HX, HY = CONFIG.task.table.half_extent

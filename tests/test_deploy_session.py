@@ -6,14 +6,14 @@ from pathlib import Path
 from ahrm_stack.config import load_config
 from ahrm_stack.deploy import PolicyController, ScriptedController, load_controller_config, load_deploy_settings
 from ahrm_stack.deploy.session import DeploySession
-from hardware.protocol import FastClock
-from hardware.sim import SimArm
+from ahrm_stack.hardware.protocol import FastClock
+from ahrm_stack.hardware.sim import SimArm
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_no_one_else_builds_a_deploy_loop():
-    sources = [p for folder in ("ahrm_stack", "hardware", "benchmarks", "studies", "tools")
+    sources = [p for folder in ("ahrm_stack", "benchmarks", "studies", "tools")
                for p in (ROOT / folder).rglob("*.py")]
     builders = [str(p.relative_to(ROOT)) for p in sources if "DeployLoop(" in p.read_text()]
     assert builders == ["ahrm_stack/deploy/session.py"], builders

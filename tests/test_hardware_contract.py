@@ -1,4 +1,4 @@
-"""The adapter contract (hardware/protocol.py) that every backend passes; run against the sim
+"""The adapter contract (ahrm_stack/hardware/protocol.py) that every backend passes; run against the sim
 backend in fast (unpaced) mode, the Kortex backend on the fake ``kortex_api`` (tests/fake_kortex_api,
 on the wall clock) and the Kinova Gen2 backend on the fake SDK (tests/fake_kinova_sdk, compiled
 here; real time). A new backend adds a factory to BACKENDS."""
@@ -11,12 +11,12 @@ import functools
 import numpy as np
 import pytest
 
-from hardware.protocol import (ArmAdapter, ArmFaultError, ArmState, CommandRefusedError,
+from ahrm_stack.hardware.protocol import (ArmAdapter, ArmFaultError, ArmState, CommandRefusedError,
                                FastClock, Fault, HardwareError, NotConnectedError, ServoingMode)
 
 
 def _sim(task_config) -> ArmAdapter:
-    from hardware.sim import SimArm
+    from ahrm_stack.hardware.sim import SimArm
 
     return SimArm(task_config, seed=0, clock=FastClock())
 
@@ -46,7 +46,7 @@ def _kinova_gen2(task_config, command_timeout: float = 1.0) -> ArmAdapter:
     from fake_kinova_sdk.fake import CompilerMissing, FakeSdk, SERIAL, session_library
 
     from ahrm_stack.deploy import load_deploy_settings
-    from hardware.kinova_gen2 import KinovaGen2Arm
+    from ahrm_stack.hardware.kinova_gen2 import KinovaGen2Arm
 
     try:
         library = session_library()

@@ -12,8 +12,8 @@ import pytest
 
 from ahrm_stack.config import load_config
 from ahrm_stack.deploy import DeployLoop, ScriptedController, WorldModel, load_deploy_settings
-from hardware.protocol import ArmState, CommandRefusedError, FastClock, Fault
-from hardware.sim import InjectedFault, SimArm
+from ahrm_stack.hardware.protocol import ArmState, CommandRefusedError, FastClock, Fault
+from ahrm_stack.hardware.sim import InjectedFault, SimArm
 
 RATE_HZ = 20.0
 

@@ -1,4 +1,4 @@
-"""The Kinova Gen2 backend (hardware/kinova_gen2/) against the fake SDK (tests/fake_kinova_sdk),
+"""The Kinova Gen2 backend (ahrm_stack/hardware/kinova_gen2/) against the fake SDK (tests/fake_kinova_sdk),
 compiled here with the system C compiler: settings, struct layouts, unit and joint conventions,
 device selection, the cold-boot start, the USB thread (one position read per tick, the 100 Hz
 points, the status poll, the order of calls), the command watchdog, faults, the e-stop, a lost
@@ -26,13 +26,13 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from ahrm_stack.deploy import DEPLOY_CONFIG, DeployConfigError, load_deploy_settings
-from hardware.kinova_gen2 import (SYSTEM_ERROR_TYPES, AngularPosition, Gen2ConfigError,
+from ahrm_stack.hardware.kinova_gen2 import (SYSTEM_ERROR_TYPES, AngularPosition, Gen2ConfigError,
                                   JointConvention, KinovaDevice, KinovaGen2Arm, SensorsInfo,
                                   Sdk, SystemError, TrajectoryPoint, UserPosition, check_library,
                                   kinova_positions, kinova_velocities,
                                   model_positions, model_velocities,
                                   velocity_point)
-from hardware.protocol import (ArmFaultError, ArmState, CommandRefusedError, ConnectionLostError, Fault,
+from ahrm_stack.hardware.protocol import (ArmFaultError, ArmState, CommandRefusedError, ConnectionLostError, Fault,
                                HardwareError, NotConnectedError, ServoingMode, unwrap_positions)
 
 fake_module = pytest.importorskip("fake_kinova_sdk.fake")

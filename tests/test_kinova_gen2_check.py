@@ -1,4 +1,4 @@
-"""``python -m ahrm_stack.deploy --backend kinova-gen2 --check`` (hardware/kinova_gen2/check.py): the
+"""``python -m ahrm_stack.deploy --backend kinova-gen2 --check`` (ahrm_stack/hardware/kinova_gen2/check.py): the
 judgement by hand, and the command against the fake SDK in this process (the fake is this process's
 library): it measures each call, says whether the budget fits, never moves the arm, and without an
 arm ends in the one-line "no arm found" error. Kinova's own binary without an arm:
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from ahrm_stack.deploy import main
-from hardware.kinova_gen2.check import TIMED, CallStats, Measurement, Rates, judge, report
+from ahrm_stack.hardware.kinova_gen2.check import TIMED, CallStats, Measurement, Rates, judge, report
 
 fake_module = pytest.importorskip("fake_kinova_sdk.fake")
 ROOT = Path(__file__).resolve().parents[1]

@@ -16,7 +16,7 @@ import pytest
 import yaml
 
 from ahrm_stack.deploy import main
-from hardware.scene import SceneError, StaticScene
+from ahrm_stack.hardware.scene import SceneError, StaticScene
 
 fake_module = pytest.importorskip("fake_kinova_sdk.fake")
 ROOT = Path(__file__).resolve().parents[1]
@@ -93,7 +93,7 @@ def test_deploy_command_runs_the_fake_arm(library, tmp_path, task_config, capsys
     data["watchdog"]["max_feedback_age"] = 10.0  # periods: a loaded CI machine delayed one 37 ms
     path.write_text(yaml.safe_dump(data))
     telemetry = tmp_path / "telemetry.jsonl"
-    with caplog.at_level(logging.INFO, logger="hardware.kinova_gen2"):
+    with caplog.at_level(logging.INFO, logger="ahrm_stack.hardware.kinova_gen2"):
         code = main(["--backend", "kinova-gen2", "--config", str(path), "--duration", "1",
                      "--telemetry", str(telemetry)])
     out = capsys.readouterr().out
@@ -118,7 +118,7 @@ def _scripted_loop_on_the_fake(library):
 
     from ahrm_stack.config import load_config
     from ahrm_stack.deploy import DeployLoop, ScriptedController, WorldModel, load_deploy_settings
-    from hardware import backends
+    from ahrm_stack.hardware import backends
 
     fake = fake_module.FakeSdk(library)
     config = load_config()
@@ -154,8 +154,8 @@ def test_faults_stop_the_deploy_loop_within_one_period(library, task_config, cap
       is bounded: one read behind at most two calls, then the stop behind at most one);
     - a log line naming it."""
 
-    from hardware.kinova_gen2 import SYSTEM_ERROR_TYPES
-    from hardware.kinova_gen2.bus import POINT_PERIOD
+    from ahrm_stack.hardware.kinova_gen2 import SYSTEM_ERROR_TYPES
+    from ahrm_stack.hardware.kinova_gen2.bus import POINT_PERIOD
 
     with _scripted_loop_on_the_fake(library) as (fake, settings, arm, loop):
         gen2 = settings.kinova_gen2
@@ -217,7 +217,7 @@ def test_a_stalled_loop_finds_the_command_watchdog_latched_and_stops_saying_why(
     stops the arm and latches Fault.WATCHDOG (the protocol's rule), so the next tick does not
     resume motion: it stops the run and records why."""
 
-    from hardware.protocol import Fault
+    from ahrm_stack.hardware.protocol import Fault
 
     with _scripted_loop_on_the_fake(library) as (fake, settings, arm, loop):
         for _ in range(4):

@@ -1,6 +1,6 @@
 """What the homing step sends, against Kinova's own binary's debug information (DWARF, read with
 binutils' ``readelf``): ``MoveHome`` takes no argument and returns int; ``POSITION_TYPE``'s
-``ANGULAR_POSITION`` and ``ANGULAR_VELOCITY`` have the values hardware/kinova_gen2/ sends; the
+``ANGULAR_POSITION`` and ``ANGULAR_VELOCITY`` have the values ahrm_stack/hardware/kinova_gen2/ sends; the
 ``Limitation``, ``UserPosition`` and ``TrajectoryPoint`` structs have the size and member offsets of
 the ctypes layouts (``speedParameter1``/``2``, ``LimitationsActive``: the homing move's speed
 limits)."""
@@ -14,8 +14,8 @@ import subprocess
 
 import pytest
 
-from hardware import kinova_gen2
-from hardware.kinova_gen2.loader import VENDOR_LIBRARY
+from ahrm_stack.hardware import kinova_gen2
+from ahrm_stack.hardware.kinova_gen2.loader import VENDOR_LIBRARY
 
 pytestmark = pytest.mark.skipif(shutil.which("readelf") is None or not VENDOR_LIBRARY.is_file(),
                                 reason="binutils' readelf and the vendored Gen2 SDK are needed")

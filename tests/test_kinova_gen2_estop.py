@@ -2,7 +2,7 @@
 noise, yet firing on a real runaway.
 
 The Gen2 adapter's velocities are position differences over at least ``velocity_window`` s
-(hardware/kinova_gen2/arm.py ``_velocity``); the firmware's own velocity feedback is noisy (kinova-ros
+(ahrm_stack/hardware/kinova_gen2/arm.py ``_velocity``); the firmware's own velocity feedback is noisy (kinova-ros
 issues 381 and 202: Kinova's answer is that it comes from the firmware's speed regulation and is
 unsteady; issue 366: "the joint angular positions is pretty good", velocities "not even close to
 zero" at rest; no figure is given) and is not used. The fake's GetAngularVelocity noise is 1 deg/s
@@ -31,8 +31,8 @@ import pytest
 
 from ahrm_stack.config import load_config
 from ahrm_stack.deploy import (DeployLoop, ScriptedController, WorldModel, load_deploy_settings)
-from hardware import backends
-from hardware.kinova_gen2 import KinovaGen2Arm
+from ahrm_stack.hardware import backends
+from ahrm_stack.hardware.kinova_gen2 import KinovaGen2Arm
 
 fake_module = pytest.importorskip("fake_kinova_sdk.fake")
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,4 +1,4 @@
-"""The homing step (``--home``, hardware/kinova_gen2/home.py) on the fake Kinova SDK, whose arm moves
+"""The homing step (``--home``, ahrm_stack/hardware/kinova_gen2/home.py) on the fake Kinova SDK, whose arm moves
 at a finite speed through its trajectory FIFO: MoveHome to kinova-ros's j2n6s300 factory home, an
 ANGULAR_POSITION point at its speed limits along a straight joint-space line
 (tests/fake_kinova_sdk/fake_kinova.c). No confirmation: nothing moves; a confirmation: the arm ends
@@ -23,8 +23,8 @@ from ahrm_stack.deploy import DEPLOY_CONFIG, load_deploy_settings, main
 from ahrm_stack.deploy.bring_up import home_limits
 from ahrm_stack.deploy.start_check import start_refusal
 from ahrm_stack.deploy.world import WorldModel
-from hardware.kinova_gen2 import SYSTEM_ERROR_TYPES, KinovaGen2Arm
-from hardware.kinova_gen2.home import (BAD_INPUT, DONE, INTERRUPTED, NOT_CONFIRMED, STOPPED,
+from ahrm_stack.hardware.kinova_gen2 import SYSTEM_ERROR_TYPES, KinovaGen2Arm
+from ahrm_stack.hardware.kinova_gen2.home import (BAD_INPUT, DONE, INTERRUPTED, NOT_CONFIRMED, STOPPED,
                                        Homing, path_clearance)
 
 fake_module = pytest.importorskip("fake_kinova_sdk.fake")
@@ -228,7 +228,7 @@ def test_home_command_line(library, tmp_path, capsys, start_deg):
 def test_the_fake_moves_a_position_point_at_its_speed_limit(fake):
     """The fake's model of an ANGULAR_POSITION point, against the closed form: a straight joint-space
     line, the slowest joint at its limit, all arriving together (no other point queued)."""
-    from hardware.kinova_gen2 import TrajectoryPoint, position_point
+    from ahrm_stack.hardware.kinova_gen2 import TrajectoryPoint, position_point
 
     fake.set_latency(0.0)
     lib = fake.lib

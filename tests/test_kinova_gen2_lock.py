@@ -1,4 +1,4 @@
-"""Kinova's machine-wide SDK lock (hardware/kinova_gen2/lock.py) read from real POSIX named
+"""Kinova's machine-wide SDK lock (ahrm_stack/hardware/kinova_gen2/lock.py) read from real POSIX named
 semaphores (a private name per test, made and removed here with the C library's own sem_open /
 sem_post / sem_unlink), and the warning connect() logs before InitAPI."""
 
@@ -13,7 +13,7 @@ import sys
 import numpy as np
 import pytest
 
-from hardware.kinova_gen2.lock import lock_value, lock_warning
+from ahrm_stack.hardware.kinova_gen2.lock import lock_value, lock_warning
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="POSIX named semaphores")
 O_CREAT, O_EXCL = os.O_CREAT, os.O_EXCL
@@ -64,8 +64,8 @@ def test_connect_warns_about_a_stuck_lock(semaphore, monkeypatch, caplog):
     from ahrm_stack.config import load_config
     from ahrm_stack.deploy import load_deploy_settings
     from ahrm_stack.robot import describe, make_arm
-    from hardware import kinova_gen2
-    from hardware.kinova_gen2 import arm as gen2_arm, lock as gen2_lock
+    from ahrm_stack.hardware import kinova_gen2
+    from ahrm_stack.hardware.kinova_gen2 import arm as gen2_arm, lock as gen2_lock
 
     name, _ = semaphore(0)
     monkeypatch.setattr(gen2_arm, "lock_warning",
@@ -77,7 +77,7 @@ def test_connect_warns_about_a_stuck_lock(semaphore, monkeypatch, caplog):
                                    serial=fake_module.SERIAL)
     arm = kinova_gen2.KinovaGen2Arm(describe(config.task.robot, make_arm(config.task.robot)),
                                     settings, 0.1)
-    with caplog.at_level(logging.WARNING, logger="hardware.kinova_gen2"):
+    with caplog.at_level(logging.WARNING, logger="ahrm_stack.hardware.kinova_gen2"):
         arm.connect()
     arm.disconnect()
     assert any(f"/dev/shm/sem.{name[1:]}" in r.getMessage() for r in caplog.records)

@@ -1,4 +1,4 @@
-"""Kinova's own Gen2 SDK binary (hardware/vendor/kinova_gen2/x86_64-linux-gnu, from kinova-ros),
+"""Kinova's own Gen2 SDK binary (ahrm_stack/hardware/vendor/kinova_gen2/x86_64-linux-gnu, from kinova-ros),
 without an arm, always in a child process so that a crash shows as a return code, never takes
 pytest down: the codes it returns (fake_kinova_sdk/no_arm.py, which the fake matches), the calls
 that crash it, and the documented set-up end to end: without the loader path, one line saying what
@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from hardware.kinova_gen2.loader import VENDOR_DIR, VENDOR_LIBRARY
+from ahrm_stack.hardware.kinova_gen2.loader import VENDOR_DIR, VENDOR_LIBRARY
 
 from fake_kinova_sdk import no_arm  # noqa: E402  (tests/ is on sys.path)
 
@@ -140,13 +140,13 @@ def test_check_without_an_arm_ends_in_one_line(libusb, tmp_path):
 
 CONNECT = """
 import dataclasses, sys
-import hardware.kinova_gen2 as gen2
-import hardware.kinova_gen2.sdk as gen2_sdk
-import hardware.kinova_gen2.settings as gen2_settings
-from hardware.protocol import HardwareError
+import ahrm_stack.hardware.kinova_gen2 as gen2
+import ahrm_stack.hardware.kinova_gen2.sdk as gen2_sdk
+import ahrm_stack.hardware.kinova_gen2.settings as gen2_settings
+from ahrm_stack.hardware.protocol import HardwareError
 from ahrm_stack.deploy import load_deploy_settings
 from ahrm_stack.robot import describe, make_arm
-from hardware.kinova_gen2.loader import VENDOR_LIBRARY
+from ahrm_stack.hardware.kinova_gen2.loader import VENDOR_LIBRARY
 if sys.argv[1] == "bypass-check":  # reach InitAPI's own failure (2002), as an unchecked caller would
     gen2_settings.check_sdk_path = gen2_sdk.check_sdk_path = lambda library: {}
 settings = dataclasses.replace(load_deploy_settings().kinova_gen2, library=str(VENDOR_LIBRARY),
@@ -195,7 +195,7 @@ def test_a_comm_layer_that_cannot_load_names_what_is_missing(libusb, tmp_path):
                   "-lusb-kinova-test"]):
         subprocess.run([cc, "-shared", "-fPIC", *args], check=True, capture_output=True)
     (tmp_path / "libusb-kinova-test.so").unlink()
-    code = ("from pathlib import Path\nfrom hardware.kinova_gen2 import Gen2ConfigError, check_sdk_path\n"
+    code = ("from pathlib import Path\nfrom ahrm_stack.hardware.kinova_gen2 import Gen2ConfigError, check_sdk_path\n"
             f"try:\n    check_sdk_path(Path({str(VENDOR_LIBRARY)!r}))\n"
             "except Gen2ConfigError as error:\n    print(error)\n")
     done = _run(["-c", code], str(tmp_path))

@@ -23,10 +23,10 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from fake_kortex_api.rig import PASSWORD, fake_api, make_for, options  # noqa: E402
-from hardware.kortex import (CommandWatchdog, Credentials,  # noqa: E402
+from ahrm_stack.hardware.kortex import (CommandWatchdog, Credentials,  # noqa: E402
                              KortexArm, kortex_deploy_blocker, kortex_options,
                              make_kortex_backend)
-from hardware.protocol import (ArmFaultError, ArmState, ConnectionLostError,  # noqa: E402
+from ahrm_stack.hardware.protocol import (ArmFaultError, ArmState, ConnectionLostError,  # noqa: E402
                                Fault, FeedbackTimeoutError, HardwareError, ServoingMode)
 
 PERIOD = 0.05  # s: configs/deploy.yaml's rate_hz 20 (checked below)
@@ -166,15 +166,15 @@ def test_a_hung_rpc_fails_within_its_timeout(rig):
 
 
 # ---------------------------------------------------------------------------------------------
-# Staleness without an arm clock (hardware/kortex/freshness.py)
+# Staleness without an arm clock (ahrm_stack/hardware/kortex/freshness.py)
 # ---------------------------------------------------------------------------------------------
 
 
 def test_frame_freshness_by_hand():
-    from hardware.kortex import FrameFreshness
+    from ahrm_stack.hardware.kortex import FrameFreshness
 
     fresh = FrameFreshness()
-    from hardware.kortex import fingerprint
+    from ahrm_stack.hardware.kortex import fingerprint
 
     def frame(*position):  # each call builds new float objects, as each decoded answer does
         return fingerprint({"position": [float(str(p)) for p in position], "torque": [0.5]})
@@ -450,7 +450,7 @@ def test_no_credential_in_logs_over_a_whole_session(caplog):
 def test_make_kortex_backend(monkeypatch):
     with pytest.raises(HardwareError, match="deploy.kortex.address is not set"):
         make_kortex_backend(_settings(), _robot(), credentials=Credentials("a", "b"))
-    from hardware.kortex import CredentialsError
+    from ahrm_stack.hardware.kortex import CredentialsError
 
     with pytest.raises(CredentialsError, match="KORTEX_PASSWORD"):
         make_kortex_backend(_settings(address="192.0.2.77"), _robot(), env={"KORTEX_USERNAME": "a"})

@@ -1,5 +1,5 @@
 """The adapter contract (tests/test_hardware_contract.py) once more for the Kortex backend with
-``kortex_api`` in its own process: the fake ``kortex_api`` behind hardware/kortex/child_link.py
+``kortex_api`` in its own process: the fake ``kortex_api`` behind ahrm_stack/hardware/kortex/child_link.py
 (this interpreter, the fake on the child's path). The contract's tests are imported and run here
 with only this backend."""
 

@@ -21,8 +21,8 @@ import numpy as np
 import pytest
 
 from fake_kortex_api.rig import HERE, PASSWORD, make_child, make_for, options
-from hardware.kortex import ChildLink, KortexNotInstalledError, LinkError
-from hardware.protocol import ConnectionLostError
+from ahrm_stack.hardware.kortex import ChildLink, KortexNotInstalledError, LinkError
+from ahrm_stack.hardware.protocol import ConnectionLostError
 
 ROOT = Path(__file__).resolve().parent.parent
 CONNECT_CALLS = 7  # CreateSession, RefreshFeedback, the three reads, SetServoingMode, Stop
@@ -191,7 +191,7 @@ def test_without_kortex_api_the_child_says_how_to_install_it(robot, monkeypatch,
     with pytest.raises(LinkError) as error:
         link.call("feedback", timeout_ms=40)
     assert error.value.kind == "not_installed" and "kortex.python" in str(error.value)
-    from hardware.kortex import Credentials, KortexArm
+    from ahrm_stack.hardware.kortex import Credentials, KortexArm
 
     adapter = KortexArm(robot, "192.0.2.3", Credentials("admin", PASSWORD), options())
     with pytest.raises(KortexNotInstalledError, match="kortex_api is not installed") as refused:
@@ -200,7 +200,7 @@ def test_without_kortex_api_the_child_says_how_to_install_it(robot, monkeypatch,
 
 
 def test_a_missing_interpreter_is_a_one_line_error(robot):
-    from hardware.kortex import Credentials, KortexArm
+    from ahrm_stack.hardware.kortex import Credentials, KortexArm
 
     adapter = KortexArm(robot, "192.0.2.3", Credentials("admin", PASSWORD),
                         options(python="/nonexistent/venv/bin/python"), child_path=[HERE])

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from fake_kortex_api.rig import make_for, options
-from hardware.kortex import KortexModel, model_name
-from hardware.protocol import HardwareError
+from ahrm_stack.hardware.kortex import KortexModel, model_name
+from ahrm_stack.hardware.protocol import HardwareError
 
 
 @pytest.fixture(scope="module")

@@ -10,13 +10,13 @@ import types
 import numpy as np
 import pytest
 
-from hardware.kortex import (INSTALL_HINT, Credentials, CredentialsError, KortexArm,
+from ahrm_stack.hardware.kortex import (INSTALL_HINT, Credentials, CredentialsError, KortexArm,
                              KortexNotInstalledError, arm_state_from_kortex, degrees_to_radians,
                              faults_from_banks, feedback_from_values, import_kortex_api,
                              joint_speeds_message, load_credentials, radians_to_degrees, scrub,
                              servoing_mode_name, unwrap_positions)
 from fake_kortex_api.rig import fake_api, options, standin_frame, standin_reply
-from hardware.protocol import ArmState, Fault, HardwareError, NotConnectedError, ServoingMode
+from ahrm_stack.hardware.protocol import ArmState, Fault, HardwareError, NotConnectedError, ServoingMode
 
 PASSWORD = "s3cr3t-Pa55word!"
 

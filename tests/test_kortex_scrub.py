@@ -2,7 +2,7 @@
 library may echo it in (repr, bytes repr, JSON, URL and form encoding, protobuf text format, UTF-8
 octal escapes), for >= 100 hostile passwords (quotes, backslashes, non-ASCII, ``@ : % + /``,
 newlines, tabs, control characters). The echoes are made with the real libraries (``json``,
-``urllib.parse``, ``google.protobuf.text_format``), independently of :func:`hardware.kortex.scrub`.
+``urllib.parse``, ``google.protobuf.text_format``), independently of :func:`ahrm_stack.hardware.kortex.scrub`.
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ import pytest
 from google.protobuf import text_format, wrappers_pb2
 
 from fake_kortex_api.rig import fake_api, options, standin_frame, standin_reply
-from hardware.kortex import Credentials, KortexArm, scrub, secret_variants
-from hardware.protocol import HardwareError
+from ahrm_stack.hardware.kortex import Credentials, KortexArm, scrub, secret_variants
+from ahrm_stack.hardware.protocol import HardwareError
 
 HOSTILE = "'\"\\@:%+/?#&= \n\t\r\x00\x7féüß密码😀\u0301*$`{}<>;|"
 SAFE = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789-_."

@@ -12,8 +12,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from fake_kortex_api.rig import make_for, options
-from hardware.kortex import ProtectionZone, task_workspace, zone_report, zones_in_workspace
-from hardware.protocol import HardwareError
+from ahrm_stack.hardware.kortex import ProtectionZone, task_workspace, zone_report, zones_in_workspace
+from ahrm_stack.hardware.protocol import HardwareError
 
 coal = pytest.importorskip("coal")
 

@@ -18,8 +18,8 @@ from ahrm_stack.deploy import (DeployFault, DeployLoop, ScriptedController, Worl
 from ahrm_stack.perception.scene_source import LayoutFileObstacles, MeasuredScene, write_layout_file
 from ahrm_stack.perception.settings import load_perception_settings
 from ahrm_stack.perception.tracker import CubeTracker
-from hardware.protocol import FastClock
-from hardware.sim import SimArm
+from ahrm_stack.hardware.protocol import FastClock
+from ahrm_stack.hardware.sim import SimArm
 
 TRAINED = Path(__file__).resolve().parents[1] / "docs" / "policies" / "ahrm-default-seed0"
 

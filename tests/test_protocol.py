@@ -1,9 +1,9 @@
-"""The arm adapter protocol's own code (``hardware/protocol.py``), without a backend: the command
+"""The arm adapter protocol's own code (``ahrm_stack/hardware/protocol.py``), without a backend: the command
 check every backend runs before sending (every bad command is a :class:`CommandRefusedError`, on
 which the backends e-stop; the velocity limit is inclusive), unwrapping against its closed form,
 range centres, the feedback and pose checks, the clocks and the adapter base classes.
 
-The fast tests of ``tools/mutate.py --suite`` for ``hardware/protocol.py``; the backends' shared
+The fast tests of ``tools/mutate.py --suite`` for ``ahrm_stack/hardware/protocol.py``; the backends' shared
 contract is ``tests/test_hardware_contract.py``.
 """
 
@@ -15,10 +15,10 @@ import types
 import numpy as np
 import pytest
 
-import hardware.protocol as protocol
-from hardware.protocol import (ArmAdapter, ArmFaultError, ArmState, CommandRefusedError, DescribedArm, FastClock,
-                               Fault, Feedback, ObjectPoses, ServoingMode, WallClock, check_joint_speeds,
-                               range_centres, unwrap_positions)
+import ahrm_stack.hardware.protocol as protocol
+from ahrm_stack.hardware.protocol import (ArmAdapter, ArmFaultError, ArmState, CommandRefusedError, DescribedArm,
+                                          FastClock, Fault, Feedback, ObjectPoses, ServoingMode, WallClock,
+                                          check_joint_speeds, range_centres, unwrap_positions)
 
 LIMIT = np.array([0.5, 1.0, 2.0])  # rad/s
 

@@ -16,8 +16,8 @@ from ahrm_stack.config import ConfigError, load_config
 from ahrm_stack.env.realism import (GROUPS, ActuatorModel, RealismConfig, nominal, realism_profiles,
                                     resolve_realism)
 from ahrm_stack.learning.ppo import RunningNorm
-from hardware.protocol import FastClock
-from hardware.sim import SimArm
+from ahrm_stack.hardware.protocol import FastClock
+from ahrm_stack.hardware.sim import SimArm
 
 
 def _realism(**values) -> RealismConfig:
@@ -238,7 +238,7 @@ def test_training_and_deploy_estimate_the_same_velocities():
     from ahrm_stack.env.observation_layout import observation_layout
     from ahrm_stack.env.runner import TaskRunner
     from ahrm_stack.env.task import PushOffTask
-    from hardware.protocol import ArmState, Fault, Feedback, ObjectPoses
+    from ahrm_stack.hardware.protocol import ArmState, Fault, Feedback, ObjectPoses
 
     config = load_config(["task.realism=ideal", "task.observation.joint_velocity=position_difference"])
     runner = TaskRunner(PushOffTask(config.task), seed=2, safety=config.safety)
@@ -272,7 +272,7 @@ def test_a_world_model_reused_for_a_new_run_plans_its_lane_again():
     """A deploy world model that runs a second episode (a loop's start: ``begin_run``) plans that
     episode's lane anew, as training's reset does (it kept the first episode's plan)."""
     from ahrm_stack.deploy.world import WorldModel
-    from hardware.protocol import FastClock
+    from ahrm_stack.hardware.protocol import FastClock
 
     config = load_config(["task.realism=ideal"])
     world = WorldModel(config.task)

@@ -15,8 +15,8 @@ import pytest
 from ahrm_stack.config import load_config
 from ahrm_stack.deploy import DeployLoop, ScriptedController, WorldModel, load_deploy_settings
 from ahrm_stack.deploy.loop import _Halt
-from hardware.protocol import ArmState, Fault, FastClock, Feedback
-from hardware.sim import SimArm
+from ahrm_stack.hardware.protocol import ArmState, Fault, FastClock, Feedback
+from ahrm_stack.hardware.sim import SimArm
 
 CONFIG = load_config(["task.realism=ideal"])
 

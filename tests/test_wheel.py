@@ -39,7 +39,7 @@ def test_the_built_wheel_runs_outside_the_checkout(tmp_path):
 
     work = tmp_path / "work"  # outside the checkout: no configs/ beside it
     work.mkdir()
-    where = _run([str(python), "-c", "import ahrm_stack.paths as p, hardware.kinova_gen2.loader as g; "
+    where = _run([str(python), "-c", "import ahrm_stack.paths as p, ahrm_stack.hardware.kinova_gen2.loader as g; "
                   "print(p.__file__); print(p.CONFIG_DIR); print(p.IN_CHECKOUT); print(g.VENDOR_DIR.is_dir())"], work)
     module, configs, in_checkout, vendor = where.split()
     assert module.startswith(str(venv)) and configs.startswith(str(venv)), where  # the wheel's, not the checkout's

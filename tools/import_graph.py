@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Iterator, NamedTuple
 
 ROOT = Path(__file__).resolve().parent.parent
-PACKAGES = ("ahrm_stack", "hardware")
+PACKAGES = ("ahrm_stack",)
 
 
 class Edge(NamedTuple):

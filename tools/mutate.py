@@ -1,6 +1,6 @@
 """Mutation testing with a small AST mutator: do a module's fast tests notice when its code changes?
 
-    python tools/mutate.py hardware/protocol.py --tests tests/test_protocol.py
+    python tools/mutate.py ahrm_stack/hardware/protocol.py --tests tests/test_protocol.py
     python tools/mutate.py --suite                      # every module of SUITE, a table at the end
     python tools/mutate.py --suite --only protocol      # the SUITE rows whose module path has "protocol"
     python tools/mutate.py FILE --tests T --list        # the mutants only, nothing run
@@ -74,7 +74,7 @@ SUITE: dict[str, tuple[tuple[str, ...], str]] = {
     "ahrm_stack/safety/constraints/table.py": _CONSTRAINT_TESTS,
     "ahrm_stack/safety/constraints/workspace.py": _CONSTRAINT_TESTS,
     "ahrm_stack/deploy/safety_settings.py": (("tests/test_safety_settings.py",), ""),
-    "hardware/protocol.py": (("tests/test_protocol.py", "tests/test_kortex_pure.py"), ""),
+    "ahrm_stack/hardware/protocol.py": (("tests/test_protocol.py", "tests/test_kortex_pure.py"), ""),
     "ahrm_stack/learning/mechanisms.py": (("tests/test_mechanisms.py",), ""),
     "ahrm_stack/env/rewards.py": (("tests/test_rewards.py",), ""),
     "ahrm_stack/kinematics/phases.py": (("tests/test_phases.py",), ""),

@@ -14,14 +14,14 @@ from ahrm_stack.deploy.settings import DeployConfigError, DeploySettings
 
 def check_link(backend: str, settings: DeploySettings, checkpoint: Path | None,
                overrides: Sequence[str], policy_file: Path | None = None) -> int:
-    """``--check``: the backend's link check (:data:`hardware.backends.BACKENDS`), the arm held
+    """``--check``: the backend's link check (:data:`ahrm_stack.hardware.backends.BACKENDS`), the arm held
     still; prints its lines. Exit status: 0 the budget fits, 1 it does not, 2 bad input (one line,
     the arm never contacted), 3 the arm could not be reached (one line, e.g. no arm found), 130
     Ctrl-C."""
     from ahrm_stack.deploy.run import load_controller_config
     from ahrm_stack.learning.checkpoint import CheckpointError
-    from hardware import backends
-    from hardware.protocol import HardwareError
+    from ahrm_stack.hardware import backends
+    from ahrm_stack.hardware.protocol import HardwareError
 
     prog = "python -m ahrm_stack.deploy"
     try:
@@ -49,11 +49,11 @@ def check_link(backend: str, settings: DeploySettings, checkpoint: Path | None,
 def home_limits(world, settings: DeploySettings):
     """The deploy settings homing applies to ``world`` (a :class:`~ahrm_stack.deploy.WorldModel`):
     ``kinova_gen2.home``, the velocity alarm and the loop's start check
-    (:class:`hardware.kinova_gen2.home.Limits`)."""
+    (:class:`ahrm_stack.hardware.kinova_gen2.home.Limits`)."""
     import math
 
     from ahrm_stack.deploy.start_check import start_refusal
-    from hardware.kinova_gen2.home import Limits
+    from ahrm_stack.hardware.kinova_gen2.home import Limits
 
     start = settings.start_posture
     return Limits(settings.kinova_gen2.home, settings.watchdog.velocity_tolerance,
@@ -64,13 +64,13 @@ def home_limits(world, settings: DeploySettings):
 
 def home(config, settings: DeploySettings, yes: bool, say=print, ask=input):
     """Connect to the arm of ``settings.kinova_gen2`` and run the homing
-    (:class:`hardware.kinova_gen2.home.Homing`) to the start of ``config``'s task (the policy's),
+    (:class:`ahrm_stack.hardware.kinova_gen2.home.Homing`) to the start of ``config``'s task (the policy's),
     with the deploy settings that apply; its outcome. Bad settings raise before anything is
     contacted (one-line ``Gen2ConfigError``, a ValueError); a failed connect raises
-    :class:`~hardware.protocol.HardwareError` (the arm stopped, the API closed)."""
+    :class:`~ahrm_stack.hardware.protocol.HardwareError` (the arm stopped, the API closed)."""
     from ahrm_stack.deploy.world import WorldModel
-    from hardware.kinova_gen2 import KinovaGen2Arm
-    from hardware.kinova_gen2.home import Homing
+    from ahrm_stack.hardware.kinova_gen2 import KinovaGen2Arm
+    from ahrm_stack.hardware.kinova_gen2.home import Homing
 
     world = WorldModel(config.task)
     gen2 = settings.kinova_gen2
@@ -82,14 +82,14 @@ def home(config, settings: DeploySettings, yes: bool, say=print, ask=input):
 def home_arm(backend: str, settings: DeploySettings, checkpoint: Path | None,
              overrides: Sequence[str], policy_file: Path | None, yes: bool) -> int:
     """``--home``: move the arm to the start posture of the policy's task after a confirmation
-    (:func:`hardware.kinova_gen2.home.home`); prints why it ended. Exit status: 0 at the start
+    (:func:`ahrm_stack.hardware.kinova_gen2.home.home`); prints why it ended. Exit status: 0 at the start
     posture, 1 not confirmed (nothing moved), 2 bad input (one line, nothing moved), 3 stopped (a
     fault, the timeout, the link) or the arm not reached, 130 Ctrl-C."""
     from ahrm_stack.deploy.run import load_controller_config
     from ahrm_stack.learning.checkpoint import CheckpointError
-    from hardware.kinova_gen2 import check_library
-    from hardware.kinova_gen2.home import DONE
-    from hardware.protocol import HardwareError
+    from ahrm_stack.hardware.kinova_gen2 import check_library
+    from ahrm_stack.hardware.kinova_gen2.home import DONE
+    from ahrm_stack.hardware.protocol import HardwareError
 
     prog = "python -m ahrm_stack.deploy"
     try:

@@ -18,14 +18,14 @@ from ahrm_stack.deploy.settings import (DEPLOY_CONFIG, DeployConfigError, Deploy
                                         load_deploy_settings)
 from ahrm_stack.deploy.bring_up import check_link, home_arm
 from ahrm_stack.deploy.start_check import StartPostureError
-from hardware.backends import BACKENDS
+from ahrm_stack.hardware.backends import BACKENDS
 
 
 def run_backend(backend: str, settings: DeploySettings, checkpoint: Path | None,
                 overrides: Sequence[str], scene: str = "sim",
                 layout_file: Path | None = None, policy_file: Path | None = None) -> DeployLoop:
     """One deploy run on the arm adapter named ``backend`` (one of
-    :data:`hardware.backends.BACKENDS`) with object poses from ``scene``: the one place the
+    :data:`ahrm_stack.hardware.backends.BACKENDS`) with object poses from ``scene``: the one place the
     command line chooses them. Raises what :func:`~ahrm_stack.deploy.run.deploy` raises."""
     return deploy(settings, checkpoint, overrides, backend=backend, scene=scene,
                   layout_file=layout_file, policy_file=policy_file)

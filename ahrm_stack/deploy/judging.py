@@ -15,7 +15,7 @@ import numpy as np
 
 from ahrm_stack.config import TableConfig
 from ahrm_stack.deploy.settings import ProgressSettings, SuccessSettings, TouchSettings
-from hardware.protocol import HardwareError
+from ahrm_stack.hardware.protocol import HardwareError
 
 
 class SuccessJudge:
@@ -174,7 +174,7 @@ def confirm_success(judge: SuccessJudge, perceive: Callable[[], Any], clock: Any
     sleeps between reads; none when ``lost``, the perception error of a cube perceived off the
     table and then gone from view). It is a success unless a read perceives the cube back on the
     table; a read that fails (an exception other than the adapter's
-    :class:`~hardware.protocol.HardwareError`, which propagates; a non-finite position: a camera's
+    :class:`~ahrm_stack.hardware.protocol.HardwareError`, which propagates; a non-finite position: a camera's
     tag fallen out of view) ends the confirmation as the cube gone."""
     seen = judge.seen
     wait = judge.settings.confirm_time

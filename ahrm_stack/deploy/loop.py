@@ -21,7 +21,7 @@ from ahrm_stack.deploy.settings import DeploySettings, control_periods
 from ahrm_stack.deploy.start_check import StartPostureError, start_refusal
 from ahrm_stack.deploy.summary import DeployFault, DeploySummary
 from ahrm_stack.deploy.world import WorldModel
-from hardware.protocol import (ArmFaultError, CommandRefusedError, ConnectionLostError,
+from ahrm_stack.hardware.protocol import (ArmFaultError, CommandRefusedError, ConnectionLostError,
                                FeedbackTimeoutError, HardwareError, ServoingMode)
 
 log = logging.getLogger("ahrm_stack.deploy")
@@ -32,7 +32,7 @@ class _Halt(Exception):
 
 
 class DeployLoop:
-    """One deployment run on ``arm`` (a connected :class:`~hardware.protocol.ArmAdapter` with a
+    """One deployment run on ``arm`` (a connected :class:`~ahrm_stack.hardware.protocol.ArmAdapter` with a
     ``perception()`` method), paced by the adapter's clock.
 
     Every way a run ends commands the arm to stop (zero velocity, or an e-stop), writes a stop

@@ -21,7 +21,7 @@ from ahrm_stack.deploy.world import WorldModel
 
 @dataclasses.dataclass
 class DeploySession:
-    """``arm`` (a :class:`hardware.protocol.ArmAdapter`), ``world`` (the task's model of the scene,
+    """``arm`` (a :class:`ahrm_stack.hardware.protocol.ArmAdapter`), ``world`` (the task's model of the scene,
     fed by feedback and perception only), ``controller`` (the policy's, or the scripted controller's
     without an actor), the checkpoint's ``config`` (its safety section already merged into deploy's)
     and the loop ``settings``."""

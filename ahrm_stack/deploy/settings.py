@@ -5,7 +5,7 @@ frozen :class:`DeploySettings` (:mod:`ahrm_stack.schema`: the rules sit beside t
 bad, missing or unknown key is a one-line :class:`DeployConfigError` naming it and the file
 (``deploy.watchdog.max_feedback_age must be > 0, got 0.0 (configs/deploy.yaml)``), raised before
 anything is written or the arm is touched. The ``kinova_gen2`` section is
-:class:`hardware.kinova_gen2.Gen2Settings`.
+:class:`ahrm_stack.hardware.kinova_gen2.Gen2Settings`.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from ahrm_stack.config import CONFIG_DIR
 from ahrm_stack.env.realism import RealismConfig, resolve_realism
 from ahrm_stack.schema import (Bool, ConfigError, Float, Int, Section, Str, ge, gt, le, read_yaml,
                                show_path, stricter, validate)
-from hardware.kinova_gen2 import Gen2Settings
+from ahrm_stack.hardware.kinova_gen2 import Gen2Settings
 
 DEPLOY_CONFIG = CONFIG_DIR / "deploy.yaml"
 
@@ -91,7 +91,7 @@ class SimSettings(Section):
 
 @dataclasses.dataclass(frozen=True)
 class KortexModelSection(Section):
-    """The Kortex arm a robot description is (hardware/kortex/arm_model.py)."""
+    """The Kortex arm a robot description is (ahrm_stack/hardware/kortex/arm_model.py)."""
 
     model: Literal["MODEL_ID_L53", "MODEL_ID_L31", "MODEL_ID_HDK"]  # ProductConfiguration.ModelId
     dof: Annotated[Int, ge(1), le(7)]  # ProductConfiguration.degree_of_freedom

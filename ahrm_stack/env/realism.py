@@ -9,7 +9,7 @@ The same section serves two places:
   (:class:`ObservationSensing`), commands reach the actuators late and through a first-order lag
   (:class:`ActuatorModel`), and each episode draws the cube's and the obstacles' mass and friction
   (:func:`draw_dynamics`);
-* ``deploy.sim.realism`` (the sim backend, :class:`hardware.sim.SimArm`): the same imperfections
+* ``deploy.sim.realism`` (the sim backend, :class:`ahrm_stack.hardware.sim.SimArm`): the same imperfections
   on the adapter's feedback and perception, as a real arm and camera would give them.
 
 All of it is off (bit for bit the ideal simulation, no random draw made) when a set is

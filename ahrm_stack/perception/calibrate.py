@@ -69,7 +69,7 @@ def read_views(paths: Sequence[Path]) -> list[np.ndarray]:
 def capture_views(settings, count: int, every: float) -> Iterator[np.ndarray]:
     """``count`` frames of ``perception.source`` (a real camera), one every ``every`` s."""
     from ahrm_stack.perception.frames import open_frame_source
-    from hardware.protocol import WallClock
+    from ahrm_stack.hardware.protocol import WallClock
 
     frames = open_frame_source(settings, WallClock())
     try:

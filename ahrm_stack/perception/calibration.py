@@ -30,7 +30,7 @@ import yaml
 from ahrm_stack.perception.settings import (BoardSettings, PerceptionConfigError, PerceptionSettings,
                                             Vec3, Vec4)
 from ahrm_stack.schema import Float, Int, Section, Str, ge, read_yaml, unit_quaternion, validate
-from hardware.scene import UNIT_TOLERANCE
+from ahrm_stack.hardware.scene import UNIT_TOLERANCE
 
 
 class CalibrationError(ValueError):

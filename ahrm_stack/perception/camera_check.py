@@ -34,7 +34,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from ahrm_stack.perception.detection_thread import CameraThreadError, DetectionThread
     from ahrm_stack.perception.frames import FrameError, open_frame_source
     from ahrm_stack.perception.calibration import load_calibrated_settings
-    from hardware.protocol import WallClock
+    from ahrm_stack.hardware.protocol import WallClock
 
     try:
         settings = load_calibrated_settings()

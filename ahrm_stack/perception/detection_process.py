@@ -15,7 +15,7 @@ control thread needs it, which showed in the control tick's p99
 
 Time base: the child stamps frames with ``time.perf_counter`` (CLOCK_MONOTONIC, one clock for
 every process on Linux), which is the adapter's clock when that is the wall clock
-(:class:`~hardware.protocol.WallClock`, the sim backend's in real time); :meth:`start` checks it.
+(:class:`~ahrm_stack.hardware.protocol.WallClock`, the sim backend's in real time); :meth:`start` checks it.
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ def _child(settings: PerceptionSettings, cube_size: float, conn, stop, nice: int
         from ahrm_stack.perception.apriltag import TagDetector
         from ahrm_stack.perception.calibration import undistorter
         from ahrm_stack.perception.frames import open_frame_source
-        from hardware.protocol import WallClock
+        from ahrm_stack.hardware.protocol import WallClock
 
         clock = WallClock()
         frames = open_frame_source(settings, clock)

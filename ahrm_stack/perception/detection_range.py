@@ -48,8 +48,8 @@ def measure_range(task_config, settings: PerceptionSettings,
     (``MUJOCO_GL=egl``)."""
     from ahrm_stack.perception.apriltag import TagDetector
     from ahrm_stack.perception.sim_camera import SimCamera
-    from hardware.protocol import FastClock
-    from hardware.sim import SimArm
+    from ahrm_stack.hardware.protocol import FastClock
+    from ahrm_stack.hardware.sim import SimArm
 
     arm = SimArm(task_config, seed=seed, clock=FastClock())
     arm.connect()

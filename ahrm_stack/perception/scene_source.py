@@ -1,6 +1,6 @@
 """Scene sources: what the deploy loop's perception stage reads each tick.
 
-A :class:`SceneSource` returns :class:`~hardware.protocol.ObjectPoses` (world frame: positions m,
+A :class:`SceneSource` returns :class:`~ahrm_stack.hardware.protocol.ObjectPoses` (world frame: positions m,
 quaternions (w, x, y, z), linear velocities m/s) or raises a one-line error, which the deploy
 loop treats as a perception fault (it stops the arm and records why).
 
@@ -30,8 +30,8 @@ from ahrm_stack.perception.apriltag import CubePoseSource
 from ahrm_stack.perception.settings import PerceptionConfigError
 from ahrm_stack.schema import Float, Section
 from ahrm_stack.schema import count as entries
-from hardware.protocol import ObjectPoses
-from hardware.scene import read_layout
+from ahrm_stack.hardware.protocol import ObjectPoses
+from ahrm_stack.hardware.scene import read_layout
 
 
 class SceneSource(Protocol):
@@ -73,7 +73,7 @@ class LayoutFileObstacles:
     Raises :class:`~ahrm_stack.perception.settings.PerceptionConfigError`, one line naming the
     file and the key, for a missing/unreadable file, bad YAML, an unknown or missing key, a
     non-finite number, or (with ``count``) the wrong number of obstacles (read by
-    :func:`hardware.scene.read_layout`, as the static scene's layout)."""
+    :func:`ahrm_stack.hardware.scene.read_layout`, as the static scene's layout)."""
 
     def __init__(self, path: Path | str, count: int | None = None) -> None:
         self.path = Path(path)
@@ -104,7 +104,7 @@ def write_layout_file(path: Path | str, positions: np.ndarray, quaternions: np.n
 
 class MeasuredScene:
     """Obstacles from a layout file, the cube from a :class:`CubePoseSource`; one
-    :class:`~hardware.protocol.ObjectPoses` per :meth:`poses` (stamped with the cube's frame)."""
+    :class:`~ahrm_stack.hardware.protocol.ObjectPoses` per :meth:`poses` (stamped with the cube's frame)."""
 
     def __init__(self, obstacles: LayoutFileObstacles, cube: CubePoseSource) -> None:
         self.obstacles = obstacles

@@ -16,7 +16,7 @@ import numpy as np
 from pydantic import AfterValidator
 
 from ahrm_stack.config import CONFIG_DIR, ConfigError
-from hardware.scene import UNIT_TOLERANCE
+from ahrm_stack.hardware.scene import UNIT_TOLERANCE
 from ahrm_stack.schema import (Bool, Float, Int, Section, Str, fail, ge, gt, load_file, unit_quaternion, validate,
                                within)
 

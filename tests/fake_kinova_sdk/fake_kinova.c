@@ -1,7 +1,7 @@
 /* A fake of Kinova's Gen2 C SDK (USBCommandLayerUbuntu.so) for the tests, made to behave like the
  * arm behind a USB cable.
  *
- * It exports the functions hardware/kinova_gen2/sdk.py declares, with the signatures and struct layouts
+ * It exports the functions ahrm_stack/hardware/kinova_gen2/sdk.py declares, with the signatures and struct layouts
  * of kinova-ros's kinova_driver/include/kinova/ (Kinova.API.USBCommandLayerUbuntu.h,
  * KinovaTypes.h, Kinova.API.USBCommLayerUbuntu.h). C++ references (`int &result`) are pointers
  * in the C ABI; structs taken by value (SendAdvanceTrajectory, SetActiveDevice) are by value here.

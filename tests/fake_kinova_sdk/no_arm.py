@@ -1,7 +1,7 @@
 """What Kinova's real Gen2 SDK returns without an arm, and a runner that replays it on any build.
 
 :data:`SEQUENCES` are calls in order with the codes Kinova's x86_64 binary
-(hardware/vendor/kinova_gen2/, kinova-ros commit 924781d) returned on 2026-12-04 on this project's
+(ahrm_stack/hardware/vendor/kinova_gen2/, kinova-ros commit 924781d) returned on 2026-12-04 on this project's
 machine (Debian 12, libusb 1.0.26, no arm on the bus); GetDevices gives ``(count, result)``; a
 set lists codes seen in different runs (:data:`EITHER`, after a CloseAPI and a new InitAPI the real
 SDK answers SendAdvanceTrajectory with one or the other, by timing).
@@ -13,7 +13,7 @@ real binary (in child processes: tests/test_kinova_gen2_vendor.py) and on the fa
 (fake_kinova.c, in process: its crashes are counted), so the fake answers as the real SDK does.
 
 As a child process: ``python -m fake_kinova_sdk.no_arm LIBRARY CALL...`` loads LIBRARY with
-:mod:`ctypes` (the argument types of hardware/kinova_gen2/sdk.py), makes the calls and prints
+:mod:`ctypes` (the argument types of ahrm_stack/hardware/kinova_gen2/sdk.py), makes the calls and prints
 ``CALL CODE`` per call, flushed, so a crash shows as the return code after the last line printed.
 """
 
@@ -75,8 +75,8 @@ CRASHES: dict[str, tuple[bool, list[str]]] = {
 
 
 def bind(library: Path | str) -> ctypes.CDLL:
-    """The library, loaded with hardware/kinova_gen2/sdk.py's argument and return types."""
-    from hardware.kinova_gen2 import SIGNATURES
+    """The library, loaded with ahrm_stack/hardware/kinova_gen2/sdk.py's argument and return types."""
+    from ahrm_stack.hardware.kinova_gen2 import SIGNATURES
 
     lib = ctypes.CDLL(str(library), mode=ctypes.RTLD_GLOBAL)
     for name, argtypes in SIGNATURES.items():
@@ -88,7 +88,7 @@ def bind(library: Path | str) -> ctypes.CDLL:
 
 def call(lib: ctypes.CDLL, name: str) -> Code:
     """One call with zeroed arguments (a zero velocity point, device, index 0); its code."""
-    from hardware.kinova_gen2 import (MAX_KINOVA_DEVICE, AngularPosition, KinovaDevice, SensorsInfo,
+    from ahrm_stack.hardware.kinova_gen2 import (MAX_KINOVA_DEVICE, AngularPosition, KinovaDevice, SensorsInfo,
                                       SystemError, velocity_point)
 
     if name == "GetDevices":

@@ -1,4 +1,4 @@
-"""Build a :class:`~hardware.kortex.KortexArm` on the fake ``kortex_api`` and its simulated arm.
+"""Build a :class:`~ahrm_stack.hardware.kortex.KortexArm` on the fake ``kortex_api`` and its simulated arm.
 
 The fake is imported from this folder only for the tests: :func:`fake_api` puts the folder on
 ``sys.path`` just long enough to import it, then removes it (and the ``kortex_api`` entries of
@@ -23,8 +23,8 @@ _addresses = itertools.count(1)
 
 @functools.lru_cache(maxsize=1)
 def fake_api() -> dict:
-    """The fake vendor modules, keyed like :func:`hardware.kortex.import_kortex_api`."""
-    from hardware.kortex import KORTEX_MODULES
+    """The fake vendor modules, keyed like :func:`ahrm_stack.hardware.kortex.import_kortex_api`."""
+    from ahrm_stack.hardware.kortex import KORTEX_MODULES
 
     names = {**KORTEX_MODULES, "_fake_arm": "kortex_api._fake_arm"}
     sys.path.insert(0, str(HERE))
@@ -40,7 +40,7 @@ def fake_api() -> dict:
 @functools.lru_cache(maxsize=1)
 def _configured():
     from ahrm_stack.deploy import load_deploy_settings
-    from hardware.kortex import kortex_options
+    from ahrm_stack.hardware.kortex import kortex_options
 
     return kortex_options(load_deploy_settings())
 
@@ -49,7 +49,7 @@ def test_models() -> dict:
     """Test-only ``kortex.models``: the project's (Gen2) descriptions taken as 6-DoF Gen3 arms, so
     that the adapter can connect to a fake arm that reports itself as one (configs/deploy.yaml
     maps none: no description in the project is a Kortex arm)."""
-    from hardware.kortex import KortexModel
+    from ahrm_stack.hardware.kortex import KortexModel
 
     return {name: KortexModel("MODEL_ID_L53", 6) for name in ("jaco", "j2s6s200")}
 
@@ -96,7 +96,7 @@ def make(robot, *, positions_deg=None, opts=None, password: str = PASSWORD, cloc
     """(adapter, simulated arm): a :class:`KortexArm` for ``robot`` and a fake arm registered at a
     fresh documentation address (192.0.2.x), not yet connected. ``clock``: shared by both (a
     ``FastClock`` for a deterministic run); default the wall clock."""
-    from hardware.kortex import Credentials, KortexArm
+    from ahrm_stack.hardware.kortex import Credentials, KortexArm
 
     api = fake_api()
     FakeArm = api["_fake_arm"].FakeArm
@@ -125,7 +125,7 @@ def make_child(robot, monkeypatch, *, opts=None, password: str = PASSWORD, **arm
     """A :class:`KortexArm` whose ``kortex_api`` is the fake, run in a child process (this
     interpreter, the fake on its ``PYTHONPATH``), with the arm ``arm_kwargs`` describe (set in
     ``$FAKE_KORTEX_ARM`` through ``monkeypatch``). Not yet connected."""
-    from hardware.kortex import Credentials, KortexArm
+    from ahrm_stack.hardware.kortex import Credentials, KortexArm
 
     monkeypatch.setenv("FAKE_KORTEX_ARM", child_spec(robot, **arm_kwargs))
     address = f"192.0.2.{next(_addresses) % 250 + 1}"
@@ -143,14 +143,14 @@ class DeployRig:
     fake arm, which starts at the task's initial posture; both on ``clock`` (default a
     ``FastClock``: deterministic, whatever the machine's load). Perception is the layout's initial
     poses, held static (test-only: the fake arm moves no cube). ``inject`` maps the sim backend's
-    :class:`~hardware.sim.InjectedFault` onto the fake arm."""
+    :class:`~ahrm_stack.hardware.sim.InjectedFault` onto the fake arm."""
 
     def __init__(self, config, seed: int = 0, opts=None, clock=None) -> None:
         import io
 
         from ahrm_stack.deploy import (DeployLoop, ScriptedController, WorldModel,
                                        load_deploy_settings)
-        from hardware.protocol import FastClock, ObjectPoses
+        from ahrm_stack.hardware.protocol import FastClock, ObjectPoses
 
         settings = load_deploy_settings(telemetry="")
         clock = clock if clock is not None else FastClock()

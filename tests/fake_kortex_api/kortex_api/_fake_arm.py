@@ -9,9 +9,9 @@ it stays 0. Torques, motor currents, voltages and temperatures carry sensor nois
 generator), as a powered arm's do. Positions are reported as Kortex does: continuous joints in
 [0, 360) deg, limited joints in (-180, 180] deg. The arm also answers GetProductConfiguration
 (``product``: model, DoF), GetAllJointsSpeedHardLimitation (its velocity limit, deg/s) and
-ReadAllProtectionZones (``zones``, plain values as hardware.kortex.vendor_link returns them).
+ReadAllProtectionZones (``zones``, plain values as ahrm_stack.hardware.kortex.vendor_link returns them).
 
-In a child process (``hardware.kortex.child_link``) the test cannot reach the arm object: there
+In a child process (``ahrm_stack.hardware.kortex.child_link``) the test cannot reach the arm object: there
 :meth:`at` builds the arm from ``$FAKE_KORTEX_ARM`` (JSON: the constructor's arguments, plus
 ``events``: ``[call number, action, argument]`` with action ``lose_connection``, ``drop`` (the
 argument names the RPC), ``hang`` or ``exit``, and ``log``: a file each call is appended to, one JSON
@@ -64,7 +64,7 @@ class _Wall:
 
 class FakeArm:
     """The simulated arm. ``clock``: an object with ``now()`` (s) and ``sleep(s)``; the wall clock
-    by default, or the adapter's virtual clock (hardware.protocol.FastClock) for a deterministic
+    by default, or the adapter's virtual clock (ahrm_stack.hardware.protocol.FastClock) for a deterministic
     run whose time moves only when slept on."""
 
     _registry: dict[tuple[str, int], "FakeArm"] = {}

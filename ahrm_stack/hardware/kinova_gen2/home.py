@@ -32,7 +32,7 @@ empty line, end of input) moves nothing. ``--yes`` confirms for scripted use. An
 ``home.tolerance_deg`` of the target is left where it is, without asking.
 
 **Supervision.** While the arm moves, its position is read at ``home.poll_rate_hz``
-(:meth:`~hardware.kinova_gen2.KinovaGen2Arm.refresh_feedback`; the USB thread polls faults and the
+(:meth:`~ahrm_stack.hardware.kinova_gen2.KinovaGen2Arm.refresh_feedback`; the USB thread polls faults and the
 e-stop as in a run). A fault, a joint over its speed alarm on ``watchdog.velocity_alarm_ticks``
 consecutive reads (stage 1: the arm's velocity limit; stage 2: ``home.speed_deg_s``, each times
 1 + ``watchdog.velocity_tolerance``), a stage longer than ``home.timeout`` s, a lost link, Ctrl-C
@@ -51,14 +51,14 @@ from typing import TYPE_CHECKING, Any, Callable, Protocol
 
 import numpy as np
 
-from hardware.kinova_gen2.settings import kinova_positions
-from hardware.protocol import HardwareError
+from ahrm_stack.hardware.kinova_gen2.settings import kinova_positions
+from ahrm_stack.hardware.protocol import HardwareError
 
 if TYPE_CHECKING:
-    from hardware.kinova_gen2.arm import KinovaGen2Arm
-    from hardware.kinova_gen2.settings import HomeSettings
+    from ahrm_stack.hardware.kinova_gen2.arm import KinovaGen2Arm
+    from ahrm_stack.hardware.kinova_gen2.settings import HomeSettings
 
-log = logging.getLogger("hardware.kinova_gen2")
+log = logging.getLogger("ahrm_stack.hardware.kinova_gen2")
 
 PATH_SAMPLES = 50  # points of the final move's joint-space path checked for clearance
 CONFIRM_WORD = "home"
@@ -169,7 +169,7 @@ class Homing:
     """One homing of a connected ``arm`` (see the module docstring): :meth:`run`.
 
     Args:
-        arm: a connected :class:`~hardware.kinova_gen2.KinovaGen2Arm`.
+        arm: a connected :class:`~ahrm_stack.hardware.kinova_gen2.KinovaGen2Arm`.
         world: the task's model (the policy's start, the tip's forward kinematics).
         limits: the deploy settings that apply (:class:`Limits`).
         say: prints one line to the user.

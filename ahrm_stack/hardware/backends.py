@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, Callable, Optional
 
-from hardware.protocol import ArmAdapter
+from ahrm_stack.hardware.protocol import ArmAdapter
 
 
 @dataclasses.dataclass(frozen=True)
@@ -33,8 +33,8 @@ def _check_sim(config, settings) -> None:
 
 
 def _make_sim(config, settings) -> ArmAdapter:
-    from hardware.protocol import FastClock, WallClock
-    from hardware.sim import SimArm
+    from ahrm_stack.hardware.protocol import FastClock, WallClock
+    from ahrm_stack.hardware.sim import SimArm
 
     clock = WallClock() if settings.realtime else FastClock()
     return SimArm(config.task, seed=settings.seed, clock=clock,
@@ -44,8 +44,8 @@ def _make_sim(config, settings) -> ArmAdapter:
 def _gen2_parts(config, settings):
     """Validated Gen2 settings, the robot description and the scene (one-line errors)."""
     from ahrm_stack.robot import describe, make_arm
-    from hardware.kinova_gen2 import Gen2ConfigError, check_library, joint_convention
-    from hardware.scene import StaticScene
+    from ahrm_stack.hardware.kinova_gen2 import Gen2ConfigError, check_library, joint_convention
+    from ahrm_stack.hardware.scene import StaticScene
 
     gen2 = settings.kinova_gen2
     if not settings.realtime:
@@ -69,8 +69,8 @@ def _check_gen2(config, settings) -> None:
 
 
 def _make_gen2(config, settings) -> ArmAdapter:
-    from hardware.kinova_gen2 import KinovaGen2Arm
-    from hardware.scene import PerceivedArm
+    from ahrm_stack.hardware.kinova_gen2 import KinovaGen2Arm
+    from ahrm_stack.hardware.scene import PerceivedArm
 
     gen2, robot, scene = _gen2_parts(config, settings)
     arm = KinovaGen2Arm(robot, gen2, command_timeout_s=gen2.command_timeout * settings.period)
@@ -78,9 +78,9 @@ def _make_gen2(config, settings) -> ArmAdapter:
 
 
 def _link_check_gen2(config, settings) -> tuple[list[str], bool]:
-    """The Gen2 USB budget on the arm (:mod:`hardware.kinova_gen2.check`), held still."""
-    from hardware.kinova_gen2 import KinovaGen2Arm
-    from hardware.kinova_gen2.check import Rates, check_link
+    """The Gen2 USB budget on the arm (:mod:`ahrm_stack.hardware.kinova_gen2.check`), held still."""
+    from ahrm_stack.hardware.kinova_gen2 import KinovaGen2Arm
+    from ahrm_stack.hardware.kinova_gen2.check import Rates, check_link
 
     gen2, robot, _ = _gen2_parts(config, settings)
     arm = KinovaGen2Arm(robot, gen2, command_timeout_s=gen2.command_timeout * settings.period)
@@ -94,14 +94,14 @@ def _link_check_gen2(config, settings) -> tuple[list[str], bool]:
 def _check_kortex(config, settings) -> None:
     """Refused in one line, before anything is written or contacted: what is missing (address,
     credentials, real-time pacing, a scene source)."""
-    from hardware.kortex import kortex_deploy_blocker
+    from ahrm_stack.hardware.kortex import kortex_deploy_blocker
 
     raise ValueError(kortex_deploy_blocker(settings))
 
 
 def _make_kortex(config, settings) -> ArmAdapter:
     from ahrm_stack.robot import describe, make_arm
-    from hardware.kortex import make_kortex_backend, task_workspace
+    from ahrm_stack.hardware.kortex import make_kortex_backend, task_workspace
 
     return make_kortex_backend(settings, describe(config.task.robot, make_arm(config.task.robot)),
                                workspace=task_workspace(config.task, settings.kortex.workspace_height))

@@ -5,7 +5,7 @@ Kinova's Gen2 SDK serialises every process on the machine with one POSIX named s
 Its getters without an arm return 1015 *keeping* it until ``CloseAPI`` posts it (observed on the
 vendored x86_64 binary, 2026-12-05: tests/fake_kinova_sdk/no_arm.py ``LOCKING``), so a process
 killed in between leaves it at 0 and every later Kinova process blocks forever in its first call
-that takes it. :meth:`~hardware.kinova_gen2.KinovaGen2Arm.connect` logs :func:`lock_warning`'s line
+that takes it. :meth:`~ahrm_stack.hardware.kinova_gen2.KinovaGen2Arm.connect` logs :func:`lock_warning`'s line
 before ``InitAPI``, so a hang that follows is explained; it does not refuse (another Kinova
 program may hold the lock for a moment, legitimately). docs/hardware.md's checklist says how to
 clear it.

@@ -1,10 +1,10 @@
 """The parent side of the link: ``kortex_api`` in a process of its own.
 
-:class:`ChildLink` starts :mod:`hardware.kortex.vendor_link` under a given interpreter (a virtual
+:class:`ChildLink` starts :mod:`ahrm_stack.hardware.kortex.vendor_link` under a given interpreter (a virtual
 environment with ``kortex_api`` and its ``protobuf`` 3.20 pin; default this one) and talks to it
 over its stdin / stdout, one JSON line per request and per answer: plain values only. This process
 never imports ``kortex_api`` or ``protobuf``. It has the same :meth:`call` as
-:class:`~hardware.kortex.vendor_link.VendorLink`.
+:class:`~ahrm_stack.hardware.kortex.vendor_link.VendorLink`.
 
 A child that exits, or does not answer a call within the call's own timeout plus
 ``margin_ms``, is killed and the call fails with ``LinkError('dead', ...)``: no Stop can be sent
@@ -27,7 +27,7 @@ import time
 from pathlib import Path
 from typing import Any, Sequence
 
-from hardware.kortex.vendor_link import LinkError
+from ahrm_stack.hardware.kortex.vendor_link import LinkError
 
 VENDOR_LINK = Path(__file__).resolve().with_name("vendor_link.py")
 #: Runs vendor_link.py as the main module without putting its folder on the child's sys.path.

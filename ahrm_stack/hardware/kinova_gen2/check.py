@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from hardware.kinova_gen2.arm import KinovaGen2Arm
+    from ahrm_stack.hardware.kinova_gen2.arm import KinovaGen2Arm
 
 MAX_BUS_LOAD = 0.5  # share of each second the USB may be busy
 MAX_READ_SHARE = 0.5  # share of the command deadline a tick's position read may take (p99)
@@ -182,7 +182,7 @@ def report(m: Measurement, rates: Rates) -> tuple[list[str], bool]:
 
 def check_link(arm: "KinovaGen2Arm", rates: Rates, calls: int) -> tuple[list[str], bool]:
     """Connect ``arm`` (not connected), measure it held still, disconnect; :func:`report`'s lines
-    and verdict. Connecting may raise :class:`~hardware.protocol.HardwareError` (one line, e.g.
+    and verdict. Connecting may raise :class:`~ahrm_stack.hardware.protocol.HardwareError` (one line, e.g.
     no arm found)."""
     arm.connect()
     try:

@@ -18,8 +18,8 @@ import numpy as np
 from pydantic import AfterValidator, PlainValidator
 
 from ahrm_stack.schema import Bool, ConfigError, Float, Int, Section, Str, count, fail, ge, gt, le
-from hardware.kinova_gen2.bus import POINT_PERIOD
-from hardware.kinova_gen2.loader import LoaderPathError, check_comm_layers
+from ahrm_stack.hardware.kinova_gen2.bus import POINT_PERIOD
+from ahrm_stack.hardware.kinova_gen2.loader import LoaderPathError, check_comm_layers
 
 if TYPE_CHECKING:
     from ahrm_stack.robot import RobotDescription
@@ -67,7 +67,7 @@ FilePath = Annotated[Optional[str], PlainValidator(_path)]
 
 @dataclasses.dataclass(frozen=True)
 class HomeSettings(Section):
-    """``kinova_gen2.home``: the homing step (``--home``, :mod:`hardware.kinova_gen2.home`)."""
+    """``kinova_gen2.home``: the homing step (``--home``, :mod:`ahrm_stack.hardware.kinova_gen2.home`)."""
 
     factory_home_first: Bool  # MoveHome (the firmware's move to its factory home, at its own speed)
     # before the slow move to the policy's start
@@ -123,7 +123,7 @@ class Gen2Settings(Section):
     # the latest read at least this much older (angle noise over a few ms would be tens of deg/s)
     velocity_feedback_scale: Annotated[Float, gt(0)]  # GetAngularVelocity reports 1/this of the real one
     min_supply_voltage: Annotated[Float, gt(0)]  # V; below it the actuators are unpowered (the e-stop)
-    scene: FilePath  # the static scene layout (hardware/scene.py) deploy uses for perception
+    scene: FilePath  # the static scene layout (ahrm_stack/hardware/scene.py) deploy uses for perception
     switch_interval: Annotated[Float, gt(0), le(0.005)]  # s, Python's GIL switch interval while
     # connected (sys.setswitchinterval)
     joints: Annotated[dict[Str, JointConvention], AfterValidator(_not_empty)]  # per arm (task.robot)
@@ -140,7 +140,7 @@ def check_library(settings: Gen2Settings) -> Path:
     or the path and saying what to do (nothing is downloaded or guessed)."""
     if settings.library is None:
         raise Gen2ConfigError(f"{setting_key('library')} is not set: give the path of Kinova's "
-                              f"USBCommandLayerUbuntu.so (hardware/vendor/kinova_gen2/x86_64-linux-gnu/ "
+                              f"USBCommandLayerUbuntu.so (ahrm_stack/hardware/vendor/kinova_gen2/x86_64-linux-gnu/ "
                               f"or kinova-ros kinova_driver/lib/); see {DOCS}")
     library = Path(settings.library).expanduser()
     if not library.is_file():
@@ -153,7 +153,7 @@ def check_library(settings: Gen2Settings) -> Path:
 def check_sdk_path(library: Path) -> dict[str, str | None]:
     """The communication layers ``library``'s ``InitAPI`` loads by bare name, each loaded here as
     the dynamic loader finds it (name -> file); a one-line :class:`Gen2ConfigError` saying what to
-    set when it does not (see :mod:`hardware.kinova_gen2.loader`)."""
+    set when it does not (see :mod:`ahrm_stack.hardware.kinova_gen2.loader`)."""
     try:
         return check_comm_layers(library, setting_key("library"), DOCS)
     except LoaderPathError as error:

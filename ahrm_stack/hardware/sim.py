@@ -4,8 +4,8 @@ The arm is the same :class:`~ahrm_stack.env.task.PushOffTask` as in training, re
 a :class:`~ahrm_stack.env.runner.TaskRunner` without a safety filter (``safety=None``): here the
 deploy loop filters, as it would for a real arm. Physics time follows the adapter's clock: every
 call first advances the physics (``physics_timestep`` steps, the last command held) up to
-``clock.now()``. With a :class:`~hardware.protocol.WallClock` the simulation is paced to the wall
-clock; with a :class:`~hardware.protocol.FastClock` it runs as fast as the caller does.
+``clock.now()``. With a :class:`~ahrm_stack.hardware.protocol.WallClock` the simulation is paced to the wall
+clock; with a :class:`~ahrm_stack.hardware.protocol.FastClock` it runs as fast as the caller does.
 
 The simulated arm moves on the caller's CPU, but not inside the deploy loop's latency window
 (feedback received -> command sent), as a real arm moves on its own: a command is stamped with the
@@ -52,7 +52,7 @@ from ahrm_stack.env.realism import RealismConfig, measure
 from ahrm_stack.env.rewards import obstacle_touched
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.task import PushOffTask
-from hardware.protocol import (ArmState, ConnectionLostError, DescribedArm, Fault, Feedback,
+from ahrm_stack.hardware.protocol import (ArmState, ConnectionLostError, DescribedArm, Fault, Feedback,
                                FeedbackTimeoutError, NotConnectedError, ObjectPoses, ServoingMode,
                                WallClock)
 

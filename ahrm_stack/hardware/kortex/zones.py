@@ -36,7 +36,7 @@ class ProtectionZone:
 
     @classmethod
     def from_values(cls, values: Mapping) -> "ProtectionZone":
-        """From the plain values of :meth:`hardware.kortex.vendor_link.VendorLink.call`
+        """From the plain values of :meth:`ahrm_stack.hardware.kortex.vendor_link.VendorLink.call`
         ``("protection_zones")``."""
         return cls(name=str(values["name"]), enabled=bool(values["enabled"]),
                    shape=SHAPES.get(int(values["shape_type"]), "unspecified"),

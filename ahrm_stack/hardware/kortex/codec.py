@@ -1,5 +1,5 @@
 """Kortex values <-> this protocol's, as pure functions: degrees and radians, the joint-speed
-message as plain values, arm states, fault banks, a :class:`~hardware.protocol.Feedback` from the
+message as plain values, arm states, fault banks, a :class:`~ahrm_stack.hardware.protocol.Feedback` from the
 plain values of a BaseCyclic frame.
 
 Kortex speaks degrees (deg, deg/s); the protocol radians (rad, rad/s). Field names and units are
@@ -13,7 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
-from hardware.protocol import ArmState, Fault, Feedback, ServoingMode, unwrap_positions
+from ahrm_stack.hardware.protocol import ArmState, Fault, Feedback, ServoingMode, unwrap_positions
 
 __all__ = ["arm_state_from_kortex", "degrees_to_radians", "faults_from_banks", "feedback_from_values",
            "joint_speeds_message", "radians_to_degrees", "servoing_mode_name", "unwrap_positions"]

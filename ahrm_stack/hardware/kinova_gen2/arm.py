@@ -1,7 +1,7 @@
 """The Gen2 adapter, :class:`KinovaGen2Arm`: the session (connect, disconnect, a lost link), the
 feedback, the commands, the faults (the status poll's steps, run on the USB thread) and the homing
 moves. The design (one USB thread, the points, the watchdog, the faults) is the package's
-docstring, :mod:`hardware.kinova_gen2`.
+docstring, :mod:`ahrm_stack.hardware.kinova_gen2`.
 """
 
 from __future__ import annotations
@@ -20,25 +20,25 @@ from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
 
-from hardware.kinova_gen2.bus import (BusClosedError, BusHeldError, CallTimes, UsbBus, WatchdogStop,
+from ahrm_stack.hardware.kinova_gen2.bus import (BusClosedError, BusHeldError, CallTimes, UsbBus, WatchdogStop,
                                       is_link_error)
-from hardware.kinova_gen2.faults import FaultStop, Gen2Faults
-from hardware.kinova_gen2.lock import lock_warning
-from hardware.kinova_gen2.sdk import (ERROR_LOAD_COMM_DLL, ERROR_NO_DEVICE_FOUND, AngularInfo,
+from ahrm_stack.hardware.kinova_gen2.faults import FaultStop, Gen2Faults
+from ahrm_stack.hardware.kinova_gen2.lock import lock_warning
+from ahrm_stack.hardware.kinova_gen2.sdk import (ERROR_LOAD_COMM_DLL, ERROR_NO_DEVICE_FOUND, AngularInfo,
                                       AngularPosition, Sdk, SdkCallError, SensorsInfo, actuators,
                                       position_point, velocity_point)
-from hardware.kinova_gen2.settings import (DOCS, Gen2ConfigError, Gen2Settings, JointConvention,
+from ahrm_stack.hardware.kinova_gen2.settings import (DOCS, Gen2ConfigError, Gen2Settings, JointConvention,
                                            check_library, joint_convention, setting_key,
                                            kinova_positions, kinova_velocities, model_positions,
                                            model_velocities)
-from hardware.protocol import (ArmFaultError, ArmState, ConnectionLostError, Fault, Feedback,
+from ahrm_stack.hardware.protocol import (ArmFaultError, ArmState, ConnectionLostError, Fault, Feedback,
                                HardwareError, NotConnectedError, ServoingMode, WallClock,
                                range_centres, unwrap_positions)
 
 if TYPE_CHECKING:
     from ahrm_stack.robot import RobotDescription
 
-log = logging.getLogger("hardware.kinova_gen2")
+log = logging.getLogger("ahrm_stack.hardware.kinova_gen2")
 
 
 _LIVE: "weakref.WeakSet[KinovaGen2Arm]" = weakref.WeakSet()
@@ -55,7 +55,7 @@ def _disconnect_all() -> None:  # pragma: no cover - runs at interpreter exit
 
 class KinovaGen2Arm(Gen2Faults):
     """A Kinova Gen2 arm (JACO2) over the C SDK, every call through one USB thread
-    (:class:`~hardware.kinova_gen2.bus.UsbBus`: the 100 Hz points, the command watchdog, the status
+    (:class:`~ahrm_stack.hardware.kinova_gen2.bus.UsbBus`: the 100 Hz points, the command watchdog, the status
     poll; see the module docstring).
 
     Args:

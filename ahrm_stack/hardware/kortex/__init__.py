@@ -5,16 +5,16 @@ the Gen3 family (Gen3, Gen3 lite), not the JACO Gen2 the default task models.
 
 Modules, one idea each:
 
-* :mod:`~hardware.kortex.vendor_link` — the only code that calls ``kortex_api`` (standard library
+* :mod:`~ahrm_stack.hardware.kortex.vendor_link` — the only code that calls ``kortex_api`` (standard library
   otherwise), in plain values; it runs in a child process of its own.
-* :mod:`~hardware.kortex.child_link` — that child process, over a pipe (JSON lines).
-* :mod:`~hardware.kortex.arm` — :class:`KortexArm`, the adapter.
-* :mod:`~hardware.kortex.freshness` — feedback stamps and frozen-frame detection.
-* :mod:`~hardware.kortex.arm_model` — the arm's model, DoF and speed limits against the policy's.
-* :mod:`~hardware.kortex.zones` — protection zones, reported and checked against the workspace.
-* :mod:`~hardware.kortex.watchdog`, :mod:`~hardware.kortex.codec`,
-  :mod:`~hardware.kortex.credentials`, :mod:`~hardware.kortex.settings`,
-  :mod:`~hardware.kortex.backend` (deploy wiring).
+* :mod:`~ahrm_stack.hardware.kortex.child_link` — that child process, over a pipe (JSON lines).
+* :mod:`~ahrm_stack.hardware.kortex.arm` — :class:`KortexArm`, the adapter.
+* :mod:`~ahrm_stack.hardware.kortex.freshness` — feedback stamps and frozen-frame detection.
+* :mod:`~ahrm_stack.hardware.kortex.arm_model` — the arm's model, DoF and speed limits against the policy's.
+* :mod:`~ahrm_stack.hardware.kortex.zones` — protection zones, reported and checked against the workspace.
+* :mod:`~ahrm_stack.hardware.kortex.watchdog`, :mod:`~ahrm_stack.hardware.kortex.codec`,
+  :mod:`~ahrm_stack.hardware.kortex.credentials`, :mod:`~ahrm_stack.hardware.kortex.settings`,
+  :mod:`~ahrm_stack.hardware.kortex.backend` (deploy wiring).
 
 Safety of the link, each number from ``configs/deploy.yaml``'s ``kortex`` section
 (:func:`kortex_options`):
@@ -31,24 +31,24 @@ Safety of the link, each number from ``configs/deploy.yaml``'s ``kortex`` sectio
 * **Lost link: Stop, then disconnect.** A connection error (``KClientException``, a dropped
   session) sends ``Base.Stop`` (best effort, ``lost_link_stop_timeout_ms``), closes the session,
   ends the child and records why (:attr:`KortexArm.lost_reason`, the log); the call raises
-  :class:`~hardware.protocol.ConnectionLostError`. A dead or hung child is a lost link too, but
+  :class:`~ahrm_stack.hardware.protocol.ConnectionLostError`. A dead or hung child is a lost link too, but
   then no Stop can be sent: the arm's own ``connection_inactivity_timeout_ms`` (2 s) is the only
   guard.
 * **Command watchdog.** Joint-speed commands never expire on the arm; :class:`CommandWatchdog`
   sends ``Base.Stop`` when no fresh command came for ``watchdog_periods`` control periods while
   the arm was commanded to move, and latches until :meth:`KortexArm.clear_faults` (the
-  protocol's rule, :class:`~hardware.protocol.ArmAdapter`): feedback and the command gate report
+  protocol's rule, :class:`~ahrm_stack.hardware.protocol.ArmAdapter`): feedback and the command gate report
   it as ``Fault.WATCHDOG``.
 * **Staleness without an arm clock.** ``Feedback.frame_id`` is client-set (it echoes the last
   cyclic command's), and feedback has no timestamp: frames are stamped on the adapter's clock
   when requested, and a frame identical in every analogue reading to the previous one is a
-  repeat (:mod:`~hardware.kortex.freshness`).
+  repeat (:mod:`~ahrm_stack.hardware.kortex.freshness`).
 * **The arm model checked.** On connect the arm's ``ProductConfiguration`` model and DoF must be
   the ones ``kortex.models`` gives for the policy's robot description, and its joint speed hard
-  limits must allow the description's velocity limits (:mod:`~hardware.kortex.arm_model`).
+  limits must allow the description's velocity limits (:mod:`~ahrm_stack.hardware.kortex.arm_model`).
 * **Protection zones** are read on connect, logged (:attr:`KortexArm.zone_summary`), and refused
   when one reaches into the task workspace (``kortex.refuse_zones_in_workspace``).
-* **Faults.** Motion commands raise :class:`~hardware.protocol.ArmFaultError` while the arm reports
+* **Faults.** Motion commands raise :class:`~ahrm_stack.hardware.protocol.ArmFaultError` while the arm reports
   a fault, after an e-stop, after a watchdog stop, or when the arm refuses them as in fault;
   :meth:`KortexArm.clear_faults` runs ros2_kortex's reset sequence.
 
@@ -57,21 +57,21 @@ never in an error message (:func:`scrub`). The robot address is always explicit:
 default address, and nothing is contacted before :meth:`KortexArm.connect`.
 """
 
-from hardware.kortex.arm import KortexArm, KortexNotInstalledError
-from hardware.kortex.arm_model import describe_arm, model_name, model_refusal
-from hardware.kortex.backend import import_kortex_api, kortex_deploy_blocker, make_kortex_backend
-from hardware.kortex.child_link import ChildLink
-from hardware.kortex.codec import (arm_state_from_kortex, degrees_to_radians, faults_from_banks,
+from ahrm_stack.hardware.kortex.arm import KortexArm, KortexNotInstalledError
+from ahrm_stack.hardware.kortex.arm_model import describe_arm, model_name, model_refusal
+from ahrm_stack.hardware.kortex.backend import import_kortex_api, kortex_deploy_blocker, make_kortex_backend
+from ahrm_stack.hardware.kortex.child_link import ChildLink
+from ahrm_stack.hardware.kortex.codec import (arm_state_from_kortex, degrees_to_radians, faults_from_banks,
                                    feedback_from_values, joint_speeds_message, radians_to_degrees,
                                    servoing_mode_name, unwrap_positions)
-from hardware.kortex.credentials import (CREDENTIALS_FILE_ENV, PASSWORD_ENV, REPOSITORY_ROOT,
+from ahrm_stack.hardware.kortex.credentials import (CREDENTIALS_FILE_ENV, PASSWORD_ENV, REPOSITORY_ROOT,
                                          USERNAME_ENV, Credentials, CredentialsError,
                                          load_credentials, scrub, secret_variants)
-from hardware.kortex.freshness import FrameFreshness, fingerprint
-from hardware.kortex.settings import KortexModel, KortexOptions, kortex_options
-from hardware.kortex.vendor_link import INSTALL_HINT, KORTEX_MODULES, LinkError, VendorLink
-from hardware.kortex.watchdog import CommandWatchdog
-from hardware.kortex.zones import ProtectionZone, task_workspace, zone_report, zones_in_workspace
+from ahrm_stack.hardware.kortex.freshness import FrameFreshness, fingerprint
+from ahrm_stack.hardware.kortex.settings import KortexModel, KortexOptions, kortex_options
+from ahrm_stack.hardware.kortex.vendor_link import INSTALL_HINT, KORTEX_MODULES, LinkError, VendorLink
+from ahrm_stack.hardware.kortex.watchdog import CommandWatchdog
+from ahrm_stack.hardware.kortex.zones import ProtectionZone, task_workspace, zone_report, zones_in_workspace
 
 __all__ = [
     "CREDENTIALS_FILE_ENV", "ChildLink", "CommandWatchdog", "Credentials", "CredentialsError",

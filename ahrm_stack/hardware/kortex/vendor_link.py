@@ -5,7 +5,7 @@ plain values (numbers, strings, lists, dicts: degrees, metres, as the vendor rep
 every vendor exception into a :class:`LinkError` of one kind (``timeout``, ``fault``,
 ``connection``, ``other``). It runs either inside the adapter's process (tests pass a fake API) or,
 the default, in a process of its own (:func:`serve`, started by
-:class:`hardware.kortex.child_link.ChildLink`) under an interpreter that may be another virtual
+:class:`ahrm_stack.hardware.kortex.child_link.ChildLink`) under an interpreter that may be another virtual
 environment: ``kortex_api`` 2.6.0 needs ``protobuf`` 3.x, which breaks tensorboard and ray here, so
 that pin lives in the child's environment only.
 

@@ -13,9 +13,9 @@ import urllib.parse
 from pathlib import Path
 from typing import Mapping, Sequence
 
-from hardware.protocol import HardwareError
+from ahrm_stack.hardware.protocol import HardwareError
 
-REPOSITORY_ROOT = Path(__file__).resolve().parents[2]
+REPOSITORY_ROOT = Path(__file__).resolve().parents[3]
 USERNAME_ENV = "KORTEX_USERNAME"
 PASSWORD_ENV = "KORTEX_PASSWORD"
 CREDENTIALS_FILE_ENV = "KORTEX_CREDENTIALS_FILE"

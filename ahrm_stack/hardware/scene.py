@@ -1,7 +1,7 @@
 """A minimal scene source for a real arm: fixed cube and obstacle poses from a YAML layout file.
 
 A perception module is what a real deployment needs (another one, AprilTag based, can replace
-this); until then :class:`StaticScene` returns the same :class:`~hardware.protocol.ObjectPoses`
+this); until then :class:`StaticScene` returns the same :class:`~ahrm_stack.hardware.protocol.ObjectPoses`
 every tick, with zero velocities, stamped on the arm's clock. :class:`PerceivedArm` gives an adapter
 the ``perception()`` method the deploy loop calls.
 
@@ -27,7 +27,7 @@ from typing import Annotated, Any, Protocol, Sequence, TypeVar
 import numpy as np
 
 from ahrm_stack.schema import Float, Section, read_yaml, unit_quaternion, validate
-from hardware.protocol import ArmAdapter, Fault, Feedback, ObjectPoses, ServoingMode, WallClock
+from ahrm_stack.hardware.protocol import ArmAdapter, Fault, Feedback, ObjectPoses, ServoingMode, WallClock
 
 
 #: how far from 1 a layout quaternion's norm may be (it is then normalised): rounding in a

@@ -1,5 +1,5 @@
 """The Gen2 adapter's fault state (:class:`Gen2Faults`, the base of
-:class:`~hardware.kinova_gen2.arm.KinovaGen2Arm`): the fault flags and their reason, shared by the
+:class:`~ahrm_stack.hardware.kinova_gen2.arm.KinovaGen2Arm`): the fault flags and their reason, shared by the
 control thread and the USB thread under one lock; the status poll's steps, run on the USB thread
 (supply voltage, the system error log, the torques); and :meth:`Gen2Faults._latch`, which enters
 fault and stops the arm at once (:class:`FaultStop`).
@@ -19,13 +19,13 @@ import time
 
 import numpy as np
 
-from hardware.kinova_gen2.bus import UsbBus, WatchdogStop, is_link_error
-from hardware.kinova_gen2.sdk import (SYSTEM_ERROR_TYPES, VOLTAGE_ERROR, AngularPosition, Sdk,
+from ahrm_stack.hardware.kinova_gen2.bus import UsbBus, WatchdogStop, is_link_error
+from ahrm_stack.hardware.kinova_gen2.sdk import (SYSTEM_ERROR_TYPES, VOLTAGE_ERROR, AngularPosition, Sdk,
                                       SensorsInfo, SystemError, actuators)
-from hardware.kinova_gen2.settings import Gen2Settings
-from hardware.protocol import DescribedArm, Fault
+from ahrm_stack.hardware.kinova_gen2.settings import Gen2Settings
+from ahrm_stack.hardware.protocol import DescribedArm, Fault
 
-log = logging.getLogger("hardware.kinova_gen2")
+log = logging.getLogger("ahrm_stack.hardware.kinova_gen2")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -4,12 +4,12 @@ spherical wrist) through Kinova's C SDK, loaded with :mod:`ctypes`.
 The SDK is the vendor's shared library that kinova-ros ships in ``kinova_driver/lib/<arch>/``:
 ``USBCommandLayerUbuntu.so`` with its communication layer ``USBCommLayerUbuntu.so`` (installed by
 Kinova's installer as ``Kinova.API.USBCommandLayerUbuntu.so`` and ``Kinova.API.CommLayerUbuntu.so``);
-the x86_64 pair is in ``hardware/vendor/kinova_gen2/``. Only USB is implemented: the Ethernet
+the x86_64 pair is in ``ahrm_stack/hardware/vendor/kinova_gen2/``. Only USB is implemented: the Ethernet
 variant (``EthCommandLayerUbuntu.so``) needs ``InitEthernetAPI``, which is not called here. The path
 is ``kinova_gen2.library`` in ``configs/deploy.yaml``; nothing is downloaded or guessed. ``InitAPI``
 loads the communication layer by bare name, so its folder must be on the dynamic loader's path
 when the process starts: :func:`check_library` checks that before anything runs
-(:mod:`hardware.kinova_gen2.loader`). The function signatures and struct layouts are those of
+(:mod:`ahrm_stack.hardware.kinova_gen2.loader`). The function signatures and struct layouts are those of
 kinova-ros's headers (``kinova_driver/include/kinova/KinovaTypes.h``,
 ``Kinova.API.USBCommandLayerUbuntu.h``, ``Kinova.API.USBCommLayerUbuntu.h``) and match the vendor
 binary's debug information; C++ references (``int &``) are pointers in the C ABI.
@@ -17,9 +17,9 @@ binary's debug information; C++ references (``int &``) are pointers in the C ABI
 **One thread owns the USB.** The SDK handles one call at a time, each a USB round trip of several
 ms, and an ANGULAR_VELOCITY trajectory point moves the arm for 10 ms only, so joint velocities must
 reach it at 100 Hz while the deploy loop runs at 20 Hz with a 25 ms command deadline. Once
-connected, every SDK call goes through :class:`~hardware.kinova_gen2.bus.UsbBus`'s thread, which
+connected, every SDK call goes through :class:`~ahrm_stack.hardware.kinova_gen2.bus.UsbBus`'s thread, which
 orders them: stops first, then trajectory points before the arm's FIFO runs dry, then the callers'
-calls, then the status poll (see :mod:`hardware.kinova_gen2.bus`). A control tick costs one
+calls, then the status poll (see :mod:`ahrm_stack.hardware.kinova_gen2.bus`). A control tick costs one
 position read (:meth:`KinovaGen2Arm.refresh_feedback`, stamped when the read returned; velocities
 are position differences between reads); :meth:`~KinovaGen2Arm.send_joint_speeds` only makes the
 command the standing one, which the thread sends in its next point (at most 100 per second,
@@ -27,7 +27,7 @@ command the standing one, which the thread sends in its next point (at most 100 
 points pile up in the arm's 2,000-point FIFO and keep it moving after commands stop). Supply
 voltage, the system error log and the torques are polled at ``kinova_gen2.status_rate_hz`` (2 Hz).
 Every stop sends zero velocity and erases the FIFO (``EraseAllTrajectories``). The **command
-watchdog** (the protocol's rule, :class:`~hardware.protocol.ArmAdapter`): when no fresh command has
+watchdog** (the protocol's rule, :class:`~ahrm_stack.hardware.protocol.ArmAdapter`): when no fresh command has
 come for ``kinova_gen2.command_timeout`` control periods while the standing command moves the arm,
 the thread sends zero velocity, then ``EraseAllTrajectories``, at that deadline, records why
 (:attr:`KinovaGen2Arm.watchdog_stops`) and latches ``Fault.WATCHDOG``: commands are refused until
@@ -42,8 +42,8 @@ negative values as 360 - |v| (kinova-ros's ``kinova_comm.cpp`` multiplies by 2 a
 ``kinova_arm.cpp`` subtracts 360 above 180); :func:`model_velocities` undoes both.
 
 Faults: any SDK call that fails with a communication error (USB unplugged, power lost) is
-:class:`~hardware.protocol.ConnectionLostError` and the adapter disconnects; another failing call
-is a :class:`~hardware.protocol.HardwareError` naming the function and the code. A new entry in
+:class:`~ahrm_stack.hardware.protocol.ConnectionLostError` and the adapter disconnects; another failing call
+is a :class:`~ahrm_stack.hardware.protocol.HardwareError` naming the function and the code. A new entry in
 the arm's system error log (``GetSystemErrorCount`` / ``GetSystemError``) puts the adapter in
 fault (``Fault.HARDWARE``); a supply voltage below ``kinova_gen2.min_supply_voltage``
 (``GetSensorsInfo``) or a logged voltage error is the e-stop cutting the actuators' power
@@ -52,7 +52,7 @@ thread, whatever the control loop is doing (:attr:`KinovaGen2Arm.fault_stops`), 
 feedback frame carries the flags. Gen2 has no software e-stop: :meth:`KinovaGen2Arm.apply_emergency_stop`
 sends zero, erases the trajectory FIFO and calls ``StopControlAPI`` (the arm ignores commands
 until :meth:`~KinovaGen2Arm.clear_faults` calls ``StartControlAPI`` again). In fault, motion
-commands raise :class:`~hardware.protocol.ArmFaultError`.
+commands raise :class:`~ahrm_stack.hardware.protocol.ArmFaultError`.
 
 :meth:`KinovaGen2Arm.connect` selects the arm by its serial number (``kinova_gen2.serial``) from
 ``GetDevices``; it never takes the first one found. It starts the control API, stops it and starts
@@ -69,23 +69,23 @@ latency, one call at a time, the trajectory FIFO, noisy velocity feedback, a col
 without an arm, against Kinova's own binary (``tests/test_kinova_gen2_vendor.py``); never against a
 real arm: see docs/hardware.md.
 
-The package, one idea a module: :mod:`~hardware.kinova_gen2.sdk` (the SDK through ctypes),
-:mod:`~hardware.kinova_gen2.settings` (the ``kinova_gen2`` section, the file checks, the unit
-conversions), :mod:`~hardware.kinova_gen2.loader` (the loader-path check),
-:mod:`~hardware.kinova_gen2.lock` (Kinova's machine-wide lock), :mod:`~hardware.kinova_gen2.bus`
-(the USB thread: the points, the command watchdog), :mod:`~hardware.kinova_gen2.faults` (the fault
-state, the status poll), :mod:`~hardware.kinova_gen2.arm` (the adapter),
-:mod:`~hardware.kinova_gen2.check` (``--check``) and :mod:`~hardware.kinova_gen2.home`
+The package, one idea a module: :mod:`~ahrm_stack.hardware.kinova_gen2.sdk` (the SDK through ctypes),
+:mod:`~ahrm_stack.hardware.kinova_gen2.settings` (the ``kinova_gen2`` section, the file checks, the unit
+conversions), :mod:`~ahrm_stack.hardware.kinova_gen2.loader` (the loader-path check),
+:mod:`~ahrm_stack.hardware.kinova_gen2.lock` (Kinova's machine-wide lock), :mod:`~ahrm_stack.hardware.kinova_gen2.bus`
+(the USB thread: the points, the command watchdog), :mod:`~ahrm_stack.hardware.kinova_gen2.faults` (the fault
+state, the status poll), :mod:`~ahrm_stack.hardware.kinova_gen2.arm` (the adapter),
+:mod:`~ahrm_stack.hardware.kinova_gen2.check` (``--check``) and :mod:`~ahrm_stack.hardware.kinova_gen2.home`
 (``--home``). The names below are re-exported here.
 """
 
-from hardware.kinova_gen2.bus import POINT_PERIOD, CallTimes, UsbBus, WatchdogStop
-from hardware.kinova_gen2.settings import (ARM_POINT_RATE_HZ, DOCS, SERIAL_LENGTH, Gen2ConfigError,
+from ahrm_stack.hardware.kinova_gen2.bus import POINT_PERIOD, CallTimes, UsbBus, WatchdogStop
+from ahrm_stack.hardware.kinova_gen2.settings import (ARM_POINT_RATE_HZ, DOCS, SERIAL_LENGTH, Gen2ConfigError,
                                            Gen2Settings, HomeSettings, JointConvention,
                                            check_library, check_sdk_path, joint_convention,
                                            kinova_positions, kinova_velocities, model_positions,
                                            model_velocities)
-from hardware.kinova_gen2.sdk import (ANGULAR_POSITION, ANGULAR_VELOCITY, COMMUNICATION_ERRORS,
+from ahrm_stack.hardware.kinova_gen2.sdk import (ANGULAR_POSITION, ANGULAR_VELOCITY, COMMUNICATION_ERRORS,
                                       ERROR_CODES, ERROR_DATA_COUNT_MAX, ERROR_LAYER_COUNT,
                                       ERROR_LOAD_COMM_DLL, ERROR_NO_DEVICE_FOUND, MAX_KINOVA_DEVICE,
                                       NO_ERROR_KINOVA, SIGNATURES, SYSTEM_ERROR_TYPES, VOLTAGE_ERROR,
@@ -93,8 +93,8 @@ from hardware.kinova_gen2.sdk import (ANGULAR_POSITION, ANGULAR_VELOCITY, COMMUN
                                       KinovaDevice, Limitation, Sdk, SdkCallError, SensorsInfo,
                                       SystemError, TrajectoryPoint, UserPosition, position_point,
                                       velocity_point)
-from hardware.kinova_gen2.faults import FaultStop
-from hardware.kinova_gen2.arm import KinovaGen2Arm
+from ahrm_stack.hardware.kinova_gen2.faults import FaultStop
+from ahrm_stack.hardware.kinova_gen2.arm import KinovaGen2Arm
 
 __all__ = [
     "POINT_PERIOD", "CallTimes", "UsbBus", "WatchdogStop",

@@ -11,7 +11,7 @@ priority first:
    waits at most for the call in progress;
 2. the **command watchdog**'s stop, at its deadline (no fresh command for ``command_timeout`` s
    while the standing command moves the arm; a zero command or a stop disarms it): it latches, as
-   the protocol says (:class:`~hardware.protocol.ArmAdapter`): commands are refused
+   the protocol says (:class:`~ahrm_stack.hardware.protocol.ArmAdapter`): commands are refused
    (:class:`BusHeldError`) until :meth:`UsbBus.release`, and the adapter hears of it
    (``on_watchdog``), which sets ``Fault.WATCHDOG``;
 3. a trajectory point that is **urgent**: the arm's FIFO would run dry if one more call went first
@@ -58,7 +58,7 @@ from typing import Any, Callable, Deque, NamedTuple, Protocol, Sequence, TypeVar
 
 import numpy as np
 
-log = logging.getLogger("hardware.kinova_gen2")
+log = logging.getLogger("ahrm_stack.hardware.kinova_gen2")
 
 POINT_PERIOD = 0.010  # s: the arm executes one trajectory point per 10 ms (100 Hz)
 RECENT_CALLS = 16  # the estimate of one call's duration: the longest of this many recent calls
@@ -69,7 +69,7 @@ T = TypeVar("T")
 
 
 class SdkLike(Protocol):
-    """What the bus needs of the SDK (:class:`hardware.kinova_gen2.sdk.Sdk`)."""
+    """What the bus needs of the SDK (:class:`ahrm_stack.hardware.kinova_gen2.sdk.Sdk`)."""
 
     times: "CallTimes"
 

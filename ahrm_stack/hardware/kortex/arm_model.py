@@ -16,7 +16,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ahrm_stack.robot import RobotDescription
-from hardware.kortex.settings import KortexModel
+from ahrm_stack.hardware.kortex.settings import KortexModel
 
 #: ``ProductConfiguration.ModelId`` values (enums/ProductConfiguration/ModelId.md).
 MODEL_IDS = {0: "MODEL_ID_UNSPECIFIED", 1: "MODEL_ID_L53", 2: "MODEL_ID_L31", 3: "MODEL_ID_HDK"}

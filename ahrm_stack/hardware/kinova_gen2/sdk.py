@@ -18,11 +18,11 @@ from pathlib import Path
 
 import numpy as np
 
-from hardware.kinova_gen2.bus import CallTimes
-from hardware.kinova_gen2.settings import DOCS, SERIAL_LENGTH, check_sdk_path
-from hardware.protocol import HardwareError
+from ahrm_stack.hardware.kinova_gen2.bus import CallTimes
+from ahrm_stack.hardware.kinova_gen2.settings import DOCS, SERIAL_LENGTH, check_sdk_path
+from ahrm_stack.hardware.protocol import HardwareError
 
-log = logging.getLogger("hardware.kinova_gen2")
+log = logging.getLogger("ahrm_stack.hardware.kinova_gen2")
 
 NO_ERROR_KINOVA = 1
 ERROR_NO_DEVICE_FOUND = 1015
@@ -159,7 +159,7 @@ class Sdk:
     NO_ERROR_KINOVA. Loading it checks first that the dynamic loader finds the communication
     layers it loads by name (:func:`check_sdk_path`: :class:`Gen2ConfigError`); :attr:`comm_layers`
     says which files. Once an adapter is connected only its USB thread calls it
-    (:mod:`hardware.kinova_gen2.bus`)."""
+    (:mod:`ahrm_stack.hardware.kinova_gen2.bus`)."""
 
     def __init__(self, library: Path) -> None:
         self.comm_layers = check_sdk_path(library)  # before InitAPI can ever run

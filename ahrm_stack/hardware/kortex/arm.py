@@ -2,9 +2,9 @@
 
 The adapter holds the protocol's state (servoing mode, e-stop and fault latches, the command
 watchdog, feedback freshness) and talks to the arm through a link with one method, ``call``, in
-plain values: :class:`~hardware.kortex.child_link.ChildLink` (``kortex_api`` in a process of its
-own; the default) or :class:`~hardware.kortex.vendor_link.VendorLink` in this process (tests pass
-a fake API). See the package docstring (:mod:`hardware.kortex`) for the safety of the link.
+plain values: :class:`~ahrm_stack.hardware.kortex.child_link.ChildLink` (``kortex_api`` in a process of its
+own; the default) or :class:`~ahrm_stack.hardware.kortex.vendor_link.VendorLink` in this process (tests pass
+a fake API). See the package docstring (:mod:`ahrm_stack.hardware.kortex`) for the safety of the link.
 """
 
 from __future__ import annotations
@@ -17,20 +17,20 @@ from typing import Any, Sequence
 import numpy as np
 
 from ahrm_stack.robot import RobotDescription
-from hardware.kortex.arm_model import describe_arm, model_refusal
-from hardware.kortex.child_link import ChildLink
-from hardware.kortex.codec import feedback_from_values, joint_speeds_message, servoing_mode_name
-from hardware.kortex.credentials import Credentials, scrub
-from hardware.kortex.freshness import FrameFreshness, fingerprint
-from hardware.kortex.settings import KortexOptions
-from hardware.kortex.vendor_link import INSTALL_HINT, LinkError, VendorLink
-from hardware.kortex.watchdog import CommandWatchdog
-from hardware.kortex.zones import ProtectionZone, zone_report, zones_in_workspace
-from hardware.protocol import (ArmFaultError, ArmState, ConnectionLostError, DescribedArm, Fault,
+from ahrm_stack.hardware.kortex.arm_model import describe_arm, model_refusal
+from ahrm_stack.hardware.kortex.child_link import ChildLink
+from ahrm_stack.hardware.kortex.codec import feedback_from_values, joint_speeds_message, servoing_mode_name
+from ahrm_stack.hardware.kortex.credentials import Credentials, scrub
+from ahrm_stack.hardware.kortex.freshness import FrameFreshness, fingerprint
+from ahrm_stack.hardware.kortex.settings import KortexOptions
+from ahrm_stack.hardware.kortex.vendor_link import INSTALL_HINT, LinkError, VendorLink
+from ahrm_stack.hardware.kortex.watchdog import CommandWatchdog
+from ahrm_stack.hardware.kortex.zones import ProtectionZone, zone_report, zones_in_workspace
+from ahrm_stack.hardware.protocol import (ArmFaultError, ArmState, ConnectionLostError, DescribedArm, Fault,
                                Feedback, FeedbackTimeoutError, HardwareError, NotConnectedError,
                                ServoingMode, WallClock, range_centres)
 
-log = logging.getLogger("hardware.kortex")
+log = logging.getLogger("ahrm_stack.hardware.kortex")
 
 
 class KortexNotInstalledError(HardwareError):
@@ -43,10 +43,10 @@ class KortexArm(DescribedArm):
 
     Args:
         robot: the arm model the controller was trained on; the arm's model, DoF and joint speed
-            limits must match it (:func:`~hardware.kortex.arm_model.model_refusal`).
+            limits must match it (:func:`~ahrm_stack.hardware.kortex.arm_model.model_refusal`).
         address: the arm's IP address, required (no default is ever contacted).
-        credentials: the login (:func:`~hardware.kortex.credentials.load_credentials`).
-        options: every number of the link (:class:`~hardware.kortex.settings.KortexOptions`).
+        credentials: the login (:func:`~ahrm_stack.hardware.kortex.credentials.load_credentials`).
+        options: every number of the link (:class:`~ahrm_stack.hardware.kortex.settings.KortexOptions`).
         api: vendor modules to use in this process (tests pass fakes); default: ``kortex_api`` in
             a child process under ``options.python``.
         clock: the adapter's clock (default :class:`WallClock`: real time); the watchdog and the
@@ -269,7 +269,7 @@ class KortexArm(DescribedArm):
     def refresh_feedback(self) -> Feedback:
         """The arm's latest frame, stamped when its request was sent (adapter clock); a frame
         equal to the previous one in every analogue reading keeps that one's id and stamp
-        (:mod:`hardware.kortex.freshness`); its flags: the arm's and the adapter's own (the
+        (:mod:`ahrm_stack.hardware.kortex.freshness`); its flags: the arm's and the adapter's own (the
         e-stop, a refused command, the command watchdog: ``Fault.WATCHDOG``)."""
         frame = self._arm_frame()
         own = self._faults | (Fault.WATCHDOG if self._watchdog.tripped else Fault.NONE)

@@ -25,7 +25,7 @@ from __future__ import annotations
 from typing import Hashable
 
 
-#: The readings of the plain-valued frame (hardware.kortex.vendor_link) compared between frames.
+#: The readings of the plain-valued frame (ahrm_stack.hardware.kortex.vendor_link) compared between frames.
 FINGERPRINT_KEYS = ("position", "velocity", "torque", "current_motor", "voltage",
                     "temperature_core", "arm_voltage", "arm_current")
 

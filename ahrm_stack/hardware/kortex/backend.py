@@ -8,11 +8,11 @@ from typing import Mapping
 import numpy as np
 
 from ahrm_stack.robot import RobotDescription
-from hardware.kortex.arm import KortexArm, KortexNotInstalledError
-from hardware.kortex.credentials import Credentials, CredentialsError, load_credentials
-from hardware.kortex.settings import kortex_options
-from hardware.kortex.vendor_link import INSTALL_HINT, LinkError, import_modules
-from hardware.protocol import HardwareError
+from ahrm_stack.hardware.kortex.arm import KortexArm, KortexNotInstalledError
+from ahrm_stack.hardware.kortex.credentials import Credentials, CredentialsError, load_credentials
+from ahrm_stack.hardware.kortex.settings import kortex_options
+from ahrm_stack.hardware.kortex.vendor_link import INSTALL_HINT, LinkError, import_modules
+from ahrm_stack.hardware.protocol import HardwareError
 
 
 def import_kortex_api() -> dict:
@@ -40,7 +40,7 @@ def make_kortex_backend(settings, robot: RobotDescription, *,
         api: vendor modules to use in this process (default: ``kortex_api`` in a child process
             under ``kortex.python``).
         workspace: the task workspace in the arm's base frame
-            (:func:`hardware.kortex.zones.task_workspace`), checked against protection zones.
+            (:func:`ahrm_stack.hardware.kortex.zones.task_workspace`), checked against protection zones.
 
     Raises :class:`HardwareError` (one line, naming ``deploy.kortex.address``) without an address
     and :class:`CredentialsError` without credentials; nothing is contacted.
@@ -71,5 +71,5 @@ def kortex_deploy_blocker(settings, env: Mapping[str, str] | None = None) -> str
     if not settings.realtime:
         return "--backend kortex: --fast / deploy.realtime false is for the sim backend only"
     return ("--backend kortex: no scene source for the cube and obstacle poses (a perception "
-            "module) exists yet; the arm was not contacted (hardware.kortex.make_kortex_backend "
+            "module) exists yet; the arm was not contacted (ahrm_stack.hardware.kortex.make_kortex_backend "
             "builds the adapter once one does)")

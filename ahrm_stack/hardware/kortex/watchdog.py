@@ -1,7 +1,7 @@
 """The command watchdog: Kortex joint-speed commands never expire on the arm
 (``JointSpeed.duration`` is not implemented; Kinovarobotics/ros_kortex issues 159 and 347), so a
 client that stops sending leaves the arm moving; this thread of the adapter stops it. It latches, as
-the protocol's command watchdog does (:class:`~hardware.protocol.ArmAdapter`): the adapter reports
+the protocol's command watchdog does (:class:`~ahrm_stack.hardware.protocol.ArmAdapter`): the adapter reports
 a tripped watchdog as ``Fault.WATCHDOG`` and its command gate refuses until ``clear_faults()``."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import time
 import types
 import weakref
 
-log = logging.getLogger("hardware.kortex")
+log = logging.getLogger("ahrm_stack.hardware.kortex")
 
 
 class CommandWatchdog:
