@@ -230,3 +230,31 @@ def test_a_stalled_loop_finds_the_command_watchdog_latched_and_stops_saying_why(
         assert "WATCHDOG" in loop.stop_reason, loop.stop_reason
         assert arm.standing_command is None
         np.testing.assert_array_equal(fake.state()[1], 0.0)
+
+
+def test_a_dry_run_sends_no_motion_to_the_fake_arm(library, tmp_path, task_config, capsys, gen2_config):
+    """`--dry-run` on the Gen2 backend: the real feedback read and the loop ticking as live, its
+    commands in the telemetry, and not one trajectory point with a non-zero speed sent; the arm
+    where it started."""
+    fake = fake_module.FakeSdk(library)
+    fake.reset(position_deg=np.degrees(task_config.arm.home))
+    before, _ = fake.state()
+    path = gen2_config(library=str(library), serial=fake_module.SERIAL, scene=str(SCENE))
+    data = yaml.safe_load(path.read_text())
+    data["watchdog"]["max_deadline_misses"] = 1000
+    data["watchdog"]["max_feedback_age"] = 10.0
+    path.write_text(yaml.safe_dump(data))
+    telemetry = tmp_path / "telemetry.jsonl"
+    code = main(["--backend", "kinova-gen2", "--config", str(path), "--duration", "1", "--dry-run",
+                 "--telemetry", str(telemetry)])
+    out = capsys.readouterr().out
+    assert code == 1 and "deploy summary" in out, out
+    lines = [line for line in telemetry.read_text().splitlines()]
+    assert '"dry run"' in lines[0] and '"summary"' in lines[-1]
+    ticks = [line for line in lines if '"u_nom"' in line]
+    assert len(ticks) > 10 and any('"u": [0.0, 0.0' not in line for line in ticks)  # it computed motion
+    sent = fake.calls(function="SendAdvanceTrajectory")
+    assert all(not np.any(call.values) for call in sent), [c.values for c in sent if np.any(c.values)][:3]
+    after, _ = fake.state()
+    np.testing.assert_allclose(after, before, atol=1e-6)  # deg: nothing moved it
+    assert main(["--backend", "kinova-gen2", "--dry-run", "--home"]) == 2

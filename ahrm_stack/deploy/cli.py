@@ -23,12 +23,13 @@ from ahrm_stack.hardware.backends import BACKENDS
 
 def run_backend(backend: str, settings: DeploySettings, checkpoint: Path | None,
                 overrides: Sequence[str], scene: str = "sim",
-                layout_file: Path | None = None, policy_file: Path | None = None) -> DeployLoop:
+                layout_file: Path | None = None, policy_file: Path | None = None,
+                dry_run: bool = False) -> DeployLoop:
     """One deploy run on the arm adapter named ``backend`` (one of
     :data:`ahrm_stack.hardware.backends.BACKENDS`) with object poses from ``scene``: the one place the
     command line chooses them. Raises what :func:`~ahrm_stack.deploy.run.deploy` raises."""
     return deploy(settings, checkpoint, overrides, backend=backend, scene=scene,
-                  layout_file=layout_file, policy_file=policy_file)
+                  layout_file=layout_file, policy_file=policy_file, dry_run=dry_run)
 
 
 def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -70,6 +71,9 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
                              "(MoveHome, then a slow joint move; kinova_gen2.home), after a "
                              "confirmation, then exit (0 there, 1 not confirmed, 2 bad input, "
                              "3 stopped, 130 Ctrl-C)")
+    parser.add_argument("--dry-run", action="store_true",
+                        help="the arm's real feedback and scene, every command computed, filtered and "
+                             "logged, none sent (stops still are): the arm never moves")
     parser.add_argument("--yes", action="store_true",
                         help="with --home: confirm without asking (scripted use)")
     parser.add_argument("overrides", nargs="*", metavar="key=value",
@@ -95,6 +99,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     def terminate(signum, frame):  # SIGTERM stops the arm like Ctrl-C
         raise KeyboardInterrupt
 
+    if args.dry_run and (args.check or args.home):
+        print("python -m ahrm_stack.deploy: error: --dry-run runs the loop; --check and --home are separate steps",
+              file=sys.stderr)
+        return 2
     if args.check and args.home:
         print("python -m ahrm_stack.deploy: error: --check and --home are separate steps; give one",
               file=sys.stderr)
@@ -134,7 +142,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     previous = signal.signal(signal.SIGTERM, terminate)
     try:
         loop = run_backend(args.backend, settings, args.checkpoint, args.overrides, args.scene,
-                           args.layout_file, args.policy_file)
+                           args.layout_file, args.policy_file, args.dry_run)
     except (ConfigError, DeployConfigError, CheckpointError) as error:  # before anything moved
         print(f"python -m ahrm_stack.deploy: error: {error}", file=sys.stderr)
         return 2

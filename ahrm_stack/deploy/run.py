@@ -115,7 +115,8 @@ def _start_up_fault(arm, telemetry, error: BaseException) -> DeployFault:
 
 def deploy(settings: DeploySettings, checkpoint: Path | None = None,
            overrides: Sequence[str] = (), backend: str = "sim", scene: str = "sim",
-           layout_file: Path | str | None = None, policy_file: Path | None = None) -> DeployLoop:
+           layout_file: Path | str | None = None, policy_file: Path | None = None,
+           dry_run: bool = False) -> DeployLoop:
     """One run of the deploy loop against ``backend`` (a name of
     :data:`ahrm_stack.hardware.backends.BACKENDS`, whose ``check`` runs before anything is written or
     contacted and whose ``make`` builds the adapter); returns the finished loop (its
@@ -130,6 +131,9 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
     obstacles from ``layout_file``, or ``perception.layout_file``, or else, on the sim backend,
     surveyed from the simulator at the start into ``layout.yaml`` beside the telemetry, or with no
     telemetry into a temporary folder removed when the run ends).
+
+    ``dry_run``: the backend's feedback and scene, every command computed, filtered and logged,
+    none sent (:class:`~ahrm_stack.hardware.dry_run.DryRunArm`); stops still reach the arm.
 
     Bad input (the settings, the checkpoint, its safety settings, the backend's settings, the
     telemetry path) raises a one-line error before anything is written or the arm is touched. From
@@ -167,6 +171,14 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
                                         "kind": note.kind, "reason": note.text}) + "\n")
         try:
             arm = chosen.make(config, settings)
+            if dry_run:
+                from ahrm_stack.hardware.dry_run import DryRunArm
+
+                arm = DryRunArm(arm)
+                if telemetry is not None:
+                    telemetry.write(json.dumps({"t": 0.0, "event": "dry run", "reason": "commands computed, "
+                                                "filtered and logged; none sent"}) + "\n")
+                log.info("deploy: DRY RUN: commands are computed, filtered and logged, never sent")
             session = DeploySession.open(arm, config, actor, settings)
             arm.connect()
             if perception is not None:
@@ -204,7 +216,8 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
 
 def deploy_sim(settings: DeploySettings, checkpoint: Path | None = None,
                overrides: Sequence[str] = (), scene: str = "sim",
-               layout_file: Path | str | None = None, policy_file: Path | None = None) -> DeployLoop:
+               layout_file: Path | str | None = None, policy_file: Path | None = None,
+               dry_run: bool = False) -> DeployLoop:
     """:func:`deploy` against the sim backend."""
     return deploy(settings, checkpoint, overrides, backend="sim", scene=scene, layout_file=layout_file,
-                  policy_file=policy_file)
+                  policy_file=policy_file, dry_run=dry_run)
