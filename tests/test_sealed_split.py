@@ -60,6 +60,7 @@ def test_no_training_study_or_benchmark_source_names_the_test_split():
 # tools/ that name the test split, each for a reason; every other tool is scanned as studies are
 TOOLS_THAT_NAME_IT = {
     "tools/backfill_test_ledger.py": "names each set's test start to find the set of an old output",
+    "tools/reanalysis_rows.sh": "the clone-only rows' and the capped teacher's one test read each (ledger)",
     "tools/default_seeds.sh": "the default seeds' final evaluation (each read recorded in the ledger)",
     "tools/paper_row.py": "reads the committed outputs of the paper row's one final evaluation",
     "tools/results_headlines.py": "reads the committed outputs of the final evaluations",
