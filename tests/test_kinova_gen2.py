@@ -140,11 +140,12 @@ def test_struct_layouts_match_the_c_compiler(fake):
 
 
 def test_unit_and_joint_conventions_by_hand():
-    identity = JointConvention((1,) * 6, (0.0,) * 6)
+    identity = JointConvention((1,) * 6, (0.0,) * 6, ("JACOV2_6DOF_SERVICE",))
     np.testing.assert_allclose(model_positions([180, 90, 0, 360, -90, 45], identity),
                                [math.pi, math.pi / 2, 0, 2 * math.pi, -math.pi / 2, math.pi / 4])
     # kinova-ros's 2013 DH convention: (180 - k1), (k2 - 270), (90 - k3), (180 - k4), ...
-    dh = JointConvention((-1, 1, -1, -1, -1, -1), (180.0, -270.0, 90.0, 180.0, 180.0, 260.0))
+    dh = JointConvention((-1, 1, -1, -1, -1, -1), (180.0, -270.0, 90.0, 180.0, 180.0, 260.0),
+                         ("JACOV2_6DOF_SERVICE",))
     kinova = np.array([275.0, 167.5, 57.5, 240.0, 82.5, 75.0])
     expected_deg = [180 - 275, 167.5 - 270, 90 - 57.5, 180 - 240, 180 - 82.5, 260 - 75]
     np.testing.assert_allclose(np.degrees(model_positions(kinova, dh)), expected_deg)
@@ -165,7 +166,7 @@ def test_unit_and_joint_conventions_by_hand():
 def test_conventions_round_trip(kinova, signs, offsets, speeds):
     """Kinova -> model -> Kinova is the identity; a command's sign and scale survive the reported
     velocity's encoding (half, negatives as 360 - |v|) and its decoding."""
-    convention = JointConvention(tuple(signs), tuple(offsets))
+    convention = JointConvention(tuple(signs), tuple(offsets), ("JACOV2_6DOF_SERVICE",))
     np.testing.assert_allclose(kinova_positions(model_positions(kinova, convention), convention),
                                kinova, atol=1e-9)
     degrees = kinova_velocities(speeds, convention)  # deg/s on the arm
@@ -218,6 +219,24 @@ def test_unknown_serial_is_refused_and_the_api_closed(fake, make_arm):
     assert not fake.calls(function="SetActiveDevice")  # never "the first one found"
 
 
+def test_another_kind_of_arm_is_refused_before_control_starts(fake, make_arm):
+    """A spherical-wrist, 7-DoF or MICO arm on the bus, with the policy of a curved-wrist JACO2: one
+    line naming what was found and the setting, the API closed, control never started."""
+    fake.set_robot_type(8)  # SPHERICAL_7DOF_SERVICE
+    arm = make_arm()
+    with pytest.raises(HardwareError) as error:
+        arm.connect()
+    message = str(error.value)
+    assert "\n" not in message and "SPHERICAL_7DOF_SERVICE" in message and "JACOV2_6DOF_SERVICE" in message
+    assert "robot_types" in message and not arm.is_connected and not fake.initialized
+    assert [c.function for c in fake.calls()] == ["InitAPI", "GetDevices", "SetActiveDevice", "GetQuickStatus",
+                                                  "CloseAPI"]
+    fake.set_robot_type(6)  # JACOV2_6DOF_ASSISTIVE: the same arm, another edition
+    arm = make_arm()
+    arm.connect()
+    arm.disconnect()
+
+
 def test_no_arm_on_the_bus(fake, make_arm):
     fake.reset(serials=())
     arm = make_arm()
@@ -247,7 +266,7 @@ def test_a_failure_after_start_control_stops_the_arm_and_closes(fake, make_arm):
     with pytest.raises(HardwareError, match="SetAngularControl failed: ERROR_OPERATION_INCOMPLETED"):
         make_arm().connect()
     names = [c.function for c in fake.calls()]
-    assert names == ["InitAPI", "GetDevices", "SetActiveDevice", "StartControlAPI", "StopControlAPI",
+    assert names == ["InitAPI", "GetDevices", "SetActiveDevice", "GetQuickStatus", "StartControlAPI", "StopControlAPI",
                      "StartControlAPI", "SetAngularControl", "SendAdvanceTrajectory",
                      "EraseAllTrajectories", "StopControlAPI", "CloseAPI"]
     assert fake.fifo_count() == 0 and not fake.control_on and fake.crashes() == 0
@@ -267,7 +286,7 @@ def test_connect_kick_starts_the_control_api_after_a_cold_boot(fake, make_arm):
     fake.set_cold_boot(True)
     arm = make_arm()
     arm.connect()
-    assert [c.function for c in fake.calls()][3:6] == ["StartControlAPI", "StopControlAPI",
+    assert [c.function for c in fake.calls()][4:7] == ["StartControlAPI", "StopControlAPI",
                                                        "StartControlAPI"]
     assert fake.control_on
     arm.send_joint_speeds(np.array([0.1, 0, 0, 0, 0, 0]))  # from rest: returns once the point is out

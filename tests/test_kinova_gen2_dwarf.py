@@ -11,11 +11,14 @@ import ctypes
 import re
 import shutil
 import subprocess
+import typing
 
 import pytest
 
 from ahrm_stack.hardware import kinova_gen2
+from ahrm_stack.hardware.kinova_gen2 import sdk
 from ahrm_stack.hardware.kinova_gen2.loader import VENDOR_LIBRARY
+from ahrm_stack.hardware.kinova_gen2.settings import RobotType
 
 pytestmark = pytest.mark.skipif(shutil.which("readelf") is None or not VENDOR_LIBRARY.is_file(),
                                 reason="binutils' readelf and the vendored Gen2 SDK are needed")
@@ -75,7 +78,7 @@ def test_position_types_have_the_values_sent(dies):
 
 
 @pytest.mark.parametrize("struct", [kinova_gen2.Limitation, kinova_gen2.UserPosition,
-                                    kinova_gen2.TrajectoryPoint])
+                                    kinova_gen2.TrajectoryPoint, sdk.QuickStatus])
 def test_structs_match_the_ctypes_layouts(dies, struct):
     index = _find(dies, "DW_TAG_structure_type", struct.__name__)
     assert int(dies[index]["at"]["DW_AT_byte_size"]) == ctypes.sizeof(struct)
@@ -84,3 +87,16 @@ def test_structs_match_the_ctypes_layouts(dies, struct):
                and "DW_AT_data_member_location" in c["at"]}
     ours = {name: getattr(struct, name).offset for name, _ in struct._fields_}
     assert members == ours
+
+
+def test_robot_types_are_the_binarys_and_quick_status_takes_one_pointer(dies):
+    """The arm check (connect refuses another arm) reads QuickStatus.RobotType: ROBOT_TYPE's values
+    as the binary has them, and every name deploy.yaml may give is one of them."""
+    index = _find(dies, "DW_TAG_enumeration_type", "ROBOT_TYPE")
+    values = {int(c["at"]["DW_AT_const_value"]): c["at"]["DW_AT_name"] for c in _children(dies, index)
+              if c["tag"] == "DW_TAG_enumerator"}
+    assert values == sdk.ROBOT_TYPES
+    assert set(typing.get_args(RobotType)) <= set(values.values())
+    query = _find(dies, "DW_TAG_subprogram", "GetQuickStatus")
+    parameters = [c for c in _children(dies, query) if c["tag"] == "DW_TAG_formal_parameter"]
+    assert len(parameters) == 1 and len(sdk.SIGNATURES["GetQuickStatus"]) == 1

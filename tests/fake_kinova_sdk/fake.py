@@ -40,7 +40,7 @@ FUNCTIONS = ("InitAPI", "CloseAPI", "GetDevices", "SetActiveDevice", "StartContr
              "StopControlAPI", "SetAngularControl", "SendAdvanceTrajectory",
              "EraseAllTrajectories", "GetAngularPosition", "GetAngularVelocity", "GetAngularForce",
              "GetSensorsInfo", "GetSystemErrorCount", "GetSystemError", "RefresDevicesList",
-             "GetAPIVersion", "MoveHome")
+             "GetAPIVersion", "MoveHome", "GetQuickStatus")
 
 
 class CompilerMissing(RuntimeError):
@@ -202,6 +202,10 @@ class FakeSdk:
 
     def inject_error(self, kind: int) -> None:
         self.lib.FakeKinova_InjectError(int(kind))
+
+    def set_robot_type(self, robot_type: int) -> None:
+        """QuickStatus.RobotType from now on (ROBOT_TYPE; 3, JACOV2_6DOF_SERVICE, after reset)."""
+        self.lib.FakeKinova_SetRobotType(int(robot_type))
 
     def set_estop(self, pressed: bool) -> None:
         self.lib.FakeKinova_SetEStop(int(bool(pressed)))

@@ -93,6 +93,11 @@ typedef struct { char SerialNumber[SERIAL_LENGTH]; char Model[SERIAL_LENGTH]; in
 typedef struct { float Actuator1, Actuator2, Actuator3, Actuator4, Actuator5, Actuator6,
                  Actuator7; } AngularInfo;
 typedef struct { float X, Y, Z, ThetaX, ThetaY, ThetaZ; } CartesianInfo;
+/* QuickStatus: 14 unsigned chars (the vendored binary's DWARF); RobotType at offset 11 */
+typedef struct { unsigned char Finger1Status, Finger2Status, Finger3Status, RetractType, RetractComplexity,
+                 ControlEnableStatus, ControlActiveModule, ControlFrameType, CartesianFaultState,
+                 ForceControlStatus, CurrentLimitationStatus, RobotType, RobotEdition,
+                 TorqueSensorsStatus; } QuickStatus;
 typedef struct { float Finger1, Finger2, Finger3; } FingersPosition;
 typedef struct { AngularInfo Actuators; FingersPosition Fingers; } AngularPosition;
 typedef struct { float speedParameter1, speedParameter2, speedParameter3, forceParameter1,
@@ -115,7 +120,7 @@ enum { errorlog_voltage = 9 };
 /* ---- the call log ---- */
 enum { F_INIT = 1, F_CLOSE, F_GET_DEVICES, F_SET_ACTIVE, F_START_CONTROL, F_STOP_CONTROL,
        F_SET_ANGULAR, F_SEND_TRAJ, F_ERASE, F_GET_POS, F_GET_VEL, F_GET_FORCE, F_GET_SENSORS,
-       F_GET_ERR_COUNT, F_GET_ERR, F_REFRESH, F_GET_API_VERSION, F_MOVE_HOME };
+       F_GET_ERR_COUNT, F_GET_ERR, F_REFRESH, F_GET_API_VERSION, F_MOVE_HOME, F_GET_QUICK_STATUS };
 
 typedef struct { double t; int function; int result; int type; float values[7]; double start; } FakeCall;
 
@@ -166,6 +171,7 @@ static double head_start = 0.0;  /* when the point at the head began (valid whil
 static long dropped = 0;
 static int fifo_peak = 0;  /* the most points the FIFO held since FakeKinova_Reset */
 static double voltage = 24.0;
+static int robot_type = 3;  /* ROBOT_TYPE: JACOV2_6DOF_SERVICE, a j2n6s300 (FakeKinova_SetRobotType) */
 static SystemError errors[64];
 static unsigned int nerrors = 0;
 static uint64_t rng = 0x9E3779B97F4A7C15ULL;
@@ -455,6 +461,17 @@ int MoveHome(void) {
     LEAVE(F_MOVE_HOME, result, 0, home_q);
 }
 
+int GetQuickStatus(QuickStatus *response) {
+    ENTER;
+    memset(response, 0, sizeof(*response));
+    int result = GETTER(ERROR_API_NOT_INITIALIZED);
+    if (result == NO_ERROR_KINOVA) {
+        response->RobotType = (unsigned char)robot_type;
+        response->ControlEnableStatus = control_on ? 1 : 0;
+    }
+    LEAVE(F_GET_QUICK_STATUS, result, robot_type, NULL);
+}
+
 int EraseAllTrajectories(void) {
     ENTER; if (ARM) erase_fifo();
     LEAVE(F_ERASE, NO_ERROR_KINOVA, 0, NULL);  /* 1 in every state observed */
@@ -534,7 +551,7 @@ void FakeKinova_Reset(void) {
     latency = DEFAULT_LATENCY; velocity_noise = DEFAULT_VELOCITY_NOISE; rng = 0x9E3779B97F4A7C15ULL;
     for (int i = 0; i < NJ; i++) { home_q[i] = FACTORY_HOME[i]; drift[i] = 0.0; }
     home_speed = position_speed = DEFAULT_POSITION_SPEED; position_noise = 0.0;
-    crashes = 0; crash_for_real = 0; fail_function = 0;
+    crashes = 0; crash_for_real = 0; fail_function = 0; robot_type = 3;
     pthread_mutex_unlock(&lock);
     pthread_mutex_unlock(&bus);
 }
@@ -640,6 +657,12 @@ void FakeKinova_InjectError(int type) {
 
 /* The e-stop: actuator power cut (no motion while pressed, 0 V, a voltage error logged; the FIFO
  * runs on without moving the arm); released: power back. */
+void FakeKinova_SetRobotType(int type) {
+    pthread_mutex_lock(&lock);
+    robot_type = type;
+    pthread_mutex_unlock(&lock);
+}
+
 void FakeKinova_SetEStop(int pressed) {
     pthread_mutex_lock(&lock);
     advance(now());

@@ -75,6 +75,23 @@ class KinovaDevice(ctypes.Structure):
                 ("DeviceType", ctypes.c_int), ("DeviceID", ctypes.c_int)]
 
 
+class QuickStatus(ctypes.Structure):
+    """``GetQuickStatus``'s reply (14 bytes; members and offsets as the vendored binary's DWARF
+    gives them, ``tests/test_kinova_gen2_dwarf.py``)."""
+
+    _fields_ = [(name, ctypes.c_ubyte) for name in (
+        "Finger1Status", "Finger2Status", "Finger3Status", "RetractType", "RetractComplexity",
+        "ControlEnableStatus", "ControlActiveModule", "ControlFrameType", "CartesianFaultState",
+        "ForceControlStatus", "CurrentLimitationStatus", "RobotType", "RobotEdition", "TorqueSensorsStatus")]
+
+
+#: ROBOT_TYPE (KinovaTypes.h; values as the vendored binary's DWARF gives them): ``QuickStatus.RobotType``.
+ROBOT_TYPES: dict[int, str] = {
+    0: "JACOV1_ASSISTIVE", 1: "MICO_6DOF_SERVICE", 2: "MICO_4DOF_SERVICE", 3: "JACOV2_6DOF_SERVICE",
+    4: "JACOV2_4DOF_SERVICE", 5: "MICO_6DOF_ASSISTIVE", 6: "JACOV2_6DOF_ASSISTIVE",
+    7: "SPHERICAL_6DOF_SERVICE", 8: "SPHERICAL_7DOF_SERVICE", 254: "GENERIC_ROBOT", 255: "ROBOT_ERROR"}
+
+
 class AngularInfo(ctypes.Structure):
     _fields_ = [(f"Actuator{i}", ctypes.c_float) for i in range(1, 8)]
 
@@ -137,6 +154,7 @@ SIGNATURES: dict[str, tuple] = {
     "GetSystemErrorCount": (_P(ctypes.c_uint),),
     "GetSystemError": (ctypes.c_uint, _P(SystemError)),
     "MoveHome": (),  # the factory home, as the joystick's home button (kinova-ros homeArm)
+    "GetQuickStatus": (_P(QuickStatus),),  # its RobotType: which arm is connected (kinova-ros reads it too)
 }
 
 

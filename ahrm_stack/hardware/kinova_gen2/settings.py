@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Optional
+from typing import TYPE_CHECKING, Annotated, Any, Literal, Optional
 
 import numpy as np
 from pydantic import AfterValidator, PlainValidator
@@ -83,12 +83,19 @@ class HomeSettings(Section):
     # the final move's joint-space path
 
 
+RobotType = Literal["JACOV1_ASSISTIVE", "MICO_6DOF_SERVICE", "MICO_4DOF_SERVICE", "JACOV2_6DOF_SERVICE",
+                    "JACOV2_4DOF_SERVICE", "MICO_6DOF_ASSISTIVE", "JACOV2_6DOF_ASSISTIVE",
+                    "SPHERICAL_6DOF_SERVICE", "SPHERICAL_7DOF_SERVICE", "GENERIC_ROBOT"]  # sdk.ROBOT_TYPES
+
+
 @dataclasses.dataclass(frozen=True)
 class JointConvention(Section):
     """model angle (deg) = ``sign`` * Kinova angle (deg) + ``offset_deg``, per joint."""
 
     sign: Annotated[tuple[Annotated[Int, AfterValidator(_sign)], ...], count(1)]  # +1 or -1 per joint
     offset_deg: tuple[Float, ...]  # deg, one per joint
+    robot_types: Annotated[tuple[RobotType, ...], count(1)]  # the QuickStatus.RobotType names of
+    # the arms this model is (connect refuses any other)
 
     def check(self, key: str) -> None:
         if len(self.offset_deg) != len(self.sign):
