@@ -250,7 +250,8 @@ def evaluate(run_dir: Path | None, episodes: int, layout: str | None = None, out
         from ahrm_stack import test_ledger
         test_ledger.record(test_ledger.new_read(
             read_key, name, layout or RUN, seed_offset, episodes, reason,
-            {k: result[k] for k in ("successes", "touched_episodes", "episodes", "time_mean") if k in result}))
+            {k: (None if isinstance(result[k], float) and result[k] != result[k] else result[k])  # NaN: None
+             for k in ("successes", "touched_episodes", "episodes", "time_mean") if k in result}))
     if not quiet:
         print(f"{name} ({header['layout']} layout, {split} split, seeds {seed_offset}+; training support: "
               f"{support['verdict']}): {table}")

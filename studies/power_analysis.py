@@ -90,16 +90,16 @@ def analyse(data: dict) -> dict:
                  "p_learn_pooled": q, "rows": []}
     for q1, q2 in TARGETS["p_learn"]:
         curve = {n: fisher_power(q1, q2, n) for n in SEEDS}
-        out["rows"].append({"outcome": f"P(learn) {q1:.1f} vs {q2:.1f}", "test": "Fisher exact",
+        out["rows"].append({"outcome": f"P(learn) {q1:.1f} vs {q2:.1f}", "statistic": "Fisher exact",
                             "power_at": curve, "seeds": next((n for n in SEEDS if curve[n] >= POWER), None)})
     for delta in TARGETS["learned_success"]:
         # the learned runs per method: n * q at the pooled P(learn)
         curve = {n: t_power(delta, learned_sd, max(2, int(round(n * q))), False) for n in SEEDS}
-        out["rows"].append({"outcome": f"success among learned runs, {100 * delta:.0f} pp", "test": "two-sample t",
+        out["rows"].append({"outcome": f"success among learned runs, {100 * delta:.0f} pp", "statistic": "two-sample t",
                             "power_at": curve, "seeds": next((n for n in SEEDS if curve[n] >= POWER), None)})
     for delta in TARGETS["paired_success"]:
         curve = {n: t_power(delta, paired, n, True) for n in SEEDS}
-        out["rows"].append({"outcome": f"success over all runs, {100 * delta:.0f} pp", "test": "paired t (H1–H3)",
+        out["rows"].append({"outcome": f"success over all runs, {100 * delta:.0f} pp", "statistic": "paired t (H1–H3)",
                             "power_at": curve, "seeds": next((n for n in SEEDS if curve[n] >= POWER), None)})
     out["detectable_at_5"] = {"paired_success": detectable(paired, 5, True),
                               "learned_success": detectable(learned_sd, max(2, int(round(5 * q))), False)}
@@ -113,12 +113,12 @@ def tables(result: dict) -> str:
              "differences from AHRM " + ", ".join(f"{m} {sd:.3f}" for m, sd in result["paired_sd"].items())
              + f" (the largest is used); pooled P(learn) {result['p_learn_pooled']:.2f}.",
              "",
-             "| outcome, difference | test | " + " | ".join(f"n = {n}" for n in SEEDS)
+             "| outcome, difference | statistic | " + " | ".join(f"n = {n}" for n in SEEDS)
              + " | seeds per method for 80 % |",
              "|---|---|" + "---|" * len(SEEDS) + "---|"]
     for row in result["rows"]:
         powers = " | ".join(f"{row['power_at'][n]:.2f}" for n in SEEDS)
-        lines.append(f"| {row['outcome']} | {row['test']} | {powers} | {row['seeds'] or f'> {SEEDS[-1]}'} |")
+        lines.append(f"| {row['outcome']} | {row['statistic']} | {powers} | {row['seeds'] or f'> {SEEDS[-1]}'} |")
     d = result["detectable_at_5"]
     lines += ["", f"With five seeds per method (experiment 42), the smallest difference with 80 % power: "
               f"success over all runs, paired by seed, {100 * d['paired_success']:.0f} percentage points; "

@@ -1,6 +1,11 @@
 import os
+import tempfile
 
 os.environ.setdefault("MUJOCO_GL", "egl")
+# Nothing a test does reaches the committed test ledger (docs/test-ledger.jsonl): every process of
+# the session (xdist workers, Ray workers, subprocesses) inherits this one, set before any fixture,
+# module-scoped ones included; each test then gets its own (own_test_ledger below).
+os.environ["AHRM_TEST_LEDGER"] = os.path.join(tempfile.mkdtemp(prefix="ahrm-test-ledger-"), "test-ledger.jsonl")
 
 import pytest  # noqa: E402
 from hypothesis import settings  # noqa: E402

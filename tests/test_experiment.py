@@ -17,6 +17,7 @@ RAY_TEMP = f"/tmp/ahrm-ray-test-{os.getpid()}"  # short: Ray's socket paths must
 TINY = ["task.episode.duration=2", "ppo.hidden_sizes=[16]", "ppo.frames_per_batch=128",
         "train.warm_start=none", "ppo.bc_coeff=0",
         "experiment.eval_episodes=2", "experiment.scripted_episodes=1",
+        "experiment.split=test",  # the final table's path to the sealed split (the default is validation)
         f"experiment.ray_temp_dir={RAY_TEMP}", "video.width=160", "video.height=120"]
 
 
@@ -59,7 +60,7 @@ def test_rerun_skips_the_finished_run_and_redoes_the_failed_one(grid):
     assert (ahrm / "episodes.csv").stat().st_mtime_ns == first["ahrm_episodes_mtime"]  # not retrained
     done = json.loads((ls / "done.json").read_text())
     assert done["status"] == "done" and done["evaluation"]["episodes"] == 2
-    # the final table: the frozen policy on the sealed test split (configs/experiment.yaml split: test)
+    # the final table: the frozen policy on the sealed test split (experiment.split=test here)
     assert done["evaluation"]["split"] == "test" and done["spec"]["split"] == "test"
     assert done["evaluation"]["seed_offset"] == seed_table().evaluation["random"].test.start  # eval_layout
     assert not (ls / "failed.json").exists()

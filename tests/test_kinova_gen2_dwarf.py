@@ -18,7 +18,7 @@ import pytest
 from ahrm_stack.hardware import kinova_gen2
 from ahrm_stack.hardware.kinova_gen2 import sdk
 from ahrm_stack.hardware.kinova_gen2.loader import VENDOR_LIBRARY
-from ahrm_stack.hardware.kinova_gen2.settings import RobotType
+from ahrm_stack.hardware.kinova_gen2.settings import ROBOT_TYPES, RobotType
 
 pytestmark = pytest.mark.skipif(shutil.which("readelf") is None or not VENDOR_LIBRARY.is_file(),
                                 reason="binutils' readelf and the vendored Gen2 SDK are needed")
@@ -95,7 +95,7 @@ def test_robot_types_are_the_binarys_and_quick_status_takes_one_pointer(dies):
     index = _find(dies, "DW_TAG_enumeration_type", "ROBOT_TYPE")
     values = {int(c["at"]["DW_AT_const_value"]): c["at"]["DW_AT_name"] for c in _children(dies, index)
               if c["tag"] == "DW_TAG_enumerator"}
-    assert values == sdk.ROBOT_TYPES
+    assert values == ROBOT_TYPES
     assert set(typing.get_args(RobotType)) <= set(values.values())
     query = _find(dies, "DW_TAG_subprogram", "GetQuickStatus")
     parameters = [c for c in _children(dies, query) if c["tag"] == "DW_TAG_formal_parameter"]

@@ -24,11 +24,11 @@ from ahrm_stack.hardware.kinova_gen2.bus import (BusClosedError, BusHeldError, C
                                       is_link_error)
 from ahrm_stack.hardware.kinova_gen2.faults import FaultStop, Gen2Faults
 from ahrm_stack.hardware.kinova_gen2.lock import lock_warning
-from ahrm_stack.hardware.kinova_gen2.sdk import (ERROR_LOAD_COMM_DLL, ERROR_NO_DEVICE_FOUND, ROBOT_TYPES,
-                                                 AngularInfo, AngularPosition, QuickStatus, Sdk, SdkCallError,
-                                                 SensorsInfo, actuators, position_point, velocity_point)
+from ahrm_stack.hardware.kinova_gen2.sdk import (ERROR_LOAD_COMM_DLL, ERROR_NO_DEVICE_FOUND, AngularInfo,
+                                                 AngularPosition, QuickStatus, Sdk, SdkCallError, SensorsInfo,
+                                                 actuators, position_point, velocity_point)
 from ahrm_stack.hardware.kinova_gen2.settings import (DOCS, Gen2ConfigError, Gen2Settings, JointConvention,
-                                           check_library, joint_convention, setting_key,
+                                           check_library, joint_convention, robot_type_refusal, setting_key,
                                            kinova_positions, kinova_velocities, model_positions,
                                            model_velocities)
 from ahrm_stack.hardware.protocol import (ArmFaultError, ArmState, ConnectionLostError, Fault, Feedback,
@@ -165,7 +165,10 @@ class KinovaGen2Arm(Gen2Faults):
                 raise HardwareError(f"no Kinova arm with serial {self._serial!r} (found: "
                                     f"{serials or 'none'}); set deploy.kinova_gen2.serial")
             sdk.call("SetActiveDevice", chosen[0])
-            self._check_robot_type(sdk)
+            status = QuickStatus()  # which kind of arm: refused before control starts if not the model's
+            sdk.call("GetQuickStatus", ctypes.byref(status))
+            if refusal := robot_type_refusal(int(status.RobotType), self._convention, self._serial, self._robot.name):
+                raise HardwareError(refusal)
             sdk.call("StartControlAPI")
             self._control_started = True
             sdk.call("StopControlAPI")  # the cold-boot kick (kinova-ros kinova_comm.cpp)
@@ -204,20 +207,6 @@ class KinovaGen2Arm(Gen2Faults):
         log.info("kinova_gen2: connected to the arm with serial %s (%s Hz points, %s Hz status, "
                  "watchdog %.0f ms; communication layer: %s)", self._serial,
                  f"{settings.send_rate_hz:g}", f"{settings.status_rate_hz:g}", self._timeout * 1e3, comm)
-
-    def _check_robot_type(self, sdk: Sdk) -> None:
-        """Refuse (HardwareError, one line) an arm whose ``QuickStatus.RobotType`` is not one of
-        ``joints.<arm>.robot_types``: before control starts, nothing moved."""
-        status = QuickStatus()
-        sdk.call("GetQuickStatus", ctypes.byref(status))
-        found = ROBOT_TYPES.get(int(status.RobotType), f"an unknown type ({int(status.RobotType)})")
-        wanted = self._convention.robot_types
-        if found not in wanted:
-            raise HardwareError(
-                f"the Kinova arm {self._serial} is a {found}; the policy and its collision model are "
-                f"{self._robot.name} ({' or '.join(wanted)}): refusing to drive it "
-                f"({setting_key('joints.' + self._robot.name + '.robot_types')})")
-        log.info("kinova_gen2: the arm %s is a %s", self._serial, found)
 
     def _init_failure(self, error: SdkCallError) -> str:
         """One line for a failed ``InitAPI``: what the code means here and what to check."""

@@ -85,13 +85,6 @@ class QuickStatus(ctypes.Structure):
         "ForceControlStatus", "CurrentLimitationStatus", "RobotType", "RobotEdition", "TorqueSensorsStatus")]
 
 
-#: ROBOT_TYPE (KinovaTypes.h; values as the vendored binary's DWARF gives them): ``QuickStatus.RobotType``.
-ROBOT_TYPES: dict[int, str] = {
-    0: "JACOV1_ASSISTIVE", 1: "MICO_6DOF_SERVICE", 2: "MICO_4DOF_SERVICE", 3: "JACOV2_6DOF_SERVICE",
-    4: "JACOV2_4DOF_SERVICE", 5: "MICO_6DOF_ASSISTIVE", 6: "JACOV2_6DOF_ASSISTIVE",
-    7: "SPHERICAL_6DOF_SERVICE", 8: "SPHERICAL_7DOF_SERVICE", 254: "GENERIC_ROBOT", 255: "ROBOT_ERROR"}
-
-
 class AngularInfo(ctypes.Structure):
     _fields_ = [(f"Actuator{i}", ctypes.c_float) for i in range(1, 8)]
 

@@ -83,9 +83,14 @@ class HomeSettings(Section):
     # the final move's joint-space path
 
 
+#: ROBOT_TYPE (KinovaTypes.h; values as the vendored binary's DWARF gives them): ``QuickStatus.RobotType``.
+ROBOT_TYPES: dict[int, str] = {
+    0: "JACOV1_ASSISTIVE", 1: "MICO_6DOF_SERVICE", 2: "MICO_4DOF_SERVICE", 3: "JACOV2_6DOF_SERVICE",
+    4: "JACOV2_4DOF_SERVICE", 5: "MICO_6DOF_ASSISTIVE", 6: "JACOV2_6DOF_ASSISTIVE",
+    7: "SPHERICAL_6DOF_SERVICE", 8: "SPHERICAL_7DOF_SERVICE", 254: "GENERIC_ROBOT", 255: "ROBOT_ERROR"}
 RobotType = Literal["JACOV1_ASSISTIVE", "MICO_6DOF_SERVICE", "MICO_4DOF_SERVICE", "JACOV2_6DOF_SERVICE",
                     "JACOV2_4DOF_SERVICE", "MICO_6DOF_ASSISTIVE", "JACOV2_6DOF_ASSISTIVE",
-                    "SPHERICAL_6DOF_SERVICE", "SPHERICAL_7DOF_SERVICE", "GENERIC_ROBOT"]  # sdk.ROBOT_TYPES
+                    "SPHERICAL_6DOF_SERVICE", "SPHERICAL_7DOF_SERVICE", "GENERIC_ROBOT"]  # of ROBOT_TYPES
 
 
 @dataclasses.dataclass(frozen=True)
@@ -181,6 +186,17 @@ def joint_convention(settings: Gen2Settings, robot: RobotDescription) -> JointCo
         raise Gen2ConfigError(f"{setting_key('joints.' + robot.name)} has {len(convention.sign)} joints; "
                               f"{robot.name} has {robot.num_joints}")
     return convention
+
+
+def robot_type_refusal(code: int, convention: JointConvention, serial: str, model: str) -> str | None:
+    """Why an arm whose ``QuickStatus.RobotType`` is ``code`` must not be driven as ``model``
+    (one line), or None when it is one of ``joints.<model>.robot_types``."""
+    found = ROBOT_TYPES.get(code, f"an unknown type ({code})")
+    if found in convention.robot_types:
+        return None
+    return (f"the Kinova arm {serial} is a {found}; the policy and its collision model are {model} "
+            f"({' or '.join(convention.robot_types)}): refusing to drive it "
+            f"({setting_key('joints.' + model + '.robot_types')})")
 
 
 # ---------------------------------------------------------------------------------------------
