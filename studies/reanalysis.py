@@ -158,6 +158,53 @@ def default_policy(suites: Sequence[Path] = DEFAULT_SUITES) -> dict:
     return out
 
 
+CLONES = ROOT / "docs" / "reanalysis"  # clone-seed<N>/suite-clone-test/<family>/evaluation.csv
+
+
+def _times(path: Path) -> np.ndarray:
+    """Time to success per episode (s; NaN where not won)."""
+    with open(path, newline="") as handle:
+        return np.array([float(r["time_to_success"]) if r["success"] == "True" else np.nan
+                         for r in csv.DictReader(handle)])
+
+
+def ppo_over_clone(clones: Path = CLONES, policies: Path = POLICIES) -> dict:
+    """Each default seed whose clone has been read on the test suite: the policy (after PPO) against
+    its own clone (before any PPO update) on the same 800 episodes, the test episode as the unit:
+    success and touching differences with the exact sign test, and the mean time ratio on episodes
+    both won; then pooled over those seeds (each episode's mean over seeds, two-way bootstrap)."""
+    seeds = [s for s in DEFAULT_SEEDS if (clones / f"clone-seed{s}" / "suite-clone-test" / "suite.json").is_file()]
+    out: dict = {"seeds": seeds, "per_seed": {}}
+    if not seeds:
+        return out
+    families = sorted(p.name for p in (policies / "ahrm-default-seed0" / "suite-test").iterdir() if p.is_dir())
+    stacks: dict[str, list[np.ndarray]] = {"policy_s": [], "clone_s": [], "policy_t": [], "clone_t": []}
+    for seed in seeds:
+        mine = [policies / f"ahrm-default-seed{seed}" / "suite-test" / f / "evaluation.csv" for f in families]
+        theirs = [clones / f"clone-seed{seed}" / "suite-clone-test" / f / "evaluation.csv" for f in families]
+        ps, pt = (np.concatenate(x) for x in zip(*[_episodes(p) for p in mine]))
+        cs, ct = (np.concatenate(x) for x in zip(*[_episodes(p) for p in theirs]))
+        ptime, ctime = np.concatenate([_times(p) for p in mine]), np.concatenate([_times(p) for p in theirs])
+        both = ~np.isnan(ptime) & ~np.isnan(ctime)
+        out["per_seed"][seed] = {
+            "policy_successes": int(ps.sum()), "clone_successes": int(cs.sum()),
+            "policy_touching": int(pt.sum()), "clone_touching": int(ct.sum()), "episodes": int(ps.size),
+            "success_sign": _sign_test(ps, cs), "touching_sign": _sign_test(pt, ct),
+            "time_ratio": float(np.mean(ptime[both] / ctime[both])), "both_won": int(both.sum())}
+        for key, value in (("policy_s", ps), ("clone_s", cs), ("policy_t", pt), ("clone_t", ct)):
+            stacks[key].append(value)
+    rng = np.random.default_rng(BOOTSTRAP_SEED)
+    arrays = {k: np.array(v) for k, v in stacks.items()}
+    for what, a, b in (("success", arrays["policy_s"], arrays["clone_s"]),
+                       ("touching", arrays["policy_t"], arrays["clone_t"])):
+        # paired by seed: resample seeds jointly for both sides, and the episodes
+        diffs = a - b
+        out[what] = {"policy_minus_clone": float(diffs.mean()),
+                     "interval": _two_way_bootstrap(diffs, None, rng),
+                     "sign_test": _sign_test(a.mean(axis=0), b.mean(axis=0))}
+    return out
+
+
 def _pct(x: float) -> str:
     return f"{100 * x:.1f} %"
 
@@ -205,6 +252,26 @@ def tables(data: dict) -> str:
             episode = f"{100 * x['episode_reference_minus_this']:+.1f} pp ({100 * iv[0]:+.1f}, {100 * iv[1]:+.1f})"
             signs = f"{sign['above']} / {sign['below']}, p = {sign['p']:.2g}"
             lines.append(f"| {m} | {what} | {seed} | {episode} | {signs} |")
+    c = data.get("ppo_over_clone", {"seeds": []})
+    if c["seeds"]:
+        lines += ["", "## PPO's part: each default seed against its own clone (the policy before any PPO update)",
+                  "", f"Seeds whose clone has been read on the test suite: {', '.join(map(str, c['seeds']))} "
+                  "(tools/reanalysis_rows.sh; the clone retrained by this code from the seed's committed config). "
+                  "Sign tests: episodes the policy won (touched) and its clone did not / the reverse.", "",
+                  "| seed | policy successes | clone successes | sign test (p) | policy touching | clone touching | "
+                  "sign test (p) | time policy / clone (both won) |", "|---|---|---|---|---|---|---|---|"]
+        for seed, r in c["per_seed"].items():
+            ss, ts = r["success_sign"], r["touching_sign"]
+            n = r["episodes"]
+            lines.append(f"| {seed} | {r['policy_successes']}/{n} | {r['clone_successes']}/{n} | "
+                         f"{ss['above']} / {ss['below']} ({ss['p']:.2g}) | {r['policy_touching']} | "
+                         f"{r['clone_touching']} | {ts['above']} / {ts['below']} ({ts['p']:.2g}) | "
+                         f"{r['time_ratio']:.3f} ({r['both_won']}) |")
+        for what in ("success", "touching"):
+            x = c[what]
+            iv = x["interval"]
+            lines.append(f"\nPooled over those seeds, {what}: policy − clone {100 * x['policy_minus_clone']:+.2f} pp "
+                         f"[{100 * iv[0]:+.2f}, {100 * iv[1]:+.2f}] (two-way bootstrap, seeds and episodes).")
     s, t = d["success"], d["touching"]
     lines += ["", "## The default policy against its teacher, the test episode as the unit",
               "",
@@ -231,7 +298,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--page", default=str(PAGE), help="the page whose marked block gets the tables")
     args = parser.parse_args(argv)
     out, page = Path(args.out), Path(args.page)
-    data = {"experiment": experiment(), "default_policy": default_policy()}
+    data = {"experiment": experiment(), "default_policy": default_policy(), "ppo_over_clone": ppo_over_clone()}
     out.mkdir(parents=True, exist_ok=True)
     (out / "data.json").write_text(json.dumps(data, indent=1) + "\n")
     page.write_text(render(page.read_text(), data))

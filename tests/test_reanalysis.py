@@ -14,7 +14,8 @@ _spec.loader.exec_module(reanalysis)
 
 
 def test_the_committed_page_and_data_are_what_the_committed_files_give():
-    data = {"experiment": reanalysis.experiment(), "default_policy": reanalysis.default_policy()}
+    data = {"experiment": reanalysis.experiment(), "default_policy": reanalysis.default_policy(),
+            "ppo_over_clone": reanalysis.ppo_over_clone()}
     committed = json.loads((ROOT / "docs" / "reanalysis" / "data.json").read_text())
     assert json.loads(json.dumps(data)) == committed
     page = reanalysis.PAGE.read_text()
