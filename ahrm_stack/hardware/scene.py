@@ -27,7 +27,8 @@ from typing import Annotated, Any, Protocol, Sequence, TypeVar
 import numpy as np
 
 from ahrm_stack.schema import Float, Section, read_yaml, unit_quaternion, validate
-from ahrm_stack.hardware.protocol import ArmAdapter, Fault, Feedback, ObjectPoses, ServoingMode, WallClock
+from ahrm_stack.hardware.protocol import ArmAdapter, ObjectPoses
+from ahrm_stack.hardware.wrapper import ArmWrapper
 
 
 #: how far from 1 a layout quaternion's norm may be (it is then normalised): rounding in a
@@ -106,74 +107,13 @@ class StaticScene:
                            obstacle_velocities=np.zeros((k, 3)))
 
 
-class PerceivedArm(ArmAdapter):
+class PerceivedArm(ArmWrapper):
     """``arm`` with a scene source: every protocol call goes to ``arm``; :meth:`perception` asks
     ``scene`` (anything with ``poses(timestamp) -> ObjectPoses``) on the arm's clock."""
 
     def __init__(self, arm: ArmAdapter, scene) -> None:
-        self.arm, self.scene = arm, scene
+        super().__init__(arm)
+        self.scene = scene
 
     def perception(self) -> ObjectPoses:
         return self.scene.poses(self.arm.clock.now())
-
-    def __getattr__(self, name: str):  # inspection attributes of the wrapped backend
-        if name == "arm":
-            raise AttributeError(name)
-        return getattr(self.arm, name)
-
-    @property
-    def joint_names(self) -> tuple[str, ...]:
-        return self.arm.joint_names
-
-    @property
-    def velocity_limit(self) -> np.ndarray:
-        return self.arm.velocity_limit
-
-    @property
-    def clock(self) -> WallClock:
-        return self.arm.clock
-
-    @property
-    def is_connected(self) -> bool:
-        return self.arm.is_connected
-
-    def connect(self) -> None:
-        self.arm.connect()
-
-    def disconnect(self) -> None:
-        self.arm.disconnect()
-
-    def refresh_feedback(self) -> Feedback:
-        return self.arm.refresh_feedback()
-
-    def send_joint_speeds(self, speeds: np.ndarray) -> np.ndarray:
-        return self.arm.send_joint_speeds(speeds)  # the wrapped backend's gate, once
-
-    # the gate's hooks: the wrapped backend's (its gate runs them; see send_joint_speeds)
-    def _require(self):
-        return self.arm._require()
-
-    def _fault_state(self) -> tuple[Fault, str]:
-        return self.arm._fault_state()
-
-    def _add_fault(self, flag: Fault, reason: str) -> None:
-        self.arm._add_fault(flag, reason)
-
-    def _send(self, command: np.ndarray) -> np.ndarray:
-        return self.arm._send(command)
-
-    def stop(self) -> None:
-        self.arm.stop()
-
-    def apply_emergency_stop(self) -> None:
-        self.arm.apply_emergency_stop()
-
-    def clear_faults(self) -> None:
-        self.arm.clear_faults()
-
-    @property
-    def servoing_mode(self) -> ServoingMode:
-        return self.arm.servoing_mode
-
-    def set_servoing_mode(self, mode: ServoingMode) -> None:
-        self.arm.set_servoing_mode(mode)
