@@ -18,15 +18,17 @@ _CHECKOUT_CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 PACKAGED_CONFIGS = Path(__file__).resolve().parent / "_data" / "configs"
 
 
+IN_CHECKOUT = _CHECKOUT_CONFIGS.is_dir()  # the package runs from a repository checkout
+
+
 def config_dir() -> Path:
     """The config folder: ``$AHRM_CONFIG_DIR``, else the checkout's ``configs/``, else the
     packaged copy."""
     override = os.environ.get(CONFIG_ENV)
     if override:
         return Path(override).resolve()
-    return _CHECKOUT_CONFIGS if _CHECKOUT_CONFIGS.is_dir() else PACKAGED_CONFIGS
+    return _CHECKOUT_CONFIGS if IN_CHECKOUT else PACKAGED_CONFIGS
 
 
 CONFIG_DIR = config_dir()
-IN_CHECKOUT = _CHECKOUT_CONFIGS.is_dir()  # the package runs from a repository checkout
 PROJECT_ROOT = _CHECKOUT_CONFIGS.parent if IN_CHECKOUT else Path.cwd()  # relative paths of configs resolve here

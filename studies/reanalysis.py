@@ -53,12 +53,19 @@ PAGE = ROOT / "docs" / "reanalysis.md"
 BEGIN, END = "<!-- reanalysis tables begin -->", "<!-- reanalysis tables end -->"
 
 
-def _episodes(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """(success, touched) per episode of an ``evaluation.csv``, as 0/1 arrays in episode order."""
+def _columns(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(success, touched, time to success) per episode of an ``evaluation.csv``: 0/1 arrays and s
+    (NaN where not won), in episode order."""
     with open(path, newline="") as handle:
         rows = list(csv.DictReader(handle))
-    return (np.array([r["success"] == "True" for r in rows], dtype=float),
-            np.array([int(r["touched_steps"]) > 0 for r in rows], dtype=float))
+    won = np.array([r["success"] == "True" for r in rows], dtype=float)
+    return (won, np.array([int(r["touched_steps"]) > 0 for r in rows], dtype=float),
+            np.array([float(r["time_to_success"]) if w else np.nan for r, w in zip(rows, won)]))
+
+
+def _episodes(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(success, touched) per episode of an ``evaluation.csv``, as 0/1 arrays in episode order."""
+    return _columns(path)[:2]
 
 
 def _exact_interval(k: int, n: int) -> list[float]:
@@ -161,13 +168,6 @@ def default_policy(suites: Sequence[Path] = DEFAULT_SUITES) -> dict:
 CLONES = ROOT / "docs" / "reanalysis"  # clone-seed<N>/suite-clone-test/<family>/evaluation.csv
 
 
-def _times(path: Path) -> np.ndarray:
-    """Time to success per episode (s; NaN where not won)."""
-    with open(path, newline="") as handle:
-        return np.array([float(r["time_to_success"]) if r["success"] == "True" else np.nan
-                         for r in csv.DictReader(handle)])
-
-
 def ppo_over_clone(clones: Path = CLONES, policies: Path = POLICIES) -> dict:
     """Each default seed whose clone has been read on the test suite: the policy (after PPO) against
     its own clone (before any PPO update) on the same 800 episodes, the test episode as the unit:
@@ -182,9 +182,8 @@ def ppo_over_clone(clones: Path = CLONES, policies: Path = POLICIES) -> dict:
     for seed in seeds:
         mine = [policies / f"ahrm-default-seed{seed}" / "suite-test" / f / "evaluation.csv" for f in families]
         theirs = [clones / f"clone-seed{seed}" / "suite-clone-test" / f / "evaluation.csv" for f in families]
-        ps, pt = (np.concatenate(x) for x in zip(*[_episodes(p) for p in mine]))
-        cs, ct = (np.concatenate(x) for x in zip(*[_episodes(p) for p in theirs]))
-        ptime, ctime = np.concatenate([_times(p) for p in mine]), np.concatenate([_times(p) for p in theirs])
+        ps, pt, ptime = (np.concatenate(x) for x in zip(*[_columns(p) for p in mine]))
+        cs, ct, ctime = (np.concatenate(x) for x in zip(*[_columns(p) for p in theirs]))
         both = ~np.isnan(ptime) & ~np.isnan(ctime)
         out["per_seed"][seed] = {
             "policy_successes": int(ps.sum()), "clone_successes": int(cs.sum()),
