@@ -25,6 +25,7 @@ from ahrm_stack.config import load_config  # noqa: E402
 REALTIME_FILES = frozenset({
     "test_camera_video.py", "test_hardware_contract.py", "test_kinova_gen2.py",
     "test_kinova_gen2_check.py", "test_kinova_gen2_deploy.py", "test_kinova_gen2_estop.py",
+    "test_kinova_gen2_move_home.py",
     "test_kortex_backend.py", "test_kortex_link.py",
 })
 # and the brief runs of the benchmarks that pace threads or processes by the wall clock

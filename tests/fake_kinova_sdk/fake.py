@@ -40,7 +40,8 @@ FUNCTIONS = ("InitAPI", "CloseAPI", "GetDevices", "SetActiveDevice", "StartContr
              "StopControlAPI", "SetAngularControl", "SendAdvanceTrajectory",
              "EraseAllTrajectories", "GetAngularPosition", "GetAngularVelocity", "GetAngularForce",
              "GetSensorsInfo", "GetSystemErrorCount", "GetSystemError", "RefresDevicesList",
-             "GetAPIVersion", "MoveHome", "GetQuickStatus")
+             "GetAPIVersion", "MoveHome", "GetQuickStatus", "GetGlobalTrajectoryInfo",
+             "SetCartesianControl")
 
 
 class CompilerMissing(RuntimeError):
@@ -220,6 +221,11 @@ class FakeSdk:
     @property
     def control_on(self) -> bool:
         return bool(self.lib.FakeKinova_ControlOn())
+
+    @property
+    def angular(self) -> bool:
+        """In angular control (SetAngularControl); False in Cartesian control (MoveHome ends there)."""
+        return bool(self.lib.FakeKinova_Angular())
 
     @property
     def initialized(self) -> bool:

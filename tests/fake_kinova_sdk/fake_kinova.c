@@ -39,6 +39,15 @@
  *   the next point starts when it arrives. MoveHome replaces the FIFO by one such move to the
  *   factory home (kinova-ros's j2n6s300 "Home", FakeKinova_SetHome to change) at the firmware's
  *   speed. EraseAllTrajectories stops either (assumed: Kinova documents neither).
+ * - MoveHome blocks, as Kinova's binary does (disassembled; tests/test_kinova_gen2_move_home.py
+ *   checks the vendored binary's instructions against this): it sends the home move (one packet),
+ *   sleeps 40 ms, then reads GetGlobalTrajectoryInfo every 100 ms until the FIFO holds no point,
+ *   then SetAngularControl, 40 ms, SetCartesianControl, and returns the home packet's code. So it
+ *   returns only when the arm is home, or when something empties the FIFO (EraseAllTrajectories from
+ *   another thread: each call holds the bus for one round trip, as the SDK's per-packet semaphore
+ *   does), and leaves the arm in Cartesian control, where ANGULAR points are ignored here (assumed)
+ *   until SetAngularControl. With the e-stop pressed the home move stays queued and MoveHome keeps
+ *   polling. The log records MoveHome when its packet is sent.
  * - A runaway (FakeKinova_SetDrift): the joints move by themselves at a set speed whatever they are
  *   sent; only the e-stop stops them.
  * - Noisy velocity feedback. GetAngularVelocity reports the true velocity plus Gaussian noise
@@ -107,6 +116,7 @@ typedef struct { int Type; float Delay; CartesianInfo CartesianPosition; Angular
                  int HandMode; FingersPosition Fingers; } UserPosition;
 typedef struct { UserPosition Position; int LimitationsActive; int SynchroType;
                  Limitation Limitations; } TrajectoryPoint;
+typedef struct { unsigned int TrajectoryCount; float UsedPercentage; unsigned int MaxSize; } TrajectoryFIFO;
 typedef struct { float Voltage, Current, AccelerationX, AccelerationY, AccelerationZ,
                  ActuatorTemp1, ActuatorTemp2, ActuatorTemp3, ActuatorTemp4, ActuatorTemp5,
                  ActuatorTemp6, ActuatorTemp7, FingerTemp1, FingerTemp2, FingerTemp3; } SensorsInfo;
@@ -120,7 +130,8 @@ enum { errorlog_voltage = 9 };
 /* ---- the call log ---- */
 enum { F_INIT = 1, F_CLOSE, F_GET_DEVICES, F_SET_ACTIVE, F_START_CONTROL, F_STOP_CONTROL,
        F_SET_ANGULAR, F_SEND_TRAJ, F_ERASE, F_GET_POS, F_GET_VEL, F_GET_FORCE, F_GET_SENSORS,
-       F_GET_ERR_COUNT, F_GET_ERR, F_REFRESH, F_GET_API_VERSION, F_MOVE_HOME, F_GET_QUICK_STATUS };
+       F_GET_ERR_COUNT, F_GET_ERR, F_REFRESH, F_GET_API_VERSION, F_MOVE_HOME, F_GET_QUICK_STATUS,
+       F_GET_GLOBAL_TRAJ, F_SET_CARTESIAN };
 
 typedef struct { double t; int function; int result; int type; float values[7]; double start; } FakeCall;
 
@@ -447,9 +458,9 @@ int SendAdvanceTrajectory(TrajectoryPoint point) {
     LEAVE(F_SEND_TRAJ, result, point.Position.Type, v);
 }
 
-/* The factory home, as the joystick's home button: the FIFO is replaced by one move to home_q at
- * home_speed (pessimistic where undocumented: EraseAllTrajectories stops it, as any point). */
-int MoveHome(void) {
+/* The home packet: the FIFO is replaced by one move to home_q at home_speed (pessimistic where
+ * undocumented: EraseAllTrajectories stops it, as any point). */
+static int home_packet(void) {
     ENTER;
     int result = COMMAND;
     if (ARM && control_on && !estop) {
@@ -459,6 +470,46 @@ int MoveHome(void) {
         push_point(ANGULAR_POSITION, home_q, speed, t_);
     }
     LEAVE(F_MOVE_HOME, result, 0, home_q);
+}
+
+int GetGlobalTrajectoryInfo(TrajectoryFIFO *response) {
+    ENTER;
+    memset(response, 0, sizeof(*response));
+    int result = GETTER(ERROR_API_NOT_INITIALIZED);
+    if (result == NO_ERROR_KINOVA) {
+        response->TrajectoryCount = (unsigned int)fifo_count;
+        response->UsedPercentage = (float)(100.0 * fifo_count / FIFO_SIZE);
+        response->MaxSize = FIFO_SIZE;
+    }
+    LEAVE(F_GET_GLOBAL_TRAJ, result, fifo_count, NULL);
+}
+
+int SetCartesianControl(void) {
+    ENTER; int result = COMMAND; if (ARM) angular = false;
+    LEAVE(F_SET_CARTESIAN, result, 0, NULL);
+}
+
+static void sleep_s(double seconds) {
+    struct timespec ts = { (time_t)seconds, (long)((seconds - (double)(time_t)seconds) * 1e9) };
+    while (nanosleep(&ts, &ts) != 0) {}
+}
+
+/* The factory home, as the joystick's home button, and as the vendored binary runs it (see the
+ * header): the packet, 40 ms, then the FIFO polled every 100 ms until empty; then angular control,
+ * 40 ms, Cartesian control. A failed read leaves the count 0 here (the binary's is not known). */
+int MoveHome(void) {
+    int result = home_packet();
+    TrajectoryFIFO info;
+    sleep_s(0.040);
+    GetGlobalTrajectoryInfo(&info);
+    while (info.TrajectoryCount != 0) {
+        GetGlobalTrajectoryInfo(&info);
+        sleep_s(0.100);
+    }
+    SetAngularControl();
+    sleep_s(0.040);
+    SetCartesianControl();
+    return result;
 }
 
 int GetQuickStatus(QuickStatus *response) {
@@ -698,6 +749,11 @@ int FakeKinova_ControlOn(void) {
     pthread_mutex_lock(&lock); int on = control_on; pthread_mutex_unlock(&lock); return on;
 }
 
+/* 1 in angular control (SetAngularControl), 0 in Cartesian control (SetCartesianControl, MoveHome's end). */
+int FakeKinova_Angular(void) {
+    pthread_mutex_lock(&lock); int on = angular; pthread_mutex_unlock(&lock); return on;
+}
+
 int FakeKinova_Initialized(void) {
     pthread_mutex_lock(&lock); int on = sdk_state != CLOSED; pthread_mutex_unlock(&lock); return on;
 }
@@ -711,6 +767,7 @@ long FakeKinova_Sizeof(int which) {
         case 3: return (long)sizeof(SensorsInfo);
         case 4: return (long)sizeof(SystemError);
         case 5: return (long)sizeof(UserPosition);
+        case 6: return (long)sizeof(TrajectoryFIFO);
         default: return -1;
     }
 }

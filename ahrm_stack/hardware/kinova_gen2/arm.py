@@ -1,7 +1,7 @@
 """The Gen2 adapter, :class:`KinovaGen2Arm`: the session (connect, disconnect, a lost link), the
-feedback, the commands, the faults (the status poll's steps, run on the USB thread) and the homing
-moves. The design (one USB thread, the points, the watchdog, the faults) is the package's
-docstring, :mod:`ahrm_stack.hardware.kinova_gen2`.
+feedback, the commands and the faults (the status poll's steps, run on the USB thread); the homing
+moves are :mod:`~ahrm_stack.hardware.kinova_gen2.moves`'s. The design (one USB thread, the points,
+the watchdog, the faults) is the package's docstring, :mod:`ahrm_stack.hardware.kinova_gen2`.
 """
 
 from __future__ import annotations
@@ -22,14 +22,15 @@ import numpy as np
 
 from ahrm_stack.hardware.kinova_gen2.bus import (BusClosedError, BusHeldError, CallTimes, UsbBus, WatchdogStop,
                                       is_link_error)
-from ahrm_stack.hardware.kinova_gen2.faults import FaultStop, Gen2Faults
+from ahrm_stack.hardware.kinova_gen2.faults import FaultStop
 from ahrm_stack.hardware.kinova_gen2.lock import lock_warning
+from ahrm_stack.hardware.kinova_gen2.moves import Gen2Moves
 from ahrm_stack.hardware.kinova_gen2.sdk import (ERROR_LOAD_COMM_DLL, ERROR_NO_DEVICE_FOUND, AngularInfo,
                                                  AngularPosition, QuickStatus, Sdk, SdkCallError, SensorsInfo,
-                                                 actuators, position_point, velocity_point)
+                                                 actuators, velocity_point)
 from ahrm_stack.hardware.kinova_gen2.settings import (DOCS, Gen2ConfigError, Gen2Settings, JointConvention,
                                            check_library, joint_convention, robot_type_refusal, setting_key,
-                                           kinova_positions, kinova_velocities, model_positions,
+                                           kinova_velocities, model_positions,
                                            model_velocities)
 from ahrm_stack.hardware.protocol import (ArmFaultError, ArmState, ConnectionLostError, Fault, Feedback,
                                HardwareError, NotConnectedError, ServoingMode, WallClock,
@@ -53,7 +54,7 @@ def _disconnect_all() -> None:  # pragma: no cover - runs at interpreter exit
             pass
 
 
-class KinovaGen2Arm(Gen2Faults):
+class KinovaGen2Arm(Gen2Moves):
     """A Kinova Gen2 arm (JACO2) over the C SDK, every call through one USB thread
     (:class:`~ahrm_stack.hardware.kinova_gen2.bus.UsbBus`: the 100 Hz points, the command watchdog, the status
     poll; see the module docstring).
@@ -223,16 +224,18 @@ class KinovaGen2Arm(Gen2Faults):
     def _close_sdk(self) -> None:
         """Leave the arm stopped and the API closed, calling only what is valid after what
         succeeded: zero velocity, erase the FIFO and StopControlAPI once StartControlAPI has
-        succeeded; CloseAPI once InitAPI was called. Each best effort. Only with the USB thread
-        ended (this thread then owns the USB)."""
+        succeeded; CloseAPI once InitAPI was called and a MoveHome has returned. Each best effort.
+        Only with the USB thread ended (this thread then owns the USB)."""
         sdk = self._sdk
         if sdk is None:
             return
         if self._control_started:
             sdk.call_quietly("SendAdvanceTrajectory", velocity_point(np.zeros(self.num_joints)))
             sdk.call_quietly("EraseAllTrajectories")
+        returned = self._move_home_returned()  # a MoveHome running ends once its FIFO is empty
+        if self._control_started:
             sdk.call_quietly("StopControlAPI")
-        if self._api_open:
+        if self._api_open and returned:
             sdk.call_quietly("CloseAPI")
         self._control_started = self._api_open = False
 
@@ -404,45 +407,6 @@ class KinovaGen2Arm(Gen2Faults):
         bus.drop()
         self._on_bus(clear)
         log.info("kinova_gen2: faults cleared on %s", self._serial)
-
-    # ------------------------------------------------------------------ homing (--home)
-    def _position_move(self, job) -> np.ndarray:
-        """Stop any velocity command, then ``job(sdk)`` (one position move) on the USB thread, in
-        angular control with an empty FIFO; refused in fault (:class:`ArmFaultError`)."""
-        self._refuse_in_fault()
-        self._halt()
-
-        def move(sdk: Sdk) -> np.ndarray:
-            sdk.call("SetAngularControl")
-            sdk.call("EraseAllTrajectories")
-            return job(sdk)
-
-        return self._on_bus(move)
-
-    def move_home(self) -> None:
-        """``MoveHome``: the firmware moves the arm to its factory home at its own speed (as the
-        joystick's home button; kinova-ros's homeArm). Returns at once; :meth:`stop` stops it."""
-        self._position_move(lambda sdk: sdk.call("MoveHome"))
-        log.warning("kinova_gen2: MoveHome sent to %s (the firmware's factory home)", self._serial)
-
-    def move_to(self, q: np.ndarray, speed_deg_s: float) -> np.ndarray:
-        """One ANGULAR_POSITION point to the model posture ``q`` (rad), every joint at most
-        ``speed_deg_s`` deg/s, the joints arriving together; a continuous joint goes the short way
-        round from where it is (its Kinova angle within 180 deg of the present one). Returns the
-        target sent (Kinova's deg); :meth:`stop` stops the move."""
-        target = kinova_positions(np.asarray(q, dtype=float), self._convention)
-        continuous = ~self._robot.limited
-
-        def send(sdk: Sdk) -> np.ndarray:
-            now, _ = self._read_position(sdk)
-            goal = np.where(continuous, now + (target - now + 180.0) % 360.0 - 180.0, target)
-            sdk.call("SendAdvanceTrajectory", position_point(goal, speed_deg_s))
-            return goal
-
-        goal = self._position_move(send)
-        log.warning("kinova_gen2: position move of %s to %s deg at %g deg/s", self._serial,
-                    np.round(goal, 1).tolist(), speed_deg_s)
-        return goal
 
     def set_servoing_mode(self, mode: ServoingMode) -> None:
         """Gen2 has no Kortex servoing modes: single-level is angular control with joint velocity

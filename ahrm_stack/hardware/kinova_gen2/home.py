@@ -12,7 +12,10 @@ two stages:
 
 1. ``MoveHome`` (``kinova_gen2.home.factory_home_first``): the factory procedure, the way out of
    the retracted power-up posture (kinova-ros's README: "if the robot is not able to move after
-   boot, please try to home the arm"); it ends when the arm has been still for ``home.settle`` s;
+   boot, please try to home the arm"); it ends when the arm has been still for ``home.settle`` s.
+   Kinova's ``MoveHome`` blocks until the arm is home, so it runs on a thread of its own, never the
+   USB thread, and a stop ends it (:mod:`~ahrm_stack.hardware.kinova_gen2.moves`): the supervision
+   below reads, polls and stops during it as during stage 2;
 2. one ``ANGULAR_POSITION`` trajectory point to the policy's start, every joint limited to
    ``home.speed_deg_s`` (``LimitationsActive``, ``speedParameter1``/``2``, as kinova-ros's
    ``setJointAngles``); the firmware moves the joints along a straight line in joint space.
@@ -247,6 +250,7 @@ class Homing:
             self.outcome.moved = True
             self.arm.move_home()
             self._watch("MoveHome", alarm, None)
+            self.arm.end_move_home()
             q_now = self.arm.refresh_feedback().position
             target = start_target(self.world, q_now)
             self._check_path(q_now, target)

@@ -146,7 +146,7 @@ SIGNATURES: dict[str, tuple] = {
     "GetAngularForce": (_P(AngularPosition),), "GetSensorsInfo": (_P(SensorsInfo),),
     "GetSystemErrorCount": (_P(ctypes.c_uint),),
     "GetSystemError": (ctypes.c_uint, _P(SystemError)),
-    "MoveHome": (),  # the factory home, as the joystick's home button (kinova-ros homeArm)
+    "MoveHome": (),  # the factory home, as the joystick's home button (kinova-ros homeArm); blocks
     "GetQuickStatus": (_P(QuickStatus),),  # its RobotType: which arm is connected (kinova-ros reads it too)
 }
 
@@ -188,6 +188,18 @@ class Sdk:
             function.restype = ctypes.c_int
         self.lock = threading.RLock()
         self.times = CallTimes()
+
+    def call_blocking(self, name: str, *args) -> int:
+        """:meth:`call` without the lock, for a function that blocks inside the SDK for seconds
+        (``MoveHome``: :mod:`~ahrm_stack.hardware.kinova_gen2.moves`) while other threads go on
+        calling: Kinova's library serialises its USB packets itself (a semaphore per packet). Its
+        duration is kept under its name only, not among the recent calls that estimate one call."""
+        start = time.perf_counter()
+        code = getattr(self.lib, name)(*args)
+        self.times.by_function[name].append(time.perf_counter() - start)
+        if code != NO_ERROR_KINOVA:
+            raise SdkCallError(name, code)
+        return code
 
     def call(self, name: str, *args) -> int:
         with self.lock:
