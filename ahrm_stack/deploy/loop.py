@@ -16,6 +16,7 @@ import numpy as np
 
 from ahrm_stack.deploy.judging import (ProgressWatchdog, SuccessJudge, TouchEstimator, confirm_success,
                                       first_line)
+from ahrm_stack.deploy.record import tick_record
 from ahrm_stack.deploy.safety_settings import require_filter
 from ahrm_stack.deploy.settings import DeploySettings, control_periods
 from ahrm_stack.deploy.start_check import StartPostureError, start_refusal
@@ -375,19 +376,14 @@ class DeployLoop:
                 self._halt(f"arm in fault: {error}", emergency=True)
             except ConnectionLostError:
                 self._halt("connection lost: the arm's own watchdog stops it", emergency=False)
-            latency = time.perf_counter() - received
+            latency, sent_at = time.perf_counter() - received, self.clock.now()
             self.latencies.append(latency)
             self._sent = sent
             self._deadline(tick_time, "sending the command")
             self._stage = "telemetry"
             self.world.record_command(sent)
-            self._write({
-                "t": round(elapsed, 6), "phase": int(info.phase), "x": round(float(info.x), 6),
-                "stage": self.controller.stage,
-                "u_nom": [round(float(v), 6) for v in u_nom],
-                "u": [round(float(v), 6) for v in sent], "active": list(result.active),
-                "status": result.status, "touched": self.touch.touched,
-                "latency_ms": round(latency * 1e3, 4)})
+            self._write(tick_record(elapsed, self._t0, info, self.controller.stage, feedback, poses, u_nom,
+                                    sent, sent_at, result, self.touch.touched, latency))
             return True
         except _Halt:
             return False

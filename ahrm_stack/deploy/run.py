@@ -14,6 +14,7 @@ from typing import Sequence
 
 from ahrm_stack.config import Config, ConfigError, load_config
 from ahrm_stack.deploy.loop import DeployFault, DeployLoop, DeploySummary
+from ahrm_stack.deploy.record import RunLog
 from ahrm_stack.deploy.safety_settings import SafetyNote, merge_safety, require_filter
 from ahrm_stack.deploy.session import DeploySession
 from ahrm_stack.deploy.settings import DeployConfigError, DeploySettings
@@ -75,15 +76,20 @@ def load_controller_config(checkpoint: Path | None, overrides: Sequence[str] = (
     return dataclasses.replace(config, safety=safety), actor
 
 
-def open_telemetry(path: str):
-    """The JSONL telemetry file opened for writing (its folder made), or None for ''; a path that
-    cannot be written is a one-line :class:`DeployConfigError`."""
+def open_telemetry(path: str, mcap: bool = False) -> RunLog | None:
+    """The run's log opened for writing (its folder made): the JSONL telemetry and, with ``mcap``,
+    its MCAP twin (:class:`~ahrm_stack.deploy.record.RunLog`); None for ''. A path that cannot be
+    written, or a telemetry path ending in .mcap (its twin's name), is a one-line
+    :class:`DeployConfigError`."""
     if not path:
         return None
     target = Path(path)
+    if mcap and target.suffix == ".mcap":
+        raise DeployConfigError(f"deploy.telemetry: {target} ends in .mcap, the name of its MCAP twin "
+                                "(deploy.record_mcap); name the JSONL telemetry .jsonl")
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
-        return target.open("w")
+        return RunLog(target, mcap)
     except OSError as error:
         raise DeployConfigError(f"deploy.telemetry: cannot write {target}: "
                                 f"{error.strerror or error}") from None
@@ -163,11 +169,11 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
         log.warning("deploy: the loop runs at %g Hz; the controller was built for %g Hz "
                     "(task.episode.control_period %g s)", settings.rate_hz, 1.0 / control_period,
                     control_period)
-    telemetry = open_telemetry(settings.telemetry)
+    telemetry = open_telemetry(settings.telemetry, settings.record_mcap)
     arm = source = scratch = None
     try:
         for note in notes if telemetry is not None else ():
-            telemetry.write(json.dumps({"t": 0.0, "event": "safety setting", "key": note.key,
+            telemetry.write(json.dumps({"t": 0.0, "event": "safety setting", "key": note.key,  # type: ignore[union-attr]
                                         "kind": note.kind, "reason": note.text}) + "\n")
         try:
             arm = chosen.make(config, settings)

@@ -143,6 +143,7 @@ class DeploySettings(Section):
     realtime: Bool
     seed: Annotated[Int, ge(0)]
     telemetry: Str  # path; '' for none
+    record_mcap: Bool  # the telemetry's records also in MCAP beside it (<telemetry>.mcap; deploy/record.py)
     watchdog: WatchdogSettings
     success: SuccessSettings
     touch: TouchSettings

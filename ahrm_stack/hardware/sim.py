@@ -174,6 +174,25 @@ class SimArm(DescribedArm):
         self._last = None
         self._begin_truth()
 
+    def set_state(self, q: np.ndarray, cube: np.ndarray, obstacles: np.ndarray) -> None:
+        """Sim only (a replay's start): the arm at joint angles ``q`` (rad), the cube at ``cube``
+        (position m and quaternion w x y z, world frame), obstacle i at ``obstacles[i]`` (the same
+        seven numbers), everything at rest and stopped; the physics clock restarts at the adapter
+        clock's now."""
+        data = self.physics.data
+        data.qpos[self._arm_qpos] = np.asarray(q, dtype=float)
+        data.qpos[self._cube_qpos] = np.asarray(cube, dtype=float)
+        for address, pose in zip(self._obstacle_qpos, np.asarray(obstacles, dtype=float)):
+            data.qpos[address] = pose
+        data.qvel[:] = 0.0
+        self.physics.forward()
+        self._queued.clear()
+        self._actual = np.zeros(self._robot.num_joints)
+        self._set_command(np.zeros(self._robot.num_joints))
+        self._start = self._clock.now() - data.time
+        self._last = None
+        self._begin_truth()
+
     # ------------------------------------------------------------------ fault injection
     def inject(self, fault: InjectedFault) -> None:
         """Arm ``fault`` for the next relevant call (see :class:`InjectedFault`)."""

@@ -1,0 +1,166 @@
+"""The record of a deploy run: the telemetry, one JSON line per tick and per event and the summary
+last (``deploy.telemetry``), and the same records in MCAP beside it (``<telemetry>.mcap``, when
+``deploy.record_mcap``), the log format robotics viewers open (Foxglove; the ``mcap`` CLI and
+library).
+
+**A tick's record** (:func:`tick_record`) holds what a replay or a dataset needs, all in the world
+frame and SI units, times in s from the run's start on the adapter's clock:
+
+* ``t`` the tick's time; ``feedback_t`` the feedback frame's stamp; ``q`` (rad), ``dq`` (rad/s),
+  ``tau`` (N·m): the joint state the loop read;
+* ``poses_t`` the perception's capture stamp; ``cube`` (position m, quaternion w x y z),
+  ``obstacles`` (one ``[x, y, z, w, qx, qy, qz]`` per obstacle): what it perceived;
+* ``u_nom`` (the controller's request) and ``u`` (the filter's command as the adapter took it,
+  rad/s; in a dry run, what would have been sent), ``sent_t`` when it was sent (the adapter's
+  clock: a ``--fast`` run's computation takes none of it), ``active`` and ``status`` of the filter,
+  ``phase``, ``x``, ``stage``, ``touched``, ``latency_ms``.
+
+**MCAP**: one channel per kind, ``/deploy/tick``, ``/deploy/event``, ``/deploy/summary``, JSON
+messages, each channel with a JSON Schema; a message's log time is the wall clock when the run log
+was opened plus the latest record time ``t`` so far (ns; never decreasing, so the file's order is
+the time order). :func:`read_run` reads either file back.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import time
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+log = logging.getLogger("ahrm_stack.deploy")
+
+CHANNELS = ("tick", "event", "summary")
+_SCHEMAS = {
+    "tick": {"type": "object", "title": "ahrm_stack deploy tick",
+             "properties": {name: {"type": "array", "items": {"type": "number"}}
+                            for name in ("q", "dq", "tau", "u_nom", "u", "cube")}},
+    "event": {"type": "object", "title": "ahrm_stack deploy event",
+              "properties": {"event": {"type": "string"}, "reason": {"type": "string"}}},
+    "summary": {"type": "object", "title": "ahrm_stack deploy summary",
+                "properties": {"summary": {"type": "object"}}},
+}
+
+
+def _round(values: Any, digits: int = 6) -> list[float]:
+    return [round(float(v), digits) for v in np.asarray(values, dtype=float).reshape(-1)]
+
+
+def tick_record(elapsed: float, t0: float, info: Any, stage: str, feedback: Any, poses: Any,
+                u_nom: np.ndarray, sent: np.ndarray, sent_at: float, result: Any, touched: bool,
+                latency: float) -> dict[str, Any]:
+    """One tick's telemetry line (see the module docstring): ``elapsed`` s since the run's start
+    ``t0`` (adapter clock, which also stamps ``feedback`` and ``poses`` and gave ``sent_at``, when
+    the command was sent)."""
+    obstacles = np.hstack([np.asarray(poses.obstacle_positions, dtype=float).reshape(-1, 3),
+                           np.asarray(poses.obstacle_quaternions, dtype=float).reshape(-1, 4)])
+    return {
+        "t": round(elapsed, 6), "phase": int(info.phase), "x": round(float(info.x), 6), "stage": stage,
+        "feedback_t": round(float(feedback.timestamp) - t0, 6), "q": _round(feedback.position),
+        "dq": _round(feedback.velocity), "tau": _round(feedback.torque, 4),
+        "poses_t": round(float(poses.timestamp) - t0, 6),
+        "cube": _round(np.hstack([poses.cube_position, poses.cube_quaternion])),
+        "obstacles": [_round(row) for row in obstacles],
+        "u_nom": _round(u_nom), "u": _round(sent), "sent_t": round(sent_at - t0, 6),
+        "active": list(result.active),
+        "status": result.status, "touched": touched, "latency_ms": round(latency * 1e3, 4)}
+
+
+def kind_of(record: dict[str, Any]) -> str:
+    """The channel of a telemetry record: ``summary``, ``event`` or ``tick``."""
+    return "summary" if "summary" in record else "event" if "event" in record else "tick"
+
+
+class RunLog:
+    """The run's telemetry file (JSON lines, written as given) and, with ``mcap``, the same records
+    in ``<path>.mcap`` (the suffix replaced). File-like: :meth:`write` takes one JSON line."""
+
+    def __init__(self, path: Path, mcap: bool) -> None:
+        self.path = Path(path)
+        self.mcap_path = self.path.with_suffix(".mcap") if mcap else None
+        self._file: IO[str] = self.path.open("w")
+        self._writer: Any = None
+        self._mcap_file: IO[bytes] | None = None
+        self._channels: dict[str, int] = {}
+        self._epoch_ns = time.time_ns()
+        self._last_t = 0.0  # s: the latest record time, the stamp of a record without one (the summary)
+        if self.mcap_path is not None:
+            from mcap.writer import Writer
+
+            self._mcap_file = self.mcap_path.open("wb")
+            self._writer = Writer(self._mcap_file)
+            self._writer.start(profile="", library="ahrm_stack deploy")
+            for kind in CHANNELS:
+                schema = self._writer.register_schema(name=f"ahrm_stack.deploy.{kind}", encoding="jsonschema",
+                                                      data=json.dumps(_SCHEMAS[kind]).encode())
+                self._channels[kind] = self._writer.register_channel(
+                    topic=f"/deploy/{kind}", message_encoding="json", schema_id=schema)
+
+    def write(self, line: str) -> None:
+        self._file.write(line)
+        if self._writer is None:
+            return
+        text = line.strip()
+        if not text:
+            return
+        record = json.loads(text)
+        if record.get("t") is not None:
+            self._last_t = max(self._last_t, float(record["t"]))
+        stamp = self._epoch_ns + int(round(self._last_t * 1e9))
+        self._writer.add_message(channel_id=self._channels[kind_of(record)], log_time=stamp,
+                                 publish_time=stamp, data=text.encode())
+
+    def flush(self) -> None:
+        self._file.flush()
+        if self._mcap_file is not None:
+            self._mcap_file.flush()
+
+    def close(self) -> None:
+        try:
+            self._file.close()
+        finally:
+            if self._writer is not None:
+                self._writer.finish()
+                self._writer = None
+            if self._mcap_file is not None:
+                self._mcap_file.close()
+
+
+@dataclasses.dataclass
+class RunRecord:
+    """A deploy run read back: its ``ticks``, ``events`` and ``summary`` (None if the run did not
+    end cleanly), in order."""
+
+    ticks: list[dict[str, Any]]
+    events: list[dict[str, Any]]
+    summary: dict[str, Any] | None
+
+
+def read_run(path: Path | str) -> RunRecord:
+    """A run's telemetry (``.jsonl``) or MCAP record (``.mcap``, read with the ``mcap`` library);
+    :class:`ValueError` (one line naming the file) when it is neither or is damaged."""
+    path = Path(path)
+    records: list[dict[str, Any]] = []
+    try:
+        if path.suffix == ".mcap":
+            from mcap.reader import make_reader
+
+            with path.open("rb") as stream:
+                for _, _, message in make_reader(stream).iter_messages(log_time_order=False):
+                    records.append(json.loads(message.data))
+        else:
+            with path.open() as stream:
+                records = [json.loads(line) for line in stream if line.strip()]
+    except OSError as error:
+        raise ValueError(f"{path}: cannot read ({error.strerror or error})") from None
+    except Exception as error:  # noqa: BLE001 - a damaged file, whatever the library raises
+        raise ValueError(f"{path}: not a deploy record ({type(error).__name__}: "
+                         f"{(str(error).splitlines() or [''])[0]})") from None
+    ticks = [r for r in records if kind_of(r) == "tick"]
+    events = [r for r in records if kind_of(r) == "event"]
+    summaries = [r["summary"] for r in records if kind_of(r) == "summary"]
+    return RunRecord(ticks, events, summaries[-1] if summaries else None)
