@@ -5,8 +5,8 @@ on the sim backend with a real arm's imperfections, one at a time and all togeth
                                     [--workers 2] [--out DIR]
     python -m ahrm_stack.robustness --render DIR     # robustness.md again from DIR/robustness.json
 
-Each condition is a :class:`~ahrm_stack.env.realism.RealismConfig`: ``ideal``; each group of
-:data:`~ahrm_stack.env.realism.GROUPS` alone at the profile's values (``configs/realism.yaml``,
+Each condition is a :class:`~ahrm_stack.realism.RealismConfig`: ``ideal``; each group of
+:data:`~ahrm_stack.realism.GROUPS` alone at the profile's values (``configs/realism.yaml``,
 default ``jaco2``); the whole profile (``all``); and the dose-response rows of the file's ``dose``
 (one level of joint-velocity or joint-angle noise alone). Every condition runs the same episodes
 (``configs/seeds.yaml`` range ``robustness``: layout, start and the imperfections' noise are
@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from ahrm_stack.cli import Parser
-from ahrm_stack.env.realism import GROUPS, REALISM_FILE, RealismConfig, realism_profiles
+from ahrm_stack.realism import GROUPS, REALISM_FILE, RealismConfig, realism_profiles
 from ahrm_stack.schema import ConfigError, read_yaml
 
 CONTROLLERS = ("policy", "scripted")

@@ -136,7 +136,7 @@ def test_out_of_distribution_families_lie_outside_in_the_quantity_they_move():
 def test_a_dynamics_family_sets_the_cube_factors_of_an_otherwise_nominal_evaluation():
     from ahrm_stack.config import config_from_dict
     from ahrm_stack.env.layout_catalog import evaluation_task
-    from ahrm_stack.env.realism import RealismConfig
+    from ahrm_stack.realism import RealismConfig
 
     raw = load_raw()
     entry = apply_layout(raw, "cube_heavy")

@@ -13,8 +13,8 @@ import pytest
 import torch
 
 from ahrm_stack.config import ConfigError, load_config
-from ahrm_stack.env.realism import (GROUPS, ActuatorModel, RealismConfig, nominal, realism_profiles,
-                                    resolve_realism)
+from ahrm_stack.realism import (GROUPS, ActuatorModel, RealismConfig, nominal, realism_profiles,
+                                resolve_realism)
 from ahrm_stack.learning.ppo import RunningNorm
 from ahrm_stack.hardware.protocol import FastClock
 from ahrm_stack.hardware.sim import SimArm

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from ahrm_stack import robustness
-from ahrm_stack.env.realism import GROUPS, RealismConfig, realism_profiles
+from ahrm_stack.realism import GROUPS, RealismConfig, realism_profiles
 from ahrm_stack.schema import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -18,7 +18,7 @@ from ahrm_stack.deploy.record import read_run
 from ahrm_stack.deploy.replay import main as replay_main
 from ahrm_stack.deploy.replay import replay
 from ahrm_stack.deploy.run import deploy_sim, load_controller_config, open_telemetry
-from ahrm_stack.env.realism import realism_profiles
+from ahrm_stack.realism import realism_profiles
 
 POLICY = Path(__file__).resolve().parents[1] / "docs" / "policies" / "ahrm-default-seed0"
 

@@ -11,7 +11,7 @@ import yaml
 
 from ahrm_stack.config.files import CONFIG_DIR, PROFILE_DIR, SECTIONS
 from ahrm_stack.config.root import Config
-from ahrm_stack.env.realism import resolve_realism
+from ahrm_stack.realism import resolve_realism
 from ahrm_stack.schema import (ConfigError, Source, apply_override, fill_legacy, override_keys, read_yaml, show_path,
                                source_note, validate)
 

@@ -50,7 +50,7 @@ class Replay:
 
 def replay(record: RunRecord, task_config, realism=None) -> Replay:
     """The run ``record`` sent open loop to a simulated arm of ``task_config`` with ``realism``
-    (a :class:`~ahrm_stack.env.realism.RealismConfig`; None: none); see the module docstring."""
+    (a :class:`~ahrm_stack.realism.RealismConfig`; None: none); see the module docstring."""
     from ahrm_stack.hardware.protocol import FastClock
     from ahrm_stack.hardware.sim import SimArm
 
@@ -114,7 +114,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     quiet(args.verbose)
     from ahrm_stack.config import ConfigError
     from ahrm_stack.deploy.run import load_controller_config
-    from ahrm_stack.env.realism import realism_profiles
+    from ahrm_stack.realism import realism_profiles
 
     try:
         record = read_run(args.record)

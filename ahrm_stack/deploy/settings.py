@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, Optional
 
 from ahrm_stack.config import CONFIG_DIR
-from ahrm_stack.env.realism import RealismConfig, resolve_realism
+from ahrm_stack.realism import RealismConfig, resolve_realism
 from ahrm_stack.schema import (Bool, ConfigError, Float, Int, Section, Str, ge, gt, le, read_yaml,
                                show_path, stricter, validate)
 from ahrm_stack.hardware.kinova_gen2 import Gen2Settings

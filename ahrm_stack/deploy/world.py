@@ -8,7 +8,8 @@ import numpy as np
 from ahrm_stack.config import TaskConfig
 from ahrm_stack.env.layout import lane_clearance
 from ahrm_stack.env.observation_layout import observation_layout
-from ahrm_stack.env.realism import VelocityEstimator, nominal
+from ahrm_stack.env.realism import VelocityEstimator
+from ahrm_stack.realism import nominal
 
 
 class WorldModel:

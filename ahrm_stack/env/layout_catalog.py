@@ -20,7 +20,7 @@ import numpy as np
 
 from ahrm_stack.config import CONFIG_DIR, Config, ConfigError, Pair, TaskConfig, config_from_dict
 from ahrm_stack.env.layout import Layout, LayoutError, validate_layout
-from ahrm_stack.env.realism import Scale, nominal
+from ahrm_stack.realism.config import Scale, nominal
 from ahrm_stack.schema import Bool, Section, derived, ordered, read_yaml, validate
 from ahrm_stack.seeds import evaluation_range
 
@@ -128,7 +128,7 @@ def run_config_in_layout(run_dir: Path | str, name: str, overrides: Sequence[str
 
 def evaluation_task(task: TaskConfig, entry: NamedLayout | None = None) -> TaskConfig:
     """The task an evaluation runs: ``task`` (a layout already applied) without a real arm's
-    imperfections (:func:`~ahrm_stack.env.realism.nominal`), but for the family ``entry``'s cube
+    imperfections (:func:`~ahrm_stack.realism.nominal`), but for the family ``entry``'s cube
     mass and friction factors when it sets them. The same for a policy and the scripted controller."""
     evaluated = nominal(task)
     changes = {name: getattr(entry, name) for name in ("cube_mass_scale", "cube_friction_scale")

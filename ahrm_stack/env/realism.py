@@ -1,227 +1,15 @@
-"""A real arm's imperfections: what separates the simulated task from a JACO2 on a table.
-
-:class:`RealismConfig` is one set of imperfections, each with its unit; ``configs/realism.yaml``
-names the sets (``ideal``: none; ``jaco2``: a JACO2 with a camera, each value justified there).
-The same section serves two places:
-
-* ``task.realism`` (training's domain randomisation, :class:`~ahrm_stack.env.runner.TaskRunner`):
-  the observation the policy sees is measured with the noise and the perception latency
-  (:class:`ObservationSensing`), commands reach the actuators late and through a first-order lag
-  (:class:`ActuatorModel`), and each episode draws the cube's and the obstacles' mass and friction
-  (:func:`draw_dynamics`);
-* ``deploy.sim.realism`` (the sim backend, :class:`ahrm_stack.hardware.sim.SimArm`): the same imperfections
-  on the adapter's feedback and perception, as a real arm and camera would give them.
-
-All of it is off (bit for bit the ideal simulation, no random draw made) when a set is
-:meth:`RealismConfig.ideal`; :data:`GROUPS` names the imperfections the robustness evaluation
-applies one at a time (``python -m ahrm_stack.robustness``).
+"""The training observation under a real arm's imperfections: :class:`ObservationSensing` (the
+observation vector as a real arm and camera would measure it) and :class:`VelocityEstimator`
+(joint velocities from measured angles, shared with the deploy loop's world model). The
+imperfections themselves, and their schema, are :mod:`ahrm_stack.realism`'s, composed here and by
+the sim backend alike.
 """
 
 from __future__ import annotations
 
-import collections
-import dataclasses
-import math
-from pathlib import Path
-from typing import Annotated, Any
-
 import numpy as np
 
-from ahrm_stack.paths import CONFIG_DIR
-from ahrm_stack.schema import ConfigError, Float, Section, ge, gt, read_yaml
-
-REALISM_FILE = CONFIG_DIR / "realism.yaml"
-
-NonNeg = Annotated[Float, ge(0)]
-Scale = tuple[Annotated[Float, gt(0)], Annotated[Float, gt(0)]]
-
-
-@dataclasses.dataclass(frozen=True)
-class RealismConfig(Section):
-    """One set of a real arm's imperfections. Angles in degrees, times in s, lengths in m,
-    world frame; a scale is a factor range ``[low, high]`` drawn uniformly per episode."""
-
-    command_latency: NonNeg  # s from a command leaving the controller to the actuators taking it
-    actuator_lag: NonNeg  # s, time constant of the actuators' first-order response to a command
-    angle_noise_deg: NonNeg  # deg, std of white Gaussian noise on each measured joint angle
-    angle_resolution_deg: NonNeg  # deg, a measured angle is rounded to a multiple of this (0: not)
-    velocity_noise_deg_s: NonNeg  # deg/s, std of white Gaussian noise on each measured joint velocity
-    velocity_resolution_deg_s: NonNeg  # deg/s, measured velocities are rounded to this (0: not)
-    perception_noise: NonNeg  # m, std of white noise on each coordinate of a perceived object position
-    perception_velocity_noise: NonNeg  # m/s, std of noise on each perceived object velocity coordinate
-    perception_latency: NonNeg  # s, the perceived object poses are this old
-    cube_mass_scale: Scale  # factor on the cube's mass
-    cube_friction_scale: Scale  # factor on the cube's sliding friction coefficient
-    obstacle_mass_scale: Scale  # factor on each obstacle's mass (drawn per obstacle)
-    obstacle_friction_scale: Scale  # factor on each obstacle's sliding friction coefficient
-
-    def check(self, key: str) -> None:
-        for name in SCALES:
-            low, high = getattr(self, name)
-            if low > high:
-                raise ConfigError(f"{key}.{name} must be [low, high] with low <= high, got {[low, high]}")
-
-    @classmethod
-    def ideal(cls) -> "RealismConfig":
-        """No imperfection: the simulation as it is."""
-        values: dict[str, Any] = {f.name: (1.0, 1.0) if f.name in SCALES else 0.0
-                                  for f in dataclasses.fields(cls)}
-        return cls(**values)
-
-    @property
-    def is_ideal(self) -> bool:
-        return self == RealismConfig.ideal()
-
-    @property
-    def senses(self) -> bool:
-        """Whether measurements (feedback or perception) differ from the simulator's state."""
-        return any(getattr(self, name) > 0 for name in GROUPS["feedback noise"] + GROUPS["perception"])
-
-    @property
-    def actuates(self) -> bool:
-        """Whether commands reach the actuators late or lagged."""
-        return self.command_latency > 0 or self.actuator_lag > 0
-
-    @property
-    def varies_dynamics(self) -> bool:
-        return any(tuple(getattr(self, name)) != (1.0, 1.0) for name in SCALES)
-
-    def only(self, group: str) -> "RealismConfig":
-        """This set's values of ``group`` (a key of :data:`GROUPS`), the rest ideal."""
-        ideal = RealismConfig.ideal()
-        return dataclasses.replace(ideal, **{name: getattr(self, name) for name in GROUPS[group]})
-
-
-SCALES = ("cube_mass_scale", "cube_friction_scale", "obstacle_mass_scale", "obstacle_friction_scale")
-
-#: The imperfections the robustness evaluation applies one at a time (then all together).
-GROUPS: dict[str, tuple[str, ...]] = {
-    "command latency": ("command_latency",),
-    "actuator lag": ("actuator_lag",),
-    "feedback noise": ("angle_noise_deg", "angle_resolution_deg", "velocity_noise_deg_s",
-                       "velocity_resolution_deg_s"),
-    "perception": ("perception_noise", "perception_velocity_noise", "perception_latency"),
-    "dynamics": SCALES,
-}
-
-
-def nominal(task_config):
-    """``task_config`` (a :class:`~ahrm_stack.config.TaskConfig`) without imperfections: the task
-    evaluations measure (the robustness evaluation measures the imperfections, through deploy)."""
-    return dataclasses.replace(task_config, realism=RealismConfig.ideal())
-
-
-def realism_profiles(path: Path | str = REALISM_FILE) -> dict[str, RealismConfig]:
-    """The named sets of ``configs/realism.yaml`` (``profiles``), validated."""
-    data = read_yaml(path)
-    profiles = data.get("profiles") if isinstance(data, dict) else None
-    if not isinstance(profiles, dict) or not profiles:
-        raise ConfigError(f"{path}: expected a mapping 'profiles' of named sets")
-    return {name: RealismConfig.from_dict(value, f"profiles.{name}", str(path))
-            for name, value in profiles.items()}
-
-
-def resolve_realism(value: Any, key: str, path: Path | str = REALISM_FILE) -> Any:
-    """A realism value as read from YAML: a profile name becomes that profile's mapping (a
-    mapping is returned as it is, for the schema to check)."""
-    if not isinstance(value, str):
-        return value
-    data = read_yaml(path)
-    profiles = data.get("profiles", {}) if isinstance(data, dict) else {}
-    if value not in profiles:
-        raise ConfigError(f"{key}: no realism profile {value!r} in {path}; choose one of {sorted(profiles)}")
-    return dict(profiles[value])
-
-
-def measure(values: np.ndarray, noise: float, resolution: float, rng: np.random.Generator | None) -> np.ndarray:
-    """``values`` plus N(0, noise²) each, rounded to multiples of ``resolution`` (0: not); a new
-    array. Units are the caller's (rad, rad/s, m)."""
-    out = np.array(values, dtype=float)
-    if noise > 0 and rng is not None:
-        out += rng.normal(0.0, noise, out.shape)
-    if resolution > 0:
-        out = np.round(out / resolution) * resolution
-    return out
-
-
-def draw_dynamics(realism: RealismConfig, rng: np.random.RandomState, obstacles: int) -> dict[str, np.ndarray]:
-    """One episode's factors: ``cube_mass``, ``cube_friction`` (shape (1,)), ``obstacle_mass``,
-    ``obstacle_friction`` (shape (obstacles,)), uniform in the configured ranges."""
-    def draw(scale: tuple[float, float], n: int) -> np.ndarray:
-        return rng.uniform(scale[0], scale[1], n) if scale[0] < scale[1] else np.full(n, scale[0])
-    return {"cube_mass": draw(realism.cube_mass_scale, 1),
-            "cube_friction": draw(realism.cube_friction_scale, 1),
-            "obstacle_mass": draw(realism.obstacle_mass_scale, obstacles),
-            "obstacle_friction": draw(realism.obstacle_friction_scale, obstacles)}
-
-
-class DynamicsVariation:
-    """Scales the cube's and the obstacles' mass (and inertia) and sliding friction of one physics,
-    from the nominal values it found there (so repeated draws never compound)."""
-
-    def __init__(self, physics, cube_body: int, obstacle_bodies: np.ndarray, cube_geom: int,
-                 obstacle_geoms: np.ndarray) -> None:
-        model = physics.model
-        self.physics = physics
-        self._model = model
-        self._bodies = np.array([cube_body, *obstacle_bodies], dtype=int)
-        self._geoms = np.array([cube_geom, *obstacle_geoms], dtype=int)
-        self._mass = np.array(model.body_mass[self._bodies], dtype=float)
-        self._inertia = np.array(model.body_inertia[self._bodies], dtype=float)
-        self._friction = np.array(model.geom_friction[self._geoms, 0], dtype=float)
-        # MuJoCo combines two geoms' friction by the maximum unless their priorities differ: the
-        # cube's and obstacles' own coefficients decide their contacts (with the table, the pusher)
-        # only at a higher priority. Every geom here has the same nominal coefficient, so at
-        # factor 1 the contacts are unchanged.
-        model.geom_priority[self._geoms] = int(model.geom_priority.max()) + 1
-        self.factors: dict[str, np.ndarray] = {}
-
-    def apply(self, factors: dict[str, np.ndarray]) -> None:
-        """Set mass (and inertia, same factor) and sliding friction to nominal x the factors."""
-        mass = np.concatenate([factors["cube_mass"], factors["obstacle_mass"]])
-        friction = np.concatenate([factors["cube_friction"], factors["obstacle_friction"]])
-        self._model.body_mass[self._bodies] = self._mass * mass
-        self._model.body_inertia[self._bodies] = self._inertia * mass[:, None]
-        self._model.geom_friction[self._geoms, 0] = self._friction * friction
-        self.factors = factors
-
-
-class ActuatorModel:
-    """Commands reaching the velocity actuators late (``command_latency``) and through a first-order
-    lag (``actuator_lag``), advanced one physics step at a time. ``latency`` is rounded to whole
-    physics steps (``timestep`` s)."""
-
-    def __init__(self, realism: RealismConfig, timestep: float, num_joints: int) -> None:
-        self.delay_steps = int(round(realism.command_latency / timestep))
-        tau = realism.actuator_lag
-        self.alpha = 1.0 if tau <= 0 else 1.0 - math.exp(-timestep / tau)
-        self._pending: collections.deque[tuple[int, np.ndarray]] = collections.deque()
-        self._target = np.zeros(num_joints)  # the command the actuators are converging to, rad/s
-        self.output = np.zeros(num_joints)  # what the actuators apply now, rad/s
-        self._step = 0
-
-    def reset(self, command: np.ndarray | None = None) -> None:
-        """At rest (or holding ``command`` already), nothing in flight."""
-        self._pending.clear()
-        value = np.zeros_like(self.output) if command is None else np.asarray(command, float)
-        self._target = value.copy()
-        self.output = value.copy()
-
-    def command(self, command: np.ndarray) -> None:
-        """A command sent now: it takes effect ``delay_steps`` physics steps later."""
-        self._pending.append((self._step + self.delay_steps, np.asarray(command, float).copy()))
-
-    def stop_now(self) -> None:
-        """Everything in flight dropped and the actuators at zero (the arm's own stop)."""
-        self.reset()
-
-    def step(self) -> np.ndarray:
-        """The actuators' command for the next physics step (rad/s); call once per step."""
-        while self._pending and self._pending[0][0] <= self._step:
-            self._target = self._pending.popleft()[1]
-        self.output = self.output + self.alpha * (self._target - self.output)
-        self._step += 1
-        return self.output
+from ahrm_stack.realism import JointSensing, ObjectSensing, PerceptionDelay, RealismConfig
 
 
 class VelocityEstimator:
@@ -268,33 +56,37 @@ class ObservationSensing:
         self.layout = layout
         self.period = control_period
         self.velocity = velocity  # joint velocities from the measured angles (None: as measured)
-        self.delay = int(round(realism.perception_latency / control_period))
-        self._history: collections.deque[np.ndarray] = collections.deque(maxlen=self.delay + 1)
+        self.joints = JointSensing(realism)
+        self.objects = ObjectSensing(realism)
+        self.delay = int(round(realism.perception_latency / control_period))  # whole control periods
+        self._perceived: PerceptionDelay[np.ndarray] = PerceptionDelay(self.delay * control_period)
+        self._calls = 0
         self._props = [layout["cube"]] + [layout[f"obstacle_{i}"] for i in range(obstacles)]
         self._lane_clearance = lane_clearance
 
     def reset(self) -> None:
-        self._history.clear()
+        self._perceived.clear()
+        self._calls = 0
         if self.velocity is not None:
             self.velocity.reset()
 
     def __call__(self, observation: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
-        r, at = self.realism, self.layout
+        at = self.layout
         out = np.array(observation, dtype=float)
         trig = out[at["joints_pos"]]
-        q = np.arctan2(trig[0::2], trig[1::2])
-        q = measure(q, math.radians(r.angle_noise_deg), math.radians(r.angle_resolution_deg), rng)
+        q = self.joints.angles(np.arctan2(trig[0::2], trig[1::2]), rng)
         trig[0::2], trig[1::2] = np.sin(q), np.cos(q)
         if self.velocity is not None:
             out[at["joints_vel"]] = self.velocity(q, self.period)
         else:
-            out[at["joints_vel"]] = measure(out[at["joints_vel"]], math.radians(r.velocity_noise_deg_s),
-                                            math.radians(r.velocity_resolution_deg_s), rng)
+            out[at["joints_vel"]] = self.joints.velocities(out[at["joints_vel"]], rng)
         props = np.stack([out[s] for s in self._props])  # (k, 6): position, velocity
-        self._history.append(props)
-        seen = self._history[0].copy()  # the oldest kept: ``delay`` periods ago (or the first)
-        seen[:, :3] = measure(seen[:, :3], r.perception_noise, 0.0, rng)
-        seen[:, 3:] = measure(seen[:, 3:], r.perception_velocity_noise, 0.0, rng)
+        now = self._calls * self.period  # one call per control period
+        self._calls += 1
+        self._perceived.push(now, props)
+        seen = self._perceived.seen(now).copy()  # ``delay`` periods ago (or the first)
+        seen[:, :3] = self.objects.positions(seen[:, :3], rng)
+        seen[:, 3:] = self.objects.velocities(seen[:, 3:], rng)
         for s, row in zip(self._props, seen):
             out[s] = row
         cube, obstacles_xy = seen[0, :3], seen[1:, :2]
@@ -306,5 +98,4 @@ class ObservationSensing:
         return out
 
 
-__all__ = ["ActuatorModel", "DynamicsVariation", "GROUPS", "ObservationSensing", "RealismConfig",
-           "VelocityEstimator", "draw_dynamics", "measure", "nominal", "realism_profiles", "resolve_realism"]
+__all__ = ["ObservationSensing", "VelocityEstimator"]

@@ -29,7 +29,8 @@ from ahrm_stack.config import SafetyConfig
 from ahrm_stack.env.control_step import ControlStep, filter_call, make_task_filter
 from ahrm_stack.env.layout import lane_clearance
 from ahrm_stack.env.observation_layout import observation_layout
-from ahrm_stack.env.realism import ActuatorModel, ObservationSensing, VelocityEstimator
+from ahrm_stack.env.realism import ObservationSensing, VelocityEstimator
+from ahrm_stack.realism import ActuatorModel, RealismConfig
 from ahrm_stack.env.task import PushOffTask, StepInfo
 from ahrm_stack.safety import FilterResult, InterventionStats, SafetyFilter
 
@@ -56,10 +57,14 @@ class TaskRunner:
     :meth:`step_action` takes a policy's normalised action (``task.action.mode``), mapped to the
     filter's request by :attr:`control` (:class:`~ahrm_stack.env.control_step.ControlStep`);
     :meth:`step_only` and :meth:`step_cartesian` take requests (rad/s, or m/s for the tip).
+
+    ``task.realism``'s command and measurement paths (:mod:`ahrm_stack.realism`) act on its steps
+    and observations; ``imperfections=False`` leaves them to a caller that composes them itself
+    (the sim backend's arm; the task still draws the episode's dynamics).
     """
 
     def __init__(self, task: PushOffTask, seed: int | None = None,
-                 safety: SafetyConfig | None = None) -> None:
+                 safety: SafetyConfig | None = None, imperfections: bool = True) -> None:
         self.task = task
         self.physics = mjcf.Physics.from_mjcf_model(task.root_entity.mjcf_model)
         if task.config.episode.sleep:
@@ -80,7 +85,7 @@ class TaskRunner:
         self._steps = 0
         # task.realism: the observation measured (noise, perception latency), the commands late
         # and lagged; None for the ideal simulation (no random draw is made then)
-        realism = task.config.realism
+        realism = task.config.realism if imperfections else RealismConfig.ideal()
         self._sensing: ObservationSensing | None = None
         self._sensing_rng: np.random.Generator | None = None
         estimate = task.config.observation.joint_velocity == "position_difference"
@@ -186,9 +191,9 @@ class TaskRunner:
             actuators, ctrl = self._actuators, self.physics.data.ctrl
             index = self.task._arm_actuators
             actuators.command(command)
-            for _ in range(self._substeps):  # dm_control's step: derived fields of the new state
-                ctrl[index] = actuators.step()
-                self.physics.step(1)
+            for count, output in actuators.run(self._substeps):  # the sim arm steps it alike
+                ctrl[index] = output
+                self.physics.step(count)
         self.task.after_step(self.physics, self.random_state)
         self.limit_violations += self._count_limit_violations()
         self._steps += 1

@@ -28,7 +28,7 @@ from ahrm_stack.env.clearance import Clearance
 from ahrm_stack.env.control_step import command_to_action
 from ahrm_stack.env.entities import BoxProp, Pusher
 from ahrm_stack.env.layout import Layout, LayoutSampler, choose_lane, free_lanes
-from ahrm_stack.env.realism import DynamicsVariation, draw_dynamics
+from ahrm_stack.realism import DynamicsVariation, draw_dynamics
 from ahrm_stack.env.start_pose import solve_start_pose
 from ahrm_stack.env.task_observation import TaskObservation
 from ahrm_stack.env.rewards import (ProgressObjective, TimeObjective, avoid_component,

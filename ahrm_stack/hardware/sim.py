@@ -17,13 +17,17 @@ the arm while its caller sleeps), so the loop's next ``refresh_feedback`` finds 
 The deploy loop sees only what a real arm gives (:meth:`SimArm.refresh_feedback`) plus what a
 perception module would give (:meth:`SimArm.perception`: cube and obstacle poses).
 
-A real arm's imperfections (``realism``, :class:`~ahrm_stack.env.realism.RealismConfig`;
-``deploy.sim.realism`` names a set of ``configs/realism.yaml``): a command reaches the actuators
-``command_latency`` s after it was sent and they follow it through a first-order lag of
-``actuator_lag`` s; the feedback's angles and velocities carry white noise and quantisation;
-perception gives ``perception_latency`` s old object positions and velocities with white noise
-(orientations exact); each :meth:`SimArm.reset_scene` draws the cube's and the obstacles' mass
-and friction. The noise is seeded by the layout seed. :attr:`SimArm.truth` is what really
+A real arm's imperfections (``realism``, :class:`~ahrm_stack.realism.RealismConfig`;
+``deploy.sim.realism`` names a set of ``configs/realism.yaml``), composed from the same objects as
+training's (:mod:`ahrm_stack.realism`): a command reaches the actuators ``command_latency`` s after
+it was sent and they follow it through a first-order lag of ``actuator_lag`` s
+(:class:`~ahrm_stack.realism.ActuatorModel`, stepped per physics step as the training runner does);
+the feedback's angles and velocities carry white noise and quantisation
+(:class:`~ahrm_stack.realism.JointSensing`); perception gives ``perception_latency`` s old object
+positions and velocities with white noise (:class:`~ahrm_stack.realism.PerceptionDelay`,
+:class:`~ahrm_stack.realism.ObjectSensing`; orientations exact); each :meth:`SimArm.reset_scene`
+draws the cube's and the obstacles' mass and friction (the task's, as in training). The noise is
+seeded by the layout seed. :attr:`SimArm.truth` is what really
 happened (the cube off the table, an obstacle touched), which a real deployment cannot see.
 
 Fault injection for tests (:meth:`SimArm.inject`, :class:`InjectedFault`): stale or dropped
@@ -39,22 +43,20 @@ next one, a stop or a lost connection; the deploy loop's own deadline checks cov
 
 from __future__ import annotations
 
-import collections
 import dataclasses
 import enum
 import logging
-import math
 
 import numpy as np
 
 from ahrm_stack.config import TaskConfig
-from ahrm_stack.env.realism import RealismConfig, measure
 from ahrm_stack.env.rewards import obstacle_touched
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.task import PushOffTask
 from ahrm_stack.hardware.protocol import (ArmState, ConnectionLostError, DescribedArm, Fault, Feedback,
                                FeedbackTimeoutError, NotConnectedError, ObjectPoses, ServoingMode,
                                WallClock)
+from ahrm_stack.realism import ActuatorModel, JointSensing, ObjectSensing, PerceptionDelay, RealismConfig
 
 log = logging.getLogger(__name__)
 
@@ -104,16 +106,16 @@ class SimArm(DescribedArm):
         self.task = PushOffTask(dataclasses.replace(task_config, realism=self.realism))  # type: ignore[type-var]
         self._rng = np.random.default_rng(seed)
         r = self.realism
-        self._latency = r.command_latency
-        self._lag = 1.0 if r.actuator_lag <= 0 else 1.0 - math.exp(-task_config.episode.physics_timestep
-                                                                    / r.actuator_lag)
-        self._angle = (math.radians(r.angle_noise_deg), math.radians(r.angle_resolution_deg))
-        self._speed = (math.radians(r.velocity_noise_deg_s), math.radians(r.velocity_resolution_deg_s))
-        # (physics time, object positions, velocities): perception reads the one perception_latency old
-        self._seen: collections.deque[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = (
-            collections.deque(maxlen=10_000))
+        # the imperfections, as training composes them (ahrm_stack.realism)
+        self._actuation = ActuatorModel(r, task_config.episode.physics_timestep, self.task.robot.num_joints)
+        self._joints = JointSensing(r)
+        self._objects = ObjectSensing(r)
+        # (positions, quaternions, velocities) by physics time: perception reads the one
+        # perception_latency old
+        self._seen: PerceptionDelay[tuple[np.ndarray, np.ndarray, np.ndarray]] = PerceptionDelay(
+            r.perception_latency)
         self.truth = SimTruth()
-        self.runner = TaskRunner(self.task, seed=seed, safety=None)
+        self.runner = TaskRunner(self.task, seed=seed, safety=None, imperfections=False)
         self._clock = clock if clock is not None else WallClock()
         self._robot = self.task.robot
         self._timestep = task_config.episode.physics_timestep
@@ -127,10 +129,6 @@ class SimArm(DescribedArm):
         self._last: Feedback | None = None
         self._frame = 0
         self._start = 0.0  # clock time of physics time 0
-        self._command = np.zeros(self._robot.num_joints)
-        self._actual = np.zeros(self._robot.num_joints)  # what the lagged actuators apply, rad/s
-        # (clock s, rad/s) sent, not yet applied: each at its time (sent + command_latency)
-        self._queued: collections.deque[tuple[float, np.ndarray]] = collections.deque()
         self._sleeper = _SimClock(self._clock, self)
         self.violations = 0
         self.commands_sent = 0
@@ -166,9 +164,9 @@ class SimArm(DescribedArm):
         if seed is not None:
             self.runner.seed(seed)
             self._rng = np.random.default_rng(seed)
-        self._queued.clear()  # a command of the last episode never reaches the new one
+        self._actuation.reset()  # a command of the last episode never reaches the new one
+        self._seen.clear()
         self.runner.reset()
-        self._actual = np.zeros(self._robot.num_joints)
         self._set_command(np.zeros(self._robot.num_joints))
         self._start = self._clock.now() - self.physics.data.time
         self._last = None
@@ -186,8 +184,8 @@ class SimArm(DescribedArm):
             data.qpos[address] = pose
         data.qvel[:] = 0.0
         self.physics.forward()
-        self._queued.clear()
-        self._actual = np.zeros(self._robot.num_joints)
+        self._actuation.reset()
+        self._seen.clear()
         self._set_command(np.zeros(self._robot.num_joints))
         self._start = self._clock.now() - data.time
         self._last = None
@@ -229,8 +227,8 @@ class SimArm(DescribedArm):
             return self._last
         q, dq = self.task.arm_state(self.physics)
         if self.realism.senses:  # as the arm's sensors give them
-            q = measure(q, *self._angle, self._rng)
-            dq = measure(dq, *self._speed, self._rng)
+            q = self._joints.angles(q, self._rng)
+            dq = self._joints.velocities(dq, self._rng)
         if self._take(InjectedFault.NAN_READING):
             dq[0] = np.nan
         self._frame += 1
@@ -250,16 +248,12 @@ class SimArm(DescribedArm):
         the orientations exact)."""
         self._require()
         self._advance()
-        r = self.realism
-        if r.perception_latency > 0 and self._seen:
-            wanted = self.physics.data.time - r.perception_latency
-            while len(self._seen) > 1 and self._seen[1][0] <= wanted + 1e-9:
-                self._seen.popleft()  # the snapshot in use is the newest at least that old
-            _, positions, quaternions, velocities = self._seen[0]
+        if self.realism.perception_latency > 0 and self._seen:
+            positions, quaternions, velocities = self._seen.seen(self.physics.data.time)
         else:
             _, positions, quaternions, velocities = self._snapshot()
-        positions = measure(positions, r.perception_noise, 0.0, self._rng)
-        velocities = measure(velocities, r.perception_velocity_noise, 0.0, self._rng)
+        positions = self._objects.positions(positions, self._rng)
+        velocities = self._objects.velocities(velocities, self._rng)
         return ObjectPoses(
             timestamp=self._clock.now(),
             cube_position=positions[0], cube_quaternion=quaternions[0].copy(), cube_velocity=velocities[0],
@@ -280,9 +274,9 @@ class SimArm(DescribedArm):
         """A new episode's :attr:`truth`; the obstacles' resting positions remembered."""
         self.truth = SimTruth()
         self._seen.clear()
-        snapshot = self._snapshot()
-        self._rest = snapshot[1][1:].copy()
-        self._seen.append(snapshot)
+        time, positions, quaternions, velocities = self._snapshot()
+        self._rest = positions[1:].copy()
+        self._seen.push(time, (positions, quaternions, velocities))
         self._check_truth()
 
     def _check_truth(self) -> None:
@@ -316,9 +310,15 @@ class SimArm(DescribedArm):
         """Queue a command that passed the gate (:meth:`ArmAdapter.send_joint_speeds`)."""
         if self._take(InjectedFault.DELAYED_COMMAND):
             self._clock.sleep(self.command_delay)
-        # Applied by an advance, at this time plus the command latency (the physics is not
-        # stepped here: see the module docstring); commands still queued go first, at their times.
-        self._queued.append((self._clock.now() + self._latency, command))
+        # Applied by an advance, command_latency after this time (the physics is not stepped here:
+        # see the module docstring): the clock may be ahead of the physics stepped so far.
+        if not self._within_limits(command):
+            command = np.zeros_like(command)
+        ahead = self._step_index(self._clock.now()) - self._steps_taken()
+        self._actuation.command(command, after=max(0, ahead))
+        # the task's record of the command sent (its previous action), as the training runner keeps
+        # it; the actuators' input is the model's output, set at every physics step
+        self.task.before_step(self.physics, command, self.runner.random_state)
         self.commands_sent += 1
         return command.copy()
 
@@ -352,9 +352,10 @@ class SimArm(DescribedArm):
 
     @property
     def command(self) -> np.ndarray:
-        """The joint velocities the simulated actuators hold now, rad/s."""
+        """The joint velocities the simulated actuators hold now (the latest command to reach
+        them; under a lag they converge to it), rad/s."""
         self._advance()
-        return self._command.copy()
+        return self._actuation.upcoming(self._step_index(self._clock.now()) - self._steps_taken())
 
     def _bind(self) -> None:
         physics, task = self.physics, self.task
@@ -366,55 +367,52 @@ class SimArm(DescribedArm):
         self._lower = np.where(self._robot.limited, self._robot.position_lower, -np.inf)
         self._upper = np.where(self._robot.limited, self._robot.position_upper, np.inf)
 
+    def _within_limits(self, command: np.ndarray) -> bool:
+        if np.isfinite(command).all() and (np.abs(command) <= self._robot.velocity_limit).all():
+            return True
+        self.violations += 1  # never reached: check_joint_speeds guards every path here
+        log.error("sim: VIOLATION: command %s reached the actuators", command)
+        return False
+
+    def _step_index(self, time: float) -> int:
+        """The physics step a clock time falls in."""
+        return int((time - self._start) / self._timestep + 1e-9)
+
+    def _steps_taken(self) -> int:
+        return int(round(self.physics.data.time / self._timestep))
+
     def _set_command(self, command: np.ndarray) -> None:
-        """Apply ``command`` (rad/s) now; commands queued until now are applied first, at their
-        times, and later ones dropped (the arm's own stop: nothing sent before it moves it)."""
-        if self._queued:
+        """The actuators take ``command`` (rad/s) at once, through their lag (the arm's own stop):
+        commands in flight until now are applied first, at their steps, and later ones dropped
+        (nothing sent before it moves the arm)."""
+        if self._actuation.in_flight:
             self._advance()
-            self._queued.clear()
-        if not (np.isfinite(command).all()
-                and (np.abs(command) <= self._robot.velocity_limit).all()):
-            self.violations += 1  # never reached: check_joint_speeds guards every path here
-            log.error("sim: VIOLATION: command %s reached the actuators", command)
+        if not self._within_limits(command):
             command = np.zeros_like(command)
-        self._command = np.asarray(command, dtype=float).copy()
-        self.task.before_step(self.physics, self._command, self.runner.random_state)
+        command = np.asarray(command, dtype=float).copy()
+        self._actuation.hold(command)
+        self.task.before_step(self.physics, command, self.runner.random_state)
 
     def _advance(self, until: float | None = None) -> None:
-        """Step the physics up to clock time ``until`` (default: the clock's now): the queued
-        command applied at its own time, the last command held between commands."""
-        now = self._clock.now()
-        until = now if until is None else until
-        while self._queued and self._queued[0][0] <= until:
-            stamp, command = self._queued.popleft()
-            self._step_to(stamp)
-            self._apply(command)
-        self._step_to(until)
-
-    def _apply(self, command: np.ndarray) -> None:
-        """A queued command reaches the actuators (checked like every command)."""
-        queued, self._queued = self._queued, collections.deque()
-        self._set_command(command)
-        self._queued = queued
+        """Step the physics up to clock time ``until`` (default: the clock's now), the actuators
+        stepped with it (commands in flight taking effect at their steps)."""
+        self._step_to(self._clock.now() if until is None else until)
 
     def _step_to(self, until: float) -> None:
-        """Step the physics, the current command held, up to clock time ``until``."""
+        """Step the physics and the actuators (:class:`~ahrm_stack.realism.ActuatorModel`, as the
+        training runner steps them) up to clock time ``until``."""
         data = self.physics.data
-        target = int((until - self._start) / self._timestep + 1e-9)
-        steps = target - int(round(data.time / self._timestep))
+        steps = self._step_index(until) - self._steps_taken()
         if steps <= 0:
             return
-        if self._lag < 1.0:  # the actuators follow the command through a first-order lag
-            ctrl = data.ctrl
-            for _ in range(steps):
-                self._actual += self._lag * (self._command - self._actual)
-                ctrl[self._actuators] = self._actual
-                self.physics.step(1)
-        else:
-            self.physics.step(steps)
+        ctrl = data.ctrl
+        for count, output in self._actuation.run(steps):
+            ctrl[self._actuators] = output
+            self.physics.step(count)
         self._check_truth()
         if self.realism.perception_latency > 0:
-            self._seen.append(self._snapshot())
+            _, positions, quaternions, velocities = self._snapshot()
+            self._seen.push(float(data.time), (positions, quaternions, velocities))
         q = data.qpos[self._arm_qpos]
         past = np.maximum(self._lower - q, q - self._upper)
         if (past > POSITION_TOLERANCE).any():

@@ -29,7 +29,7 @@ from pathlib import Path
 import torch
 
 from ahrm_stack.config import Config
-from ahrm_stack.env.realism import nominal
+from ahrm_stack.realism import nominal
 from ahrm_stack.env.torchrl_env import PushOffEnv
 from ahrm_stack.learning.rollouts import VALIDATION_SEED_OFFSET, EvaluationTable, load_policy, run_episodes
 

@@ -25,7 +25,7 @@ from ahrm_stack.config import Config
 from ahrm_stack.run_config import load_run_config
 from ahrm_stack.env.episode import EpisodeSummary
 from ahrm_stack.env.episode_loop import Act
-from ahrm_stack.env.realism import nominal
+from ahrm_stack.realism import nominal
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.torchrl_env import PushOffEnv
 from ahrm_stack.learning.checkpoint import load
