@@ -71,12 +71,13 @@ def _interval(scores: dict[str, np.ndarray], func, reps: int = REPS) -> tuple[di
     # rliable 1.2 passes random_state to arch, which warns that it will take a generator instead;
     # and its StratifiedBootstrap draws the runs from NumPy's global generator (update_indices), not
     # from random_state: so that one is seeded here too, and restored afterwards
-    warnings.filterwarnings("ignore", message="random_state is deprecated", category=FutureWarning)
     state = np.random.get_state()
     np.random.seed(SEED)
     try:
-        return rly.get_interval_estimates(scores, func, reps=reps,
-                                          random_state=np.random.RandomState(SEED))
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="random_state is deprecated", category=FutureWarning)
+            return rly.get_interval_estimates(scores, func, reps=reps,
+                                              random_state=np.random.RandomState(SEED))
     finally:
         np.random.set_state(state)
 

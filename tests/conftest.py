@@ -85,6 +85,18 @@ def library():
 
 
 
+def touched_off(data: dict, folder) -> None:
+    """A parsed deploy.yaml whose Gen2 arm (``kinova_gen2.serial``) has passed its touch-off: a
+    passing record in ``folder`` named by ``kinova_gen2.touch_off.record`` (deploy runs on the fake
+    arm, as a real arm's would, need one; tests/test_kinova_gen2_touch_off.py tests the refusal)."""
+    import json
+    from pathlib import Path
+
+    record = Path(folder) / "touch-off.json"
+    record.write_text(json.dumps({"serial": data["kinova_gen2"].get("serial"), "passed": True, "points": []}))
+    data["kinova_gen2"]["touch_off"]["record"] = str(record)
+
+
 @pytest.fixture
 def gen2_config(tmp_path):
     """A writer of configs/deploy.yaml with its ``kinova_gen2`` section updated by keyword
@@ -96,6 +108,7 @@ def gen2_config(tmp_path):
     def write(**gen2):
         data = yaml.safe_load(DEPLOY_CONFIG.read_text())
         data["kinova_gen2"].update(gen2)
+        touched_off(data, tmp_path)
         path = tmp_path / "deploy.yaml"
         path.write_text(yaml.safe_dump(data))
         return path

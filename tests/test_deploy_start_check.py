@@ -14,6 +14,7 @@ import yaml
 
 from ahrm_stack.deploy import DEPLOY_CONFIG, WorldModel, main
 from ahrm_stack.deploy.start_check import start_refusal
+from conftest import touched_off
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "configs" / "scenes" / "default.yaml"
@@ -71,6 +72,7 @@ def test_deploy_refuses_an_arm_left_elsewhere_in_one_line(tmp_path, task_config,
     fake.reset(position_deg=away)
     data = yaml.safe_load(DEPLOY_CONFIG.read_text())
     data["kinova_gen2"].update(library=str(library), serial=fake_module.SERIAL, scene=str(SCENE))
+    touched_off(data, tmp_path)
     path = tmp_path / "deploy.yaml"
     path.write_text(yaml.safe_dump(data))
     assert main(["--backend", "kinova-gen2", "--config", str(path), "--telemetry", ""]) == 2

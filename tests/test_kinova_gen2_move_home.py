@@ -103,7 +103,7 @@ def test_the_fake_move_home_returns_only_at_home_in_cartesian_control(fake):
     assert lib.MoveHome() == 1
     took = time.perf_counter() - began
     need = np.max(np.abs(AWAY - FACTORY_HOME)) / HOME_SPEED
-    assert need <= took <= need + 0.4, (need, took)
+    assert need <= took <= need + 1.0, (need, took)  # its polls and sleeps on a loaded machine
     q, dq = fake.state()
     np.testing.assert_allclose(q, FACTORY_HOME, atol=1e-3)
     assert not fake.angular  # MoveHome leaves Cartesian control
@@ -218,6 +218,7 @@ def test_move_home_not_returning_skips_close_api(fake, library, world, monkeypat
     arm.move_home()
     stuck = threading.Event()
     monkeypatch.setattr(arm._move_home, "join", lambda timeout=RETURN_WITHIN: stuck.is_set())
+    monkeypatch.setattr(type(arm._move_home), "running", property(lambda self: not stuck.is_set()))
     with pytest.raises(moves.HardwareError, match="did not return"):
         arm.end_move_home(timeout=0.01)
     arm.disconnect()

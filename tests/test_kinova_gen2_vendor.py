@@ -20,6 +20,7 @@ import pytest
 import yaml
 
 from ahrm_stack.hardware.kinova_gen2.loader import VENDOR_DIR, VENDOR_LIBRARY
+from conftest import touched_off
 
 from fake_kinova_sdk import no_arm  # noqa: E402  (tests/ is on sys.path)
 
@@ -98,6 +99,7 @@ def _config(tmp_path: Path) -> Path:
     data = yaml.safe_load((ROOT / "configs" / "deploy.yaml").read_text())
     data["kinova_gen2"].update(library=str(VENDOR_LIBRARY), serial=SERIAL,
                                scene=str(ROOT / "configs" / "scenes" / "default.yaml"))
+    touched_off(data, tmp_path)
     path = tmp_path / "deploy.yaml"
     path.write_text(yaml.safe_dump(data))
     return path

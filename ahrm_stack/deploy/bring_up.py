@@ -62,29 +62,38 @@ def home_limits(world, settings: DeploySettings):
                                           start.region_margin, math.radians(start.tilt_tolerance_deg)))
 
 
-def home(config, settings: DeploySettings, yes: bool, say=print, ask=input):
+def home(config, settings: DeploySettings, yes: bool, say=print, ask=input, touch_off: bool = False):
     """Connect to the arm of ``settings.kinova_gen2`` and run the homing
     (:class:`ahrm_stack.hardware.kinova_gen2.home.Homing`) to the start of ``config``'s task (the policy's),
-    with the deploy settings that apply; its outcome. Bad settings raise before anything is
-    contacted (one-line ``Gen2ConfigError``, a ValueError); a failed connect raises
-    :class:`~ahrm_stack.hardware.protocol.HardwareError` (the arm stopped, the API closed)."""
+    with the deploy settings that apply, or with ``touch_off`` the tool's touch-off
+    (:class:`ahrm_stack.hardware.kinova_gen2.touch_off.TouchOff`, its record written); its outcome. Bad
+    settings raise before anything is contacted (one-line ``Gen2ConfigError``, a ValueError); a failed
+    connect raises :class:`~ahrm_stack.hardware.protocol.HardwareError` (the arm stopped, the API closed)."""
     from ahrm_stack.deploy.world import WorldModel
     from ahrm_stack.hardware.kinova_gen2 import KinovaGen2Arm
     from ahrm_stack.hardware.kinova_gen2.home import Homing
+    from ahrm_stack.hardware.kinova_gen2.touch_off import TouchOff
 
     world = WorldModel(config.task)
     gen2 = settings.kinova_gen2
     arm = KinovaGen2Arm(world.robot, gen2, command_timeout_s=gen2.command_timeout * settings.period)
     arm.connect()
-    return Homing(arm, world, home_limits(world, settings), say, None if yes else ask).run()
+    if not touch_off:
+        return Homing(arm, world, home_limits(world, settings), say, None if yes else ask).run()
+    step = TouchOff(arm, world, home_limits(world, settings), gen2.touch_off, say, ask)
+    outcome = step.run()
+    if outcome.moved:
+        step.record(Path(gen2.touch_off.record))
+    return outcome
 
 
 def home_arm(backend: str, settings: DeploySettings, checkpoint: Path | None,
-             overrides: Sequence[str], policy_file: Path | None, yes: bool) -> int:
+             overrides: Sequence[str], policy_file: Path | None, yes: bool, touch_off: bool = False) -> int:
     """``--home``: move the arm to the start posture of the policy's task after a confirmation
-    (:func:`ahrm_stack.hardware.kinova_gen2.home.home`); prints why it ended. Exit status: 0 at the start
-    posture, 1 not confirmed (nothing moved), 2 bad input (one line, nothing moved), 3 stopped (a
-    fault, the timeout, the link) or the arm not reached, 130 Ctrl-C."""
+    (:func:`ahrm_stack.hardware.kinova_gen2.home.home`); ``--touch-off`` (``touch_off``): the tool's
+    touch-off, its record written. Prints why it ended. Exit status: 0 at the start posture (the
+    touch-off passed), 1 not confirmed (nothing moved; the touch-off failed), 2 bad input (one line,
+    nothing moved), 3 stopped (a fault, the timeout, the link) or the arm not reached, 130 Ctrl-C."""
     from ahrm_stack.deploy.run import load_controller_config
     from ahrm_stack.learning.checkpoint import CheckpointError
     from ahrm_stack.hardware.kinova_gen2 import check_library
@@ -92,17 +101,18 @@ def home_arm(backend: str, settings: DeploySettings, checkpoint: Path | None,
     from ahrm_stack.hardware.protocol import HardwareError
 
     prog = "python -m ahrm_stack.deploy"
+    flag, name = ("--touch-off", "touch-off") if touch_off else ("--home", "homing")
     try:
         if backend != "kinova-gen2":
-            raise DeployConfigError(f"--home moves a Kinova Gen2 arm (--backend kinova-gen2); "
-                                    f"--backend {backend} has no homing step")
+            raise DeployConfigError(f"{flag} moves a Kinova Gen2 arm (--backend kinova-gen2); "
+                                    f"--backend {backend} has no {name} step")
         config, _ = load_controller_config(checkpoint, overrides, policy_file=policy_file)
         check_library(settings.kinova_gen2)
     except (ConfigError, DeployConfigError, CheckpointError, ValueError) as error:
         print(f"{prog}: error: {error}", file=sys.stderr)
         return 2
     try:
-        outcome = home(config, settings, yes)
+        outcome = home(config, settings, yes, touch_off=touch_off)
     except ValueError as error:  # a setting (Gen2ConfigError), before the arm was contacted
         print(f"{prog}: error: {error}", file=sys.stderr)
         return 2
@@ -112,5 +122,5 @@ def home_arm(backend: str, settings: DeploySettings, checkpoint: Path | None,
     except KeyboardInterrupt:
         print("interrupted while connecting: nothing moved", file=sys.stderr)
         return 130
-    print(f"homing: {outcome.reason}", file=sys.stdout if outcome.status == DONE else sys.stderr)
+    print(f"{name}: {outcome.reason}", file=sys.stdout if outcome.status == DONE else sys.stderr)
     return outcome.status

@@ -71,6 +71,11 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
                              "(MoveHome, then a slow joint move; kinova_gen2.home), after a "
                              "confirmation, then exit (0 there, 1 not confirmed, 2 bad input, "
                              "3 stopped, 130 Ctrl-C)")
+    parser.add_argument("--touch-off", action="store_true",
+                        help="kinova-gen2: jog the pusher tip onto three table points "
+                             "(kinova_gen2.touch_off) and compare forward kinematics with the model's "
+                             "table, writing the record a deploy run checks (0 passed, 1 failed or not "
+                             "confirmed, 2 bad input, 3 stopped, 130 Ctrl-C)")
     parser.add_argument("--dry-run", action="store_true",
                         help="the arm's real feedback and scene, every command computed, filtered and "
                              "logged, none sent (stops still are): the arm never moves")
@@ -99,23 +104,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     def terminate(signum, frame):  # SIGTERM stops the arm like Ctrl-C
         raise KeyboardInterrupt
 
-    if args.dry_run and (args.check or args.home):
-        print("python -m ahrm_stack.deploy: error: --dry-run runs the loop; --check and --home are separate steps",
-              file=sys.stderr)
+    if args.dry_run and (args.check or args.home or args.touch_off):
+        print("python -m ahrm_stack.deploy: error: --dry-run runs the loop; --check, --home and --touch-off "
+              "are separate steps", file=sys.stderr)
         return 2
-    if args.check and args.home:
-        print("python -m ahrm_stack.deploy: error: --check and --home are separate steps; give one",
+    if args.check + args.home + args.touch_off > 1:
+        print("python -m ahrm_stack.deploy: error: --check, --home and --touch-off are separate steps; give one",
               file=sys.stderr)
         return 2
     if args.yes and not args.home:
         print("python -m ahrm_stack.deploy: error: --yes confirms --home; give --home too",
               file=sys.stderr)
         return 2
-    if args.home:
+    if args.home or args.touch_off:
         previous = signal.signal(signal.SIGTERM, terminate)
         try:
             return home_arm(args.backend, settings, args.checkpoint, args.overrides,
-                            args.policy_file, args.yes)
+                            args.policy_file, args.yes, touch_off=args.touch_off)
         finally:
             signal.signal(signal.SIGTERM, previous)
 

@@ -16,9 +16,11 @@ frame and SI units, times in s from the run's start on the adapter's clock:
   ``phase``, ``x``, ``stage``, ``touched``, ``latency_ms``.
 
 **MCAP**: one channel per kind, ``/deploy/tick``, ``/deploy/event``, ``/deploy/summary``, JSON
-messages, each channel with a JSON Schema; a message's log time is the wall clock when the run log
-was opened plus the latest record time ``t`` so far (ns; never decreasing, so the file's order is
-the time order). :func:`read_run` reads either file back.
+messages, each channel with a JSON Schema; a message's log time is the wall clock when it was
+written (ns; never decreasing), its record's own ``t`` the run's time. Chunks are small
+(:data:`CHUNK_BYTES`), so that a run killed mid-way loses at most the last few ticks of the twin;
+:func:`read_run` reads a twin without its summary section (a killed run) too. The twin never stops
+a run: a failure writing it is logged once and the twin dropped; the JSONL goes on.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ import numpy as np
 log = logging.getLogger("ahrm_stack.deploy")
 
 CHANNELS = ("tick", "event", "summary")
+CHUNK_BYTES = 8192  # an MCAP chunk is written once this much is buffered (a tick's record is ~1 kB)
 _SCHEMAS = {
     "tick": {"type": "object", "title": "ahrm_stack deploy tick",
              "properties": {name: {"type": "array", "items": {"type": "number"}}
@@ -70,6 +73,14 @@ def tick_record(elapsed: float, t0: float, info: Any, stage: str, feedback: Any,
         "status": result.status, "touched": touched, "latency_ms": round(latency * 1e3, 4)}
 
 
+def twin_path(telemetry: Path) -> Path:
+    """The MCAP twin of a telemetry file: ``x.jsonl`` -> ``x.mcap``; any other name gets ``.mcap``
+    appended (``run-06.01`` -> ``run-06.01.mcap``, never another run's twin)."""
+    telemetry = Path(telemetry)
+    return telemetry.with_suffix(".mcap") if telemetry.suffix == ".jsonl" else telemetry.with_name(
+        telemetry.name + ".mcap")
+
+
 def kind_of(record: dict[str, Any]) -> str:
     """The channel of a telemetry record: ``summary``, ``event`` or ``tick``."""
     return "summary" if "summary" in record else "event" if "event" in record else "tick"
@@ -77,22 +88,21 @@ def kind_of(record: dict[str, Any]) -> str:
 
 class RunLog:
     """The run's telemetry file (JSON lines, written as given) and, with ``mcap``, the same records
-    in ``<path>.mcap`` (the suffix replaced). File-like: :meth:`write` takes one JSON line."""
+    in :func:`twin_path` of it. File-like: :meth:`write` takes one JSON line."""
 
     def __init__(self, path: Path, mcap: bool) -> None:
         self.path = Path(path)
-        self.mcap_path = self.path.with_suffix(".mcap") if mcap else None
+        self.mcap_path = twin_path(self.path) if mcap else None
         self._file: IO[str] = self.path.open("w")
         self._writer: Any = None
         self._mcap_file: IO[bytes] | None = None
         self._channels: dict[str, int] = {}
-        self._epoch_ns = time.time_ns()
-        self._last_t = 0.0  # s: the latest record time, the stamp of a record without one (the summary)
+        self._last_ns = 0
         if self.mcap_path is not None:
             from mcap.writer import Writer
 
             self._mcap_file = self.mcap_path.open("wb")
-            self._writer = Writer(self._mcap_file)
+            self._writer = Writer(self._mcap_file, chunk_size=CHUNK_BYTES)
             self._writer.start(profile="", library="ahrm_stack deploy")
             for kind in CHANNELS:
                 schema = self._writer.register_schema(name=f"ahrm_stack.deploy.{kind}", encoding="jsonschema",
@@ -107,12 +117,25 @@ class RunLog:
         text = line.strip()
         if not text:
             return
-        record = json.loads(text)
-        if record.get("t") is not None:
-            self._last_t = max(self._last_t, float(record["t"]))
-        stamp = self._epoch_ns + int(round(self._last_t * 1e9))
-        self._writer.add_message(channel_id=self._channels[kind_of(record)], log_time=stamp,
-                                 publish_time=stamp, data=text.encode())
+        try:
+            stamp = self._last_ns = max(self._last_ns, time.time_ns())
+            self._writer.add_message(channel_id=self._channels[kind_of(json.loads(text))], log_time=stamp,
+                                     publish_time=stamp, data=text.encode())
+        except Exception as error:  # noqa: BLE001 - the twin never stops a run
+            log.error("deploy: the MCAP twin %s failed (%s: %s); the JSONL telemetry goes on",
+                      self.mcap_path, type(error).__name__, error)
+            self._drop_twin()
+
+    def _drop_twin(self) -> None:
+        writer, stream, self._writer, self._mcap_file = self._writer, self._mcap_file, None, None
+        try:
+            if writer is not None:
+                writer.finish()
+        except Exception as error:  # noqa: BLE001 - logged; the file is closed below
+            log.error("deploy: finishing the MCAP twin %s failed (%s)", self.mcap_path, error)
+        finally:
+            if stream is not None:
+                stream.close()
 
     def flush(self) -> None:
         self._file.flush()
@@ -123,11 +146,7 @@ class RunLog:
         try:
             self._file.close()
         finally:
-            if self._writer is not None:
-                self._writer.finish()
-                self._writer = None
-            if self._mcap_file is not None:
-                self._mcap_file.close()
+            self._drop_twin()
 
 
 @dataclasses.dataclass
@@ -147,10 +166,10 @@ def read_run(path: Path | str) -> RunRecord:
     records: list[dict[str, Any]] = []
     try:
         if path.suffix == ".mcap":
-            from mcap.reader import make_reader
+            from mcap.reader import NonSeekingReader
 
-            with path.open("rb") as stream:
-                for _, _, message in make_reader(stream).iter_messages(log_time_order=False):
+            with path.open("rb") as stream:  # in file order; a killed run's twin has no summary section
+                for _, _, message in NonSeekingReader(stream).iter_messages():
                     records.append(json.loads(message.data))
         else:
             with path.open() as stream:

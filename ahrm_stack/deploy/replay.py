@@ -57,6 +57,9 @@ def replay(record: RunRecord, task_config, realism=None) -> Replay:
     ticks = record.ticks
     if not ticks:
         raise ValueError("the record has no tick: nothing to replay")
+    if any(event.get("event") == "dry run" for event in record.events):
+        raise ValueError("the record is of a dry run: its commands were never sent, so the arm did not "
+                         "follow them; replay a live run")
     arm = SimArm(task_config, clock=FastClock(), realism=realism)
     arm.connect()
     first = ticks[0]

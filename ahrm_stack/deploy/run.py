@@ -85,7 +85,7 @@ def open_telemetry(path: str, mcap: bool = False) -> RunLog | None:
         return None
     target = Path(path)
     if mcap and target.suffix == ".mcap":
-        raise DeployConfigError(f"deploy.telemetry: {target} ends in .mcap, the name of its MCAP twin "
+        raise DeployConfigError(f"deploy.telemetry: {target} ends in .mcap, the suffix of its MCAP twin "
                                 "(deploy.record_mcap); name the JSONL telemetry .jsonl")
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -209,14 +209,16 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
             raise
         loop.run(settings.duration)
     finally:
-        if arm is not None and arm.is_connected:
-            arm.disconnect()  # stops the arm as well
-        if source is not None:
-            source.close()
-        if telemetry is not None:
-            telemetry.close()
-        if scratch is not None:
-            scratch.cleanup()
+        try:
+            if arm is not None and arm.is_connected:
+                arm.disconnect()  # stops the arm as well
+            if source is not None:
+                source.close()
+        finally:  # the record is closed (its MCAP twin finished) whatever the above raised
+            if telemetry is not None:
+                telemetry.close()
+            if scratch is not None:
+                scratch.cleanup()
     return loop
 
 

@@ -65,7 +65,18 @@ def _gen2_parts(config, settings):
 
 
 def _check_gen2(config, settings) -> None:
-    _gen2_parts(config, settings)
+    """A deploy run's checks: the settings and, with ``kinova_gen2.touch_off.required``, a passing
+    touch-off of this arm (:func:`~ahrm_stack.hardware.kinova_gen2.touch_off.touch_off_refusal`)."""
+    from pathlib import Path
+
+    from ahrm_stack.hardware.kinova_gen2 import Gen2ConfigError
+    from ahrm_stack.hardware.kinova_gen2.touch_off import touch_off_refusal
+
+    gen2, _, _ = _gen2_parts(config, settings)
+    if gen2.touch_off.required:
+        refusal = touch_off_refusal(Path(gen2.touch_off.record), gen2.serial)
+        if refusal is not None:
+            raise Gen2ConfigError(f"{refusal} (or set kinova_gen2.touch_off.required: false)")
 
 
 def _make_gen2(config, settings) -> ArmAdapter:

@@ -177,10 +177,14 @@ class SimArm(DescribedArm):
         (position m and quaternion w x y z, world frame), obstacle i at ``obstacles[i]`` (the same
         seven numbers), everything at rest and stopped; the physics clock restarts at the adapter
         clock's now."""
+        obstacles = np.asarray(obstacles, dtype=float).reshape(-1, 7)
+        if len(obstacles) != len(self._obstacle_qpos) or np.shape(cube) != (7,) or np.shape(q) != self._arm_qpos.shape:
+            raise ValueError(f"set_state: {len(self._obstacle_qpos)} obstacles and a cube of 7 numbers "
+                             f"expected, got {len(obstacles)} obstacles and {np.shape(cube)}")
         data = self.physics.data
         data.qpos[self._arm_qpos] = np.asarray(q, dtype=float)
         data.qpos[self._cube_qpos] = np.asarray(cube, dtype=float)
-        for address, pose in zip(self._obstacle_qpos, np.asarray(obstacles, dtype=float)):
+        for address, pose in zip(self._obstacle_qpos, obstacles):
             data.qpos[address] = pose
         data.qvel[:] = 0.0
         self.physics.forward()

@@ -249,7 +249,7 @@ class Homing:
         if home.factory_home_first:
             self.outcome.moved = True
             self.arm.move_home()
-            self._watch("MoveHome", alarm, None)
+            self._watch("MoveHome", alarm, None, busy=lambda: self.arm.move_home_running)
             self.arm.end_move_home()
             q_now = self.arm.refresh_feedback().position
             target = start_target(self.world, q_now)
@@ -271,11 +271,13 @@ class Homing:
                         f"way (kinova_gen2.home.clearance: {self.home.clearance:g} m); move the arm "
                         "clear of the table first (the joystick)")
 
-    def _watch(self, stage: str, alarm: np.ndarray, target: np.ndarray | None) -> np.ndarray:
+    def _watch(self, stage: str, alarm: np.ndarray, target: np.ndarray | None,
+               busy: Callable[[], bool] | None = None) -> np.ndarray:
         """Read the position at ``poll_rate_hz`` until the arm has been still for ``settle`` s
-        (and, with a ``target``, is within ``tolerance_deg`` of it); :class:`_Stop` on a fault, an
-        overspeed (``alarm``, rad/s, on ``velocity_alarm_ticks`` reads in a row) or the timeout.
-        Returns the last position (rad)."""
+        (and, with a ``target``, is within ``tolerance_deg`` of it; with ``busy``, once that says
+        the move is no longer running: MoveHome's own end); :class:`_Stop` on a fault, an overspeed
+        (``alarm``, rad/s, on ``velocity_alarm_ticks`` reads in a row) or the timeout. Returns the
+        last position (rad)."""
         home = self.home
         period = 1.0 / home.poll_rate_hz
         still = math.radians(home.still_deg_s)
@@ -295,8 +297,8 @@ class Homing:
                 i = int(fast[0])
                 raise _Stop(f"{stage}: joint {i} moving at {math.degrees(feedback.velocity[i]):.1f} "
                             f"deg/s, alarm at {math.degrees(alarm[i]):.1f} on {over[i]} reads in a row")
-            there = target is None or bool(np.all(np.abs(_wrap(feedback.position - target))
-                                                  <= tolerance))
+            there = (target is None or bool(np.all(np.abs(_wrap(feedback.position - target))
+                                                   <= tolerance))) and not (busy is not None and busy())
             if there and np.all(np.abs(feedback.velocity) < still):
                 still_since = now if still_since is None else still_since
                 if now - still_since >= home.settle:

@@ -114,15 +114,22 @@ class Gen2Moves(Gen2Faults):
         self._move_home = MoveHomeThread(self._sdk, self._serial)
         log.warning("kinova_gen2: MoveHome sent to %s (the firmware's factory home)", self._serial)
 
+    @property
+    def move_home_running(self) -> bool:
+        """MoveHome is inside the SDK (the arm on its way home, or its return pending)."""
+        return self._move_home is not None and self._move_home.running
+
     def end_move_home(self, timeout: float = RETURN_WITHIN) -> None:
         """Wait up to ``timeout`` s for MoveHome to return (the arm home or stopped: its FIFO
         empty) and put the arm back in angular control; :class:`HardwareError` when it has not
-        returned (the arm is stopped first) or its call failed."""
+        returned (the arm is stopped, and waited for once more: a home packet that arrived after a
+        stop is erased too) or its call failed."""
         thread = self._move_home
         if thread is None:
             return
         if not thread.join(timeout):
             self._halt()
+            thread.join(timeout)
             raise HardwareError(f"MoveHome did not return within {timeout:g} s of the arm's FIFO "
                                 "emptying; the arm was stopped")
         self._move_home = None
@@ -131,14 +138,25 @@ class Gen2Moves(Gen2Faults):
             raise HardwareError(f"MoveHome: {(str(thread.error).splitlines() or [''])[0]}")
 
     def _move_home_returned(self) -> bool:
-        """Before ``CloseAPI``: MoveHome (if it ran) has returned, waiting up to
-        :data:`RETURN_WITHIN` s (the FIFO was just erased); False, logged, when it is still inside
-        the SDK (closing the API under it is not safe: CloseAPI is then skipped)."""
+        """Before ``CloseAPI`` (this thread owning the USB): MoveHome (if it ran) has returned,
+        waiting up to :data:`RETURN_WITHIN` s (the FIFO was just erased), then erasing once more
+        (its home packet may have landed after the erase) and waiting again; False, logged, when it
+        is still inside the SDK (closing the API under it is not safe: CloseAPI is then skipped).
+        A Ctrl-C during the wait ends it (the arm was stopped already)."""
         thread = self._move_home
-        if thread is None or thread.join():
+        if thread is None:
             return True
-        log.error("kinova_gen2: MoveHome on %s has not returned %g s after the FIFO was erased; "
-                  "CloseAPI skipped", self._serial, RETURN_WITHIN)
+        try:
+            if thread.join():
+                return True
+            if self._sdk is not None:
+                self._sdk.call_quietly("EraseAllTrajectories")
+            if thread.join():
+                return True
+        except KeyboardInterrupt:
+            log.error("kinova_gen2: interrupted while waiting for MoveHome on %s to return", self._serial)
+        log.error("kinova_gen2: MoveHome on %s has not returned after the FIFO was erased; CloseAPI "
+                  "skipped", self._serial)
         return False
 
     def move_to(self, q: np.ndarray, speed_deg_s: float) -> np.ndarray:

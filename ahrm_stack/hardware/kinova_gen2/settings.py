@@ -83,6 +83,28 @@ class HomeSettings(Section):
     # the final move's joint-space path
 
 
+@dataclasses.dataclass(frozen=True)
+class TouchOffSettings(Section):
+    """``kinova_gen2.touch_off``: the tool's touch-off (``--touch-off``,
+    :mod:`ahrm_stack.hardware.kinova_gen2.touch_off`). Lengths in m, world frame."""
+
+    points: Annotated[tuple[tuple[Float, Float], ...], count(3)]  # (x, y) of table points the tip
+    # touches, m, world frame (within the arm's reach pointing down)
+    lift: Annotated[Float, gt(0), le(0.3)]  # m above the table top when moving between points
+    approach: Annotated[Float, gt(0), le(0.1)]  # m above the table top where the jogging starts
+    step: Annotated[Float, gt(0), le(0.005, " m: a jog step is a move the user watches")]  # m per jog
+    below: Annotated[Float, ge(0), le(0.02)]  # m: the jog stops this far below the model's table top
+    speed_deg_s: Annotated[Float, gt(0), le(20.0)]  # deg/s per joint, every touch-off move
+    max_error: Annotated[Float, gt(0), le(0.02)]  # m: |the tip's height above the model's table| at
+    # every point; beyond it the touch-off fails
+    record: Str  # JSON file of the last touch-off (the arm's serial, the errors, passed)
+    required: Bool  # deploy --backend kinova-gen2 refuses unless that record is of this arm and passed
+
+    def check(self, key: str) -> None:
+        if self.approach >= self.lift:
+            raise ConfigError(f"{key}.approach ({self.approach}) must be below {key}.lift ({self.lift})")
+
+
 #: ROBOT_TYPE (KinovaTypes.h; values as the vendored binary's DWARF gives them): ``QuickStatus.RobotType``.
 ROBOT_TYPES: dict[int, str] = {
     0: "JACOV1_ASSISTIVE", 1: "MICO_6DOF_SERVICE", 2: "MICO_4DOF_SERVICE", 3: "JACOV2_6DOF_SERVICE",
@@ -140,6 +162,7 @@ class Gen2Settings(Section):
     # connected (sys.setswitchinterval)
     joints: Annotated[dict[Str, JointConvention], AfterValidator(_not_empty)]  # per arm (task.robot)
     home: HomeSettings  # the homing step (--home)
+    touch_off: TouchOffSettings  # the tool's touch-off (--touch-off)
 
 
 def setting_key(name: str) -> str:
