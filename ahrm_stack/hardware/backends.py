@@ -124,7 +124,7 @@ BACKENDS: dict[str, Backend] = {
                            "(configs/deploy.yaml kinova_gen2; docs/hardware.md)",
                            _check_gen2, _make_gen2, _link_check_gen2),
     "kortex": Backend("kortex", "a Kinova Gen3 over kortex_api (configs/deploy.yaml kortex; it refuses "
-                      "to run until a scene source exists, naming what is missing)",
+                      "to run until a Gen3 policy and its scene source are wired, naming what is missing)",
                       _check_kortex, _make_kortex),
 }
 

@@ -57,10 +57,11 @@ def make_kortex_backend(settings, robot: RobotDescription, *,
 
 def kortex_deploy_blocker(settings, env: Mapping[str, str] | None = None) -> str:
     """Why ``python -m ahrm_stack.deploy --backend kortex`` cannot run yet, as one line naming what
-    is missing: the address, credentials, real-time pacing, and in any case a scene source (a
-    perception module for the cube and obstacle poses, which the controller and the safety filter
-    need). A static layout is not used in its place: the cube moves when pushed, so a static pose
-    would keep the controller pushing at where the cube was and miss success."""
+    is missing: the address, credentials, real-time pacing, and in any case an arm model to run (no
+    Gen3 description is trained on yet: ``kortex.models`` is empty, so connect would refuse every
+    arm's model) with the deploy command's Kortex path wired to the camera scene source (a static
+    layout is not used in its place: the cube moves when pushed, so a static pose would keep the
+    controller pushing at where the cube was and miss success)."""
     if not settings.kortex.address:
         return ("--backend kortex: deploy.kortex.address is not set (the arm's IP address; there "
                 "is no default)")
@@ -70,6 +71,7 @@ def kortex_deploy_blocker(settings, env: Mapping[str, str] | None = None) -> str
         return f"--backend kortex: {error}"
     if not settings.realtime:
         return "--backend kortex: --fast / deploy.realtime false is for the sim backend only"
-    return ("--backend kortex: no scene source for the cube and obstacle poses (a perception "
-            "module) exists yet; the arm was not contacted (ahrm_stack.hardware.kortex.make_kortex_backend "
-            "builds the adapter once one does)")
+    return ("--backend kortex: no Gen3 policy to run yet (deploy.kortex.models is empty: no Gen3 arm "
+            "description is trained on, and connect refuses an arm whose model is not listed) and the "
+            "deploy command's Kortex path is not wired to --scene camera; the arm was not contacted "
+            "(docs/kortex.md, Deploy)")
