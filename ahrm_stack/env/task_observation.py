@@ -1,7 +1,9 @@
-"""The push-off task's observation (spec §1): the composer observables it declares, the order of
-the flat observation vector (:attr:`TaskObservation.observation_order`), that vector read straight
-from the physics (:meth:`TaskObservation.flat_observation`), and the episode's planned lane it
-shows. Positions in m, world frame; joint angles as (sin, cos), velocities in rad/s and m/s.
+"""The push-off task's observation (spec §1), all of it read from its one description
+(:func:`~ahrm_stack.env.observation_layout.observation_terms`): the composer observables it
+declares, the order of the flat observation vector (:attr:`TaskObservation.observation_order`), that
+vector read straight from the physics (:meth:`TaskObservation.flat_observation`, each term's value by
+its name: :meth:`TaskObservation._term_values`), and the episode's planned lane it shows. Positions
+in m, world frame; joint angles as (sin, cos), velocities in rad/s and m/s.
 
 :class:`TaskObservation` is a base class of :class:`~ahrm_stack.env.task.PushOffTask`: it reads
 the entities the task composes, the task's last :class:`~ahrm_stack.env.task.StepInfo` and the
@@ -18,7 +20,12 @@ from dm_control.composer.observation import observable
 
 from ahrm_stack.config import TaskConfig
 from ahrm_stack.env.layout import Layout, choose_lane, lane_clearance
+from ahrm_stack.env.observation_layout import TASK_TERMS, ObservationTerm, observation_terms
 from ahrm_stack.env.rewards import NUM_PHASES
+
+
+_PHASES = np.eye(NUM_PHASES)  # the phase's one-hot rows
+_PHASES.setflags(write=False)
 
 
 class TaskObservation:
@@ -27,6 +34,7 @@ class TaskObservation:
     # Set by PushOffTask: its config, entities, last step, previous action and, at each reset
     # (_bind), the physics indices below.
     config: TaskConfig
+    robot: Any  # ahrm_stack.robot.RobotDescription
     step_info: Any  # ahrm_stack.env.task.StepInfo
     previous_action: np.ndarray  # (n_commanded,) the last action, normalised
     _arm: Any  # the arm entity
@@ -41,31 +49,38 @@ class TaskObservation:
     _prop_linear_dofs: np.ndarray
     _arm_qpos: np.ndarray
     _arm_dof: np.ndarray
+    _flat: tuple[mjcf.Physics, list[Callable[[], np.ndarray]]] | None = None  # (physics, per-term calls)
+
+    @property
+    def observation_terms(self) -> tuple[ObservationTerm, ...]:
+        """The flat observation's terms, in order, with this task's composer keys
+        (:func:`~ahrm_stack.env.observation_layout.observation_terms`)."""
+        return observation_terms(self.config, self.robot.num_joints, len(self.robot.commanded_joints),
+                                 arm=self._arm.mjcf_model.model,
+                                 props=tuple(p.mjcf_model.model for p in [self._cube, *self._obstacles]))
+
+    def _term_values(self) -> dict[str, Callable[[mjcf.Physics], np.ndarray]]:
+        """Each task term's value (physics -> its floats), by name: the composer observables and
+        :meth:`flat_observation` both compute a task term with these."""
+        return {"pusher_tip": lambda physics: self.step_info.tip,
+                "previous_action": lambda physics: self.previous_action,
+                "phase": lambda physics: _PHASES[self.step_info.phase - 1],
+                "boundary_distance": lambda physics: np.array([self.step_info.x]),
+                "relative_to_cube": self._relative_to_cube,
+                "lane_clearance": self._lane_clearance,
+                "lane_choice": self.lane_choice}
 
     def _declare_observables(self) -> None:
-        """The observation of spec §1; :data:`OBSERVATION_ORDER` lists the keys in vector order."""
+        """The observables of :attr:`observation_terms`: the arm's and the props' own, and one
+        ``Generic`` per task term."""
         self._arm.observables.joints_pos.enabled = True
         self._arm.observables.joints_vel.enabled = True
         for prop in [self._cube, *self._obstacles]:
             prop.observables.position.enabled = True
             prop.observables.linear_velocity.enabled = True
-        self._task_observables = {
-            "pusher_tip": observable.Generic(lambda physics: self.step_info.tip),
-            "previous_action": observable.Generic(lambda physics: self.previous_action),
-            "phase": observable.Generic(
-                lambda physics: np.eye(NUM_PHASES)[self.step_info.phase - 1]),
-            "boundary_distance": observable.Generic(
-                lambda physics: np.array([self.step_info.x])),
-        }
-        if self.config.observation.relative:
-            self._task_observables["relative_to_cube"] = observable.Generic(
-                lambda physics: self._relative_to_cube(physics))
-        if self.config.observation.lanes:
-            self._task_observables["lane_clearance"] = observable.Generic(
-                lambda physics: self._lane_clearance(physics))
-        if self.config.observation.lane_choice:
-            self._task_observables["lane_choice"] = observable.Generic(
-                lambda physics: self.lane_choice(physics))
+        values = self._term_values()
+        self._task_observables = {term.name: observable.Generic(values[term.name])
+                                  for term in self.observation_terms if term.name in TASK_TERMS}
         for obs in self._task_observables.values():
             obs.enabled = True
         # Sample once per control step (at its last substep), not at every physics substep.
@@ -89,15 +104,8 @@ class TaskObservation:
 
     @property
     def observation_order(self) -> list[str]:
-        """Observation keys in the order of the flat observation vector."""
-        props = [self._cube, *self._obstacles]
-        keys = [f"{self._arm.mjcf_model.model}/joints_pos", f"{self._arm.mjcf_model.model}/joints_vel",
-                "pusher_tip"]
-        for prop in props:
-            keys += [f"{prop.mjcf_model.model}/position", f"{prop.mjcf_model.model}/linear_velocity"]
-        keys += ["previous_action", "phase", "boundary_distance"]
-        return keys + [k for k in ("relative_to_cube", "lane_clearance", "lane_choice")
-                       if k in self._task_observables]
+        """Composer observation keys in the order of the flat observation vector."""
+        return [key for term in self.observation_terms for key in term.keys]
 
     def _relative_to_cube(self, physics: mjcf.Physics) -> np.ndarray:
         """Tip - cube (3) and each obstacle - cube in (x, y) (2 each), m, world frame."""
@@ -153,23 +161,42 @@ class TaskObservation:
         return physics.data.xpos[self._cube_body, :2].copy()
 
     def flat_observation(self, physics: mjcf.Physics) -> np.ndarray:
-        """The observation vector in :attr:`observation_order`, read straight from the physics.
+        """The observation vector of :attr:`observation_terms`, read straight from the physics.
 
         Equal to concatenating the declared observables (a test checks it) but without composer's
         per-observable overhead: this runs every control step.
         """
+        if self._flat is None or self._flat[0] is not physics:
+            self._flat = (physics, self._flat_parts(physics))
+        return np.concatenate([part() for part in self._flat[1]])
+
+    def _flat_parts(self, physics: mjcf.Physics) -> list[Callable[[], np.ndarray]]:
+        """Calls giving :attr:`observation_terms`' floats from ``physics`` now, in order (the
+        cube's and the obstacles' terms, which sit together, by one call)."""
         data = physics.data
-        q = data.qpos[self._arm_qpos]
-        parts = [np.stack([np.sin(q), np.cos(q)], axis=1).ravel(), data.qvel[self._arm_dof],
-                 self.step_info.tip,
-                 np.concatenate([data.xpos[self._prop_bodies], data.qvel[self._prop_linear_dofs]],
-                                axis=1).ravel(),
-                 self.previous_action, np.eye(NUM_PHASES)[self.step_info.phase - 1],
-                 (self.step_info.x,)]
-        if self.config.observation.relative:
-            parts.append(self._relative_to_cube(physics))
-        if self.config.observation.lanes:
-            parts.append(self._lane_clearance(physics))
-        if self.config.observation.lane_choice:
-            parts.append(self.lane_choice(physics))
-        return np.concatenate(parts)
+        values = self._term_values()
+
+        def joints_pos() -> np.ndarray:
+            q = data.qpos[self._arm_qpos]
+            return np.stack([np.sin(q), np.cos(q)], axis=1).ravel()
+
+        def props() -> np.ndarray:  # position then linear velocity per prop, the cube first
+            return np.concatenate([data.xpos[self._prop_bodies], data.qvel[self._prop_linear_dofs]],
+                                  axis=1).ravel()
+
+        parts: list[Callable[[], np.ndarray]] = []
+        for term in self.observation_terms:
+            if term.name == "joints_pos":
+                parts.append(joints_pos)
+            elif term.name == "joints_vel":
+                parts.append(lambda: data.qvel[self._arm_dof])
+            elif term.keys[0].endswith("/position"):  # a prop: the cube or an obstacle
+                if term.name == "cube":
+                    parts.append(props)
+            else:
+                parts.append(self._task_part(values[term.name], physics))
+        return parts
+
+    @staticmethod
+    def _task_part(value: Callable[[mjcf.Physics], np.ndarray], physics: mjcf.Physics) -> Callable[[], np.ndarray]:
+        return lambda: value(physics)  # each value is a 1-D array
