@@ -63,12 +63,6 @@ class PolicyController:
         lean = lean_actor(actor) if self._numpy is None else None
         self._act = None if lean is None else lean.act
         self.path = "numpy" if self._numpy is not None else "lean" if lean is not None else "tensordict"
-        # The request of a finite action without ControlStep's per-call checks (the same
-        # arithmetic: clip to [-1, 1], scale); anything else goes through ControlStep.
-        self._scale = self.control.max_tip_speed
-        self._commanded = np.asarray(self.control.commanded, dtype=int)
-        self._commanded_limit = self.control.velocity_limit[self._commanded]
-        self._num_joints = len(self.control.velocity_limit)
 
     def reset(self) -> None:
         self.control.reset()
@@ -97,17 +91,7 @@ class PolicyController:
 
     def _request(self, action) -> np.ndarray:
         """:meth:`ControlStep.request_keeping_faults` of ``action`` (a new float64 array)."""
-        action = np.array(action, dtype=float).reshape(-1)  # a copy: written in place below
-        if action.shape != (self.control.action_size,) or not np.isfinite(action).all():
-            # a non-finite action is a fault, not a zero: it stays NaN for the loop to flag
-            return self.control.request_keeping_faults(action)
-        np.clip(action, -1.0, 1.0, out=action)
-        if self.cartesian:
-            action *= self._scale
-            return action
-        command = np.zeros(self._num_joints)
-        command[self._commanded] = action * self._commanded_limit
-        return command
+        return self.control.request_keeping_faults(action)
 
     @property
     def stage(self) -> str:

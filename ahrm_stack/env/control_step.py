@@ -114,6 +114,8 @@ class ControlStep:
         self.velocity_limit = robot.velocity_limit  # rad/s, all joints
         self.commanded = tuple(robot.commanded_joints)
         self.action_size = TIP_DIM if self.cartesian else len(self.commanded)
+        self._commanded_index = np.asarray(self.commanded, dtype=int)
+        self._commanded_limit = self.velocity_limit[self._commanded_index]
         self.request_size = request_size(robot, self.cartesian)
         self.smoothing = float(action.smoothing)  # in [0, 1); 0: requests pass unchanged
         self._previous: np.ndarray | None = None  # the last smoothed request of this episode
@@ -153,10 +155,19 @@ class ControlStep:
         return np.clip(finite, -1.0, 1.0) * self.max_tip_speed
 
     def request_keeping_faults(self, action: np.ndarray) -> np.ndarray:
-        """As :meth:`request` (float64), but an entry whose action is NaN or infinite is NaN in
-        the request: for the deploy loop, which stops the arm on it (a broken policy is a fault,
-        never a silent zero)."""
-        action = np.asarray(action, dtype=float).reshape(-1)
+        """As :meth:`request` (float64, a new array), but an entry whose action is NaN or infinite
+        is NaN in the request: for the deploy loop, which stops the arm on it (a broken policy is a
+        fault, never a silent zero). A finite action of the right size takes the same arithmetic
+        without :meth:`request`'s checks (the deploy loop calls this every tick)."""
+        action = np.array(action, dtype=float).reshape(-1)  # a copy: written in place below
+        if action.shape == (self.action_size,) and np.isfinite(action).all():
+            np.clip(action, -1.0, 1.0, out=action)
+            if self.cartesian:
+                action *= self.max_tip_speed
+                return action
+            command = np.zeros(len(self.velocity_limit))
+            command[self._commanded_index] = action * self._commanded_limit
+            return command
         request = self.request(action)
         bad = ~np.isfinite(action)
         if self.cartesian:
