@@ -14,7 +14,7 @@ seeded by the episode) for both controllers, through the same :class:`~ahrm_stac
 DeployLoop` that drives a real arm (the checkpoint's safety settings merged as deploy merges
 them, ``configs/deploy.yaml``'s loop and watchdogs).
 
-An episode counts by what happened in the simulator (:attr:`ahrm_stack.hardware.sim.SimArm.truth`): success
+An episode counts by what happened in the simulator (:attr:`ahrm_stack.sim_arm.SimArm.truth`): success
 when the cube left the table, touching when the arm or the cube touched an obstacle, time from the
 loop's start to the success. The loop's own judgement (from perception) is recorded beside it, so
 that a judged success the simulator contradicts shows. Writes ``robustness.json`` (every episode)
@@ -84,7 +84,7 @@ def _episodes(job: tuple[str | None, str, dict, list[int], float]) -> list[dict[
     from ahrm_stack.deploy.session import DeploySession
     from ahrm_stack.deploy.settings import load_deploy_settings
     from ahrm_stack.hardware.protocol import FastClock
-    from ahrm_stack.hardware.sim import SimArm
+    from ahrm_stack.sim_arm import SimArm
 
     logging.disable(logging.WARNING)  # thousands of stops: the records say how each run ended
     config, actor = load_controller_config(None if checkpoint is None else Path(checkpoint))

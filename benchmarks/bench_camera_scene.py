@@ -77,7 +77,7 @@ def run_episode(config, checkpoint: Path, seed: int, duration: float, camera_sce
     from ahrm_stack.config import load_config as load_repo_config
     from ahrm_stack.env.rewards import obstacle_touched
     from ahrm_stack.hardware.protocol import FastClock
-    from ahrm_stack.hardware.sim import SimArm
+    from ahrm_stack.sim_arm import SimArm
 
     safety, _ = merge_safety(load_repo_config().safety, config.safety)
     config = dataclasses.replace(config, safety=safety)

@@ -47,7 +47,7 @@ def render_video(path: Path, task_config, settings, frames: int) -> None:
 
     from ahrm_stack.perception.sim_camera import SimCamera
     from ahrm_stack.hardware.protocol import FastClock
-    from ahrm_stack.hardware.sim import SimArm
+    from ahrm_stack.sim_arm import SimArm
 
     arm = SimArm(task_config, seed=0, clock=FastClock())
     arm.connect()
@@ -71,7 +71,7 @@ def in_tick_cost(task_config, settings, frames: int) -> np.ndarray:
     from ahrm_stack.perception.apriltag import TagDetector
     from ahrm_stack.perception.sim_camera import SimCamera
     from ahrm_stack.hardware.protocol import FastClock
-    from ahrm_stack.hardware.sim import SimArm
+    from ahrm_stack.sim_arm import SimArm
 
     arm = SimArm(task_config, seed=0, clock=FastClock())
     arm.connect()
@@ -94,7 +94,7 @@ def run_scene(kind: str, duration: float, config, deploy_settings, perception, l
     from ahrm_stack.deploy.session import DeploySession
     from ahrm_stack.perception.camera_scene import camera_scene
     from ahrm_stack.hardware.protocol import WallClock
-    from ahrm_stack.hardware.sim import SimArm
+    from ahrm_stack.sim_arm import SimArm
 
     arm = SimArm(config.task, seed=0, clock=WallClock())
     session = DeploySession.open(arm, config, None, deploy_settings, world_seed=0)
@@ -148,7 +148,7 @@ def main() -> None:
     from ahrm_stack.perception.settings import load_perception_settings
     from ahrm_stack.perception.scene_source import write_layout_file
     from ahrm_stack.hardware.protocol import FastClock
-    from ahrm_stack.hardware.sim import SimArm
+    from ahrm_stack.sim_arm import SimArm
 
     config = load_config()
     deploy_settings = load_deploy_settings(realtime=True, telemetry="")

@@ -8,7 +8,7 @@ watchdog tolerates misses here so that they are counted instead of ending the ru
 The "tick" is the loop's latency window, feedback received -> command sent (checks, perception,
 world model, controller, safety filter, the adapter's send), wall clock. The sim backend's physics
 is not in it: the simulated arm applies a command at its stamp on its next call and steps while
-the loop sleeps (ahrm_stack/hardware/sim.py), as a real arm moves on its own (before 2026-12-02 the send
+the loop sleeps (ahrm_stack/sim_arm.py), as a real arm moves on its own (before 2026-12-02 the send
 stepped the physics up to the send time inside the window). The same window is also given in the
 loop thread's CPU time, which leaves out the time the OS gave other processes. Besides the whole
 tick it times the three costly parts inside it, in the same run: the world model's update (the
@@ -42,7 +42,7 @@ import numpy as np  # noqa: E402
 from ahrm_stack.deploy import load_controller_config, load_deploy_settings  # noqa: E402
 from ahrm_stack.deploy.session import DeploySession  # noqa: E402
 from ahrm_stack.hardware.protocol import FastClock, WallClock  # noqa: E402
-from ahrm_stack.hardware.sim import SimArm  # noqa: E402
+from ahrm_stack.sim_arm import SimArm  # noqa: E402
 
 GOAL_P99_MS = 1.0
 

@@ -91,7 +91,7 @@ def budget_run(duration: float, rate_hz: float = 20.0, fault_every: float = 30.0
     from ahrm_stack.config import load_config
     from ahrm_stack.deploy import DeployLoop, load_deploy_settings
     from ahrm_stack.deploy.session import DeploySession
-    from ahrm_stack.hardware import backends
+    from ahrm_stack.deploy import backends
     from ahrm_stack.hardware.kinova_gen2 import SYSTEM_ERROR_TYPES
     from ahrm_stack.hardware.kinova_gen2.bus import POINT_PERIOD
 

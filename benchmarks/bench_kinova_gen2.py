@@ -47,7 +47,7 @@ def deploy_on_fake(duration: float, freezes: int, resume_ticks: int = 10) -> dic
     from ahrm_stack.deploy import load_deploy_settings
     from ahrm_stack.deploy.session import DeploySession
     from ahrm_stack.safety.filter import velocity_margin
-    from ahrm_stack.hardware import backends
+    from ahrm_stack.deploy import backends
 
     library = session_library()
     fake = FakeSdk(library)

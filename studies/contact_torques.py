@@ -34,7 +34,7 @@ def main(argv: list[str] | None = None) -> int:
     from ahrm_stack.deploy.session import DeploySession
     from ahrm_stack.deploy.settings import load_deploy_settings
     from ahrm_stack.hardware.protocol import FastClock
-    from ahrm_stack.hardware.sim import SimArm
+    from ahrm_stack.sim_arm import SimArm
     from ahrm_stack.hardware.wrapper import ArmWrapper
     from ahrm_stack.realism import realism_profiles
     from ahrm_stack.seeds import seed_table

@@ -213,7 +213,7 @@ def rendered():
     from ahrm_stack.perception.settings import ReferenceTagSettings
     from ahrm_stack.perception.sim_camera import SimCamera
     from ahrm_stack.hardware.protocol import FastClock
-    from ahrm_stack.hardware.sim import SimArm
+    from ahrm_stack.sim_arm import SimArm
 
     config = load_config()
     settings = load_perception_settings()

@@ -33,7 +33,7 @@ def video(tmp_path_factory):
     """(video path, true cube centres per frame (None: hidden), settings, task config)."""
     from ahrm_stack.config import load_config
     from ahrm_stack.perception.sim_camera import SimCamera
-    from ahrm_stack.hardware.sim import SimArm
+    from ahrm_stack.sim_arm import SimArm
 
     config = load_config()
     settings = load_perception_settings()

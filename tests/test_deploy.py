@@ -19,7 +19,7 @@ from ahrm_stack.config import load_config, load_raw
 from ahrm_stack.deploy import (DEPLOY_CONFIG, DeployConfigError, DeployLoop, ScriptedController,
                                WorldModel, deploy_sim, load_deploy_settings, main)
 from ahrm_stack.hardware.protocol import FastClock
-from ahrm_stack.hardware.sim import SimArm
+from ahrm_stack.sim_arm import SimArm
 
 
 def test_deploy_command_pushes_the_cube_off_with_the_scripted_controller(tmp_path, capsys):

@@ -28,7 +28,7 @@ from ahrm_stack.deploy.policy import NumpyPolicy
 from ahrm_stack.env.layout import lane_clearance
 from ahrm_stack.learning.ppo import GaussianHead, LeanActor, RunningNorm, lean_actor, make_modules
 from ahrm_stack.hardware.protocol import FastClock, WallClock, check_joint_speeds
-from ahrm_stack.hardware.sim import SimArm
+from ahrm_stack.sim_arm import SimArm
 
 
 # --------------------------------------------------------------------------- the policy

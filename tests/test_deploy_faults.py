@@ -1,7 +1,7 @@
 """Every way a deploy run can fail ends in a recorded stop.
 
 Each scenario below breaks one thing in a running loop (or at start-up): every fault the sim
-adapter offers (:class:`~ahrm_stack.hardware.sim.InjectedFault`), an adapter call that raises, perception
+adapter offers (:class:`~ahrm_stack.sim_arm.InjectedFault`), an adapter call that raises, perception
 that raises or returns the wrong number of obstacles or a NaN pose, a controller that raises,
 returns the wrong size or NaN (the scripted one wrapped, and a policy whose action is NaN or
 infinite), a safety filter that raises, and faults during start-up. For each run it measures:
@@ -37,7 +37,7 @@ from ahrm_stack.deploy import (DeployFault, DeployLoop, PolicyController,  # noq
                                ScriptedController, WorldModel, load_deploy_settings)
 from ahrm_stack.hardware.protocol import (FastClock, FeedbackTimeoutError, HardwareError,  # noqa: E402
                                WallClock)
-from ahrm_stack.hardware.sim import InjectedFault, SimArm  # noqa: E402
+from ahrm_stack.sim_arm import InjectedFault, SimArm  # noqa: E402
 
 RATE_HZ = 20.0
 WARM_TICKS = 5  # healthy ticks before the fault

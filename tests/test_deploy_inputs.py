@@ -255,7 +255,7 @@ def test_a_nan_policy_stops_the_run_with_a_fault(tmp_path, capsys):
 @pytest.mark.parametrize("where", ["world model", "perception at start-up"])
 def test_a_start_up_fault_is_recorded(where, tmp_path, capsys, monkeypatch):
     import ahrm_stack.deploy as deploy_module
-    from ahrm_stack.hardware.sim import SimArm
+    from ahrm_stack.sim_arm import SimArm
 
     def crash(*args, **kwargs):
         raise RuntimeError("boom")

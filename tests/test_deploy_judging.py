@@ -20,7 +20,7 @@ from ahrm_stack.deploy import (DEPLOY_CONFIG, DeployConfigError, DeployFault, De
                                ScriptedController, WorldModel, load_deploy_settings)
 from ahrm_stack.deploy.loop import DeploySummary
 from ahrm_stack.hardware.protocol import FastClock
-from ahrm_stack.hardware.sim import SimArm
+from ahrm_stack.sim_arm import SimArm
 
 CONFIG = load_config()
 HX, HY = CONFIG.task.table.half_extent

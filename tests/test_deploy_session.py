@@ -7,7 +7,7 @@ from ahrm_stack.config import load_config
 from ahrm_stack.deploy import PolicyController, ScriptedController, load_controller_config, load_deploy_settings
 from ahrm_stack.deploy.session import DeploySession
 from ahrm_stack.hardware.protocol import FastClock
-from ahrm_stack.hardware.sim import SimArm
+from ahrm_stack.sim_arm import SimArm
 
 ROOT = Path(__file__).resolve().parents[1]
 

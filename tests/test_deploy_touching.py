@@ -56,14 +56,14 @@ def first_touch(run: int) -> int:
 
 
 def touching_arm_class():
-    """A :class:`~ahrm_stack.hardware.sim.SimArm` whose perception reports ``obstacle_0`` touching a moving
+    """A :class:`~ahrm_stack.sim_arm.SimArm` whose perception reports ``obstacle_0`` touching a moving
     robot part (imported lazily: the parent process needs none of it)."""
     import dataclasses
 
     import mujoco
 
     from ahrm_stack.kinematics.scene import signed_distance
-    from ahrm_stack.hardware.sim import SimArm
+    from ahrm_stack.sim_arm import SimArm
 
     class TouchingSimArm(SimArm):
         instance: "TouchingSimArm | None" = None
@@ -133,14 +133,14 @@ def child(run: int, duration: float, telemetry: str, result: str) -> int:
     deploy command's exit code."""
     import logging
 
-    import ahrm_stack.hardware.sim
+    import ahrm_stack.sim_arm
     from ahrm_stack import deploy
     from ahrm_stack.kinematics import scene
 
     global FIRST_TOUCH, RUN
     FIRST_TOUCH, RUN = first_touch(run), run
     arm_class = touching_arm_class()
-    ahrm_stack.hardware.sim.SimArm = arm_class  # deploy_sim imports it from there at call time
+    ahrm_stack.sim_arm.SimArm = arm_class  # deploy_sim imports it from there at call time
     argv = ["--backend", "sim", "--fast", "--duration", str(duration), "--rate", str(RATE_HZ),
             "--seed", str(run), "--telemetry", telemetry]
     if run % 2:

@@ -11,7 +11,7 @@ from ahrm_stack.deploy import load_deploy_settings
 from ahrm_stack.deploy.run import deploy_sim
 from ahrm_stack.hardware.dry_run import DryRunArm
 from ahrm_stack.hardware.protocol import CommandRefusedError, FastClock, Fault
-from ahrm_stack.hardware.sim import SimArm
+from ahrm_stack.sim_arm import SimArm
 
 
 def test_a_dry_run_computes_and_logs_every_command_and_moves_nothing(tmp_path, monkeypatch):

@@ -16,7 +16,7 @@ from ahrm_stack.hardware.protocol import (ArmAdapter, ArmFaultError, ArmState, C
 
 
 def _sim(task_config) -> ArmAdapter:
-    from ahrm_stack.hardware.sim import SimArm
+    from ahrm_stack.sim_arm import SimArm
 
     return SimArm(task_config, seed=0, clock=FastClock())
 

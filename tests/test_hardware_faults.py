@@ -13,7 +13,7 @@ import pytest
 from ahrm_stack.config import load_config
 from ahrm_stack.deploy import DeployLoop, ScriptedController, WorldModel, load_deploy_settings
 from ahrm_stack.hardware.protocol import ArmState, CommandRefusedError, FastClock, Fault
-from ahrm_stack.hardware.sim import InjectedFault, SimArm
+from ahrm_stack.sim_arm import InjectedFault, SimArm
 
 RATE_HZ = 20.0
 

@@ -22,7 +22,7 @@ from ahrm_stack.env.task import PushOffTask
 from ahrm_stack.kinematics.model import UrdfArmKinematics
 from ahrm_stack.robot import ARMS
 from ahrm_stack.hardware import FastClock
-from ahrm_stack.hardware.sim import SimArm
+from ahrm_stack.sim_arm import SimArm
 
 URDF = "robots/kinova_description/robots/kinova.urdf"
 LINKS = [f"j2s6s200_link_{i}" for i in range(1, 7)]

@@ -118,7 +118,7 @@ def _scripted_loop_on_the_fake(library):
 
     from ahrm_stack.config import load_config
     from ahrm_stack.deploy import DeployLoop, ScriptedController, WorldModel, load_deploy_settings
-    from ahrm_stack.hardware import backends
+    from ahrm_stack.deploy import backends
 
     fake = fake_module.FakeSdk(library)
     config = load_config()

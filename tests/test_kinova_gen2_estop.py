@@ -31,7 +31,7 @@ import pytest
 
 from ahrm_stack.config import load_config
 from ahrm_stack.deploy import (DeployLoop, ScriptedController, WorldModel, load_deploy_settings)
-from ahrm_stack.hardware import backends
+from ahrm_stack.deploy import backends
 from ahrm_stack.hardware.kinova_gen2 import KinovaGen2Arm
 
 fake_module = pytest.importorskip("fake_kinova_sdk.fake")

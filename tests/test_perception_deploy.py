@@ -19,7 +19,7 @@ from ahrm_stack.perception.scene_source import LayoutFileObstacles, MeasuredScen
 from ahrm_stack.perception.settings import load_perception_settings
 from ahrm_stack.perception.tracker import CubeTracker
 from ahrm_stack.hardware.protocol import FastClock
-from ahrm_stack.hardware.sim import SimArm
+from ahrm_stack.sim_arm import SimArm
 
 TRAINED = Path(__file__).resolve().parents[1] / "docs" / "policies" / "ahrm-default-seed0"
 

@@ -16,7 +16,7 @@ from ahrm_stack.perception.settings import load_perception_settings
 from ahrm_stack.perception.sim_camera import SimCamera, SimFrames
 from ahrm_stack.perception.tracker import CubeTracker
 from ahrm_stack.hardware.protocol import FastClock
-from ahrm_stack.hardware.sim import SimArm
+from ahrm_stack.sim_arm import SimArm
 
 # The tracking tests' push: the fixed-layout policy of 2026-12-01 (its cube speed profile is what the
 # bounds below were set on; today's default policy pushes faster: velocity error RMS ~0.13 m/s)

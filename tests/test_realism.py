@@ -17,7 +17,7 @@ from ahrm_stack.realism import (GROUPS, ActuatorModel, RealismConfig, nominal, r
                                 resolve_realism)
 from ahrm_stack.learning.ppo import RunningNorm
 from ahrm_stack.hardware.protocol import FastClock
-from ahrm_stack.hardware.sim import SimArm
+from ahrm_stack.sim_arm import SimArm
 
 
 def _realism(**values) -> RealismConfig:

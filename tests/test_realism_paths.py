@@ -21,7 +21,7 @@ import pytest
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.task import PushOffTask
 from ahrm_stack.hardware.protocol import FastClock
-from ahrm_stack.hardware.sim import SimArm
+from ahrm_stack.sim_arm import SimArm
 from ahrm_stack.realism import ActuatorModel, JointSensing, RealismConfig, realism_profiles
 
 JACO2 = realism_profiles()["jaco2"]

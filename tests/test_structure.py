@@ -17,8 +17,21 @@ import import_graph  # noqa: E402
 def test_no_import_circle_even_through_type_checking_or_lazy_imports():
     known = import_graph.modules()
     found = import_graph.edges(known)
-    assert ("ahrm_stack.config.task", "ahrm_stack.env.layout_rules") in {(e.source, e.target) for e in found}
+    assert ("ahrm_stack.config.task", "ahrm_stack.config.layout_rules") in {(e.source, e.target) for e in found}
     assert import_graph.circles(import_graph.graph_of(found, known, typing=True)) == []
+
+
+def test_the_lower_layers_import_nothing_above_them():
+    """``hardware/`` (the protocol and the real arms' adapters), ``config/`` and ``realism/`` import
+    nothing of the simulation, training or deploy, lazily or for typing included: the sim arm lives
+    above the task (``ahrm_stack.sim_arm``), the layout rules and the realism schema below config."""
+    found = import_graph.edges(import_graph.modules())
+    above = ("ahrm_stack.env", "ahrm_stack.learning", "ahrm_stack.deploy", "ahrm_stack.sim_arm",
+             "ahrm_stack.robustness", "ahrm_stack.evaluation")
+    for layer in ("ahrm_stack.hardware", "ahrm_stack.config", "ahrm_stack.realism"):
+        up = sorted((e.source, e.target) for e in found
+                    if e.source.startswith(layer) and e.target.startswith(above))
+        assert up == [], up
 
 
 def test_the_circle_finder_finds_a_circle():

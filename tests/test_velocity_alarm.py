@@ -16,7 +16,7 @@ from ahrm_stack.config import load_config
 from ahrm_stack.deploy import DeployLoop, ScriptedController, WorldModel, load_deploy_settings
 from ahrm_stack.deploy.loop import _Halt
 from ahrm_stack.hardware.protocol import ArmState, Fault, FastClock, Feedback
-from ahrm_stack.hardware.sim import SimArm
+from ahrm_stack.sim_arm import SimArm
 
 CONFIG = load_config(["task.realism=ideal"])
 

@@ -14,7 +14,7 @@ from pydantic import PlainValidator
 from pydantic_core import PydanticCustomError
 
 from ahrm_stack.config.fields import LIMITS, Frozen, NonNeg, NonNegInt, Pair, Pos, PosInt, Vec3
-from ahrm_stack.env.layout_rules import Layout, LayoutError, validate_layout
+from ahrm_stack.config.layout_rules import Layout, LayoutError, validate_layout
 from ahrm_stack.realism import RealismConfig
 from ahrm_stack.schema import _float  # the Float rule, for values inside a custom validator
 from ahrm_stack.schema import (MISSING, Bool, ConfigError, Float, FrozenDict, Section, Str, count, derived, fail, le,

@@ -55,7 +55,7 @@ latency; events: stops, the success judgement, touches); every run, however it e
 summary line (success, touched and which obstacles when, duration, interventions, deadline misses,
 latency p50/p99, stop reason, fault).
 
-Perception: the sim backend's :meth:`~ahrm_stack.hardware.sim.SimArm.perception` stands in for a perception
+Perception: the sim backend's :meth:`~ahrm_stack.sim_arm.SimArm.perception` stands in for a perception
 module (exact poses from the simulator). The scripted controller needs object poses too; it runs on
 the :class:`WorldModel`'s own mirror of the scene, fed only by feedback and perception, never on
 the simulator's physics.

@@ -14,13 +14,13 @@ from ahrm_stack.deploy.settings import DeployConfigError, DeploySettings
 
 def check_link(backend: str, settings: DeploySettings, checkpoint: Path | None,
                overrides: Sequence[str], policy_file: Path | None = None) -> int:
-    """``--check``: the backend's link check (:data:`ahrm_stack.hardware.backends.BACKENDS`), the arm held
+    """``--check``: the backend's link check (:data:`ahrm_stack.deploy.backends.BACKENDS`), the arm held
     still; prints its lines. Exit status: 0 the budget fits, 1 it does not, 2 bad input (one line,
     the arm never contacted), 3 the arm could not be reached (one line, e.g. no arm found), 130
     Ctrl-C."""
     from ahrm_stack.deploy.run import load_controller_config
     from ahrm_stack.learning.checkpoint import CheckpointError
-    from ahrm_stack.hardware import backends
+    from ahrm_stack.deploy import backends
     from ahrm_stack.hardware.protocol import HardwareError
 
     prog = "python -m ahrm_stack.deploy"

@@ -18,7 +18,7 @@ from ahrm_stack.deploy.settings import (DEPLOY_CONFIG, DeployConfigError, Deploy
                                         load_deploy_settings)
 from ahrm_stack.deploy.bring_up import check_link, home_arm
 from ahrm_stack.deploy.start_check import StartPostureError
-from ahrm_stack.hardware.backends import BACKENDS
+from ahrm_stack.deploy.backends import BACKENDS
 
 
 def run_backend(backend: str, settings: DeploySettings, checkpoint: Path | None,
@@ -26,7 +26,7 @@ def run_backend(backend: str, settings: DeploySettings, checkpoint: Path | None,
                 layout_file: Path | None = None, policy_file: Path | None = None,
                 dry_run: bool = False) -> DeployLoop:
     """One deploy run on the arm adapter named ``backend`` (one of
-    :data:`ahrm_stack.hardware.backends.BACKENDS`) with object poses from ``scene``: the one place the
+    :data:`ahrm_stack.deploy.backends.BACKENDS`) with object poses from ``scene``: the one place the
     command line chooses them. Raises what :func:`~ahrm_stack.deploy.run.deploy` raises."""
     return deploy(settings, checkpoint, overrides, backend=backend, scene=scene,
                   layout_file=layout_file, policy_file=policy_file, dry_run=dry_run)

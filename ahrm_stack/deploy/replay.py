@@ -1,7 +1,7 @@
 """A deploy run beside the simulator's prediction: ``python -m ahrm_stack.deploy.replay RECORD``.
 
 ``RECORD`` is a run's telemetry (``.jsonl``) or its MCAP twin (``.mcap``; :mod:`.record`), from any
-backend. The simulator (the sim backend, :class:`~ahrm_stack.hardware.sim.SimArm`, with the task of
+backend. The simulator (the sim backend, :class:`~ahrm_stack.sim_arm.SimArm`, with the task of
 ``--checkpoint`` or of ``configs/`` and the imperfections of ``--realism``, none by default) starts
 from the run's first tick (the joint angles read, the cube and obstacles where they were perceived,
 at rest) and is sent the run's commands open loop, each at the time it was sent (``sent_t``). At
@@ -52,7 +52,7 @@ def replay(record: RunRecord, task_config, realism=None) -> Replay:
     """The run ``record`` sent open loop to a simulated arm of ``task_config`` with ``realism``
     (a :class:`~ahrm_stack.realism.RealismConfig`; None: none); see the module docstring."""
     from ahrm_stack.hardware.protocol import FastClock
-    from ahrm_stack.hardware.sim import SimArm
+    from ahrm_stack.sim_arm import SimArm
 
     ticks = record.ticks
     if not ticks:

@@ -124,7 +124,7 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
            layout_file: Path | str | None = None, policy_file: Path | None = None,
            dry_run: bool = False) -> DeployLoop:
     """One run of the deploy loop against ``backend`` (a name of
-    :data:`ahrm_stack.hardware.backends.BACKENDS`, whose ``check`` runs before anything is written or
+    :data:`ahrm_stack.deploy.backends.BACKENDS`, whose ``check`` runs before anything is written or
     contacted and whose ``make`` builds the adapter); returns the finished loop (its
     :meth:`DeployLoop.summary`, :attr:`DeployLoop.interrupted`). ``overrides``: config
     ``key=value`` pairs for the scripted controller's run (no checkpoint). ``policy_file``: another
@@ -145,7 +145,7 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
     telemetry path) raises a one-line error before anything is written or the arm is touched. From
     then on every end is recorded: a fault in set-up, start-up or the loop stops the arm, writes the
     stop event and the summary to the telemetry and raises :class:`DeployFault`."""
-    from ahrm_stack.hardware import backends
+    from ahrm_stack.deploy import backends
 
     notes: list[SafetyNote] = []
     config, actor = load_controller_config(checkpoint, overrides, notes, policy_file)

@@ -119,6 +119,20 @@ class WorldModel:
         site = self.task.bodies.tip_site
         return data.site_xpos[site].copy(), data.site_xmat[site].reshape(3, 3)[:, 2].copy()
 
+    def tip_ik(self, target: np.ndarray, q_init: np.ndarray) -> tuple[np.ndarray, float, float]:
+        """Joint angles (rad) that put the pusher tip at ``target`` (m, world) pointing straight
+        down, by the task's IK (:func:`~ahrm_stack.env.start_pose.solve_start_pose`, its
+        ``task.arm.start_ik`` settings) from ``q_init`` on the mirror: (q, the tip's miss in m, the
+        pusher's tilt from vertical in rad). The mirror's joints are left at q."""
+        from ahrm_stack.env.start_pose import solve_start_pose
+
+        task, physics = self.task, self.physics
+        result = solve_start_pose(physics.model.ptr, physics.data.ptr, self._addresses.arm_qpos,
+                                  self._addresses.arm_dof, task.bodies.tip_site, np.asarray(target, float),
+                                  np.asarray(q_init, float), self.robot.position_lower, self.robot.position_upper,
+                                  task._is_arm, task.config.arm.start_ik)
+        return result.q, result.position_error, result.tilt
+
     def make_collision_scene(self):
         return self.task.make_collision_scene(self.physics)
 

@@ -4,7 +4,7 @@ choice of lane.
 All positions are (x, y) centres on the table top, in metres, in the world frame. What makes a
 layout valid (every box on the table, no two footprints closer than ``min_gap``, a free lane at
 least ``lane_width`` wide from behind the cube to a reachable table edge; spec §1) is
-:mod:`ahrm_stack.env.layout_rules`, whose names are re-exported here.
+:mod:`ahrm_stack.config.layout_rules`, whose names are re-exported here.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import math
 import numpy as np
 
 from ahrm_stack.config import CubeConfig, LayoutConfig, ObstacleConfig, TableConfig
-from ahrm_stack.env.layout_rules import Layout, LayoutError, free_lanes, validate_layout
+from ahrm_stack.config.layout_rules import Layout, LayoutError, free_lanes, validate_layout
 
 
 def lane_clearance(cube_xy: np.ndarray, obstacle_xy: np.ndarray, cube_half: float,

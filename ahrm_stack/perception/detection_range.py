@@ -49,7 +49,7 @@ def measure_range(task_config, settings: PerceptionSettings,
     from ahrm_stack.perception.apriltag import TagDetector
     from ahrm_stack.perception.sim_camera import SimCamera
     from ahrm_stack.hardware.protocol import FastClock
-    from ahrm_stack.hardware.sim import SimArm
+    from ahrm_stack.sim_arm import SimArm
 
     arm = SimArm(task_config, seed=seed, clock=FastClock())
     arm.connect()

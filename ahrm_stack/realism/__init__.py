@@ -1,6 +1,6 @@
 """A real arm's imperfections, one module each, composed alike by training's runner
 (:class:`~ahrm_stack.env.runner.TaskRunner`, ``task.realism``) and the sim backend's arm
-(:class:`~ahrm_stack.hardware.sim.SimArm`, ``deploy.sim.realism``), so that the robustness
+(:class:`~ahrm_stack.sim_arm.SimArm`, ``deploy.sim.realism``), so that the robustness
 evaluation measures the imperfections the policy trained under:
 
 * :mod:`~ahrm_stack.realism.config`: :class:`RealismConfig`, the named sets (``configs/realism.yaml``),

@@ -143,7 +143,7 @@ class DeployRig:
     fake arm, which starts at the task's initial posture; both on ``clock`` (default a
     ``FastClock``: deterministic, whatever the machine's load). Perception is the layout's initial
     poses, held static (test-only: the fake arm moves no cube). ``inject`` maps the sim backend's
-    :class:`~ahrm_stack.hardware.sim.InjectedFault` onto the fake arm."""
+    :class:`~ahrm_stack.sim_arm.InjectedFault` onto the fake arm."""
 
     def __init__(self, config, seed: int = 0, opts=None, clock=None) -> None:
         import io

@@ -90,9 +90,9 @@ class HomeOutcome:
 
 
 class TaskModel(Protocol):
-    """What homing needs of the task the policy was trained on (the deploy loop's
+    """What homing and the touch-off need of the task the policy was trained on (the deploy loop's
     :class:`~ahrm_stack.deploy.WorldModel`): its task (``task.config.arm.home``,
-    ``task.config.table.height``), its robot description and the tip's forward kinematics."""
+    ``task.config.table.height``), its robot description, the tip's forward kinematics and its IK."""
 
     task: Any
 
@@ -100,6 +100,8 @@ class TaskModel(Protocol):
     def robot(self) -> Any: ...
 
     def tip_pose(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def tip_ik(self, target: np.ndarray, q_init: np.ndarray) -> tuple[np.ndarray, float, float]: ...
 
 
 @dataclasses.dataclass(frozen=True)

@@ -50,23 +50,16 @@ def tip_target(world: Any, xy: tuple[float, float], height: float) -> np.ndarray
 
 def solve_tip(world: Any, target: np.ndarray, q_init: np.ndarray, tolerance: float) -> np.ndarray:
     """Joint angles (rad) putting the pusher tip at ``target`` (m, world) pointing down, by the
-    task's IK (:func:`~ahrm_stack.env.start_pose.solve_start_pose` on the world model's physics) from
+    task model's IK (``world.tip_ik``: :meth:`~ahrm_stack.deploy.WorldModel.tip_ik`) from
     ``q_init``; :class:`HomeRefusal` when the tip misses by more than ``tolerance`` m or tilts more
     than the IK's tolerance (a point out of reach)."""
-    from ahrm_stack.env.start_pose import solve_start_pose
-
-    task = world.task
-    physics = world.physics
-    result = solve_start_pose(physics.model.ptr, physics.data.ptr, task.addresses.arm_qpos,
-                              task.addresses.arm_dof, task.bodies.tip_site, np.asarray(target, float),
-                              np.asarray(q_init, float), world.robot.position_lower,
-                              world.robot.position_upper, task._is_arm, task.config.arm.start_ik)
-    if result.position_error > tolerance or result.tilt > task.config.arm.start_ik.tilt_tolerance:
+    q, miss, tilt = world.tip_ik(np.asarray(target, float), np.asarray(q_init, float))
+    if miss > tolerance or tilt > world.task.config.arm.start_ik.tilt_tolerance:
         raise HomeRefusal(f"the touch-off point {np.round(target, 3).tolist()} m is out of the arm's "
-                          f"reach pointing down (IK misses it by {result.position_error * 1e3:.1f} mm, "
-                          f"tilt {math.degrees(result.tilt):.1f} deg): choose kinova_gen2.touch_off.points "
+                          f"reach pointing down (IK misses it by {miss * 1e3:.1f} mm, "
+                          f"tilt {math.degrees(tilt):.1f} deg): choose kinova_gen2.touch_off.points "
                           "nearer the arm")
-    return result.q
+    return q
 
 
 @dataclasses.dataclass

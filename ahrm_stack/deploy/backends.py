@@ -34,7 +34,7 @@ def _check_sim(config, settings) -> None:
 
 def _make_sim(config, settings) -> ArmAdapter:
     from ahrm_stack.hardware.protocol import FastClock, WallClock
-    from ahrm_stack.hardware.sim import SimArm
+    from ahrm_stack.sim_arm import SimArm
 
     clock = WallClock() if settings.realtime else FastClock()
     return SimArm(config.task, seed=settings.seed, clock=clock,
