@@ -115,24 +115,30 @@ def write_table(out: Path) -> str:
     return text
 
 
+def _copy(source: Path, target: Path) -> None:
+    """Copy unless ``source`` is already ``target`` (a committed copy named again)."""
+    if not (target.exists() and source.resolve() == target.resolve()):
+        shutil.copyfile(source, target)
+
+
 def summarise(named: dict[str, Path], out: Path, evaluations: dict[str, Path] | None = None) -> str:
     for name, folder in (evaluations or {}).items():
         target = out / "evaluations" / name
         target.mkdir(parents=True, exist_ok=True)
         for file in ("evaluation.csv", "evaluation.json"):
-            shutil.copyfile(folder / file, target / file)
+            _copy(folder / file, target / file)
     for name, run_dir in named.items():
         target = out / "runs" / name
         target.mkdir(parents=True, exist_ok=True)
         for file in ("config.yaml", "evaluations.csv", "timing.json"):
             if (run_dir / file).is_file():
-                shutil.copyfile(run_dir / file, target / file)
+                _copy(run_dir / file, target / file)
         if (run_dir / "batches.csv").is_file():
             with open(run_dir / "batches.csv", "rb") as source, \
                     gzip.GzipFile(target / "batches.csv.gz", "wb", mtime=0) as sink:
                 shutil.copyfileobj(source, sink)
         elif (run_dir / "batches.csv.gz").is_file():
-            shutil.copyfile(run_dir / "batches.csv.gz", target / "batches.csv.gz")
+            _copy(run_dir / "batches.csv.gz", target / "batches.csv.gz")
     return write_table(out)
 
 
