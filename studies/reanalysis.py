@@ -204,6 +204,47 @@ def ppo_over_clone(clones: Path = CLONES, policies: Path = POLICIES) -> dict:
     return out
 
 
+TEACHER_AT_CAP = CLONES / "scripted-at-policy-cap"  # <family>/evaluation.csv: the same test episodes
+
+
+def _suite_columns(folder: Path, families: Sequence[str], sub: str = "") -> tuple[np.ndarray, ...]:
+    """:func:`_columns` of ``folder/<family>[/sub]/evaluation.csv``, concatenated in family order."""
+    parts = [_columns(folder / f / sub / "evaluation.csv") for f in families]
+    return tuple(np.concatenate(x) for x in zip(*parts))
+
+
+def teacher_at_cap(teacher: Path = TEACHER_AT_CAP, policies: Path = POLICIES, clones: Path = CLONES) -> dict:
+    """The scripted controller with its travel and push speeds at the policy's Cartesian cap
+    (``task.action.cartesian_max_speed``) on the same 800 test episodes: its success and touching,
+    and each default seed's (and each clone's) mean time ratio to it on the episodes both won, beside
+    the same ratio against the teacher at its own speeds (the copies beside each seed's suite)."""
+    if not (teacher / "suite.json").is_file():
+        return {}
+    families = sorted(p.name for p in (policies / "ahrm-default-seed0" / "suite-test").iterdir() if p.is_dir())
+    ts, tt, ttime = _suite_columns(teacher, families)
+    out: dict = {"episodes": int(ts.size), "successes": int(ts.sum()), "touching": int(tt.sum()), "per_seed": {}}
+
+    def ratio(mine: np.ndarray, theirs: np.ndarray) -> tuple[float, int]:
+        both = ~np.isnan(mine) & ~np.isnan(theirs)
+        return float(np.mean(mine[both] / theirs[both])), int(both.sum())
+
+    for seed in DEFAULT_SEEDS:
+        suite = policies / f"ahrm-default-seed{seed}" / "suite-test"
+        ptime = _suite_columns(suite, families)[2]
+        row: dict = {}
+        row["policy_over_teacher_at_cap"], row["policy_both_won"] = ratio(ptime, ttime)
+        row["policy_over_teacher_own_speed"] = ratio(ptime, _suite_columns(suite, families, "scripted")[2])[0]
+        clone = clones / f"clone-seed{seed}" / "suite-clone-test"
+        if (clone / "suite.json").is_file():
+            row["clone_over_teacher_at_cap"], row["clone_both_won"] = ratio(_suite_columns(clone, families)[2], ttime)
+        out["per_seed"][seed] = row
+    for key in ("policy_over_teacher_at_cap", "clone_over_teacher_at_cap", "policy_over_teacher_own_speed"):
+        values = [r[key] for r in out["per_seed"].values() if key in r]
+        out[key] = {"mean": float(np.mean(values)), "min": float(np.min(values)), "max": float(np.max(values)),
+                    "seeds": len(values)}
+    return out
+
+
 def _pct(x: float) -> str:
     return f"{100 * x:.1f} %"
 
@@ -271,6 +312,23 @@ def tables(data: dict) -> str:
             iv = x["interval"]
             lines.append(f"\nPooled over those seeds, {what}: policy − clone {100 * x['policy_minus_clone']:+.2f} pp "
                          f"[{100 * iv[0]:+.2f}, {100 * iv[1]:+.2f}] (two-way bootstrap, seeds and episodes).")
+    a = data.get("teacher_at_cap", {})
+    if a:
+        lines += ["", "## Time at equal speed caps: the teacher at the policy's cap",
+                  "", f"The scripted controller with `scripted.travel_speed` and `scripted.push_speed` at the "
+                  f"policy's Cartesian cap (1.0 m/s) on the same {a['episodes']} test episodes wins "
+                  f"{a['successes']} and touches in {a['touching']}. Time ratios: the mean over episodes both won "
+                  "of each seed's time over the teacher's.", "",
+                  "| seed | policy / teacher at its own speeds | policy / teacher at the policy's cap (both won) | "
+                  "clone / teacher at the policy's cap (both won) |", "|---|---|---|---|"]
+        for seed, r in a["per_seed"].items():
+            clone = (f"{r['clone_over_teacher_at_cap']:.3f} ({r['clone_both_won']})"
+                     if "clone_over_teacher_at_cap" in r else "—")
+            lines.append(f"| {seed} | {r['policy_over_teacher_own_speed']:.3f} | "
+                         f"{r['policy_over_teacher_at_cap']:.3f} ({r['policy_both_won']}) | {clone} |")
+        lines.append("| mean over seeds | " + " | ".join(
+            f"{a[k]['mean']:.3f}" for k in ("policy_over_teacher_own_speed", "policy_over_teacher_at_cap",
+                                            "clone_over_teacher_at_cap")) + " |")
     s, t = d["success"], d["touching"]
     lines += ["", "## The default policy against its teacher, the test episode as the unit",
               "",
@@ -291,13 +349,19 @@ def tables(data: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def collect() -> dict:
+    """Every analysis of this page, from the committed files (what ``data.json`` holds)."""
+    return {"experiment": experiment(), "default_policy": default_policy(), "ppo_over_clone": ppo_over_clone(),
+            "teacher_at_cap": teacher_at_cap()}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", default=str(ROOT / "docs" / "reanalysis"), help="folder of data.json")
     parser.add_argument("--page", default=str(PAGE), help="the page whose marked block gets the tables")
     args = parser.parse_args(argv)
     out, page = Path(args.out), Path(args.page)
-    data = {"experiment": experiment(), "default_policy": default_policy(), "ppo_over_clone": ppo_over_clone()}
+    data = collect()
     out.mkdir(parents=True, exist_ok=True)
     (out / "data.json").write_text(json.dumps(data, indent=1) + "\n")
     page.write_text(render(page.read_text(), data))

@@ -14,8 +14,7 @@ _spec.loader.exec_module(reanalysis)
 
 
 def test_the_committed_page_and_data_are_what_the_committed_files_give():
-    data = {"experiment": reanalysis.experiment(), "default_policy": reanalysis.default_policy(),
-            "ppo_over_clone": reanalysis.ppo_over_clone()}
+    data = reanalysis.collect()
     committed = json.loads((ROOT / "docs" / "reanalysis" / "data.json").read_text())
     assert json.loads(json.dumps(data)) == committed
     page = reanalysis.PAGE.read_text()
@@ -29,6 +28,9 @@ def test_the_counts_match_the_per_run_files():
     d = reanalysis.default_policy()
     assert d["episodes"] == 800 and d["success"]["teacher_events"] == 791
     assert (d["success"]["sign_test"]["above"], d["success"]["sign_test"]["below"]) == (9, 14)
+    cap = reanalysis.teacher_at_cap()  # the teacher at the policy's cap: the ledger's counts (20 x 40)
+    assert (cap["episodes"], cap["successes"], cap["touching"]) == (800, 793, 1)
+    assert set(reanalysis.ppo_over_clone()["seeds"]) == {0, 1, 2, 3, 4}
 
 
 def test_the_sign_test_and_the_bootstrap_against_closed_forms():

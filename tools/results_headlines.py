@@ -22,6 +22,7 @@ import json
 import re
 import sys
 from pathlib import Path
+from typing import Any
 
 import yaml
 from scipy.stats import binomtest
@@ -292,8 +293,21 @@ def _episode_level_line(suites: list[Path]) -> str:
     cap, teacher_cap = task["action"]["cartesian_max_speed"], scripted["push_speed"]
     return (f"Episode level ({d['episodes']} test episodes, each one unit: the policy's mean over its seeds against "
             f"the scripted controller's outcome; 95 % two-way bootstrap over episodes and seeds; "
-            f"studies/reanalysis.py): {part('success')}; {part('touching')}. The time ratio compares unequal speed "
-            f"caps: the policy may move the tip at {cap} m/s, the scripted controller at {teacher_cap} m/s.")
+            f"studies/reanalysis.py): {part('success')}; {part('touching')}. The time ratio above compares unequal "
+            f"speed caps: the policy may move the tip at {cap} m/s, the scripted controller at {teacher_cap} m/s"
+            + _equal_caps(reanalysis) + ".")
+
+
+def _equal_caps(reanalysis: Any) -> str:
+    """The time ratio at equal caps (the teacher's speeds raised to the policy's cap, read once on the
+    same test episodes; studies/reanalysis.py), or nothing before that read exists."""
+    a = reanalysis.teacher_at_cap()
+    if not a:
+        return ""
+    policy, clone = a["policy_over_teacher_at_cap"], a["clone_over_teacher_at_cap"]
+    return (f"; with the scripted controller at the policy's cap too ({a['successes']}/{a['episodes']} won, "
+            f"{a['touching']} touching) the policy's time is ×{policy['mean']:.2f} of its "
+            f"(mean over seeds; {policy['min']:.2f}–{policy['max']:.2f}) and its clone's alone ×{clone['mean']:.2f}")
 
 
 def method_rows(root: Path = ROOT) -> list[str]:
