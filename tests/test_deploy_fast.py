@@ -103,8 +103,11 @@ def test_policy_request_is_control_steps_bit_for_bit(mode):
     robot = SimpleNamespace(velocity_limit=np.linspace(0.5, 1.0, 6), commanded_joints=(0, 1, 2, 3, 4),
                             num_joints=6)
     world = SimpleNamespace(robot=robot, observation=lambda copy=True: None)
-    controller = PolicyController(world, lambda td: td, config)
-    size = controller.control.action_size
+    size = 3 if mode == "cartesian" else 5
+    actor = LeanActor(RunningNorm(4, 10.0), nn.Sequential(nn.Sequential(nn.Linear(4, size)),
+                                                          GaussianHead(size, 0.5, True)))
+    controller = PolicyController(world, actor, config)
+    assert controller.control.action_size == size
     rng = np.random.default_rng(2)
     for k in range(200):
         action = (rng.normal(size=size) * 1.5).astype(np.float32)  # some beyond [-1, 1]

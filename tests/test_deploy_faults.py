@@ -91,19 +91,31 @@ class FaultyController:
         return u
 
 
-class NaNActor:
-    """A policy network stand-in: action 0 until armed, then ``value`` (NaN or inf) in entry 0."""
+class NaNPolicy:
+    """Stand-in for the policy's forward pass (the PolicyController's NumpyPolicy): action 0 until
+    armed, then ``value`` (NaN or inf) in entry 0."""
 
     def __init__(self, trigger: Trigger, dim: int, value: float) -> None:
         self.trigger, self.dim, self.value = trigger, dim, value
 
-    def __call__(self, tensordict):
-        import torch
-        action = torch.zeros(self.dim)
+    def __call__(self, observation: np.ndarray) -> np.ndarray:
+        action = np.zeros(self.dim, dtype=np.float32)
         if self.trigger.fire():
             action[0] = self.value
-        tensordict.set("action", action)
-        return tensordict
+        return action
+
+
+def _nan_policy_controller(world: WorldModel, config, trigger: Trigger, dim: int, value: float) -> PolicyController:
+    """A PolicyController (a real, tiny actor) whose forward pass is :class:`NaNPolicy`."""
+    from torch import nn
+
+    from ahrm_stack.learning.ppo import GaussianHead, LeanActor, RunningNorm
+
+    actor = LeanActor(RunningNorm(4, 10.0), nn.Sequential(nn.Sequential(nn.Linear(4, dim)),
+                                                          GaussianHead(dim, 0.5, True)))
+    controller = PolicyController(world, actor, config)
+    controller._numpy = NaNPolicy(trigger, dim, value)
+    return controller
 
 
 @dataclasses.dataclass
@@ -126,7 +138,7 @@ def _rig(realtime: bool, controller: str | None = None, policy: tuple | None = N
     trigger = Trigger()
     if policy:
         dim = 3 if mode == "cartesian" else len(world.robot.commanded_joints)
-        inner = PolicyController(world, NaNActor(trigger, dim, policy[1]), config)
+        inner = _nan_policy_controller(world, config, trigger, dim, policy[1])
     else:
         inner = ScriptedController(world, config)
     arm.connect()

@@ -77,15 +77,15 @@ def test_lean_collection_actor_matches_torchrl_actor(mode):
 
 
 @pytest.mark.parametrize("mode", ["cartesian", "joint"])
-def test_deploy_policy_controller_takes_the_lean_path_with_the_same_request(mode):
-    """deploy's PolicyController runs the actor without TensorDict (NumpyPolicy for a
-    make_modules actor, LeanActor.act for another LeanActor) and requests what the TensorDict call
-    of the TorchRL actor gives for the same observation (5e-5: NumPy's float32 BLAS sums in
-    another order than torch's, over 256-wide layers of weights with std 0.5 and inputs of ~3:
-    with numpy 2.4.6 the difference reaches 1.8e-5 here)."""
+def test_deploy_policy_controller_requests_what_the_torchrl_actor_gives(mode):
+    """deploy's PolicyController has one forward pass, NumpyPolicy, and requests what the
+    TensorDict call of the TorchRL actor (and the lean actor's torch forward) gives for the same
+    observation (5e-5: NumPy's float32 BLAS sums in another order than torch's, over 256-wide
+    layers of weights with std 0.5 and inputs of ~3: with numpy 2.4.6 the difference reaches 1.8e-5
+    here); an actor of another structure is refused in one line."""
     from types import SimpleNamespace
 
-    from ahrm_stack.deploy import PolicyController
+    from ahrm_stack.deploy import PolicyController, PolicyStructureError
 
     config = load_config([f"task.action.mode={mode}"])
     modules = _modules(act_dim=3 if mode == "cartesian" else 5)
@@ -94,16 +94,18 @@ def test_deploy_policy_controller_takes_the_lean_path_with_the_same_request(mode
     world = SimpleNamespace(robot=robot, current=None)
     world.observation = lambda copy=True: world.current
     fast = PolicyController(world, lean_actor(modules.actor), config)
-    reference = PolicyController(world, lambda td: modules.actor(td), config)  # not lean-able
-    assert fast.path == "numpy" and reference.path == "tensordict"
-    lean = PolicyController(world, lean_actor(modules.actor), config)
-    lean._numpy = None  # the LeanActor.act path
-    lean._act = lean_actor(modules.actor).act
+    for actor in (modules.actor, lean_actor(modules.actor)):
+        assert type(PolicyController(world, actor, config)._numpy) is type(fast._numpy)
+    with pytest.raises(PolicyStructureError, match=r"the policy's actor \(function\) is not a trained actor"):
+        PolicyController(world, lambda td: modules.actor(td), config)
+    lean = lean_actor(modules.actor)
     for observation in torch.randn(20, 40).numpy() * 3.0:
         world.current = observation
-        want = reference()
+        as_tensor = torch.as_tensor(observation, dtype=torch.float32)
+        want = fast.control.request_keeping_faults(_reference(modules.actor, as_tensor).numpy())
         np.testing.assert_allclose(fast(), want, atol=5e-5, rtol=0)
-        np.testing.assert_allclose(lean(), want, atol=1e-6, rtol=0)
+        np.testing.assert_allclose(fast.control.request_keeping_faults(lean.act(as_tensor).numpy()), want,
+                                   atol=1e-6, rtol=0)
 
 
 def test_deploy_policy_controller_smooths_as_in_training():

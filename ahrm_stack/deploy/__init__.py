@@ -82,7 +82,7 @@ How a policy's action becomes the filter's request, and which filter method take
 """
 
 from ahrm_stack.deploy.cli import main, run_backend
-from ahrm_stack.deploy.controllers import PolicyController, ScriptedController, make_controller
+from ahrm_stack.deploy.controllers import PolicyController, PolicyStructureError, ScriptedController, make_controller
 from ahrm_stack.deploy.loop import DeployFault, DeployLoop, DeploySummary
 from ahrm_stack.deploy.run import deploy, deploy_sim, load_controller_config, open_telemetry
 from ahrm_stack.deploy.safety_settings import SafetyNote, merge_safety, require_filter, safety_directions
@@ -95,7 +95,8 @@ from ahrm_stack.deploy.settings import (DEPLOY_CONFIG, DeployConfigError, Deploy
 from ahrm_stack.deploy.world import WorldModel
 
 __all__ = ["DEPLOY_CONFIG", "DeployConfigError", "DeployFault", "DeployLoop", "DeploySettings", "DeploySummary",
-           "KortexSection", "PolicyController", "ProgressSettings", "SafetyNote", "ScriptedController",
+           "KortexSection", "PolicyController", "PolicyStructureError", "ProgressSettings", "SafetyNote",
+           "ScriptedController",
            "SimSettings", "StartPostureSettings", "SuccessSettings", "TouchSettings", "WatchdogSettings", "WorldModel",
            "control_periods", "deploy_settings_from_dict", "deploy", "deploy_sim",
            "load_controller_config", "load_deploy_settings", "main", "make_controller", "merge_safety",

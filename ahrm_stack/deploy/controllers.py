@@ -34,6 +34,10 @@ class ScriptedController:
         return self.pusher.stage
 
 
+class PolicyStructureError(ValueError):
+    """The actor handed to deploy is not of the structure :class:`NumpyPolicy` runs."""
+
+
 class PolicyController:
     """A trained policy (deterministic action) on the training observation vector. Its request is
     what training's environment makes of the action (the same
@@ -41,28 +45,29 @@ class PolicyController:
     joint``) or a pusher-tip velocity (m/s, world frame, ``cartesian``: :attr:`cartesian` is then
     true and the loop hands it to the filter's differential IK).
 
-    The forward pass, fastest first: an actor of :func:`~ahrm_stack.learning.ppo.make_modules`
-    (or its ``LeanActor``, what ``load_policy`` gives; in a lane frame or not) runs as
-    :class:`~ahrm_stack.deploy.policy.NumpyPolicy` on the world model's preallocated observation
-    (float32, no torch call per tick);
-    a ``LeanActor`` of another network as ``LeanActor.act`` on the observation tensor; any other
-    actor through its TensorDict call. :attr:`path` names the one in use."""
+    The forward pass is :class:`~ahrm_stack.deploy.policy.NumpyPolicy` (float32, on the world
+    model's preallocated observation, no torch call per tick) of an actor of
+    :func:`~ahrm_stack.learning.ppo.make_modules` or its ``LeanActor`` (what ``load_policy`` gives;
+    in a lane frame or not): the one inference path, tested against the lean actor's torch forward.
+    Any other actor is refused in one line (:class:`PolicyStructureError`)."""
 
     name = "policy"
 
     def __init__(self, world: WorldModel, actor, config: Config) -> None:
         from ahrm_stack.deploy.policy import NumpyPolicy
         from ahrm_stack.env.control_step import ControlStep
-        from ahrm_stack.learning.ppo import lean_actor
 
         self.control = ControlStep(world.robot, config.task.action)
         self.cartesian = self.control.cartesian
         self.world = world
         self.actor = actor
-        self._numpy = NumpyPolicy.from_actor(actor)
-        lean = lean_actor(actor) if self._numpy is None else None
-        self._act = None if lean is None else lean.act
-        self.path = "numpy" if self._numpy is not None else "lean" if lean is not None else "tensordict"
+        numpy = NumpyPolicy.from_actor(actor)
+        if numpy is None:
+            raise PolicyStructureError(
+                f"the policy's actor ({type(actor).__name__}) is not a trained actor of this project "
+                "(running normaliser -> Linear/activation layers -> Gaussian head, float32): deploy runs "
+                "only that structure, in NumPy")
+        self._numpy = numpy
 
     def reset(self) -> None:
         self.control.reset()
@@ -74,20 +79,7 @@ class PolicyController:
         return self.control.smooth(self._policy_request())
 
     def _policy_request(self) -> np.ndarray:
-        if self._numpy is not None:
-            return self._request(self._numpy(self.world.observation(copy=False)))
-        import torch
-
-        observation = torch.as_tensor(self.world.observation(copy=False), dtype=torch.float32)
-        if self._act is not None:
-            action = self._act(observation)
-        else:  # any other policy: the TensorDict call
-            from tensordict import TensorDict
-            from torchrl.envs.utils import ExplorationType, set_exploration_type
-
-            with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-                action = self.actor(TensorDict({"observation": observation}, batch_size=[]))["action"]
-        return self._request(action.numpy())
+        return self._request(self._numpy(self.world.observation(copy=False)))
 
     def _request(self, action) -> np.ndarray:
         """:meth:`ControlStep.request_keeping_faults` of ``action`` (a new float64 array)."""
