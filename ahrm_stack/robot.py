@@ -1,12 +1,13 @@
 """The one robot description: everything that reads the arm reads it from here.
 
-Each arm of :data:`ARMS` is a dm_control composer entity. ``jaco`` is dm_control's curved-wrist
-JACO2, whose MJCF is its source of truth; ``j2s6s200`` is the spherical-wrist JACO2 of
-``example-robot-data``, whose URDF is (the entity and the Pinocchio model are both built from it,
-:mod:`ahrm_stack.arms`). Joint limits and velocity limits are read from the *compiled* MJCF
-(MuJoCo's ``jnt_range`` and the velocity actuators' ``ctrlrange``), never restated in code; the
-simulator, the Pinocchio model, the safety filter and the hardware adapter all take them from a
-:class:`RobotDescription`.
+Each arm is an entry of the registry, ``configs/robots/<name>.yaml``
+(:mod:`ahrm_stack.config.robots`), built as a dm_control composer entity from its ``source``
+(:data:`SOURCES`). ``jaco`` is dm_control's curved-wrist JACO2, whose MJCF is its source of truth;
+``j2s6s200`` is the spherical-wrist JACO2 of ``example-robot-data``, whose URDF is (the entity and
+the Pinocchio model are both built from it, :mod:`ahrm_stack.arms`). Joint limits and velocity
+limits are read from the *compiled* MJCF (MuJoCo's ``jnt_range`` and the velocity actuators'
+``ctrlrange``), never restated in code; the simulator, the Pinocchio model, the safety filter and
+the hardware adapter all take them from a :class:`RobotDescription`.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from dm_control.entities.manipulators.kinova import jaco_arm
 from ahrm_stack.arms.assets import robot_file
 from ahrm_stack.arms.entity import UrdfArm
 from ahrm_stack.arms.urdf import Urdf, read_urdf
-from ahrm_stack.config import load_robot_config
+from ahrm_stack.config import arm_names, load_arm
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,40 +61,37 @@ class RobotDescription:
         return np.isfinite(self.position_lower) & np.isfinite(self.position_upper)
 
 
-@dataclasses.dataclass(frozen=True)
-class _ArmSpec:
-    make_entity: Callable[[], composer.Entity]
-    commanded_joints: tuple[int, ...]
-
-
-def _make_jaco() -> composer.Entity:
-    return jaco_arm.JacoArm(name="jaco")
+def _make_jaco(name: str) -> composer.Entity:
+    return jaco_arm.JacoArm(name=name)
 
 
 @functools.lru_cache(maxsize=None)
 def robot_urdf(name: str) -> Urdf:
-    """The parsed URDF of a URDF-built arm (``configs/robots/<name>.yaml`` names the file)."""
-    return read_urdf(robot_file(load_robot_config(name).urdf))
+    """The parsed URDF of a URDF-built arm (``configs/robots/<name>.yaml``'s ``urdf.file``)."""
+    settings = load_arm(name).urdf
+    if settings is None:
+        raise ValueError(f"robots/{name}: not built from a URDF (source: {load_arm(name).source})")
+    return read_urdf(robot_file(settings.file))
 
 
-def _make_urdf_arm(name: str) -> Callable[[], composer.Entity]:
-    def make() -> composer.Entity:
-        return UrdfArm(robot_urdf(name), load_robot_config(name), name)
-    return make
+def _make_urdf_arm(name: str) -> composer.Entity:
+    settings = load_arm(name).urdf
+    assert settings is not None  # ArmEntry.check: source urdf has a urdf block
+    return UrdfArm(robot_urdf(name), settings, name)
 
 
-# joint_6 only spins the symmetric pusher (spec §1), so the policy commands joints 1-5.
-ARMS: dict[str, _ArmSpec] = {
-    "jaco": _ArmSpec(make_entity=_make_jaco, commanded_joints=(0, 1, 2, 3, 4)),
-    "j2s6s200": _ArmSpec(make_entity=_make_urdf_arm("j2s6s200"), commanded_joints=(0, 1, 2, 3, 4)),
+#: How each ``source`` of the arm registry (``configs/robots/<name>.yaml``) is built.
+SOURCES: dict[str, Callable[[str], composer.Entity]] = {
+    "dm_control_jaco": _make_jaco,
+    "urdf": _make_urdf_arm,
 }
 
 
 def make_arm(name: str) -> composer.Entity:
-    """A fresh composer entity of the named arm."""
-    if name not in ARMS:
-        raise ValueError(f"unknown robot {name!r}; choose one of {sorted(ARMS)}")
-    return ARMS[name].make_entity()
+    """A fresh composer entity of the registered arm ``name`` (``configs/robots/<name>.yaml``)."""
+    if name not in arm_names():
+        raise ValueError(f"unknown robot {name!r}; registered (configs/robots/): {list(arm_names())}")
+    return SOURCES[load_arm(name).source](name)
 
 
 def describe(name: str, arm: composer.Entity) -> RobotDescription:
@@ -113,10 +111,10 @@ def describe(name: str, arm: composer.Entity) -> RobotDescription:
         position_lower=lower,
         position_upper=upper,
         velocity_limit=ctrl[:, 1].copy(),
-        commanded_joints=ARMS[name].commanded_joints,
+        commanded_joints=load_arm(name).commanded_joints,
         link_bodies=tuple(j.parent.name for j in arm.joints),
         base_body=arm.joints[0].parent.parent.name,
         attachment_site=arm.wrist_site.name,
         urdf=arm.urdf.path if isinstance(arm, UrdfArm) else None,
-        min_velocity_margin=load_robot_config(name).min_velocity_margin if isinstance(arm, UrdfArm) else 0.0,
+        min_velocity_margin=load_arm(name).min_velocity_margin,
     )

@@ -16,7 +16,8 @@ Counted in the simulator after every physics step (2 ms): MuJoCo contacts betwee
 the arm (base, links, pusher), joint positions outside their limits, joint speeds above the
 actuators' velocity limits; and the filter's statuses. Goal: all three zero with the rows on.
 
-Usage: python benchmarks/adversarial_self_collision.py [--steps N] [--robot jaco|j2s6s200]
+Usage: python benchmarks/adversarial_self_collision.py [--steps N] [--robot NAME]
+(NAME: an arm of configs/robots/; default: every arm)
        [--no-self-rows] (the comparison: the same requests without the self-collision rows)
 """
 
@@ -37,7 +38,7 @@ cli.quiet_argv()  # before the heavy imports: the libraries' warnings and INFO l
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ahrm_stack.config import load_config  # noqa: E402
+from ahrm_stack.config import arm_names, load_config  # noqa: E402
 from ahrm_stack.env.runner import TaskRunner  # noqa: E402
 from ahrm_stack.env.task import PushOffTask  # noqa: E402
 from ahrm_stack.kinematics.scene import GUARD  # noqa: E402
@@ -201,14 +202,14 @@ def main() -> None:
     cli.add_verbose_flag(parser)
     parser.add_argument("--steps", type=int, default=10000, help="control steps per arm and mode")
     parser.add_argument("--episode", type=int, default=400, help="control steps per episode")
-    parser.add_argument("--robot", choices=["jaco", "j2s6s200"], action="append")
+    parser.add_argument("--robot", choices=arm_names(), action="append")
     parser.add_argument("--mode", choices=MODES, action="append")
     parser.add_argument("--no-self-rows", action="store_true", help="self-collision rows off")
     parser.add_argument("--props", choices=["away", "task"], default="away",
                         help="away: cube and obstacles moved off (default); task: the random layout")
     args = parser.parse_args()
     total = Tally()
-    for robot in args.robot or ["jaco", "j2s6s200"]:
+    for robot in args.robot or arm_names():
         for mode in args.mode or MODES:
             start = time.perf_counter()
             t = run(robot, mode, args.steps, args.episode, not args.no_self_rows, props=args.props)

@@ -10,7 +10,8 @@ called. With python-fcl (before), such placements aborted the process (uncaught 
 ``std::logic_error``, SIGABRT). Checked: the command is finite, the scene's signed distance of
 that pair equals g to 1e-6 m (its sign too, beyond 1e-6), and no query needed the guard.
 
-Usage: python benchmarks/near_touching.py [--placements N] [--robot jaco|j2s6s200]
+Usage: python benchmarks/near_touching.py [--placements N] [--robot NAME]
+(NAME: an arm of configs/robots/; default: every arm)
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ cli.quiet_argv()  # before the heavy imports: the libraries' warnings and INFO l
 
 import numpy as np  # noqa: E402
 
-from ahrm_stack.config import load_config  # noqa: E402
+from ahrm_stack.config import arm_names, load_config  # noqa: E402
 from ahrm_stack.env.control_step import make_task_filter  # noqa: E402
 from ahrm_stack.env.runner import TaskRunner  # noqa: E402
 from ahrm_stack.env.task import PushOffTask  # noqa: E402
@@ -137,10 +138,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     cli.add_verbose_flag(parser)
     parser.add_argument("--placements", type=int, default=50000, help="per arm")
-    parser.add_argument("--robot", choices=["jaco", "j2s6s200"], action="append")
+    parser.add_argument("--robot", choices=arm_names(), action="append")
     args = parser.parse_args()
     from ahrm_stack.kinematics.scene import GUARD
-    for robot in args.robot or ["jaco", "j2s6s200"]:
+    for robot in args.robot or arm_names():
         start = time.perf_counter()
         out = run(robot, args.placements)
         print(f"{robot}: {out.placements} near-touching placements in {time.perf_counter() - start:.0f} s, "

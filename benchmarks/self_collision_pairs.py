@@ -9,7 +9,8 @@ percentile, median and maximum over the draws, the fraction of draws below the s
 below the activation distance, and the fraction in MuJoCo contact. The choice made from this table
 (and why) is written next to the lists in configs/safety.yaml.
 
-Usage: python benchmarks/self_collision_pairs.py [--samples N] [--robot jaco|j2s6s200]
+Usage: python benchmarks/self_collision_pairs.py [--samples N] [--robot NAME]
+(NAME: an arm of configs/robots/; default: every arm)
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ cli.quiet_argv()  # before the heavy imports: the libraries' warnings and INFO l
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ahrm_stack.config import load_config  # noqa: E402
+from ahrm_stack.config import arm_names, load_config  # noqa: E402
 from ahrm_stack.env.runner import TaskRunner  # noqa: E402
 from ahrm_stack.env.task import PushOffTask  # noqa: E402
 
@@ -80,9 +81,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     cli.add_verbose_flag(parser)
     parser.add_argument("--samples", type=int, default=20000)
-    parser.add_argument("--robot", choices=["jaco", "j2s6s200"], action="append")
+    parser.add_argument("--robot", choices=arm_names(), action="append")
     args = parser.parse_args()
-    for robot in args.robot or ["jaco", "j2s6s200"]:
+    for robot in args.robot or arm_names():
         config, pairs, table, touching = measure(robot, args.samples)
         safe = config.safety.obstacle_safe_distance
         active = config.safety.obstacle_activation_distance

@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from ahrm_stack.config import (CONFIG_DIR, SECTIONS, Config, ConfigError, ExperimentConfig, VideoConfig,
-                               config_from_dict, load_config, load_extra, load_raw, load_robot_config)
+                               config_from_dict, load_config, load_extra, load_arm, load_raw)
 from ahrm_stack.deploy.settings import load_deploy_settings
 from ahrm_stack.env.layout_catalog import load_layouts
 from ahrm_stack.perception.settings import load_perception_settings
@@ -48,8 +48,7 @@ def _put(*keys):
 UNKNOWN = [
     ("task.yaml", ("arm", "start_ik"), lambda d: load_config(config_dir=d), "task.arm.start_ik.colour"),
     ("scripted.yaml", (), lambda d: load_config(config_dir=d), "scripted.colour"),
-    ("safety.yaml", ("self_collision_pairs",), lambda d: load_config(config_dir=d),
-     "safety.self_collision_pairs.colour"),
+    ("safety.yaml", (), lambda d: load_config(config_dir=d), "safety.colour"),
     ("mechanism.yaml", (), lambda d: load_config(config_dir=d), "mechanism.colour"),
     ("ppo.yaml", (), lambda d: load_config(config_dir=d), "ppo.colour"),
     ("train.yaml", (), lambda d: load_config(config_dir=d), "train.colour"),
@@ -59,10 +58,11 @@ UNKNOWN = [
      "experiment.paper_table2.ahrm.colour"),
     ("layouts.yaml", ("heldout",), lambda d: load_layouts(d / "layouts.yaml"), "heldout.colour"),
     ("seeds.yaml", (), lambda d: load_seed_table(d / "seeds.yaml"), "colour"),
-    ("robots/j2s6s200.yaml", (), lambda d: load_robot_config("j2s6s200", d / "robots"),
-     "robots/j2s6s200.colour"),
-    ("deploy.yaml", ("kinova_gen2", "joints", "jaco"), lambda d: load_deploy_settings(d / "deploy.yaml"),
-     "deploy.kinova_gen2.joints.jaco.colour"),
+    ("robots/j2s6s200.yaml", ("urdf",), lambda d: load_arm("j2s6s200", d / "robots"),
+     "robots/j2s6s200.urdf.colour"),
+    ("robots/jaco.yaml", (), lambda d: load_config(config_dir=d), "robots/jaco.colour"),
+    ("deploy.yaml", ("kinova_gen2", "home"), lambda d: load_deploy_settings(d / "deploy.yaml"),
+     "deploy.kinova_gen2.home.colour"),
     ("perception.yaml", ("camera",), lambda d: load_perception_settings(d / "perception.yaml"),
      "perception.camera.colour"),
     ("scenes/default.yaml", ("cube",), lambda d: StaticScene(d / "scenes/default.yaml"), "cube.colour"),

@@ -75,6 +75,28 @@ def make_arm(library, task_config):
 # ------------------------------------------------------------------ settings and layouts
 
 
+def test_an_arms_joint_convention_is_checked_and_named_in_its_registry_file(tmp_path):
+    """deploy's kinova_gen2.joints are composed from configs/robots/<arm>.yaml: a bad value there
+    is named as that file's key, in that file."""
+    import shutil
+
+    from ahrm_stack.config import ROBOTS_DIR
+
+    robots = tmp_path / "robots"
+    shutil.copytree(ROBOTS_DIR, robots)
+    assert load_deploy_settings(robots_dir=robots).kinova_gen2.joints["jaco"].robot_types == (
+        "JACOV2_6DOF_SERVICE", "JACOV2_6DOF_ASSISTIVE")
+    for change, key in ((dict(sign=[2] * 6), "sign"), (dict(offset_deg=[0] * 5), "offset_deg")):
+        entry = yaml.safe_load((ROBOTS_DIR / "jaco.yaml").read_text())
+        entry["kinova_gen2"].update(change)
+        (robots / "jaco.yaml").write_text(yaml.safe_dump(entry))
+        with pytest.raises(DeployConfigError) as error:
+            load_deploy_settings(robots_dir=robots)
+        message = str(error.value)
+        assert f"robots/jaco.kinova_gen2.{key}" in message and message.endswith("jaco.yaml)"), message
+        assert "\n" not in message
+
+
 def test_settings_errors_name_the_key(tmp_path):
     def bad(mutate) -> str:
         data = yaml.safe_load(DEPLOY_CONFIG.read_text())
@@ -96,9 +118,9 @@ def test_settings_errors_name_the_key(tmp_path):
     assert "deploy.kinova_gen2.serial" in bad(lambda d: d.update(serial="X" * 25))
     assert "deploy.kinova_gen2.colour" in bad(lambda d: d.update(colour=1))
     assert "deploy.kinova_gen2.library" in bad(lambda d: d.pop("library"))
-    assert "deploy.kinova_gen2.joints.jaco.sign" in bad(lambda d: d["joints"]["jaco"].update(sign=[2] * 6))
-    assert "deploy.kinova_gen2.joints.jaco.offset_deg" in bad(
-        lambda d: d["joints"]["jaco"].update(offset_deg=[0] * 5))
+    assert "deploy.kinova_gen2.joints.jaco.sign" in bad(  # given in deploy.yaml: named there
+        lambda d: d.update(joints={"jaco": {"sign": [2] * 6, "offset_deg": [0] * 6,
+                                            "robot_types": ["JACOV2_6DOF_SERVICE"]}}))
     assert "deploy.kinova_gen2.switch_interval" in bad(lambda d: d.update(switch_interval=1.0))
     assert "deploy.kinova_gen2.status_rate_hz must be <= 10.0 Hz" in bad(lambda d: d.update(status_rate_hz=20))
     assert "deploy.kinova_gen2.status_rate_hz" in bad(lambda d: d.update(status_rate_hz=0))

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from ahrm_stack.config import ConfigError, load_config
+from ahrm_stack.config import ConfigError, arm_names, load_config
 from ahrm_stack.env.layout import LayoutSampler, validate_layout
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.task import PushOffTask
@@ -46,7 +46,7 @@ def test_a_cube_region_off_the_table_fails_naming_the_key():
         load_config(["task.arm.start_region=[[0,0.1],[0,0.1],[0.8,0.6]]"])
 
 
-@pytest.mark.parametrize("robot", ["jaco", "j2s6s200"])
+@pytest.mark.parametrize("robot", arm_names())
 def test_random_starts_put_the_tip_at_the_target_pointing_down(robot):
     """Checked with Pinocchio's forward kinematics (the IK ran on MuJoCo's model)."""
     config = load_config([f"task.robot={robot}", "task.arm.start=random"])

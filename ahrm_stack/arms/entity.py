@@ -55,7 +55,7 @@ class UrdfArm(base.RobotArm):
         chain = urdf.chain(settings.root_link, settings.flange_link)
         actuated = [j for j in chain if j.type != "fixed"]
         if len(actuated) != len(settings.armature):
-            raise ValueError(f"robots/{name}: armature and frictionloss give {len(settings.armature)} "
+            raise ValueError(f"robots/{name}.urdf: armature and frictionloss give {len(settings.armature)} "
                              f"values, but {urdf.path} has {len(actuated)} joints from "
                              f"{settings.root_link!r} to {settings.flange_link!r}")
         self._meshes: dict[str, mjcf.Element] = {}

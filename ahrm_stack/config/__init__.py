@@ -58,11 +58,11 @@ from ahrm_stack.config.files import CONFIG_DIR, PROFILE_DIR, ROBOTS_DIR, SECTION
 from ahrm_stack.config.learning import LaneFrame, MechanismConfig, Order, PPOConfig, TrainConfig, Window
 from ahrm_stack.config.load import (SCHEMA_VERSION, apply_overrides, config_from_dict, config_source, fill_missing,
                                     load_config, load_raw, profile_overrides)
-from ahrm_stack.config.robots import UrdfArmConfig, load_robot_config
+from ahrm_stack.config.robots import ArmEntry, UrdfArmConfig, arm_names, compose_deploy, compose_task, load_arm
 from ahrm_stack.config.root import Config
-from ahrm_stack.config.safety import (SELF_COLLISION_PAIRS_2026_12_01, SELF_COLLISION_PART, SafetyConfig,
+from ahrm_stack.config.safety import (SELF_COLLISION_PAIRS_2026_12_01, SafetyConfig,
                                       SelfCollisionPairs)
-from ahrm_stack.config.task import (ROBOTS, ActionConfig, ArmConfig, CubeConfig, EpisodeConfig, HomeDeg, LayoutConfig,
+from ahrm_stack.config.task import (ActionConfig, ArmConfig, CubeConfig, EpisodeConfig, HomeDeg, LayoutConfig,
                                     NearCubeStartConfig, ObservationConfig, ObstacleConfig, PusherConfig, RegionConfig,
                                     RewardConfig, Robot, ScriptedConfig, StartIKConfig, TableConfig, TaskConfig)
 from ahrm_stack.schema import ConfigError, read_yaml
@@ -70,13 +70,14 @@ from ahrm_stack.schema import ConfigError, read_yaml
 _read_yaml = read_yaml  # the earlier name, still imported by a few modules
 
 __all__ = [
-    "ActionConfig", "ArmConfig", "CONFIG_DIR", "Config", "ConfigError", "CubeConfig", "EpisodeConfig",
+    "ActionConfig", "ArmConfig", "ArmEntry", "CONFIG_DIR", "Config", "ConfigError", "CubeConfig", "EpisodeConfig",
     "ExperimentConfig", "Frozen", "HomeDeg", "LIMITS", "LaneFrame", "LayoutConfig", "MechanismConfig", "Method",
     "NearCubeStartConfig", "NonNeg", "NonNegInt", "ObservationConfig", "ObstacleConfig", "Order", "PPOConfig",
-    "PROFILE_DIR", "Pair", "PaperRow", "Pos", "PosInt", "PusherConfig", "ROBOTS", "ROBOTS_DIR", "RegionConfig",
-    "RewardConfig", "Robot", "SCHEMA_VERSION", "SECTIONS", "SELF_COLLISION_PAIRS_2026_12_01", "SELF_COLLISION_PART",
+    "PROFILE_DIR", "Pair", "PaperRow", "Pos", "PosInt", "PusherConfig", "ROBOTS_DIR", "RegionConfig",
+    "RewardConfig", "Robot", "SCHEMA_VERSION", "SECTIONS", "SELF_COLLISION_PAIRS_2026_12_01",
     "SafetyConfig", "ScriptedConfig", "SelfCollisionPairs", "StartIKConfig", "TableConfig", "TaskConfig",
-    "TrainConfig", "UrdfArmConfig", "Vec3", "VideoConfig", "Window", "apply_overrides", "config_from_dict",
-    "config_source", "fill_missing", "load_config", "load_extra", "load_raw", "load_robot_config",
+    "TrainConfig", "UrdfArmConfig", "Vec3", "VideoConfig", "Window", "apply_overrides", "arm_names",
+    "compose_deploy", "compose_task", "config_from_dict",
+    "config_source", "fill_missing", "load_arm", "load_config", "load_extra", "load_raw",
     "profile_overrides",
 ]

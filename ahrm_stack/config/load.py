@@ -10,6 +10,7 @@ from typing import Any, Sequence
 import yaml
 
 from ahrm_stack.config.files import CONFIG_DIR, PROFILE_DIR, SECTIONS
+from ahrm_stack.config.robots import compose_task
 from ahrm_stack.config.root import Config
 from ahrm_stack.realism import resolve_realism
 from ahrm_stack.schema import (ConfigError, Source, apply_override, fill_legacy, override_keys, read_yaml, show_path,
@@ -74,8 +75,12 @@ def _resolve_realism(data: dict) -> None:
 
 
 def load_raw(config_dir: Path | str = CONFIG_DIR) -> dict:
+    """The sections of ``config_dir`` as parsed, with the per-arm values composed from its arm
+    registry (``robots/<name>.yaml``; :func:`~ahrm_stack.config.robots.compose_task`)."""
     config_dir = Path(config_dir)
-    return {section: read_yaml(config_dir / name) for section, name in SECTIONS.items()}
+    data = {section: read_yaml(config_dir / name) for section, name in SECTIONS.items()}
+    compose_task(data, config_dir / "robots")
+    return data
 
 
 def config_source(config_dir: Path | str = CONFIG_DIR, overrides: Sequence[str] = (),

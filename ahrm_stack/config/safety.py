@@ -3,12 +3,13 @@ carries a ``stricter`` marker, and the per-arm self-collision pairs."""
 
 from __future__ import annotations
 
-import dataclasses
-import re
 from typing import Annotated, Literal
 
+from pydantic import AfterValidator
+
 from ahrm_stack.config.fields import LIMITS, Frozen, NonNeg, NonNegInt, Pos, PosInt, Vec3
-from ahrm_stack.schema import Bool, ConfigError, Float, Section, Str, le, legacy, stricter, within
+from ahrm_stack.config.robots import arm_names, pair_problem
+from ahrm_stack.schema import Bool, ConfigError, Float, FrozenDict, Section, Str, fail, le, legacy, stricter, within
 
 #: ``safety.self_collision_pairs`` of a run written before the key existed: configs/safety.yaml's
 #: pairs when the key was added (2026-12-01).
@@ -21,27 +22,22 @@ SELF_COLLISION_PAIRS_2026_12_01 = {
                  ["link2", "link4"], ["link2", "link5"], ["link2", "link6"], ["link2", "pusher"],
                  ["link3", "link5"], ["link3", "link6"], ["link3", "pusher"]]}
 
-SELF_COLLISION_PART = re.compile(r"^(base|pusher|link[1-9])$")
+def _pairs_per_arm(value: dict) -> dict:
+    """``safety.self_collision_pairs``: registered arm name -> its pairs, each of two arm parts."""
+    names = arm_names()
+    for robot, pairs in value.items():
+        if robot not in names:
+            fail(f".{robot}: no arm {robot!r}; registered (configs/robots/): {list(names)}")
+        problem = pair_problem(pairs)
+        if problem:
+            fail(f".{robot}{problem}")
+    return FrozenDict(value)
 
 
-@Frozen
-class SelfCollisionPairs(Section):
-    """Per arm (``task.robot``), the pairs of arm parts that get a self-collision distance row.
-    Parts are named ``base``, ``link1`` ... ``link6`` (the body each joint turns) and ``pusher``."""
-
-    jaco: tuple[tuple[Str, Str], ...]
-    j2s6s200: tuple[tuple[Str, Str], ...]
-
-    def check(self, key: str) -> None:
-        for robot in (f.name for f in dataclasses.fields(self)):
-            for i, pair in enumerate(getattr(self, robot)):
-                where = f"{key}.{robot}[{i}]"
-                for name in pair:
-                    if not SELF_COLLISION_PART.match(name):
-                        raise ConfigError(f"{where}: {name!r} is not an arm part; use base, link1 ... "
-                                          "link9 or pusher")
-                if pair[0] == pair[1]:
-                    raise ConfigError(f"{where}: a part cannot be paired with itself ({list(pair)})")
+#: Per arm (``task.robot``), the pairs of arm parts that get a self-collision distance row (composed
+#: from ``configs/robots/<arm>.yaml``'s ``self_collision_pairs``). Parts are named ``base``,
+#: ``link1`` ... ``link6`` (the body each joint turns) and ``pusher``.
+SelfCollisionPairs = Annotated[dict[Str, tuple[tuple[Str, Str], ...]], AfterValidator(_pairs_per_arm)]
 
 
 @Frozen

@@ -10,18 +10,18 @@ import math
 import typing
 from typing import Annotated, Any, Literal
 
-from pydantic import PlainValidator
+from pydantic import AfterValidator, PlainValidator
 from pydantic_core import PydanticCustomError
 
 from ahrm_stack.config.fields import LIMITS, Frozen, NonNeg, NonNegInt, Pair, Pos, PosInt, Vec3
 from ahrm_stack.config.layout_rules import Layout, LayoutError, validate_layout
+from ahrm_stack.config.robots import arm_names, registered_arm
 from ahrm_stack.realism import RealismConfig
 from ahrm_stack.schema import _float  # the Float rule, for values inside a custom validator
 from ahrm_stack.schema import (MISSING, Bool, ConfigError, Float, FrozenDict, Section, Str, count, derived, fail, le,
                                legacy, legacy_rule, within)
 
-Robot = Literal["jaco", "j2s6s200"]  # an arm of ahrm_stack.robot.ARMS
-ROBOTS: tuple[str, ...] = typing.get_args(Robot)
+Robot = Annotated[Str, AfterValidator(registered_arm)]  # an arm of the registry (configs/robots/<name>.yaml)
 
 
 def _at(where: str, check: typing.Callable[[Any], Any], value: Any) -> Any:
@@ -41,9 +41,10 @@ def _degrees(value: Any, where: str = "") -> tuple[float, ...]:
 def _home_deg(value: Any) -> tuple[float, ...] | dict[str, tuple[float, ...]]:
     """One list of degrees (for whichever robot runs) or a mapping robot name -> degrees."""
     if isinstance(value, dict):
-        unknown = sorted((k for k in value if k not in ROBOTS), key=str)
+        names = arm_names()
+        unknown = sorted((k for k in value if k not in names), key=str)
         if unknown:
-            fail(f".{unknown[0]}: no such robot; choose among {list(ROBOTS)}")
+            fail(f".{unknown[0]}: no arm {unknown[0]!r}; registered (configs/robots/): {list(names)}")
         return FrozenDict({name: _degrees(angles, f".{name}") for name, angles in value.items()})
     return _degrees(value)
 
@@ -284,7 +285,7 @@ class ObservationConfig(Section):
 
 @Frozen
 class TaskConfig(Section):
-    robot: Robot  # an arm of ahrm_stack.robot.ARMS
+    robot: Robot  # an arm of the registry: configs/robots/<name>.yaml
     table: TableConfig
     arm: ArmConfig
     pusher: PusherConfig

@@ -15,7 +15,7 @@ import re
 from pathlib import Path
 from typing import Annotated, Any, Literal, Optional
 
-from ahrm_stack.config import CONFIG_DIR
+from ahrm_stack.config import CONFIG_DIR, ROBOTS_DIR, arm_names, compose_deploy
 from ahrm_stack.realism import RealismConfig, resolve_realism
 from ahrm_stack.schema import (Bool, ConfigError, Float, Int, Section, Str, ge, gt, le, read_yaml,
                                show_path, stricter, validate)
@@ -182,11 +182,20 @@ def deploy_settings_from_dict(data: Any) -> DeploySettings:
     return validate(DeploySettings, data, "deploy", error=DeployConfigError)
 
 
-def load_deploy_settings(path: Path | str = DEPLOY_CONFIG, **overrides: Any) -> DeploySettings:
-    """Read and validate ``path``; ``overrides`` (the command line's values) replace top-level
-    keys (None values are ignored). An error names the key, the file and the command-line values
-    it involves."""
+def load_deploy_settings(path: Path | str = DEPLOY_CONFIG, robots_dir: Path | str = ROBOTS_DIR,
+                         **overrides: Any) -> DeploySettings:
+    """Read and validate ``path``, with ``kinova_gen2.joints`` and ``kortex.models`` composed from
+    the arm registry ``robots_dir`` (``configs/robots/<arm>.yaml``) where ``path`` does not give
+    them; ``overrides`` (the command line's values) replace top-level keys (None values are
+    ignored). An error names the key, the file (an arm's file for a composed value) and the
+    command-line values it involves."""
     data = read_yaml(path, DeployConfigError)
+    given_here = {section for section, key in (("kinova_gen2", "joints"), ("kortex", "models"))
+                  if isinstance(data.get(section), dict) and key in data[section]}
+    try:
+        compose_deploy(data, robots_dir)
+    except ConfigError as error:
+        raise DeployConfigError(str(error)) from None
     given = {k: v for k, v in overrides.items() if v is not None}
     realism = given.pop("realism", None)  # a set of configs/realism.yaml for the sim backend
     data.update(given)
@@ -199,5 +208,11 @@ def load_deploy_settings(path: Path | str = DEPLOY_CONFIG, **overrides: Any) -> 
         return deploy_settings_from_dict(data)
     except (DeployConfigError, ConfigError) as error:
         named = [f"{k}={v!r}" for k, v in given.items() if re.search(rf"deploy\.{k}\b", str(error))]
+        arm = re.search(r"deploy\.(kinova_gen2)\.joints\.(\w+)|deploy\.(kortex)\.models\.(\w+)", str(error))
+        section, name = (arm.group(1) or arm.group(3), arm.group(2) or arm.group(4)) if arm else ("", "")
+        if arm and section not in given_here and name in arm_names(robots_dir):  # from the arm's entry
+            text = re.sub(rf"deploy\.kinova_gen2\.joints\.{name}\b", f"robots/{name}.kinova_gen2", str(error))
+            text = re.sub(rf"deploy\.kortex\.models\.{name}\b", f"robots/{name}.kortex", text)
+            raise DeployConfigError(f"{text} ({show_path(Path(robots_dir) / f'{name}.yaml')})") from None
         where = f"command line {', '.join(named)}; {show_path(path)}" if named else show_path(path)
         raise DeployConfigError(f"{error} ({where})") from None

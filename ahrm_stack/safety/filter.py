@@ -596,7 +596,7 @@ def self_collision_pairs(robot: RobotDescription, config: SafetyConfig,
     """
     if not config.self_collision_rows:
         return ()
-    listed = getattr(config.self_collision_pairs, robot.name, None)
+    listed = config.self_collision_pairs.get(robot.name)
     if listed is None:
         raise SafetyFilterError(f"safety.self_collision_pairs has no entry for robot {robot.name!r}")
     names = {"base": robot.base_body, "pusher": "pusher"}
