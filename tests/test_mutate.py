@@ -107,3 +107,28 @@ def test_a_run_on_one_function_kills_what_its_tests_see_and_names_the_survivors(
     assert printed[1:] == ["  survived  clamping.py:3:8  `<` -> `<=`  | if x < low:",
                            "  clamping.py: 5 / 6 killed (83 %)"]
     assert (tmp_path / "clamping.py").read_text().count("x < low") == 1  # the file itself is never changed
+
+
+def test_the_forked_runs_give_what_the_fresh_processes_give(tmp_path):
+    """--fork: each mutant's tests in a child of a process that imported their dependencies once;
+    the same outcomes as a fresh interpreter per mutant."""
+    (tmp_path / "clamping.py").write_text(textwrap.dedent('''
+        import numpy as np
+
+        def clamp(x, low, high):
+            if x < low:
+                return low
+            return float(np.minimum(x, high))
+    '''))
+    (tmp_path / "test_clamping.py").write_text(textwrap.dedent('''
+        from clamping import clamp
+
+        def test_clamp():
+            assert clamp(-1, 0, 1) == 0 and clamp(0.5, 0, 1) == 0.5 and clamp(2, 0, 1) == 1
+    '''))
+    fresh = mutate.mutate_file(tmp_path / "clamping.py", ["test_clamping.py"], root=tmp_path, echo=lambda _: None)
+    forked = mutate.mutate_file(tmp_path / "clamping.py", ["test_clamping.py"], root=tmp_path, echo=lambda _: None,
+                                fork=True)
+    assert [(o.mutant.index, o.result) for o in forked] == [(o.mutant.index, o.result) for o in fresh]
+    assert [o.result for o in fresh].count("survived") == 1 and len(fresh) == 6
+    assert "clamping" not in sys.modules  # the children imported the project, not this process
