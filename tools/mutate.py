@@ -79,7 +79,7 @@ SUITE: dict[str, tuple[tuple[str, ...], str]] = {
     "ahrm_stack/env/rewards.py": (("tests/test_rewards.py",), ""),
     "ahrm_stack/kinematics/phases.py": (("tests/test_phases.py",), ""),
     # the live QP core (issue 57, item 7)
-    "ahrm_stack/safety/solvers.py": _CONSTRAINT_TESTS,
+    "ahrm_stack/safety/solvers.py": (("tests/test_solvers.py", *_CONSTRAINT_TESTS[0]), SAFETY_FAST),
     "ahrm_stack/safety/constraints/base.py": _CONSTRAINT_TESTS,
     "ahrm_stack/safety/constraints/distance.py": (("tests/test_distance_rows_fast.py",
                                                    "tests/test_constraints_fast.py"), ""),
