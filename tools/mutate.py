@@ -80,7 +80,8 @@ SUITE: dict[str, tuple[tuple[str, ...], str]] = {
     "ahrm_stack/kinematics/phases.py": (("tests/test_phases.py",), ""),
     # the live QP core (issue 57, item 7)
     "ahrm_stack/safety/solvers.py": (("tests/test_solvers.py", *_CONSTRAINT_TESTS[0]), SAFETY_FAST),
-    "ahrm_stack/safety/constraints/base.py": _CONSTRAINT_TESTS,
+    "ahrm_stack/safety/constraints/base.py": (("tests/test_kinematic_snapshot.py", *_CONSTRAINT_TESTS[0]),
+                                              SAFETY_FAST),
     "ahrm_stack/safety/constraints/distance.py": (("tests/test_distance_rows_fast.py",
                                                    "tests/test_constraints_fast.py"), ""),
     "ahrm_stack/safety/filter.py": _CONSTRAINT_TESTS,
