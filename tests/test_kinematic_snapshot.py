@@ -48,11 +48,8 @@ def test_point_rows_are_the_directional_velocity_of_the_attached_point(base):
         for k, frame in enumerate(chosen):
             here = _world(BASES[base], q, frame)
             local = here.inverse().act(points[k])  # the point in the frame: fixed as q moves
-
-            def at(qq: np.ndarray) -> np.ndarray:
-                return _world(BASES[base], qq, frame).act(local)
-
-            rate = (at(q + eps * u) - at(q - eps * u)) / (2 * eps)
+            ahead, behind = (_world(BASES[base], q + s * eps * u, frame).act(local) for s in (1, -1))
+            rate = (ahead - behind) / (2 * eps)
             assert rows[k] @ u == pytest.approx(directions[k] @ rate, abs=1e-6)
 
 
