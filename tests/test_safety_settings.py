@@ -59,9 +59,9 @@ def _other(value: Any) -> Any:
     """A different value of the same kind, for a key without an order."""
     if isinstance(value, str):
         return "osqp" if value != "osqp" else "daqp"
-    if dataclasses.is_dataclass(value):  # e.g. the self-collision pairs: one pair fewer
-        first = dataclasses.fields(value)[0].name
-        return dataclasses.replace(value, **{first: getattr(value, first)[:-1]})
+    if isinstance(value, dict):  # e.g. the self-collision pairs per arm: one pair fewer for the first arm
+        first = next(iter(value))
+        return {**value, first: value[first][:-1]}
     return _step(value, +1)
 
 

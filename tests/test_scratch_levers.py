@@ -7,10 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 import torch
-import yaml
-
-from ahrm_stack.config import (CONFIG_DIR, SECTIONS, ConfigError, config_from_dict, load_config,
-                               profile_overrides)
+from ahrm_stack.config import ConfigError, config_from_dict, load_config, load_raw, profile_overrides
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.task import PushOffTask
 from ahrm_stack.env.torchrl_env import PushOffEnv, touch_penalty
@@ -157,7 +154,7 @@ def test_the_scratch_profile_has_no_demonstrations():
 
 
 def test_old_run_configs_get_the_neutral_values():
-    raw = {name: yaml.safe_load(open(CONFIG_DIR / file)) for name, file in SECTIONS.items()}
+    raw = load_raw()  # the sections as read, the arms' values composed in
     for key in ("frames", "time_limit", "start_curriculum", "curriculum_states", "curriculum_window",
                 "curriculum_threshold", "curriculum_step"):
         raw["train"].pop(key)
