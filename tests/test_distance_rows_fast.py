@@ -321,3 +321,45 @@ def test_the_segment_bound_never_exceeds_the_distance(seed, spread, cylinder):
         close += d > 0 and d - bound < 0.05
     if spread == 0.6:
         assert close > 0
+
+
+def test_bad_arguments_are_refused_naming_what_and_the_edges_are_accepted(pair):
+    """DistanceLimit's definition checks, each refusal one ConstraintDefinitionError naming the
+    value, and each limit value itself accepted (a safe distance of 0, no obstacle row,
+    an activation distance just above the safe one)."""
+    from ahrm_stack.safety.constraints import ConstraintDefinitionError
+
+    scene, kin = pair.scene, pair.task.kinematics
+    identity = kin.model.nq == pair.robot.num_joints and not len(kin.joint_map.continuous)
+    snapshot = ArmSnapshot(kin.model, kin.base, None if identity else kin.configuration)  # its own
+    snapshot.update(np.zeros(pair.robot.num_joints))
+    frames = {name: pair.task.kinematics.frame_id(name) for name in scene.robot if name != "pusher"}
+    frames["pusher"] = pair.task.kinematics.element_frame_id(pair.task.pusher.tip_site)
+    good = dict(safe_distance=0.02, activation_distance=0.1, max_obstacle_rows=4, horizon=0.05)
+
+    def make(frames=frames, self_pairs=(), **changes):
+        return DistanceLimit(scene, snapshot, frames, **{**good, **changes}, self_pairs=self_pairs)
+
+    for changes, message in (
+            (dict(safe_distance=-0.01), "safe distance must be finite and >= 0 m, got -0.01"),
+            (dict(safe_distance=float("nan")), "safe distance must be finite"),
+            (dict(activation_distance=0.02), r"activation distance \(0.02 m\) must exceed the safe distance"),
+            (dict(activation_distance=float("inf")), "activation distance"),
+            (dict(max_obstacle_rows=-1), "max_obstacle_rows must be >= 0, got -1"),
+            (dict(horizon=0.0), "distance horizon must be finite and > 0 s, got 0.0"),
+            (dict(horizon=float("inf")), "distance horizon must be finite")):
+        with pytest.raises(ConstraintDefinitionError, match=message):
+            make(**changes)
+    part = next(iter(scene.robot))
+    with pytest.raises(ConstraintDefinitionError, match=rf"no frame given for robot part\(s\) \['{part}'\]"):
+        make(frames={k: v for k, v in frames.items() if k != part})
+    names = list(scene.robot)
+    with pytest.raises(ConstraintDefinitionError, match="'elbow' is not a robot part of the scene"):
+        make(self_pairs=[(names[0], "elbow")])
+    for bad in ([(names[0], names[0])], [(names[0], names[3]), (names[3], names[0])],
+                [(names[0], names[3]), (names[0], names[3])]):
+        with pytest.raises(ConstraintDefinitionError, match="repeats a part or a pair"):
+            make(self_pairs=bad)
+    edge = make(safe_distance=0.0, activation_distance=1e-6, max_obstacle_rows=0,
+                self_pairs=[(names[0], names[3])])
+    assert edge.safe_distance == 0.0 and edge.max_obstacle_rows == 0 and edge.self_pairs == ((names[0], names[3]),)
