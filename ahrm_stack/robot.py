@@ -105,16 +105,17 @@ def describe(name: str, arm: composer.Entity) -> RobotDescription:
     ctrl = np.array(physics.bind(arm.actuators).ctrlrange, dtype=float).reshape(-1, 2)
     if not np.allclose(ctrl[:, 0], -ctrl[:, 1]):
         raise ValueError(f"{name}: velocity actuator ranges must be symmetric, got {ctrl.tolist()}")
+    entry = load_arm(name)
     return RobotDescription(
         name=name,
         joint_names=tuple(j.name for j in arm.joints),
         position_lower=lower,
         position_upper=upper,
         velocity_limit=ctrl[:, 1].copy(),
-        commanded_joints=load_arm(name).commanded_joints,
+        commanded_joints=entry.commanded_joints,
         link_bodies=tuple(j.parent.name for j in arm.joints),
         base_body=arm.joints[0].parent.parent.name,
         attachment_site=arm.wrist_site.name,
         urdf=arm.urdf.path if isinstance(arm, UrdfArm) else None,
-        min_velocity_margin=load_arm(name).min_velocity_margin,
+        min_velocity_margin=entry.min_velocity_margin,
     )
