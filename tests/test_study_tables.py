@@ -25,3 +25,14 @@ def test_the_committed_table_is_its_data(module, folder, tmp_path):
     copy = tmp_path / "out"
     shutil.copytree(source, copy)
     assert module.write_table(copy) == (source / "table.md").read_text()
+
+
+def test_the_committed_planner_free_test_table_is_its_reads(tmp_path):
+    """docs/planner-free/test.md is regenerated from the committed suite-test/ folders of the frozen
+    recipe's seeds (the one test read per policy), not typed."""
+    source = ROOT / "docs" / "planner-free"
+    if not (source / "test.md").is_file():
+        pytest.skip("no planner-free policy has been read on the test split yet")
+    copy = tmp_path / "docs" / "planner-free"
+    shutil.copytree(source, copy)
+    assert planner_free.write_test_table(copy) == (source / "test.md").read_text()

@@ -191,12 +191,13 @@ class _Tally:
                    ratio=sum(ratios) / len(ratios) if ratios else float("nan"))
 
 
-def _suites(root: Path, folders: tuple[str, ...]) -> list[tuple[str, dict, Path]]:
+def _suites(root: Path, folders: tuple[str, ...],
+            labels: tuple[str, ...] | None = None) -> list[tuple[str, dict, Path]]:
     """(seed, suite.json, folder) per seed; every seed's suite must be on the test split, over the
     same families with the same support, and its scripted episodes the same as the first seed's
     (the same test episodes, so the comparison is paired)."""
     suites: list[tuple[str, dict, Path]] = []
-    for name in folders:
+    for index, name in enumerate(folders):
         folder = root / name
         suite = json.loads((folder / "suite.json").read_text())
         if suite["split"] != "test":
@@ -210,11 +211,12 @@ def _suites(root: Path, folders: tuple[str, ...]) -> list[tuple[str, dict, Path]
                 if mine != _comparable(first_folder / family / "scripted" / "evaluation.csv"):
                     raise ValueError(f"{folder / family / 'scripted'}: not the episodes of seed {first_seed}'s "
                                      "suite (the scripted controller's results differ)")
-        suites.append((_seed_of(name), suite, folder))
+        suites.append((labels[index] if labels else _seed_of(name), suite, folder))
     return suites
 
 
-def test_split_rows(root: Path = ROOT, folders: tuple[str, ...] | None = None) -> list[str]:
+def test_split_rows(root: Path = ROOT, folders: tuple[str, ...] | None = None,
+                    labels: tuple[str, ...] | None = None, equal_caps: bool = True) -> list[str]:
     """The default configuration's test-split suites, every committed seed pooled first: per group of
     families (all; inside and outside the training support as suite.json computed it) the policy's
     successes and touching episodes summed over the seeds with exact intervals, the scripted
@@ -265,13 +267,13 @@ def test_split_rows(root: Path = ROOT, folders: tuple[str, ...] | None = None) -
              f"success share minus the scripted controller's {_t_interval(gains)}; touching share minus "
              f"the scripted controller's {_t_interval(touch_gains)}; time / scripted (both won) "
              f"{_t_interval(seed_ratios, sign='', null=1.0)}."]
-    rows += ["", _episode_level_line([root / f for f in (folders or DEFAULT_TEST_SUITES)])]
+    rows += ["", _episode_level_line([root / f for f in (folders or DEFAULT_TEST_SUITES)], equal_caps)]
     rows += ["", "Files: " + ", ".join(f"`{name}/suite.md`" for name in (folders or DEFAULT_TEST_SUITES))
              + " (per family, with each family's support) and the per-episode `evaluation.csv` files beside them."]
     return rows
 
 
-def _episode_level_line(suites: list[Path]) -> str:
+def _episode_level_line(suites: list[Path], equal_caps: bool = True) -> str:
     """The same comparison with the test episode as the unit (studies/reanalysis.py: each episode the
     policy's mean over its seeds against the scripted controller's one outcome, a two-way bootstrap
     interval and the exact sign test), and the two speed caps the time ratio compares."""
@@ -295,7 +297,7 @@ def _episode_level_line(suites: list[Path]) -> str:
             f"the scripted controller's outcome; 95 % two-way bootstrap over episodes and seeds; "
             f"studies/reanalysis.py): {part('success')}; {part('touching')}. The time ratio above compares unequal "
             f"speed caps: the policy may move the tip at {cap} m/s, the scripted controller at {teacher_cap} m/s"
-            + _equal_caps(reanalysis) + ".")
+            + (_equal_caps(reanalysis) if equal_caps else "") + ".")
 
 
 def _equal_caps(reanalysis: Any) -> str:
