@@ -93,12 +93,16 @@ def _configuration(robot, rng) -> np.ndarray:
 
 
 def _without_rows_beyond_reach(pair, q, reference, fast):
+    """``reference`` less its self rows missing from ``fast`` (see :func:`_beyond_reach_dropped`)."""
+    return _beyond_reach_dropped(pair.fast, pair.reference, pair.reference_snapshot, q, reference, fast)
+
+
+def _beyond_reach_dropped(limit, reference_limit, reference_snapshot, q, reference, fast):
     """``reference`` less its self rows missing from ``fast``, each checked (independently of the
     segment bound) to join two parts whose enclosing capsules are farther apart than the
     activation distance."""
-    limit = pair.fast
-    pair.reference_snapshot.update(q)
-    centers, rotations = pair.reference_snapshot.placements(pair.reference._part_frames)
+    reference_snapshot.update(q)
+    centers, rotations = reference_snapshot.placements(reference_limit._part_frames)
     index = {name: k for k, name in enumerate(limit.part_names)}
     keep = []
     for k, name in enumerate(reference.names):
@@ -363,3 +367,99 @@ def test_bad_arguments_are_refused_naming_what_and_the_edges_are_accepted(pair):
     edge = make(safe_distance=0.0, activation_distance=1e-6, max_obstacle_rows=0,
                 self_pairs=[(names[0], names[3])])
     assert edge.safe_distance == 0.0 and edge.max_obstacle_rows == 0 and edge.self_pairs == ((names[0], names[3]),)
+
+
+def test_the_segment_bound_of_perpendicular_segments_is_their_distance():
+    """A closed form: segment A on the z axis (half length 1) and segment B parallel to x (half
+    length 2) centred 5 above A's centre are 4 apart (A's top end to B's middle); the bound is
+    exact here, whichever is first, and is the larger of its two one-sided bounds (the smaller,
+    2, is what B's end-to-centre reach alone would give)."""
+    z, x = [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]
+    assert _segment_bound([0, 0, 0], z, 1.0, 0.1, [0, 0, 5], x, 2.0, 0.2) == pytest.approx(4 - 0.3)
+    assert _segment_bound([0, 0, 5], x, 2.0, 0.2, [0, 0, 0], z, 1.0, 0.1) == pytest.approx(4 - 0.3)
+
+
+def _limit_and_reference(pair, scene, self_pairs, max_obstacle_rows=None):
+    """A DistanceLimit and the reference over ``scene`` (a copy of the pair's, some objects left
+    out), each on its own snapshot of the pair's kinematics, with the pair's safety settings."""
+    kin, safety = pair.task.kinematics, pair.config.safety
+    identity = kin.model.nq == pair.robot.num_joints and not len(kin.joint_map.continuous)
+    snapshots = [ArmSnapshot(kin.model, kin.base, None if identity else kin.configuration) for _ in range(2)]
+    for snapshot in snapshots:
+        snapshot.update(np.zeros(pair.robot.num_joints))
+    frames = {name: kin.frame_id(name) for name in scene.robot if name != "pusher"}
+    frames["pusher"] = kin.element_frame_id(pair.task.pusher.tip_site)
+    keep = safety.max_obstacle_rows if max_obstacle_rows is None else max_obstacle_rows
+    args = (frames, safety.obstacle_safe_distance, safety.obstacle_activation_distance, keep, pair.filter.horizon)
+    return (DistanceLimit(scene, snapshots[0], *args, self_pairs=self_pairs), snapshots[0],
+            ReferenceDistanceLimit(scene, snapshots[1], *args, self_pairs), snapshots[1])
+
+
+def test_one_obstacle_and_one_self_pair_still_give_rows(pair):
+    """The edges of "is there anything to ask": a scene with a single obstacle and a limit with a
+    single self-collision pair give the reference's rows, obstacle and self rows among them."""
+    import copy
+
+    scene = copy.copy(pair.scene)
+    scene.environment = {name: obj for name, obj in pair.scene.environment.items()
+                         if not name.startswith("obstacle_") or name == "obstacle_0"}
+    assert [n for n in scene.environment if n.startswith("obstacle_")] == ["obstacle_0"]
+    rng = np.random.default_rng(3)
+    seen = set()
+    for self_pair in pair.fast.self_pairs[:6]:
+        fast, snapshot, reference, reference_snapshot = _limit_and_reference(pair, scene, [self_pair])
+        for _ in range(15):
+            q = _configuration(pair.robot, rng)
+            reference_snapshot.update(q)
+            centers, _ = reference_snapshot.placements(reference._part_frames)
+            near = centers[rng.integers(len(centers))] + rng.uniform(-0.05, 0.05, 3)
+            scene.environment["obstacle_0"].setTranslation(near)
+            snapshot.update(q)
+            mine = fast.rows(snapshot, True, True, True)
+            theirs = reference.rows(reference_snapshot, True, True, True)
+            _assert_same(mine, _beyond_reach_dropped(fast, reference, reference_snapshot, q, theirs, mine))
+            seen |= {name.split(":")[0] for name in mine.names}
+    assert seen == {"table", "obstacle", "self"}
+
+
+
+def test_each_kind_of_pruning_saves_queries_and_the_defaults_are_table_and_obstacles(pair):
+    """Over 40 crowded draws: the obstacle candidates beyond the nearest found and the self pairs
+    beyond the segment bound are each left unmeasured (fewer queries than the reference, which
+    measures every candidate of the bounding test, on each kind alone), with the reference's
+    rows; ``rows(snapshot)`` is the table and obstacle rows without the self rows; ``max_rows``
+    counts exactly the kinds asked for."""
+    rng = np.random.default_rng(11)
+    saved = {"obstacles": 0, "self": 0}
+    limit = pair.fast
+    guarded = GUARD.failures
+    for _ in range(40):
+        q = _configuration(pair.robot, rng)
+        pair.place_obstacles(rng, q)
+        for kind, flags in (("obstacles", (False, True, False)), ("self", (False, False, True))):
+            fast, reference = pair.both(q, *flags)
+            _assert_same(fast, _without_rows_beyond_reach(pair, q, reference, fast))
+            saved[kind] += pair.reference.last_queries - limit.last_queries
+            assert limit.last_queries >= len(fast.names)  # every row took a query
+        assert limit.rows(pair.snapshot).names == limit.rows(pair.snapshot, True, True, False).names
+    assert saved["obstacles"] > 0 and saved["self"] > 0
+    assert GUARD.failures == guarded  # every query was answered by the prepared call, none guarded
+    kinds = {name.split(":")[0] for name in limit.rows(pair.snapshot).names}
+    moving, pairs = len(limit.scene.moving_parts), len(limit.self_pairs)
+    assert limit.max_rows(True, True) == moving + limit.max_obstacle_rows
+    assert limit.max_rows(False, False) == 0 and limit.max_rows(False, False, True) == pairs
+    assert limit.max_rows(True, False) == moving and limit.max_rows(False, True) == limit.max_obstacle_rows
+    assert "self" not in kinds
+
+
+def test_a_scene_without_a_table_is_refused_and_a_new_limit_has_asked_nothing(pair):
+    import copy
+
+    from ahrm_stack.safety.constraints import ConstraintDefinitionError
+
+    fast, *_ = _limit_and_reference(pair, pair.scene, ())
+    assert fast.last_queries == 0
+    scene = copy.copy(pair.scene)
+    scene.environment = {name: obj for name, obj in pair.scene.environment.items() if name != "table"}
+    with pytest.raises(ConstraintDefinitionError, match="the collision scene has no 'table'"):
+        _limit_and_reference(pair, scene, ())
