@@ -383,6 +383,8 @@ def _limit_and_reference(pair, scene, self_pairs, max_obstacle_rows=None):
     """A DistanceLimit and the reference over ``scene`` (a copy of the pair's, some objects left
     out), each on its own snapshot of the pair's kinematics, with the pair's safety settings."""
     kin, safety = pair.task.kinematics, pair.config.safety
+    scene.kinematics.update(np.zeros(pair.robot.num_joints))  # the parts where q = 0 puts them, as
+    scene.update_robot()  # the filter places them before it builds its limit (other tests move them)
     identity = kin.model.nq == pair.robot.num_joints and not len(kin.joint_map.continuous)
     snapshots = [ArmSnapshot(kin.model, kin.base, None if identity else kin.configuration) for _ in range(2)]
     for snapshot in snapshots:
