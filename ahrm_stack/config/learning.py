@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import typing
 from typing import Annotated, Any, Literal
 
@@ -139,8 +141,12 @@ class TrainConfig(Section):
     # behaviour cloning and the critic refit
     bc_learning_rate: Pos
     demo_noise: NonNeg  # std of noise on the executed demonstration actions (normalised; labels clean)
-    expert: Annotated[Literal["stateful", "stateless"], legacy("stateful")]  # the scripted teacher of the demonstrations and the
-    # DAgger labels: stages carried over from step to step, or inferred from each state alone
+    expert: Annotated[Literal["stateful", "stateless", "policy"], legacy("stateful")]  # the teacher of the demonstrations
+    # and the DAgger labels: the scripted controller with its stages carried over from step to step, or inferred from
+    # each state alone; policy: train.teacher_run's trained policy (the planner-taught route)
+    teacher_run: Annotated[Str, legacy("")]  # expert: policy: the run folder (config.yaml, policy.pt) whose policy labels
+    # the states, on its own observation (the terms this run's observation lacks, e.g. the planner's lane_choice, are
+    # computed for it); its task.action must be this run's. Empty with the scripted experts
     num_envs: Annotated[PosInt, le(LIMITS["num_envs"])]  # environments stepped together (in one
     # process, sharing the reward mechanism)
     env_workers: Annotated[PosInt, legacy(1)]  # processes the num_envs environments are split over (1: the trainer's own)
@@ -176,3 +182,12 @@ class TrainConfig(Section):
                               f"{key}.env_workers: 1 (the recorded states are not sent to worker processes)")
         if not self.runs_dir.strip():
             raise ConfigError(f"{key}.runs_dir must name a folder, got {self.runs_dir!r}")
+        if (self.expert == "policy") != bool(self.teacher_run.strip()):
+            raise ConfigError(f"{key}.teacher_run names the teacher's run folder exactly when {key}.expert is policy "
+                              f"(got expert {self.expert!r}, teacher_run {self.teacher_run!r})")
+        if self.teacher_run.strip():
+            folder = Path(self.teacher_run)
+            missing = [name for name in ("config.yaml", "policy.pt") if not (folder / name).is_file()]
+            if missing:
+                raise ConfigError(f"{key}.teacher_run: {self.teacher_run!r} has no {' or '.join(missing)} "
+                                  "(a finished run folder is the teacher)")

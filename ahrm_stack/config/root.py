@@ -3,11 +3,13 @@ rules that span several of them."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from ahrm_stack.config.fields import LIMITS, Frozen
 from ahrm_stack.config.learning import MechanismConfig, PPOConfig, TrainConfig
 from ahrm_stack.config.safety import SafetyConfig
 from ahrm_stack.config.task import ScriptedConfig, TaskConfig
-from ahrm_stack.schema import ConfigError, Section
+from ahrm_stack.schema import ConfigError, Section, read_yaml
 
 
 @Frozen
@@ -51,6 +53,13 @@ class Config(Section):
             if set(task.layout.lane_directions) != {"+x", "-x"}:
                 raise ConfigError(f"ppo.lane_frame: {ppo.lane_frame} needs both lanes, +x and -x, in "
                                   f"task.layout.lane_directions, got {list(task.layout.lane_directions)}")
+        if train.expert == "policy":  # TrainConfig.check: teacher_run is then a run folder
+            path = Path(train.teacher_run) / "config.yaml"
+            theirs = read_yaml(path).get("task", {}).get("action", {})
+            mine = self.task.action.to_dict()
+            if not isinstance(theirs, dict) or {k: mine.get(k) for k in theirs} != theirs:
+                raise ConfigError(f"train.teacher_run: {path}'s task.action ({theirs}) is not this run's ({mine}): "
+                                  "the teacher's actions are the student's labels")
         if self.task.regions.distance_clip < self.mechanism.blend_band:
             raise ConfigError(f"task.regions.distance_clip ({self.task.regions.distance_clip} m) must "
                               f"be >= mechanism.blend_band ({self.mechanism.blend_band} m)")

@@ -13,7 +13,10 @@ that reproduces the controller's request, in the learner's action mode (the inve
 
 Either way the commands go through the same safety filter as the learner's. The teacher is
 ``train.expert``: the controller with its stages carried over from step to step (``stateful``)
-or inferred from each state alone (``stateless``, which also re-approaches a cube it lost). With
+or inferred from each state alone (``stateless``, which also re-approaches a cube it lost), or a
+trained policy (``policy``, :class:`_PolicyTeacher`: ``train.teacher_run``'s, on its own
+observation; the *planner-taught* route when that policy is planner-assisted and this run's
+observation has no planner output). With
 ``train.demo_noise`` > 0 the executed action is the controller's plus Gaussian noise of that
 standard deviation (normalised units) while the recorded label stays the controller's own action
 (DART: the demonstrations then cover the states a slightly wrong policy visits, and show how to
@@ -27,6 +30,7 @@ the reward mechanism's initial state. The same data serves as the anchor of the 
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Callable, Iterator
 
 import numpy as np
@@ -36,6 +40,7 @@ from tensordict import TensorDict
 from ahrm_stack.config import Config
 from ahrm_stack.env.episode_loop import Step
 from ahrm_stack.env.episode_loop import episode as episode_steps
+from ahrm_stack.env.observation_layout import observation_layout, observation_terms
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.scripted import ScriptedPusher
 from ahrm_stack.env.task import PushOffTask, StepInfo
@@ -86,6 +91,11 @@ class _Teacher:
 
         return episode_steps(self.runner, DEMO_SEED_OFFSET + episode, act, self.controller.reset)
 
+    def gave_up(self) -> bool:
+        """Whether the teacher has no useful label any more in this episode (the controller pushed
+        past the table edge without success: its ``hold`` stage)."""
+        return self.controller.stage == "hold"
+
     def reward(self, info: StepInfo) -> float:
         """The reward mechanism's reward for a step (in its initial state)."""
         return float(self.mechanism.reward(info.g, info.distances))
@@ -96,6 +106,54 @@ class _Teacher:
         returns the mechanism's reward, terminated (success) and truncated."""
         info, terminated, truncated = self.runner.step_action(action)
         return self.reward(info), terminated, truncated
+
+
+class _PolicyTeacher(_Teacher):
+    """A trained policy as the teacher (``train.expert: policy``): ``train.teacher_run``'s
+    deterministic action on the observation *its* config describes, assembled in each state from
+    this run's (noise-free) observation vector, term by term (:func:`observation_terms`), with the
+    terms this run does not observe computed by the task (e.g. ``lane_choice``, the scripted
+    planner's lane: the teacher may see it, the student never does). Its action is the learner's
+    normalised action: both runs' ``task.action`` must be the same."""
+
+    def __init__(self, config: Config) -> None:
+        super().__init__(config)
+        from ahrm_stack.learning.rollouts import load_policy  # (rollouts imports the env stack)
+
+        teacher_config, self.policy = load_policy(Path(config.train.teacher_run))  # the same task.action (Config.check)
+        robot = self.task.robot
+        joints, commanded = robot.num_joints, len(robot.commanded_joints)
+        self._mine = observation_layout(config.task, joints, commanded)
+        self._terms = observation_terms(teacher_config.task, joints, commanded)
+        for term in self._terms:
+            mine = self._mine.get(term.name)
+            if mine is not None and mine.stop - mine.start != term.size:
+                raise ValueError(f"train.teacher_run: the teacher's observation term {term.name!r} has "
+                                 f"{term.size} floats, this run's {mine.stop - mine.start}")
+        self._values = self.task._term_values()
+
+    def teacher_observation(self) -> np.ndarray:
+        """The teacher's observation vector in the current state."""
+        physics = self.runner.physics
+        mine = self.task.flat_observation(physics)  # noise-free; the sensing model is not asked
+        return np.concatenate([mine[self._mine[t.name]] if t.name in self._mine
+                               else np.asarray(self._values[t.name](physics), dtype=float).ravel()
+                               for t in self._terms])
+
+    def label(self) -> np.ndarray:
+        """The teacher policy's action in the current state, clipped to ACTION_LIMIT."""
+        observation = torch.as_tensor(self.teacher_observation(), dtype=torch.float32)
+        with torch.no_grad():
+            action = self.policy.act(observation).numpy().astype(float)
+        return np.clip(action, -ACTION_LIMIT, ACTION_LIMIT)
+
+    def gave_up(self) -> bool:
+        return False
+
+
+def _teacher(config: Config) -> _Teacher:
+    """The teacher ``train.expert`` names."""
+    return _PolicyTeacher(config) if config.train.expert == "policy" else _Teacher(config)
 
 
 def _dataset(observations: list, actions: list, returns: list) -> TensorDict:
@@ -134,12 +192,12 @@ def _demonstrate(teacher: _Teacher, episode: int, noise: np.random.Generator,
 
 
 def collect_demonstrations(config: Config, episodes: int) -> TensorDict:
-    """Run the scripted controller for ``episodes`` seeded episodes; successful episodes only.
+    """Run the teacher (``train.expert``) for ``episodes`` seeded episodes; successful episodes only.
 
     Returns a flat TensorDict with ``observation``, ``action`` (normalised, commanded joints) and
     ``return`` (discounted return under the initial reward-mechanism state, ``ppo.gamma``).
     """
-    teacher = _Teacher(config)
+    teacher = _teacher(config)
     noise_std = config.train.demo_noise
     noise = np.random.default_rng(DEMO_SEED_OFFSET)
     observations, actions, returns = [], [], []
@@ -151,13 +209,13 @@ def collect_demonstrations(config: Config, episodes: int) -> TensorDict:
         actions += act
         returns += _discounted(rewards, config.ppo.gamma)  # success is terminal: no bootstrap
     if not observations:
-        raise RuntimeError("the scripted controller produced no successful demonstration")
+        raise RuntimeError(f"the teacher ({config.train.expert}) produced no successful demonstration")
     return _dataset(observations, actions, returns)
 
 
 def collect_corrections(config: Config, actor, episodes: int, first_episode: int) -> TensorDict:
     """DAgger: run ``actor`` (deterministic, plus ``train.demo_noise`` on the executed action)
-    and label every state it visits with the scripted controller's action for that state.
+    and label every state it visits with the teacher's action for that state (``train.expert``).
 
     Episodes use the demonstration seeds ``DEMO_SEED_OFFSET + first_episode + i`` (after the
     demonstrations', so new layouts) and stop at success, after ``train.dagger_duration`` s, or
@@ -172,7 +230,7 @@ def collect_corrections(config: Config, actor, episodes: int, first_episode: int
     """
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-    teacher = _Teacher(config)
+    teacher = _teacher(config)
     noise = np.random.default_rng(DEMO_SEED_OFFSET + first_episode)
     max_steps = int(round(config.train.dagger_duration / config.task.episode.control_period))
     observations, actions, returns = [], [], []
@@ -183,7 +241,7 @@ def collect_corrections(config: Config, actor, episodes: int, first_episode: int
             for _ in range(max_steps):
                 observation = teacher.runner.flat_observation()
                 label = teacher.label()
-                if teacher.controller.stage == "hold":  # pushed past the edge: no useful label
+                if teacher.gave_up():  # e.g. pushed past the edge: no useful label
                     break
                 observations.append(observation)
                 actions.append(label)
