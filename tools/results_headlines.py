@@ -329,16 +329,38 @@ def method_rows(root: Path = ROOT) -> list[str]:
     return rows
 
 
+#: The frozen planner-free recipe's test reads (docs/protocol.md, 2026-12-07 15:40 UTC): seed -> run folder.
+PLANNER_FREE_RUNS = "docs/planner-free/runs"
+PLANNER_FREE_SEEDS: dict[str, str] = {"0": "tipside", "1": "pf-seed1", "2": "pf-seed2", "3": "pf-seed3",
+                                      "4": "pf-seed4"}
+
+
+def planner_free_rows(root: Path = ROOT) -> list[str]:
+    """The frozen planner-free recipe's pooled test-split rows (:func:`test_split_rows`' first table),
+    over the seeds read so far; nothing before the first read."""
+    read = {seed: f"{PLANNER_FREE_RUNS}/{name}/suite-test" for seed, name in PLANNER_FREE_SEEDS.items()
+            if (root / PLANNER_FREE_RUNS / name / "suite-test" / "suite.json").is_file()}
+    if not read:
+        return []
+    rows = test_split_rows(root, tuple(read.values()), labels=tuple(read), equal_caps=False)
+    return ["", "**The frozen planner-free recipe on the sealed test split** (route: planner-free "
+            "throughout; `profile=planner-free`, 1M frames, no demonstrations, nothing from the planner; each "
+            "seed's one read, `python -m ahrm_stack.evaluate docs/planner-free/runs/NAME --suite --split test`; "
+            f"seeds {', '.join(read)} of the 5 registered in docs/protocol.md, 2026-12-07 15:40 UTC; per seed "
+            "and seed level: [planner-free/test.md](planner-free/test.md)):", "", *rows[:rows.index("")]]
+
+
 def block(root: Path = ROOT) -> str:
-    lines = [BEGIN, "", "**Today's default policy** (`docs/policies/ahrm-default-seed0`, trained 2026-12-04; "
-             "one seed; validation split):", ""]
+    lines = [BEGIN, "", "**Today's default policy** (route: demonstrations; `docs/policies/ahrm-default-seed0`, "
+             "trained 2026-12-04; one seed; validation split):", ""]
     lines += default_policy_rows(root)
-    lines += ["", "**The default configuration on the sealed test split** (each seed's one final "
-              "evaluation, `python -m ahrm_stack.evaluate docs/policies/ahrm-default-seedN --suite --split test`; "
-              f"seeds {_seed_list()} of the {REGISTERED_SEEDS} registered in docs/protocol.md, pooled first):", ""]
+    lines += ["", "**The default configuration on the sealed test split** (route: demonstrations; each seed's "
+              "one final evaluation, `python -m ahrm_stack.evaluate docs/policies/ahrm-default-seedN --suite --split "
+              f"test`; seeds {_seed_list()} of the {REGISTERED_SEEDS} registered in docs/protocol.md, pooled first):", ""]
     lines += test_split_rows(root)
-    lines += ["", "**The four methods with the current training defaults** (2026-12-02; pooled over "
-              "seeds 0–2, 1,080 suite episodes per method; validation split):", ""]
+    lines += planner_free_rows(root)
+    lines += ["", "**The four methods with the current training defaults** (route: demonstrations; 2026-12-02; "
+              "pooled over seeds 0–2, 1,080 suite episodes per method; validation split):", ""]
     lines += method_rows(root)
     lines += ["", END]
     return "\n".join(lines)
