@@ -45,6 +45,7 @@ def _headlines():
     import importlib.util
     spec = importlib.util.spec_from_file_location("results_headlines", ROOT / "tools" / "results_headlines.py")
     module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
+    sys.modules.setdefault("results_headlines", module)  # (its dataclasses look their module up)
     spec.loader.exec_module(module)  # type: ignore[union-attr]
     return module
 
@@ -67,8 +68,30 @@ def write_test_table(out: Path) -> str | None:
             f"each seed's one read (`python -m ahrm_stack.evaluate docs/planner-free/runs/NAME --suite --split "
             f"test`), seeds {', '.join(read)} of 0-4 (run folders: "
             + ", ".join(f"{seed} `{FROZEN[seed]}`" for seed in read) + ").\n\n" + "\n".join(rows) + "\n")
+    text += "\n" + _lane_rows(read)
     (out / "test.md").write_text(text)
     return text
+
+
+def _lane_rows(read: dict[str, Path]) -> str:
+    """Per seed, over its twenty families' test episodes: how many were pushed off by the scripted
+    planner's lane (``lane_agrees``), and the touching and winning share after each lane."""
+    rows = ["Touching by lane (the side the cube left by against the scripted planner's lane, from the same "
+            "files; episodes the cube did not leave have no lane):", "",
+            "| seed | by the planner's lane | touching | won | by the other lane | touching | won | no lane |",
+            "|---|---|---|---|---|---|---|---|"]
+    for seed, folder in read.items():
+        tally = {"True": [0, 0, 0], "False": [0, 0, 0], "": [0, 0, 0]}
+        for path in sorted(folder.glob("*/evaluation.csv")):
+            with open(path, newline="") as handle:
+                for row in csv.DictReader(handle):
+                    t = tally[row["lane_agrees"]]
+                    t[0] += 1
+                    t[1] += int(row["touched_steps"]) > 0
+                    t[2] += row["success"] == "True"
+        same, other, none = tally["True"], tally["False"], tally[""]
+        rows.append(f"| {seed} | {same[0]} | {same[1]} | {same[2]} | {other[0]} | {other[1]} | {other[2]} | {none[0]} |")
+    return "\n".join(rows) + "\n"
 
 
 def _rows(run_dir: Path, name: str) -> list[dict]:

@@ -224,8 +224,9 @@ def test_split_rows(root: Path = ROOT, folders: tuple[str, ...] | None = None,
     (each policy seed paired with the scripted episode) with the exact two-sided sign test, the same
     for touching, and the mean time ratio on the episodes both won. Then a row per seed, and the
     seed-level means with 95 % t-intervals of the success and touching shares' differences from the
-    scripted controller and of the time ratio."""
-    suites = _suites(root, folders if folders is not None else DEFAULT_TEST_SUITES)
+    scripted controller and of the time ratio. ``labels`` name the seeds where the folders' names do
+    not (``seedN`` in them); ``equal_caps=False`` leaves out the default policy's equal-caps row."""
+    suites = _suites(root, folders if folders is not None else DEFAULT_TEST_SUITES, labels)
     families_of = suites[0][1]["families"]
     groups: dict[str, list[str]] = {"all families": list(families_of), "inside the training support": [],
                                     "outside it (partly or wholly)": []}
@@ -290,9 +291,8 @@ def _episode_level_line(suites: list[Path], equal_caps: bool = True) -> str:
                 f"episodes above / below the scripted controller {sign['above']} / {sign['below']} "
                 f"(sign test p = {sign['p']:.2g}), {called}")
 
-    task = yaml.safe_load((ROOT / "configs" / "task.yaml").read_text())
-    scripted = yaml.safe_load((ROOT / "configs" / "scripted.yaml").read_text())
-    cap, teacher_cap = task["action"]["cartesian_max_speed"], scripted["push_speed"]
+    run = yaml.safe_load((suites[0].parent / "config.yaml").read_text())  # the policy's own run config
+    cap, teacher_cap = run["task"]["action"]["cartesian_max_speed"], run["scripted"]["push_speed"]
     return (f"Episode level ({d['episodes']} test episodes, each one unit: the policy's mean over its seeds against "
             f"the scripted controller's outcome; 95 % two-way bootstrap over episodes and seeds; "
             f"studies/reanalysis.py): {part('success')}; {part('touching')}. The time ratio above compares unequal "
