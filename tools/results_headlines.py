@@ -291,7 +291,9 @@ def _episode_level_line(suites: list[Path], equal_caps: bool = True) -> str:
                 f"episodes above / below the scripted controller {sign['above']} / {sign['below']} "
                 f"(sign test p = {sign['p']:.2g}), {called}")
 
-    run = yaml.safe_load((suites[0].parent / "config.yaml").read_text())  # the policy's own run config
+    config = suites[0].parent / "config.yaml"  # the policy's own run config; configs/ for a bare suite
+    run = (yaml.safe_load(config.read_text()) if config.is_file() else
+           {name: yaml.safe_load((ROOT / "configs" / f"{name}.yaml").read_text()) for name in ("task", "scripted")})
     cap, teacher_cap = run["task"]["action"]["cartesian_max_speed"], run["scripted"]["push_speed"]
     return (f"Episode level ({d['episodes']} test episodes, each one unit: the policy's mean over its seeds against "
             f"the scripted controller's outcome; 95 % two-way bootstrap over episodes and seeds; "
