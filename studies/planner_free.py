@@ -15,7 +15,8 @@ wins, touching, and touching after the planner's lane and after the other one. V
 
 ``test-table`` writes ``--out/test.md`` from the frozen recipe's one test read per seed (registered
 2026-12-07 15:40 UTC: ``python -m ahrm_stack.evaluate docs/planner-free/runs/NAME --suite --split
-test``, the committed ``suite-test/`` folders of tools/results_headlines.py's ``PLANNER_FREE_SEEDS``), with the default configuration's test
+test``, the committed ``suite-test/`` folders of tools/results_headlines.py's
+``PLANNER_FREE_SEEDS``), with the default configuration's test
 table's rows (``tools/results_headlines.py``): pooled, per seed, against the scripted controller on
 the same episodes.
 """
@@ -90,7 +91,8 @@ def _lane_rows(read: dict[str, Path]) -> str:
                     t[1] += int(row["touched_steps"]) > 0
                     t[2] += row["success"] == "True"
         same, other, none = tally["True"], tally["False"], tally[""]
-        rows.append(f"| {seed} | {same[0]} | {same[1]} | {same[2]} | {other[0]} | {other[1]} | {other[2]} | {none[0]} |")
+        cells = [seed, *same, *other, none[0]]
+        rows.append("| " + " | ".join(str(c) for c in cells) + " |")
     return "\n".join(rows) + "\n"
 
 

@@ -358,7 +358,8 @@ def block(root: Path = ROOT) -> str:
     lines += default_policy_rows(root)
     lines += ["", "**The default configuration on the sealed test split** (route: demonstrations; each seed's "
               "one final evaluation, `python -m ahrm_stack.evaluate docs/policies/ahrm-default-seedN --suite --split "
-              f"test`; seeds {_seed_list()} of the {REGISTERED_SEEDS} registered in docs/protocol.md, pooled first):", ""]
+              f"test`; seeds {_seed_list()} of the {REGISTERED_SEEDS} registered in docs/protocol.md, "
+              "pooled first):", ""]
     lines += test_split_rows(root)
     lines += planner_free_rows(root)
     lines += ["", "**The four methods with the current training defaults** (route: demonstrations; 2026-12-02; "

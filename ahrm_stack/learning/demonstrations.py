@@ -118,9 +118,11 @@ class _PolicyTeacher(_Teacher):
 
     def __init__(self, config: Config) -> None:
         super().__init__(config)
+        from ahrm_stack.learning.ppo import LeanActor
         from ahrm_stack.learning.rollouts import load_policy  # (rollouts imports the env stack)
 
-        teacher_config, self.policy = load_policy(Path(config.train.teacher_run))  # the same task.action (Config.check)
+        teacher_config, policy = load_policy(Path(config.train.teacher_run))  # the same task.action (Config.check)
+        self.policy: LeanActor = policy  # type: ignore[assignment]  # load_policy returns the lean actor
         robot = self.task.robot
         joints, commanded = robot.num_joints, len(robot.commanded_joints)
         self._mine = observation_layout(config.task, joints, commanded)
