@@ -74,8 +74,8 @@ def write_test_table(out: Path) -> str | None:
               for seed, name in FROZEN.items() if (out / "runs" / name / "robustness" / "robustness.md").is_file()}
     if tables:
         text += ("\nThrough the deploy loop (`python -m ahrm_stack.robustness docs/planner-free/runs/NAME "
-                 "--episodes 40 --no-dose`: the sim backend, `jaco2`'s imperfections one at a time and all together, 40 episodes "
-                 "of the `robustness` seed range per condition, the scripted controller on the same episodes; "
+                 "--episodes 40 --no-dose`: the sim backend, `jaco2`'s imperfections one at a time and all "
+                 "together, 40 episodes of the `robustness` seed range per condition, the scripted controller on the same episodes; "
                  "each seed's `robustness/robustness.md`):\n\n"
                  + "\n".join(_headlines().robustness_rows(root, tables)) + "\n")
     (out / "test.md").write_text(text)
