@@ -75,8 +75,8 @@ def write_test_table(out: Path) -> str | None:
     if tables:
         text += ("\nThrough the deploy loop (`python -m ahrm_stack.robustness docs/planner-free/runs/NAME "
                  "--episodes 40 --no-dose`: the sim backend, `jaco2`'s imperfections one at a time and all "
-                 "together, 40 episodes of the `robustness` seed range per condition, the scripted controller on the same episodes; "
-                 "each seed's `robustness/robustness.md`):\n\n"
+                 "together, 40 episodes of the `robustness` seed range per condition, the scripted controller "
+                 "on the same episodes; each seed's `robustness/robustness.md`):\n\n"
                  + "\n".join(_headlines().robustness_rows(root, tables)) + "\n")
     (out / "test.md").write_text(text)
     return text
