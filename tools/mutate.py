@@ -84,7 +84,8 @@ SUITE: dict[str, tuple[tuple[str, ...], str]] = {
                                               SAFETY_FAST),
     "ahrm_stack/safety/constraints/distance.py": (("tests/test_distance_rows_fast.py",
                                                    "tests/test_constraints_fast.py"), ""),
-    "ahrm_stack/safety/filter.py": (("tests/test_safety_filter_definition.py", *_CONSTRAINT_TESTS[0]), SAFETY_FAST),
+    "ahrm_stack/safety/filter.py": (("tests/test_safety_filter_definition.py", "tests/test_safety_filter_internals.py",
+                                     *_CONSTRAINT_TESTS[0]), SAFETY_FAST),
 }
 
 _SWAPPED_CALLS = {"min": "max", "max": "min", "minimum": "maximum", "maximum": "minimum", "any": "all",
