@@ -337,12 +337,17 @@ PLANNER_FREE_SEEDS: dict[str, str] = {"0": "tipside", "1": "pf-seed1", "2": "pf-
                                       "4": "pf-seed4"}
 
 
+def _planner_free_read(root: Path) -> dict[str, str]:
+    """Seed -> the committed ``suite-test`` folder of each frozen planner-free seed read so far."""
+    return {seed: f"{PLANNER_FREE_RUNS}/{name}/suite-test" for seed, name in PLANNER_FREE_SEEDS.items()
+            if (root / PLANNER_FREE_RUNS / name / "suite-test" / "suite.json").is_file()}
+
+
 def planner_free_rows(root: Path = ROOT) -> list[str]:
     """The frozen planner-free recipe's pooled test-split rows (:func:`test_split_rows`' first table),
     over the seeds read so far; nothing before the first read. The whole table:
     :func:`planner_free_table`."""
-    read = {seed: f"{PLANNER_FREE_RUNS}/{name}/suite-test" for seed, name in PLANNER_FREE_SEEDS.items()
-            if (root / PLANNER_FREE_RUNS / name / "suite-test" / "suite.json").is_file()}
+    read = _planner_free_read(root)
     if not read:
         return []
     rows = test_split_rows(root, tuple(read.values()), labels=tuple(read), equal_caps=False)
@@ -361,8 +366,7 @@ def planner_free_table(root: Path = ROOT) -> str | None:
     far; None before the first), as the default's table (:func:`test_split_rows`), then touching by
     lane from the same files and the seeds through the deploy loop (their robustness.md)."""
     runs = root / PLANNER_FREE_RUNS
-    read = {seed: f"{PLANNER_FREE_RUNS}/{name}/suite-test" for seed, name in PLANNER_FREE_SEEDS.items()
-            if (runs / name / "suite-test" / "suite.json").is_file()}
+    read = _planner_free_read(root)
     if not read:
         return None
     rows = test_split_rows(root, tuple(read.values()), labels=tuple(read), equal_caps=False)
