@@ -3,8 +3,9 @@
 Each arm is an entry of the registry, ``configs/robots/<name>.yaml``
 (:mod:`ahrm_stack.config.robots`), built as a dm_control composer entity from its ``source``
 (:data:`SOURCES`). ``jaco`` is dm_control's curved-wrist JACO2, whose MJCF is its source of truth;
-``j2s6s200`` is the spherical-wrist JACO2 of ``example-robot-data``, whose URDF is (the entity and
-the Pinocchio model are both built from it, :mod:`ahrm_stack.arms`). Joint limits and velocity
+``j2s6s200`` is the spherical-wrist JACO2 of ``example-robot-data`` and ``gen3`` the Kinova Gen3
+(7 DoF) vendored in ``ahrm_stack/arms/vendor/kinova_gen3``, whose URDFs are (the entity and the
+Pinocchio model are both built from them, :mod:`ahrm_stack.arms`). Joint limits and velocity
 limits are read from the *compiled* MJCF (MuJoCo's ``jnt_range`` and the velocity actuators'
 ``ctrlrange``), never restated in code; the simulator, the Pinocchio model, the safety filter and
 the hardware adapter all take them from a :class:`RobotDescription`.
@@ -21,7 +22,7 @@ import numpy as np
 from dm_control import composer, mjcf
 from dm_control.entities.manipulators.kinova import jaco_arm
 
-from ahrm_stack.arms.assets import robot_file
+from ahrm_stack.arms.assets import urdf_file
 from ahrm_stack.arms.entity import UrdfArm
 from ahrm_stack.arms.urdf import Urdf, read_urdf
 from ahrm_stack.config import arm_names, load_arm
@@ -71,7 +72,7 @@ def robot_urdf(name: str) -> Urdf:
     settings = load_arm(name).urdf
     if settings is None:
         raise ValueError(f"robots/{name}: not built from a URDF (source: {load_arm(name).source})")
-    return read_urdf(robot_file(settings.file))
+    return read_urdf(urdf_file(settings.file))
 
 
 def _make_urdf_arm(name: str) -> composer.Entity:

@@ -20,20 +20,26 @@ from ahrm_stack.robot import describe, make_arm
 
 def test_every_per_arm_value_comes_from_the_arms_file():
     config, deploy = load_config(), load_deploy_settings()
-    assert arm_names() == ("j2s6s200", "jaco")
+    assert arm_names() == ("gen3", "j2s6s200", "jaco")
     for name in arm_names():
         entry = load_arm(name)
         assert config.task.arm.home_deg[name] == entry.home_deg
         assert config.safety.self_collision_pairs[name] == entry.self_collision_pairs
-        assert deploy.kinova_gen2.joints[name].robot_types == tuple(entry.kinova_gen2["robot_types"])
+        if entry.kinova_gen2 is not None:
+            assert deploy.kinova_gen2.joints[name].robot_types == tuple(entry.kinova_gen2["robot_types"])
+        else:
+            assert name not in deploy.kinova_gen2.joints
+        if entry.kortex is not None:
+            assert (deploy.kortex.models[name].model, deploy.kortex.models[name].dof) == (
+                entry.kortex["model"], entry.kortex["dof"])
         robot = describe(name, make_arm(name))
         assert robot.commanded_joints == entry.commanded_joints
         assert robot.min_velocity_margin == entry.min_velocity_margin
         assert len(entry.home_deg) == robot.num_joints
-    assert deploy.kortex.models == {}  # no registered arm is a Kortex arm yet
+    assert set(deploy.kortex.models) == {"gen3"}  # the one Kortex arm
     for section in ("task.yaml", "safety.yaml", "deploy.yaml"):  # said once: in the arms' files
         text = (CONFIG_DIR / section).read_text()
-        assert not any(line.lstrip().startswith(("jaco:", "j2s6s200:")) for line in text.splitlines()), section
+        assert not any(line.lstrip().startswith(("jaco:", "j2s6s200:", "gen3:")) for line in text.splitlines()), section
 
 
 def test_a_bad_entry_is_one_line_naming_the_arms_file_and_key(tmp_path):
@@ -52,7 +58,7 @@ def test_a_bad_entry_is_one_line_naming_the_arms_file_and_key(tmp_path):
         with pytest.raises(ConfigError, match=expected) as error:
             load_arm("jaco", robots)
         assert "\n" not in str(error.value) and str(error.value).endswith("jaco.yaml)")
-    with pytest.raises(ConfigError, match=r"no arm 'ur5' in .*; registered: \['j2s6s200', 'jaco'\]"):
+    with pytest.raises(ConfigError, match=r"no arm 'ur5' in .*; registered: \['gen3', 'j2s6s200', 'jaco'\]"):
         load_arm("ur5", robots)
 
 
@@ -63,7 +69,7 @@ NEW_ARM = textwrap.dedent("""
     from ahrm_stack.env.runner import TaskRunner
     from ahrm_stack.env.task import PushOffTask
 
-    assert arm_names() == ("j2s6s200", "jaco", "spherical_copy"), arm_names()
+    assert arm_names() == ("gen3", "j2s6s200", "jaco", "spherical_copy"), arm_names()
     config = load_config(["task.robot=spherical_copy", "task.arm.start=home"])
     assert config.task.arm.home_deg["spherical_copy"][0] == 340.0
     task = PushOffTask(config.task)

@@ -249,9 +249,9 @@ def test_every_link_gets_a_collision_capsule_and_the_scene_sees_them(runner):
 
 def test_an_unknown_robot_is_named_with_the_choices():
     with pytest.raises(ConfigError, match=r"task\.robot: no arm 'ur5'; registered \(configs/robots/\): "
-                                          r"\['j2s6s200', 'jaco'\]"):
+                                          r"\['gen3', 'j2s6s200', 'jaco'\]"):
         load_config(["task.robot=ur5"])
-    assert arm_names() == ("j2s6s200", "jaco")
+    assert arm_names() == ("gen3", "j2s6s200", "jaco")
 
 
 def test_a_home_pose_per_robot_is_checked():

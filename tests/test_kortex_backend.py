@@ -102,6 +102,12 @@ def test_the_numbers_come_from_deploy_yaml():
     ("refuse_zones_in_workspace", "yes",
      "deploy.kortex.refuse_zones_in_workspace: expected true/false, got 'yes'"),
     ("workspace_height", 0.0, "deploy.kortex.workspace_height must be > 0"),
+    ("soft_limit_modes", ["ANGULAR_JOYSTICK", "WARP_DRIVE"], "deploy.kortex.soft_limit_modes"),
+    ("soft_limit_modes", [], "deploy.kortex.soft_limit_modes"),
+    ("soft_limit_tolerance", 1.5, "deploy.kortex.soft_limit_tolerance must be <= 1"),
+    ("action_rpc_timeout_ms", 0, "deploy.kortex.action_rpc_timeout_ms must be > 0"),
+    ("check_ticks", 5, "deploy.kortex.check_ticks must be >= 10"),
+    ("home", {"speed_deg_s": 25.0}, "deploy.kortex.home.speed_deg_s must be <= 20"),
 ])
 def test_bad_kortex_numbers_are_one_line_errors_naming_the_key(tmp_path, key, value, expected):
     import yaml
@@ -118,7 +124,7 @@ def test_bad_kortex_numbers_are_one_line_errors_naming_the_key(tmp_path, key, va
     del data["kortex"][key]
     path.write_text(yaml.safe_dump(data))
     if key == "models":  # composed from the arm registry (configs/robots/<arm>.yaml's kortex)
-        assert load_deploy_settings(path).kortex.models == {}
+        assert set(load_deploy_settings(path).kortex.models) == {"gen3"}  # the one Kortex arm
         return
     with pytest.raises(DeployConfigError, match=f"missing config key 'deploy.kortex.{key}'"):
         load_deploy_settings(path)
@@ -147,7 +153,8 @@ def test_every_rpc_carries_an_explicit_timeout(rig):
             "SetServoingMode", "ApplyEmergencyStop", "ClearFaults", "CloseSession"} <= names
     for call in arm.calls:
         slow = ("CreateSession", "CloseSession", "GetProductConfiguration",
-                "GetAllJointsSpeedHardLimitation", "ReadAllProtectionZones")  # once, on connect
+                "GetAllJointsSpeedHardLimitation", "GetAllKinematicSoftLimits",
+                "ReadAllProtectionZones")  # once, on connect
         expected = opts.session_rpc_timeout_ms if call.name in slow else opts.rpc_timeout_ms
         assert call.timeout_ms == expected, call  # never None (the vendor's 10 s default)
     assert adapter.watchdog.trips == 1

@@ -25,7 +25,7 @@ from ahrm_stack.hardware.kortex import ChildLink, KortexNotInstalledError, LinkE
 from ahrm_stack.hardware.protocol import ConnectionLostError
 
 ROOT = Path(__file__).resolve().parent.parent
-CONNECT_CALLS = 7  # CreateSession, RefreshFeedback, the three reads, SetServoingMode, Stop
+CONNECT_CALLS = 8  # CreateSession, RefreshFeedback, the four reads, SetServoingMode, Stop
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ from ahrm_stack.hardware.kortex import (INSTALL_HINT, Credentials, CredentialsEr
                              faults_from_banks, feedback_from_values, import_kortex_api,
                              joint_speeds_message, load_credentials, radians_to_degrees, scrub,
                              servoing_mode_name, unwrap_positions)
-from fake_kortex_api.rig import fake_api, options, standin_frame, standin_reply
+from fake_kortex_api.rig import fake_api, options, standin_control_config, standin_frame, standin_reply
 from ahrm_stack.hardware.protocol import ArmState, Fault, HardwareError, NotConnectedError, ServoingMode
 
 PASSWORD = "s3cr3t-Pa55word!"
@@ -226,7 +226,7 @@ def _fake_api(fail_with: Exception | None = None, actuators: int = 6) -> dict:
             "Session_pb2": types.SimpleNamespace(CreateSessionInfo=Info),
             "Base_pb2": types.SimpleNamespace(ServoingModeInformation=Info, SINGLE_LEVEL_SERVOING=2,
                                               LOW_LEVEL_SERVOING=3),
-            "Common_pb2": fake_api()["Common_pb2"]}
+            "Common_pb2": fake_api()["Common_pb2"], **standin_control_config()}
 
 
 def test_password_never_appears_in_errors_or_logs(task_config, caplog):

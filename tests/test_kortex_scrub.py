@@ -16,7 +16,7 @@ import urllib.parse
 import pytest
 from google.protobuf import text_format, wrappers_pb2
 
-from fake_kortex_api.rig import fake_api, options, standin_frame, standin_reply
+from fake_kortex_api.rig import fake_api, options, standin_control_config, standin_frame, standin_reply
 from ahrm_stack.hardware.kortex import Credentials, KortexArm, scrub, secret_variants
 from ahrm_stack.hardware.protocol import HardwareError
 
@@ -180,7 +180,7 @@ def _api(fail_session=None, fail_feedback=None, healthy_frames: int = 1) -> dict
             "Session_pb2": types.SimpleNamespace(CreateSessionInfo=Info),
             "Base_pb2": types.SimpleNamespace(ServoingModeInformation=Info, SINGLE_LEVEL_SERVOING=2,
                                               LOW_LEVEL_SERVOING=3),
-            "Common_pb2": fake_api()["Common_pb2"]}
+            "Common_pb2": fake_api()["Common_pb2"], **standin_control_config()}
 
 
 def test_no_password_reaches_an_exception_or_the_log(task_config, caplog):

@@ -1,7 +1,7 @@
 """The package installs (issue 57, item 6): a wheel built from the checkout, installed into a fresh
-virtual environment and run from a folder outside the checkout, finds its packaged configs and the
-vendored SDK files, and its console scripts evaluate the scripted controller and drive a committed
-policy through the deploy loop on the sim backend.
+virtual environment and run from a folder outside the checkout, finds its packaged configs, the
+vendored SDK files and the vendored Gen3 model, and its console scripts evaluate the scripted
+controller and drive a committed policy through the deploy loop on the sim backend.
 
 The fresh environment borrows this environment's installed dependencies (its site folder and its
 .pth hooks, all but this checkout's editable hook), so the test needs no network; the project itself
@@ -44,6 +44,9 @@ def test_the_built_wheel_runs_outside_the_checkout(tmp_path):
     module, configs, in_checkout, vendor = where.split()
     assert module.startswith(str(venv)) and configs.startswith(str(venv)), where  # the wheel's, not the checkout's
     assert (in_checkout, vendor) == ("False", "True")
+    gen3 = _run([str(python), "-c", "from ahrm_stack.robot import describe, make_arm; "
+                 "print(describe('gen3', make_arm('gen3')).urdf)"], work).strip()  # its vendored URDF and meshes
+    assert gen3.startswith(str(venv)) and gen3.endswith("vendor/kinova_gen3/gen3.urdf"), gen3
     bin_ = venv / "bin"
     out = _run([str(bin_ / "ahrm-evaluate"), "--policy", "scripted", "--episodes", "1", "--layout", "default"], work)
     assert "successes 1" in out and (work / "runs" / "scripted-eval" / "evaluation.json").is_file()

@@ -6,7 +6,9 @@ URDF velocity limit and whose force range is the URDF effort; inertials from the
 Meshes: every collision mesh becomes a colliding, visible mesh geom; visual meshes that are not
 also collision meshes (e.g. the joint rings) are visible only. The hand's meshes are left out: the
 pusher replaces the hand at ``wrist_site``, on the flange link's origin, with its +z axis pointing
-from the flange toward the URDF's end-effector frame (the hand's approach direction).
+from the flange toward the URDF's end-effector frame (the hand's approach direction), or along that
+frame's z where it sits on the flange (a tool frame). The flange link may be a fixed child of the
+last moving link (the Gen3's tool flange, ``end_effector_link``): it is then a body without joint.
 """
 
 from __future__ import annotations
@@ -27,7 +29,9 @@ WRIST_SITE = "wrist_site"
 
 def mount_rotation(urdf: Urdf, flange: str, end_effector: str) -> np.ndarray:
     """Rotation (flange frame) of the pusher's mount: +z from the flange origin toward the
-    end-effector origin, +x the end-effector frame's z axis made orthogonal to it."""
+    end-effector origin, +x the end-effector frame's z axis made orthogonal to it. An end-effector
+    frame on the flange's origin (a tool frame, e.g. the Gen3's) gives its own axes: +z its approach
+    axis z, +x its x."""
     rotation, position = np.eye(3), np.zeros(3)
     for joint in urdf.chain(flange, end_effector):
         if joint.type != "fixed":
@@ -36,7 +40,7 @@ def mount_rotation(urdf: Urdf, flange: str, end_effector: str) -> np.ndarray:
         position = position + rotation @ joint.origin.xyz
         rotation = rotation @ joint.origin.rotation
     if not np.linalg.norm(position) > 0:
-        raise ValueError(f"{urdf.path}: {end_effector!r} sits on {flange!r}'s origin: no direction")
+        return rotation.copy()
     z = position / np.linalg.norm(position)
     x = rotation[:, 2] - (rotation[:, 2] @ z) * z
     if not np.linalg.norm(x) > 1e-9:

@@ -29,14 +29,16 @@ PART = re.compile(r"^(base|pusher|link[1-9])$")
 
 @Frozen
 class UrdfArmConfig(Section):
-    """How to build a simulated arm from a URDF of the ``example-robot-data`` package. Joint
-    limits, velocity limits, efforts, inertias and meshes come from the URDF; this holds only
-    the simulation parameters a URDF does not carry, and which links to use."""
+    """How to build a simulated arm from a URDF of the ``example-robot-data`` package or one vendored
+    in this package. Joint limits, velocity limits, efforts, inertias and meshes come from the URDF;
+    this holds only the simulation parameters a URDF does not carry, and which links to use."""
 
-    file: Str  # path under example-robot-data's share folder, e.g. robots/.../kinova.urdf
+    file: Str  # path under example-robot-data's share folder, e.g. robots/.../kinova.urdf, or
+    # package://ahrm_stack/<path> for a vendored URDF (ahrm_stack/arms/assets.py)
     root_link: Str  # the link placed at the arm's base frame
     flange_link: Str  # the last link kept: the hand mounts here and the pusher replaces it
     end_effector_link: Str  # a link below the flange: the pusher points from the flange toward it
+    # (along its z axis where it sits on the flange's origin)
     hand_meshes: tuple[Str, ...]  # mesh file names of the hand on the flange link (not built)
     velocity_gain: Pos  # kv of the velocity actuators, N m s/rad
     joint_damping: NonNeg  # N m s/rad, every actuated joint

@@ -6,9 +6,10 @@ key or the file), ``make(config, settings)`` builds the adapter, not yet connect
 ``perception()`` method the deploy loop calls; ``link_check(config, settings)``, for a backend
 with a link worth measuring (``--check``), connects, measures the link with the arm held still,
 disconnects and returns the lines to print and whether the budget fits (None: the backend has no
-such check). ``config`` is the run's :class:`~ahrm_stack.config.Config` (its ``task.robot`` is the
-arm model), ``settings`` the :class:`~ahrm_stack.deploy.DeploySettings`. Backends are imported only
-when built.
+such check); ``bring_up_check(config, settings)``, where set, replaces ``check`` before
+``--check`` and ``--home`` (the Kortex backend refuses every run, yet its bring-up steps run).
+``config`` is the run's :class:`~ahrm_stack.config.Config` (its ``task.robot`` is the arm model),
+``settings`` the :class:`~ahrm_stack.deploy.DeploySettings`. Backends are imported only when built.
 """
 
 from __future__ import annotations
@@ -26,6 +27,11 @@ class Backend:
     check: Callable[[Any, Any], None]
     make: Callable[[Any, Any], ArmAdapter]
     link_check: Optional[Callable[[Any, Any], tuple[list[str], bool]]] = None
+    bring_up_check: Optional[Callable[[Any, Any], None]] = None
+
+    def check_bring_up(self, config, settings) -> None:
+        """The checks before ``--check`` or ``--home`` contacts the arm (one-line ValueError)."""
+        (self.bring_up_check or self.check)(config, settings)
 
 
 def _check_sim(config, settings) -> None:
@@ -104,18 +110,41 @@ def _link_check_gen2(config, settings) -> tuple[list[str], bool]:
 
 def _check_kortex(config, settings) -> None:
     """Refused in one line, before anything is written or contacted: what is missing (address,
-    credentials, real-time pacing, a scene source)."""
+    credentials, real-time pacing, a Gen3 policy, a scene source)."""
     from ahrm_stack.hardware.kortex import kortex_deploy_blocker
 
-    raise ValueError(kortex_deploy_blocker(settings))
+    raise ValueError(kortex_deploy_blocker(settings, robot=config.task.robot))
 
 
-def _make_kortex(config, settings) -> ArmAdapter:
+def _bring_up_check_kortex(config, settings) -> None:
+    """``--check`` / ``--home``: the address, the credentials and a Gen3 policy (one line)."""
+    from ahrm_stack.hardware.kortex import kortex_bring_up_blocker
+
+    blocker = kortex_bring_up_blocker(settings, robot=config.task.robot)
+    if blocker is not None:
+        raise ValueError(blocker)
+
+
+def _make_kortex(config, settings):
+    """The Kortex adapter (not connected) for ``config``'s robot, its workspace and its safety
+    filter's acceleration limits."""
     from ahrm_stack.robot import describe, make_arm
     from ahrm_stack.hardware.kortex import make_kortex_backend, task_workspace
 
     return make_kortex_backend(settings, describe(config.task.robot, make_arm(config.task.robot)),
-                               workspace=task_workspace(config.task, settings.kortex.workspace_height))
+                               workspace=task_workspace(config.task, settings.kortex.workspace_height),
+                               acceleration_limit=config.safety.acceleration_limit)
+
+
+def _link_check_kortex(config, settings) -> tuple[list[str], bool]:
+    """The Kortex link's per-tick RPCs on the arm (:mod:`ahrm_stack.hardware.kortex.check`), held
+    still."""
+    from ahrm_stack.hardware.kortex.check import Rates, check_link
+
+    rates = Rates(control_hz=settings.rate_hz,
+                  send_deadline=settings.watchdog.command_deadline * settings.period,
+                  rpc_timeout_ms=settings.kortex.rpc_timeout_ms)
+    return check_link(_make_kortex(config, settings), rates, settings.kortex.check_ticks)
 
 
 BACKENDS: dict[str, Backend] = {
@@ -123,9 +152,10 @@ BACKENDS: dict[str, Backend] = {
     "kinova-gen2": Backend("kinova-gen2", "a Kinova Gen2 / JACO2 over Kinova's C SDK "
                            "(configs/deploy.yaml kinova_gen2; docs/hardware.md)",
                            _check_gen2, _make_gen2, _link_check_gen2),
-    "kortex": Backend("kortex", "a Kinova Gen3 over kortex_api (configs/deploy.yaml kortex; it refuses "
-                      "to run until a Gen3 policy and its scene source are wired, naming what is missing)",
-                      _check_kortex, _make_kortex),
+    "kortex": Backend("kortex", "a Kinova Gen3 over kortex_api (configs/deploy.yaml kortex; a run is "
+                      "refused until a Gen3 policy and its scene source are wired, naming what is missing; "
+                      "--check and --home run with a Gen3 policy)",
+                      _check_kortex, _make_kortex, _link_check_kortex, _bring_up_check_kortex),
 }
 
 

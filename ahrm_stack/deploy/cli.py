@@ -65,10 +65,13 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--check", action="store_true",
                         help="measure the link to the arm and say whether its budget fits at the "
                              "configured rates, with the arm held still, then exit (kinova-gen2: each "
-                             "SDK call's USB latency; exit 0 fits, 1 does not, 3 no arm)")
+                             "SDK call's USB latency; kortex: the per-tick RPCs against the send "
+                             "deadline, the arm's model, soft limits and protection zones; exit 0 fits, "
+                             "1 does not, 3 no arm)")
     parser.add_argument("--home", action="store_true",
-                        help="kinova-gen2: move the arm to the posture the policy was trained from "
-                             "(MoveHome, then a slow joint move; kinova_gen2.home), after a "
+                        help="kinova-gen2, kortex: move the arm to the posture the policy was trained "
+                             "from (kinova-gen2: MoveHome, then a slow joint move, kinova_gen2.home; "
+                             "kortex: one slow ReachJointAngles action, kortex.home), after a "
                              "confirmation, then exit (0 there, 1 not confirmed, 2 bad input, "
                              "3 stopped, 130 Ctrl-C)")
     parser.add_argument("--touch-off", action="store_true",

@@ -66,6 +66,8 @@ def merge_safety(deploy: SafetyConfig, checkpoint: SafetyConfig) -> tuple[Safety
     merged, notes = {}, []
     for key, direction in safety_directions().items():
         ours, theirs = getattr(deploy, key), getattr(checkpoint, key)
+        if isinstance(ours, dict) and isinstance(theirs, dict):  # per arm (self_collision_pairs): an
+            theirs = type(ours)({**ours, **theirs})  # arm registered after the checkpoint is no difference
         if ours == theirs:
             continue
         name = f"safety.{key}"

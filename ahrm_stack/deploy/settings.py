@@ -17,8 +17,8 @@ from typing import Annotated, Any, Literal, Optional
 
 from ahrm_stack.config import CONFIG_DIR, ROBOTS_DIR, arm_names, compose_deploy
 from ahrm_stack.realism import RealismConfig, resolve_realism
-from ahrm_stack.schema import (Bool, ConfigError, Float, Int, Section, Str, ge, gt, le, read_yaml,
-                               show_path, stricter, validate)
+from ahrm_stack.schema import (Bool, ConfigError, Float, Int, Section, Str, count, ge, gt, le,
+                               read_yaml, show_path, stricter, validate)
 from ahrm_stack.hardware.kinova_gen2 import Gen2Settings
 
 DEPLOY_CONFIG = CONFIG_DIR / "deploy.yaml"
@@ -97,6 +97,33 @@ class KortexModelSection(Section):
     dof: Annotated[Int, ge(1), le(7)]  # ProductConfiguration.degree_of_freedom
 
 
+#: ``ControlConfig.ControlMode`` names (enums/ControlConfig/ControlMode.md) whose soft limits apply
+KortexControlMode = Literal["ANGULAR_JOYSTICK", "CARTESIAN_JOYSTICK", "ANGULAR_TRAJECTORY",
+                            "CARTESIAN_TRAJECTORY", "CARTESIAN_ADMITTANCE", "JOINT_ADMITTANCE",
+                            "NULL_SPACE_ADMITTANCE", "FORCE_CONTROL", "FORCE_CONTROL_MOTION_RESTRICTED",
+                            "CARTESIAN_WAYPOINT_TRAJECTORY", "IDLE"]
+
+
+@dataclasses.dataclass(frozen=True)
+class KortexHomeSection(Section):
+    """``kortex.home``: the homing step (``--home``, ahrm_stack/hardware/kortex/home.py): one
+    ``ReachJointAngles`` action to the policy's start, supervised."""
+
+    # deg/s: the action's JOINT_CONSTRAINT_SPEED, every joint
+    speed_deg_s: Annotated[Float, gt(0), le(20.0, " deg/s: the homing move is a slow, supervised "
+                                             "first motion")]
+    tolerance_deg: Annotated[Float, gt(0), le(5.0)]  # deg: each joint this near its target at ACTION_END
+    still_deg_s: Annotated[Float, gt(0), le(5.0)]  # deg/s: every joint slower than this is still
+    timeout: Annotated[Float, gt(0), le(600.0)]  # s the move may take before the arm is stopped
+    # control periods between two feedback polls while the arm moves
+    poll_periods: Annotated[Float, gt(0), le(0.5, " (a fault, the timeout or a lost link is then seen, "
+                                                  "and Stop sent, within one control period)")]
+    clearance: Annotated[Float, ge(0), le(0.5)]  # m: the pusher tip above the table top all along
+    # the planned joint-space path
+    path_tolerance_deg: Annotated[Float, gt(0), le(20.0)]  # deg: a joint further than this from the
+    # planned straight joint-space path stops the arm
+
+
 @dataclasses.dataclass(frozen=True)
 class KortexSection(Section):
     address: Optional[Str]  # the arm's IP address: required, never defaulted
@@ -123,6 +150,14 @@ class KortexSection(Section):
     refuse_zones_in_workspace: Annotated[Bool, stricter("on")]  # a protection zone in the task
     # workspace refuses the connection (false: it is reported only)
     workspace_height: Annotated[Float, gt(0), le(2.0), stricter("higher")]  # m above the table top
+    # ControlConfig soft limits (GetAllKinematicSoftLimits) read on connect: the lowest joint speed
+    # soft limit of these control modes must allow the policy's velocity limit
+    soft_limit_modes: Annotated[tuple[KortexControlMode, ...], count(1)]
+    soft_limit_tolerance: Annotated[Float, ge(0), le(1), stricter("lower")]  # the description's
+    # velocity limit over the arm's soft limit, as a fraction
+    action_rpc_timeout_ms: PosInt  # ExecuteAction, OnNotificationActionTopic, Unsubscribe (--home)
+    check_ticks: Annotated[Int, ge(10), le(100000)]  # --check: control ticks measured
+    home: KortexHomeSection  # --home
 
     def check(self, key: str) -> None:
         if self.watchdog_poll_periods > 0.5 * self.watchdog_periods:

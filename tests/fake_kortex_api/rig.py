@@ -78,9 +78,25 @@ def standin_reply(name: str, actuators: int):
                                            product={"model": 1, "dof": actuators})
     method = getattr(arm, "_" + name, None)
     if name in ("GetProductConfiguration", "GetAllJointsSpeedHardLimitation",
-                "ReadAllProtectionZones"):
+                "ReadAllProtectionZones", "GetAllKinematicSoftLimits"):
         return method()
     return None
+
+
+def standin_control_config(actuators: int = 6) -> dict:
+    """The ControlConfig entries of a hand-made stand-in vendor API: a client answering as
+    :func:`standin_reply` does, and the fake's ``ControlConfig_pb2``."""
+    import types
+
+    class ControlConfig:
+        def __init__(self, router) -> None:
+            pass
+
+        def __getattr__(self, name):
+            return lambda *args, **options: standin_reply(name, actuators)
+
+    return {"ControlConfigClientRpc": types.SimpleNamespace(ControlConfigClient=ControlConfig),
+            "ControlConfig_pb2": fake_api()["ControlConfig_pb2"]}
 
 
 def start_degrees(robot) -> np.ndarray:

@@ -38,6 +38,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ahrm_stack.hardware.call_stats import CallStats
+
 if TYPE_CHECKING:
     from ahrm_stack.hardware.kinova_gen2.arm import KinovaGen2Arm
 
@@ -48,27 +50,8 @@ MIN_POINT_SHARE = 0.99  # share of send_rate_hz the arm must receive
 TIMED = ("GetAngularPosition", "SendAdvanceTrajectory", "EraseAllTrajectories", "GetSensorsInfo",
          "GetSystemErrorCount", "GetAngularForce", "GetAngularVelocity")
 STATUS_CALLS = ("GetSensorsInfo", "GetSystemErrorCount", "GetAngularForce")
-
-
-@dataclasses.dataclass(frozen=True)
-class CallStats:
-    """One SDK function's durations, ms."""
-
-    count: int
-    p50: float
-    p99: float
-    max: float
-
-    @classmethod
-    def of(cls, seconds: np.ndarray) -> "CallStats":
-        ms = np.asarray(seconds, dtype=float) * 1e3
-        if not ms.size:
-            return cls(0, float("nan"), float("nan"), float("nan"))
-        p50, p99 = np.percentile(ms, [50, 99])
-        return cls(int(ms.size), float(p50), float(p99), float(ms.max()))
-
-    def __str__(self) -> str:
-        return f"p50 {self.p50:.2f} / p99 {self.p99:.2f} / max {self.max:.2f} ms ({self.count} calls)"
+__all__ = ["MAX_BUS_LOAD", "MAX_READ_SHARE", "MIN_POINT_SHARE", "STATUS_CALLS", "TIMED", "CallStats", "Measurement",
+           "Rates", "Verdict", "check_link", "judge", "measure", "report"]
 
 
 @dataclasses.dataclass(frozen=True)

@@ -46,14 +46,20 @@ and logged (:class:`HomeOutcome`).
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import time
-from typing import TYPE_CHECKING, Any, Callable, Protocol
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
+from ahrm_stack.hardware.homing import (BAD_INPUT, CONFIRM_WORD, DONE, INTERRUPTED, NOT_CONFIRMED,
+                                        PATH_SAMPLES, STOPPED, HomeOutcome, HomeRefusal, Limits,
+                                        TaskModel, check_target, confirmed, path_clearance,
+                                        start_target)
+from ahrm_stack.hardware.homing import HomeStop as _Stop
+from ahrm_stack.hardware.homing import degrees_text as _degrees
+from ahrm_stack.hardware.homing import wrap as _wrap
 from ahrm_stack.hardware.kinova_gen2.settings import kinova_positions
 from ahrm_stack.hardware.protocol import HardwareError
 
@@ -63,111 +69,11 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("ahrm_stack.hardware.kinova_gen2")
 
-PATH_SAMPLES = 50  # points of the final move's joint-space path checked for clearance
-CONFIRM_WORD = "home"
-
-#: exit statuses of ``--home``
-DONE, NOT_CONFIRMED, BAD_INPUT, STOPPED, INTERRUPTED = 0, 1, 2, 3, 130
-
-
-class HomeRefusal(ValueError):
-    """The homing target or its path is not acceptable; one line, nothing moved."""
-
-
-class _Stop(Exception):
-    """A supervised stage ended badly; the arm is stopped (the message is why)."""
-
-
-@dataclasses.dataclass
-class HomeOutcome:
-    """How a homing ended: ``status`` (:data:`DONE`, ...), ``reason`` (one line), ``moved``
-    (a motion was commanded) and ``stages`` (what happened, in order)."""
-
-    status: int
-    reason: str
-    moved: bool = False
-    stages: list[str] = dataclasses.field(default_factory=list)
-
-
-class TaskModel(Protocol):
-    """What homing and the touch-off need of the task the policy was trained on (the deploy loop's
-    :class:`~ahrm_stack.deploy.WorldModel`): its task (``task.config.arm.home``,
-    ``task.config.table.height``), its robot description, the tip's forward kinematics and its IK."""
-
-    task: Any
-
-    @property
-    def robot(self) -> Any: ...
-
-    def tip_pose(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
-
-    def tip_ik(self, target: np.ndarray, q_init: np.ndarray) -> tuple[np.ndarray, float, float]: ...
-
-
-@dataclasses.dataclass(frozen=True)
-class Limits:
-    """The deploy settings homing applies: ``home`` (``kinova_gen2.home``), the velocity alarm
-    (``watchdog.velocity_tolerance``, ``watchdog.velocity_alarm_ticks``) and the deploy loop's start
-    check on a posture (rad -> why it is refused, or None: ``deploy.start_check.start_refusal`` with
-    ``deploy.start_posture``'s tolerances)."""
-
-    home: HomeSettings
-    velocity_tolerance: float
-    alarm_ticks: int
-    start_refusal: Callable[[np.ndarray], "str | None"]
-
-
-def _wrap(delta: np.ndarray) -> np.ndarray:
-    return (np.asarray(delta, dtype=float) + math.pi) % (2 * math.pi) - math.pi
-
-
-def start_target(world: TaskModel, q_now: np.ndarray) -> np.ndarray:
-    """The policy's start posture (rad): ``task.arm.home_deg`` of the task the policy was trained
-    on, each continuous joint the short way round from ``q_now`` (rad). Both start modes begin
-    there: ``home`` jitters it, ``random`` runs its IK from it (it lies in ``task.arm.start_region``
-    pointing down)."""
-    home = np.asarray(world.task.config.arm.home, dtype=float)
-    continuous = ~world.robot.limited
-    return np.where(continuous, q_now + _wrap(home - q_now), home)
-
-
-def check_target(world: TaskModel, target: np.ndarray, limits: Limits) -> None:
-    """:class:`HomeRefusal` (one line) unless ``target`` (rad) is inside every limited joint's range
-    and passes the deploy loop's start check."""
-    robot = world.robot
-    outside = np.flatnonzero(robot.limited & ((target < robot.position_lower)
-                                              | (target > robot.position_upper)))
-    if outside.size:
-        i = int(outside[0])
-        raise HomeRefusal(f"task.arm.home_deg puts joint {i} ({robot.joint_names[i]}) at "
-                          f"{math.degrees(target[i]):.1f} deg, outside its range "
-                          f"[{math.degrees(robot.position_lower[i]):.1f}, "
-                          f"{math.degrees(robot.position_upper[i]):.1f}]")
-    refusal = limits.start_refusal(target)
-    if refusal is not None:
-        raise HomeRefusal(f"the homing target fails the deploy loop's start check: {refusal}")
-
-
-def path_clearance(world: TaskModel, q_from: np.ndarray, q_to: np.ndarray,
-                   samples: int = PATH_SAMPLES) -> tuple[float, float]:
-    """The pusher tip's lowest height above the table top (m) along the straight joint-space line
-    from ``q_from`` to ``q_to`` (rad), and where (0 start .. 1 end), at ``samples`` + 1 points."""
-    top = float(world.task.config.table.height)
-    lowest, where = math.inf, 0.0
-    for s in np.linspace(0.0, 1.0, samples + 1):
-        tip, _ = world.tip_pose(q_from + (q_to - q_from) * s)
-        if tip[2] - top < lowest:
-            lowest, where = float(tip[2] - top), float(s)
-    return lowest, where
-
-
-def confirmed(answer: str, serial: str) -> bool:
-    """The user typed the arm's serial number or ``home`` (surrounding spaces ignored)."""
-    return answer.strip() in (serial, CONFIRM_WORD)
-
-
-def _degrees(values: np.ndarray) -> str:
-    return "(" + ", ".join(f"{v:.1f}" for v in values) + ")"
+# The shared parts (the statuses, the target and its checks, the confirmation) live in
+# ahrm_stack/hardware/homing.py; they are named here too, where the Gen2 step and its tests read them.
+__all__ = ["BAD_INPUT", "CONFIRM_WORD", "DONE", "INTERRUPTED", "NOT_CONFIRMED", "PATH_SAMPLES",
+           "STOPPED", "HomeOutcome", "HomeRefusal", "Homing", "Limits", "TaskModel", "check_target",
+           "confirmed", "path_clearance", "start_target"]
 
 
 class Homing:

@@ -10,7 +10,12 @@ Modules, one idea each:
 * :mod:`~ahrm_stack.hardware.kortex.child_link` — that child process, over a pipe (JSON lines).
 * :mod:`~ahrm_stack.hardware.kortex.arm` — :class:`KortexArm`, the adapter.
 * :mod:`~ahrm_stack.hardware.kortex.freshness` — feedback stamps and frozen-frame detection.
-* :mod:`~ahrm_stack.hardware.kortex.arm_model` — the arm's model, DoF and speed limits against the policy's.
+* :mod:`~ahrm_stack.hardware.kortex.arm_model` — the arm's model, DoF, speed hard limits and kinematic soft
+  limits against the policy's.
+* :mod:`~ahrm_stack.hardware.kortex.moves` — the ``--home`` move: one ReachJointAngles action and its
+  notifications, read without waiting.
+* :mod:`~ahrm_stack.hardware.kortex.home` — ``--home``: :class:`~ahrm_stack.hardware.kortex.home.KortexHoming`.
+* :mod:`~ahrm_stack.hardware.kortex.check` — ``--check``: a run's per-tick RPCs against the send deadline.
 * :mod:`~ahrm_stack.hardware.kortex.zones` — protection zones, reported and checked against the workspace.
 * :mod:`~ahrm_stack.hardware.kortex.watchdog`, :mod:`~ahrm_stack.hardware.kortex.codec`,
   :mod:`~ahrm_stack.hardware.kortex.credentials`, :mod:`~ahrm_stack.hardware.kortex.settings`,
@@ -45,7 +50,8 @@ Safety of the link, each number from ``configs/deploy.yaml``'s ``kortex`` sectio
   repeat (:mod:`~ahrm_stack.hardware.kortex.freshness`).
 * **The arm model checked.** On connect the arm's ``ProductConfiguration`` model and DoF must be
   the ones ``kortex.models`` gives for the policy's robot description, and its joint speed hard
-  limits must allow the description's velocity limits (:mod:`~ahrm_stack.hardware.kortex.arm_model`).
+  limits and its ``ControlConfig`` soft limits (the lowest over ``kortex.soft_limit_modes``) must
+  allow the description's velocity limits (:mod:`~ahrm_stack.hardware.kortex.arm_model`).
 * **Protection zones** are read on connect, logged (:attr:`KortexArm.zone_summary`), and refused
   when one reaches into the task workspace (``kortex.refuse_zones_in_workspace``).
 * **Faults.** Motion commands raise :class:`~ahrm_stack.hardware.protocol.ArmFaultError` while the arm reports
@@ -58,8 +64,9 @@ default address, and nothing is contacted before :meth:`KortexArm.connect`.
 """
 
 from ahrm_stack.hardware.kortex.arm import KortexArm, KortexNotInstalledError
-from ahrm_stack.hardware.kortex.arm_model import describe_arm, model_name, model_refusal
-from ahrm_stack.hardware.kortex.backend import import_kortex_api, kortex_deploy_blocker, make_kortex_backend
+from ahrm_stack.hardware.kortex.arm_model import describe_arm, model_name, model_refusal, soft_limit_refusal
+from ahrm_stack.hardware.kortex.backend import (import_kortex_api, kortex_bring_up_blocker,
+                                                kortex_deploy_blocker, make_kortex_backend)
 from ahrm_stack.hardware.kortex.child_link import ChildLink
 from ahrm_stack.hardware.kortex.codec import (arm_state_from_kortex, degrees_to_radians, faults_from_banks,
                                    feedback_from_values, joint_speeds_message, radians_to_degrees,
@@ -79,7 +86,8 @@ __all__ = [
     "KortexNotInstalledError", "KortexOptions", "LinkError", "PASSWORD_ENV", "ProtectionZone",
     "REPOSITORY_ROOT", "USERNAME_ENV", "VendorLink", "arm_state_from_kortex", "degrees_to_radians",
     "describe_arm", "faults_from_banks", "feedback_from_values", "fingerprint",
-    "import_kortex_api", "joint_speeds_message", "kortex_deploy_blocker", "kortex_options",
+    "import_kortex_api", "joint_speeds_message", "kortex_bring_up_blocker", "kortex_deploy_blocker",
+    "kortex_options", "soft_limit_refusal",
     "load_credentials", "make_kortex_backend", "model_name", "model_refusal", "radians_to_degrees",
     "scrub", "secret_variants", "servoing_mode_name", "task_workspace", "zone_report",
     "unwrap_positions", "zones_in_workspace",

@@ -17,11 +17,12 @@ from typing import Any, Sequence
 import numpy as np
 
 from ahrm_stack.robot import RobotDescription
-from ahrm_stack.hardware.kortex.arm_model import describe_arm, model_refusal
+from ahrm_stack.hardware.kortex.arm_model import describe_arm, model_refusal, soft_limit_refusal
 from ahrm_stack.hardware.kortex.child_link import ChildLink
 from ahrm_stack.hardware.kortex.codec import feedback_from_values, joint_speeds_message, servoing_mode_name
 from ahrm_stack.hardware.kortex.credentials import Credentials, scrub
 from ahrm_stack.hardware.kortex.freshness import FrameFreshness, fingerprint
+from ahrm_stack.hardware.kortex.moves import KortexMoves
 from ahrm_stack.hardware.kortex.settings import KortexOptions
 from ahrm_stack.hardware.kortex.vendor_link import INSTALL_HINT, LinkError, VendorLink
 from ahrm_stack.hardware.kortex.watchdog import CommandWatchdog
@@ -37,7 +38,7 @@ class KortexNotInstalledError(HardwareError):
     """The vendor library ``kortex_api`` is missing; the message says how to install it."""
 
 
-class KortexArm(DescribedArm):
+class KortexArm(KortexMoves, DescribedArm):
     """A Gen3-family arm over ``kortex_api`` (TCP transport, router, session, BaseClient,
     BaseCyclicClient).
 
@@ -54,12 +55,16 @@ class KortexArm(DescribedArm):
         workspace: the task workspace in the arm's base frame (m; rows x, y, z; columns min, max),
             checked against the arm's protection zones on connect (None: zones reported only).
         child_path: folders for the child's ``PYTHONPATH`` (tests: the fake ``kortex_api``).
+        acceleration_limit: the policy's joint acceleration limits (rad/s^2: the safety filter's
+            ``safety.acceleration_limit``), checked against the arm's acceleration soft limits
+            where it reports them (None: not checked).
     """
 
     def __init__(self, robot: RobotDescription, address: str, credentials: Credentials,
                  options: KortexOptions, *, api: dict | None = None,
                  clock: WallClock | None = None, workspace: np.ndarray | None = None,
-                 child_path: Sequence[str | Path] = ()) -> None:
+                 child_path: Sequence[str | Path] = (),
+                 acceleration_limit: Sequence[float] | np.ndarray | None = None) -> None:
         if not isinstance(address, str) or not address.strip():
             raise HardwareError("the Kortex backend needs the arm's address explicitly "
                                 f"(got {address!r}); there is no default")
@@ -72,6 +77,8 @@ class KortexArm(DescribedArm):
         self._link: Any = None
         self._clock = clock if clock is not None else WallClock()
         self._workspace = None if workspace is None else np.asarray(workspace, dtype=float)
+        self._acceleration_limit = (None if acceleration_limit is None
+                                    else np.asarray(acceleration_limit, dtype=float))
         self._connected = False
         self._mode = ServoingMode.SINGLE_LEVEL_SERVOING
         self._wanted_mode = ServoingMode.SINGLE_LEVEL_SERVOING  # what clear_faults restores
@@ -86,6 +93,7 @@ class KortexArm(DescribedArm):
                                          self._watchdog_expired, clock=self._clock.now)
         self._range_centre = range_centres(robot)
         self.protection_zones: list[ProtectionZone] = []
+        self.soft_limits: list[dict] = []  # ControlConfig's kinematic soft limits, once connected
         self.arm_description = ""  # the arm's model and DoF, once connected
         self.lost_reason = ""  # why the link was given up, '' while it holds
 
@@ -171,9 +179,11 @@ class KortexArm(DescribedArm):
 
     # ------------------------------------------------------------------ session
     def connect(self) -> None:
-        """Open the session, read the arm's model, DoF, joint speed hard limits and protection
-        zones, refuse an arm that is not the trained one (or whose zones reach into the task
-        workspace, per ``kortex.refuse_zones_in_workspace``), then single-level servoing and Stop."""
+        """Open the session, read the arm's model, DoF, joint speed hard limits, kinematic soft
+        limits and protection zones, refuse an arm that is not the trained one, whose soft limits
+        are below the policy's (:func:`~ahrm_stack.hardware.kortex.arm_model.soft_limit_refusal`)
+        or whose zones reach into the task workspace (per ``kortex.refuse_zones_in_workspace``),
+        then single-level servoing and Stop."""
         if self._connected:
             raise HardwareError(f"KortexArm({self._address}) is already connected")
         options = self._options
@@ -211,6 +221,13 @@ class KortexArm(DescribedArm):
             if refusal is not None:
                 raise HardwareError(refusal)
             self.arm_description = describe_arm(product)
+            self.soft_limits = self._call("GetAllKinematicSoftLimits", "soft_limits", slow)
+            refusal = soft_limit_refusal(self._robot, self.soft_limits, options.soft_limit_modes,
+                                         tolerance=options.soft_limit_tolerance, where=where,
+                                         arm=self.arm_description,
+                                         acceleration_limit=self._acceleration_limit)
+            if refusal is not None:
+                raise HardwareError(refusal)
             zones = self._call("ReadAllProtectionZones", "protection_zones", slow)
             self.protection_zones = [ProtectionZone.from_values(z) for z in zones]
             log.info("kortex: %s: %s", where, zone_report(self.protection_zones))
@@ -341,6 +358,13 @@ class KortexArm(DescribedArm):
         if self._connected:
             self._rpc("SendJointSpeedsCommand", "joint_speeds",
                       speeds=joint_speeds_message(np.zeros(self._robot.num_joints)))
+
+    def link_timing(self, on: bool) -> dict:
+        """The durations (s) of the feedback and joint speed RPCs measured in the ``kortex_api``
+        process since timing was last turned on (the RPC alone, without the pipe), by link
+        method; then timing on afresh, or off (``--check``)."""
+        self._require()
+        return dict(self._rpc("link timing", "timed", on=bool(on)))
 
     def stop(self) -> None:
         self._require()

@@ -78,3 +78,73 @@ def model_refusal(robot: RobotDescription, product: Mapping, speed_limits: Seque
                     f"was trained with {limit:.1f} deg/s on {name} (kortex.speed_limit_tolerance "
                     f"{tolerance:g}): the trained arm model must match the arm")
     return None
+
+
+def _lowest(soft_limits: Sequence[Mapping], modes: Sequence[str], field: str, joint: int,
+            ) -> tuple[float, str] | None:
+    """The lowest ``field`` soft limit of ``joint`` over ``modes`` and its mode (None: a mode lacks
+    it)."""
+    by_mode = {str(entry["control_mode"]): entry for entry in soft_limits}
+    found = []
+    for mode in modes:
+        values = by_mode[mode][field]
+        if joint >= len(values):
+            return None
+        found.append((float(values[joint]), mode))
+    return min(found)
+
+
+def soft_limit_refusal(robot: RobotDescription, soft_limits: Sequence[Mapping], modes: Sequence[str],
+                       *, tolerance: float, where: str, arm: str,
+                       acceleration_limit: np.ndarray | None = None) -> str | None:
+    """Why the arm's soft limits (``ControlConfig.GetAllKinematicSoftLimits``) do not allow the
+    policy's, as one line naming the joint, the arm's limit and the policy's; None when they do.
+
+    The rule is :func:`model_refusal`'s for the hard limits: each joint's velocity limit of the
+    description (``robot.velocity_limit``, deg/s) against the arm's lowest joint speed soft limit
+    over ``modes`` (``kortex.soft_limit_modes``) times 1 + ``tolerance``; with
+    ``acceleration_limit`` (rad/s^2 per joint: the safety filter's) the same for the joint
+    acceleration soft limits, where the arm reports them.
+
+    Args:
+        soft_limits: entries ``{"control_mode", "joint_speed", "joint_acceleration"}`` (deg/s,
+            deg/s^2 per joint), as :class:`~ahrm_stack.hardware.kortex.vendor_link.VendorLink`
+            returns them.
+        where, arm: the arm's address and description, for the message.
+    """
+    ours = f"the policy's robot {robot.name!r} ({robot.num_joints} joints)"
+    reported = {str(entry["control_mode"]) for entry in soft_limits}
+    for mode in modes:
+        if mode not in reported:
+            return (f"the arm at {where} ({arm}) reports no soft limits for control mode {mode} "
+                    f"(ControlConfig.GetAllKinematicSoftLimits gave {sorted(reported)}; "
+                    "kortex.soft_limit_modes): its joint speed limits cannot be checked against the policy's")
+    checks = [("joint_speed", "speed", "deg/s", np.degrees(robot.velocity_limit))]
+    if acceleration_limit is not None:
+        checks.append(("joint_acceleration", "acceleration", "deg/s^2",
+                       np.degrees(np.asarray(acceleration_limit, dtype=float))))
+    for field, what, unit, policy in checks:
+        if field == "joint_acceleration" and not all(
+                entry.get(field) for entry in soft_limits if str(entry["control_mode"]) in modes):
+            continue  # not reported by the arm: nothing to compare
+        for i, (name, limit) in enumerate(zip(robot.joint_names, policy)):
+            lowest = _lowest(soft_limits, modes, field, i)
+            if lowest is None:
+                return (f"the arm at {where} ({arm}) reports no joint {what} soft limit for joint {i}; "
+                        f"{ours} needs {limit:.1f} {unit} on {name}")
+            soft, mode = lowest
+            if limit > soft * (1.0 + tolerance):
+                return (f"the arm at {where} ({arm}) has a joint {what} soft limit of {soft:.1f} {unit} "
+                        f"on joint {i} ({mode}); {ours} was trained with {limit:.1f} {unit} on {name} "
+                        f"(kortex.soft_limit_tolerance {tolerance:g}): raise the arm's soft limit or "
+                        "deploy a policy within it")
+    return None
+
+
+def soft_limit_report(soft_limits: Sequence[Mapping]) -> list[str]:
+    """One line per control mode: its joint speed (deg/s) and acceleration (deg/s^2) soft limits."""
+    def values(seq, unit: str) -> str:
+        return "(" + ", ".join(f"{float(v):.1f}" for v in seq) + f") {unit}" if seq else "not reported"
+
+    return [f"{entry['control_mode']}: speed {values(entry['joint_speed'], 'deg/s')}, acceleration "
+            f"{values(entry.get('joint_acceleration', ()), 'deg/s^2')}" for entry in soft_limits]

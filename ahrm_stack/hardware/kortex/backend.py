@@ -1,9 +1,9 @@
-"""Deploy wiring: the Kortex adapter built from the deploy settings, and why deploy cannot run it
-yet."""
+"""Deploy wiring: the Kortex adapter built from the deploy settings, what the bring-up steps
+(``--check``, ``--home``) need before the arm is contacted, and why deploy cannot run it yet."""
 
 from __future__ import annotations
 
-from typing import Mapping
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -27,13 +27,15 @@ def import_kortex_api() -> dict:
 def make_kortex_backend(settings, robot: RobotDescription, *,
                         credentials: Credentials | None = None, api: dict | None = None,
                         env: Mapping[str, str] | None = None,
-                        workspace: np.ndarray | None = None) -> KortexArm:
-    """The Kortex adapter for a deploy run, not yet connected.
+                        workspace: np.ndarray | None = None,
+                        acceleration_limit: Sequence[float] | None = None) -> KortexArm:
+    """The Kortex adapter for a deploy run (or ``--check`` / ``--home``), not yet connected.
 
     Args:
         settings: validated deploy settings (``ahrm_stack.deploy.DeploySettings``): the
             ``kortex`` section (address, credentials file, timeouts, watchdog, reset, the
-            ``kortex_api`` interpreter, the arm models, protection zones) and the control period.
+            ``kortex_api`` interpreter, the arm models, soft limits, protection zones) and the
+            control period.
         robot: the deployed arm model (a checkpoint's own).
         credentials: the login; default :func:`load_credentials` from ``kortex.credentials_file``
             or the environment (``env``, default ``os.environ``).
@@ -41,6 +43,8 @@ def make_kortex_backend(settings, robot: RobotDescription, *,
             under ``kortex.python``).
         workspace: the task workspace in the arm's base frame
             (:func:`ahrm_stack.hardware.kortex.zones.task_workspace`), checked against protection zones.
+        acceleration_limit: the policy's joint acceleration limits (rad/s^2, the safety filter's),
+            checked against the arm's acceleration soft limits where it reports them.
 
     Raises :class:`HardwareError` (one line, naming ``deploy.kortex.address``) without an address
     and :class:`CredentialsError` without credentials; nothing is contacted.
@@ -52,16 +56,15 @@ def make_kortex_backend(settings, robot: RobotDescription, *,
     if credentials is None:
         credentials = load_credentials(settings.kortex.credentials_file, env=env)
     return KortexArm(robot, str(address), credentials, kortex_options(settings), api=api,
-                     workspace=workspace)
+                     workspace=workspace, acceleration_limit=acceleration_limit)
 
 
-def kortex_deploy_blocker(settings, env: Mapping[str, str] | None = None) -> str:
-    """Why ``python -m ahrm_stack.deploy --backend kortex`` cannot run yet, as one line naming what
-    is missing: the address, credentials, real-time pacing, and in any case an arm model to run (no
-    Gen3 description is trained on yet: ``kortex.models`` is empty, so connect would refuse every
-    arm's model) with the deploy command's Kortex path wired to the camera scene source (a static
-    layout is not used in its place: the cube moves when pushed, so a static pose would keep the
-    controller pushing at where the cube was and miss success)."""
+def kortex_bring_up_blocker(settings, robot: str | None = None,
+                            env: Mapping[str, str] | None = None) -> str | None:
+    """Why the Kortex backend cannot contact an arm (``--check``, ``--home``, a run), as one line
+    naming what is missing: the address, the credentials, and with ``robot`` (the policy's
+    ``task.robot``) a ``kortex.models`` entry for it (connect would refuse the arm); None when
+    nothing is."""
     if not settings.kortex.address:
         return ("--backend kortex: deploy.kortex.address is not set (the arm's IP address; there "
                 "is no default)")
@@ -69,9 +72,32 @@ def kortex_deploy_blocker(settings, env: Mapping[str, str] | None = None) -> str
         load_credentials(settings.kortex.credentials_file, env=env)
     except CredentialsError as error:
         return f"--backend kortex: {error}"
+    if robot is not None and robot not in settings.kortex.models:
+        return (f"--backend kortex: no Gen3 policy to run yet: the policy's robot {robot!r} has no "
+                f"deploy.kortex.models entry (configs/robots/{robot}.yaml kortex), so connect would "
+                "refuse the arm; the arm was not contacted (docs/kortex.md)")
+    return None
+
+
+def kortex_deploy_blocker(settings, env: Mapping[str, str] | None = None,
+                          robot: str | None = None) -> str:
+    """Why ``python -m ahrm_stack.deploy --backend kortex`` cannot run yet, as one line naming what
+    is missing: the address, credentials (:func:`kortex_bring_up_blocker`), real-time pacing, a
+    Gen3 policy (the policy's robot, ``robot``, must have a ``kortex.models`` entry, else connect
+    refuses the arm), and in any case the deploy command's Kortex path wired to the camera scene
+    source (a static layout is not used in its place: the cube moves when pushed, so a static pose
+    would keep the controller pushing at where the cube was and miss success). ``--check`` and
+    ``--home`` need only the first three and the Gen3 policy."""
+    blocker = kortex_bring_up_blocker(settings, env=env)
+    if blocker is not None:
+        return blocker
     if not settings.realtime:
         return "--backend kortex: --fast / deploy.realtime false is for the sim backend only"
-    return ("--backend kortex: no Gen3 policy to run yet (deploy.kortex.models is empty: no Gen3 arm "
-            "description is trained on, and connect refuses an arm whose model is not listed) and the "
-            "deploy command's Kortex path is not wired to --scene camera; the arm was not contacted "
-            "(docs/kortex.md, Deploy)")
+    if robot is None or robot not in settings.kortex.models:
+        named = "" if robot is None else f": the policy's robot {robot!r} has no deploy.kortex.models entry"
+        return (f"--backend kortex: no Gen3 policy to run yet{named} (connect refuses an arm whose model "
+                "is not listed), and the deploy command's Kortex path is not wired to --scene camera; "
+                "the arm was not contacted (docs/kortex.md, Deploy)")
+    return (f"--backend kortex: the deploy command's Kortex path is not wired to --scene camera yet "
+            f"(the policy's robot {robot!r} is a Kortex arm; --check and --home run on it); the arm "
+            "was not contacted (docs/kortex.md, Deploy)")

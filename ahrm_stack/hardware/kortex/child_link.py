@@ -11,7 +11,10 @@ A child that exits, or does not answer a call within the call's own timeout plus
 through it any more; the arm's own ``connection_inactivity_timeout`` (deploy.yaml) is then the only
 guard, and the child's socket closing with it ends the session on the arm. The child runs in a
 session of its own and ignores SIGINT: a Ctrl-C stops the adapter's loop, which then stops the arm
-through a child that is still there.
+through a child that is still there. A call interrupted while it waits for its answer (Ctrl-C,
+SIGTERM: a ``KeyboardInterrupt`` in this process) leaves that answer in the pipe: the next call
+sends its request first, then reads and drops the owed answer, then reads its own, so a Stop after
+a Ctrl-C is neither delayed nor answered with another call's result.
 """
 
 from __future__ import annotations
@@ -52,6 +55,7 @@ class ChildLink:
         self._process: subprocess.Popen | None = None
         self._stderr: Any = None
         self._buffer = b""
+        self._owed = 0  # answers not yet read: more than one while a call interrupted earlier left one
         self._lock = threading.RLock()  # calls and shutdown, from the loop and the watchdog thread
         self._ended = False  # shut down: no new child is started behind the adapter's back
         self.hello: dict = {}  # the child's first answer: pid, python and protobuf versions
@@ -78,7 +82,7 @@ class ChildLink:
         except OSError as error:
             raise LinkError("dead", f"cannot start the kortex_api process with kortex.python "
                                     f"{self.python!r}: {error.strerror}") from None
-        self._buffer, self.dead_reason = b"", ""
+        self._buffer, self.dead_reason, self._owed = b"", "", 0
         hello = self._receive(self.start_timeout_ms, "start-up")
         if "error" in hello:
             self.shutdown()
@@ -98,13 +102,18 @@ class ChildLink:
                 self.start()
             timeout_ms = int(args.get("timeout_ms", 0))
             line = json.dumps({"method": method, "args": args}) + "\n"
+            self._owed += 1  # answers the child owes, this call's included
             try:
                 assert self._process is not None and self._process.stdin is not None
                 self._process.stdin.write(line.encode())
                 self._process.stdin.flush()
             except (BrokenPipeError, OSError):
                 raise self._died(method) from None
+            while self._owed > 1:  # a call interrupted before its answer (Ctrl-C): drop that answer
+                self._receive(timeout_ms + self.margin_ms, f"{method} (an earlier call's answer)")
+                self._owed -= 1
             answer = self._receive(timeout_ms + self.margin_ms, method)
+            self._owed -= 1
         if "error" in answer:
             raise LinkError(answer["error"], answer.get("message", ""))
         return answer.get("result")

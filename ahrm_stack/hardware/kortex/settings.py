@@ -45,6 +45,10 @@ class KortexOptions:
         refuse_zones_in_workspace: refuse to connect when an enabled protection zone reaches into
             the task workspace (else: report it only).
         workspace_height: m above the table top that the task workspace reaches.
+        soft_limit_modes: ``ControlConfig.ControlMode`` names whose joint speed (and acceleration)
+            soft limits must allow the policy's (the lowest over them, per joint).
+        soft_limit_tolerance: fraction by which the policy's limit may exceed that soft limit.
+        action_rpc_timeout_ms: timeout of ExecuteAction, OnNotificationActionTopic and Unsubscribe (ms).
     """
 
     port: int
@@ -65,6 +69,9 @@ class KortexOptions:
     speed_limit_tolerance: float = 0.0
     refuse_zones_in_workspace: bool = True
     workspace_height: float = 0.3
+    soft_limit_modes: tuple[str, ...] = ("ANGULAR_JOYSTICK", "ANGULAR_TRAJECTORY")
+    soft_limit_tolerance: float = 0.0
+    action_rpc_timeout_ms: int = 1000
 
 
 def kortex_options(settings) -> KortexOptions:
@@ -84,4 +91,5 @@ def kortex_options(settings) -> KortexOptions:
         models={name: KortexModel(m.model, m.dof) for name, m in k.models.items()},
         speed_limit_tolerance=k.speed_limit_tolerance,
         refuse_zones_in_workspace=k.refuse_zones_in_workspace,
-        workspace_height=k.workspace_height)
+        workspace_height=k.workspace_height, soft_limit_modes=tuple(k.soft_limit_modes),
+        soft_limit_tolerance=k.soft_limit_tolerance, action_rpc_timeout_ms=k.action_rpc_timeout_ms)

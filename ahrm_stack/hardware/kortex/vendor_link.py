@@ -16,7 +16,15 @@ This module uses the standard library alone (the child's environment need hold n
 ``Base.GetProductConfiguration`` (messages/ProductConfiguration/CompleteProductConfiguration.md),
 ``Base.GetAllJointsSpeedHardLimitation`` (messages/Base/JointsLimitationsList.md),
 ``Base.ReadAllProtectionZones`` (messages/Base/ProtectionZone.md, ZoneShape.md; used as in
-api_python/examples/100-Overview/02-protection_zones_configuration.py).
+api_python/examples/100-Overview/02-protection_zones_configuration.py),
+``ControlConfig.GetAllKinematicSoftLimits`` (summary_pages/ControlConfig.md,
+messages/ControlConfig/KinematicLimitsList.md, KinematicLimits.md, enums/ControlConfig/ControlMode.md),
+and for ``--home`` ``Base.OnNotificationActionTopic`` / ``Base.ExecuteAction`` / ``Base.Unsubscribe``
+with an ``Action`` whose ``reach_joint_angles`` holds the target (messages/Base/Action.md,
+ConstrainedJointAngles.md, JointTrajectoryConstraint.md, enums/Base/ActionEvent.md; used as in
+api_python/examples/102-Movement_high_level/01-move_angular_and_cartesian.py, whose wait for
+ACTION_END / ACTION_ABORT is a ``threading.Event``: here the notifications are queued instead and
+read with :meth:`VendorLink.call` ``("action_events")``, so that nothing waits on them).
 """
 
 from __future__ import annotations
@@ -26,6 +34,8 @@ import json
 import os
 import signal
 import sys
+import threading
+import time
 from typing import Any, Callable
 
 #: The vendor modules the backend uses, keyed as the link reads them.
@@ -35,7 +45,9 @@ KORTEX_MODULES = {
     "SessionManager": "kortex_api.SessionManager",
     "BaseClientRpc": "kortex_api.autogen.client_stubs.BaseClientRpc",
     "BaseCyclicClientRpc": "kortex_api.autogen.client_stubs.BaseCyclicClientRpc",
+    "ControlConfigClientRpc": "kortex_api.autogen.client_stubs.ControlConfigClientRpc",
     "Base_pb2": "kortex_api.autogen.messages.Base_pb2",
+    "ControlConfig_pb2": "kortex_api.autogen.messages.ControlConfig_pb2",
     "Common_pb2": "kortex_api.autogen.messages.Common_pb2",
     "Session_pb2": "kortex_api.autogen.messages.Session_pb2",
     "Errors_pb2": "kortex_api.autogen.messages.Errors_pb2",
@@ -57,6 +69,10 @@ INSTALL_HINT = (
 
 #: Errors_pb2.SubErrorCodes names that mean "the arm is in fault / not accepting motion".
 FAULT_SUB_CODES = ("ROBOT_IN_FAULT", "ROBOT_IN_EMERGENCY_STOP", "WRONG_SERVOING_MODE")
+
+#: The methods whose vendor-side durations :meth:`VendorLink.call` ``("timed")`` records (a run's per-tick
+#: RPCs: ``BaseCyclic.RefreshFeedback`` and ``Base.SendJointSpeedsCommand``).
+TIMED_METHODS = ("feedback", "joint_speeds")
 
 #: The kinds of :class:`LinkError`.
 LINK_ERROR_KINDS = ("timeout", "fault", "connection", "other", "dead", "not_installed")
@@ -118,7 +134,9 @@ class VendorLink:
 
     #: The methods :meth:`call` dispatches to.
     METHODS = ("open", "close", "feedback", "joint_speeds", "stop", "emergency_stop",
-               "clear_faults", "set_servoing_mode", "product", "speed_limits", "protection_zones")
+               "clear_faults", "set_servoing_mode", "product", "speed_limits", "protection_zones",
+               "soft_limits", "subscribe_actions", "execute_joint_angles", "action_events",
+               "unsubscribe", "timed")
 
     def __init__(self, api: dict | None = None) -> None:
         self._api = api
@@ -126,6 +144,11 @@ class VendorLink:
         self._session: Any = None
         self._base: Any = None
         self._cyclic: Any = None
+        self._control: Any = None
+        self._subscription: Any = None  # the action topic's NotificationHandle while subscribed
+        self._events: list[dict] = []  # action notifications not yet read (the vendor's thread adds)
+        self._events_lock = threading.Lock()
+        self._durations: dict[str, list[float]] | None = None  # per TIMED_METHODS, while timing
         self.is_open = False
 
     @property
@@ -145,7 +168,13 @@ class VendorLink:
         if method not in self.METHODS:
             raise LinkError("other", f"unknown link method {method!r}")
         try:
-            return getattr(self, "_" + method)(**args)
+            durations = self._durations
+            if durations is None or method not in durations:
+                return getattr(self, "_" + method)(**args)
+            began = time.perf_counter()
+            result = getattr(self, "_" + method)(**args)
+            durations[method].append(time.perf_counter() - began)
+            return result
         except LinkError:
             raise
         except Exception as error:  # noqa: BLE001 - every vendor failure is classified
@@ -177,11 +206,15 @@ class VendorLink:
         self._session.CreateSession(info, options=self._options(timeout_ms))
         self._base = api["BaseClientRpc"].BaseClient(router)
         self._cyclic = api["BaseCyclicClientRpc"].BaseCyclicClient(router)
+        self._control = api["ControlConfigClientRpc"].ControlConfigClient(router)
         self.is_open = True
 
     def _close(self, *, timeout_ms: int) -> None:
         """CloseSession, then the transport's disconnect (both tried)."""
         self.is_open = False
+        self._subscription = None
+        with self._events_lock:
+            self._events.clear()
         failure: BaseException | None = None
         try:
             if self._session is not None:
@@ -276,6 +309,91 @@ class VendorLink:
                 "dimensions": [float(d) for d in shape.dimensions],
                 "envelope": float(shape.envelope_thickness)})
         return out
+
+    def _soft_limits(self, *, timeout_ms: int) -> list:
+        """``ControlConfig.GetAllKinematicSoftLimits``: per control mode its name
+        (``ControlConfig.ControlMode``), ``joint_speed`` (deg/s per joint) and
+        ``joint_acceleration`` (deg/s^2 per joint), each as the arm reports them."""
+        limits = self._control.GetAllKinematicSoftLimits(options=self._options(timeout_ms))
+        modes = self.api["ControlConfig_pb2"].ControlMode
+        out = []
+        for item in limits.kinematic_limits_list:
+            try:
+                name = modes.Name(item.control_mode)
+            except ValueError:
+                name = f"CONTROL_MODE_{int(item.control_mode)}?"
+            out.append({"control_mode": name,
+                        "joint_speed": [float(v) for v in item.joint_speed_limits],
+                        "joint_acceleration": [float(v) for v in item.joint_acceleration_limits]})
+        return out
+
+    # ---------------------------------------------------------------- actions (--home)
+    def _on_action(self, notification: Any) -> None:
+        """The action topic's callback, on the vendor's thread: queue the event (never raise)."""
+        try:
+            try:
+                name = self.api["Base_pb2"].ActionEvent.Name(notification.action_event)
+            except ValueError:
+                name = f"ACTION_EVENT_{int(notification.action_event)}?"
+            event = {"event": name, "abort_details": int(getattr(notification, "abort_details", 0)),
+                     "time": time.monotonic()}
+        except Exception as error:  # noqa: BLE001 - a malformed notification is reported, not raised
+            event = {"event": "UNREADABLE", "abort_details": 0, "time": time.monotonic(),
+                     "error": f"{type(error).__name__}: {error}"}
+        with self._events_lock:
+            self._events.append(event)
+
+    def _subscribe_actions(self, *, timeout_ms: int) -> int:
+        """``Base.OnNotificationActionTopic`` (once; events queued from now on); the handle's
+        identifier."""
+        with self._events_lock:
+            self._events.clear()
+        if self._subscription is None:
+            options = self.api["Base_pb2"].NotificationOptions()
+            self._subscription = self._base.OnNotificationActionTopic(
+                self._on_action, options, options=self._options(timeout_ms))
+        return int(self._subscription.identifier)
+
+    def _execute_joint_angles(self, *, angles: list, speed_deg_s: float, name: str,
+                              timeout_ms: int) -> None:
+        """``Base.ExecuteAction`` of an ``Action`` named ``name`` whose ``reach_joint_angles``
+        holds ``angles`` (deg, joint identifiers 0..n-1) under a ``JOINT_CONSTRAINT_SPEED`` of
+        ``speed_deg_s`` (deg/s, every joint)."""
+        base_pb2 = self.api["Base_pb2"]
+        action = base_pb2.Action()
+        action.name = str(name)
+        action.application_data = ""
+        reach = action.reach_joint_angles
+        for i, value in enumerate(angles):
+            angle = reach.joint_angles.joint_angles.add()
+            angle.joint_identifier = i
+            angle.value = float(value)
+        reach.constraint.type = base_pb2.JOINT_CONSTRAINT_SPEED
+        reach.constraint.value = float(speed_deg_s)
+        self._base.ExecuteAction(action, options=self._options(timeout_ms))
+
+    def _action_events(self, *, timeout_ms: int) -> list:
+        """The action notifications received since the last read (``event``: an
+        ``Base.ActionEvent`` name, ``abort_details``, ``time``: this process's monotonic clock);
+        never waits. ``timeout_ms`` is the child link's only."""
+        del timeout_ms
+        with self._events_lock:
+            events, self._events = self._events, []
+        return events
+
+    def _unsubscribe(self, *, timeout_ms: int) -> None:
+        """``Base.Unsubscribe`` of the action topic (nothing when not subscribed)."""
+        handle, self._subscription = self._subscription, None
+        if handle is not None:
+            self._base.Unsubscribe(handle, options=self._options(timeout_ms))
+
+    def _timed(self, *, on: bool, timeout_ms: int) -> dict:
+        """The durations (s, in this process: the RPC alone) of the :data:`TIMED_METHODS` calls
+        since timing was last turned on, by method; then timing on (afresh) or off."""
+        del timeout_ms
+        recorded = self._durations or {}
+        self._durations = {method: [] for method in TIMED_METHODS} if on else None
+        return recorded
 
 
 # ---------------------------------------------------------------------------------------------

@@ -28,3 +28,12 @@ class BaseClient:
 
     def ReadAllProtectionZones(self, deviceId=0, options=None):
         return self.router.arm.rpc("ReadAllProtectionZones", options)
+
+    def ExecuteAction(self, action, deviceId=0, options=None):
+        return self.router.arm.rpc("ExecuteAction", options, action)
+
+    def OnNotificationActionTopic(self, callback, notificationoptions, deviceId=0, options=None):
+        return self.router.arm.rpc("OnNotificationActionTopic", options, callback)
+
+    def Unsubscribe(self, notificationhandle, deviceId=0, options=None):
+        return self.router.arm.rpc("Unsubscribe", options, notificationhandle)

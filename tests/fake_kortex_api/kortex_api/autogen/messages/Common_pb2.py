@@ -7,3 +7,15 @@ _STATES = {"ARMSTATE_UNSPECIFIED": 0, "ARMSTATE_BASE_INITIALIZATION": 1, "ARMSTA
            "ARMSTATE_BRAKE_RELEASING": 10, "ARMSTATE_RESERVED": 255}
 ArmState = EnumType(_STATES)
 globals().update(_STATES)
+
+
+class NotificationOptions:
+    def __init__(self) -> None:
+        self.type = 0  # NotificationType (3: NOTIFICATION_TYPE_EVENT)
+        self.rate_m_sec = 0
+        self.threshold_value = 0.0
+
+
+class NotificationHandle:
+    def __init__(self) -> None:
+        self.identifier = 0
