@@ -42,7 +42,16 @@ LONG_FIRST = ("test_experiment.py", "test_safety.py", "test_benchmarks.py", "tes
               "test_pool.py", "test_train.py", "test_scratch_levers.py", "test_hardware_faults.py")
 
 
+@pytest.hookimpl(wrapper=True)
 def pytest_collection_modifyitems(config, items):
+    """Before the other implementations: the long files first, the realtime and the shared-fixture
+    markers. After them: the ``xdist_group`` suffix on each grouped test's id.
+
+    pytest-xdist's worker names a test's group by appending ``@<group>`` to ``item._nodeid`` (its
+    ``--dist loadgroup``, xdist 3.8); pytest 9 keeps the id in ``item._id``, so that assignment is
+    lost and every grouped test was scheduled on its own: the shared-fixture files built their
+    fixture once per worker (the experiment grid's ~75 s twice) and the Kinova SDK's tests did not
+    share a worker. The suffix is set here where pytest 9 reads it (once, whichever version)."""
     rank = {name: i for i, name in enumerate(LONG_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(LONG_FIRST)))  # stable: same order on every worker
     for item in items:
@@ -51,6 +60,16 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.realtime)
         if item.path.name in SHARED_FIXTURE_FILES:
             item.add_marker(pytest.mark.xdist_group(item.path.stem))
+    result = yield
+    if config.getvalue("loadgroup"):
+        from _pytest.nodeid import coerce_node_id
+
+        for item in items:
+            groups = sorted({str(m.args[0] if m.args else m.kwargs.get("name", "default"))
+                             for m in item.iter_markers("xdist_group")})
+            if groups and "@" not in item.nodeid:
+                item._id = coerce_node_id(f"{item.nodeid}@{'_'.join(groups)}")
+    return result
 
 
 @pytest.fixture(autouse=True)
