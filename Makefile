@@ -50,9 +50,9 @@ demo: $(STAMP)
 # Lint (ruff) and type check (mypy) first: settings in pyproject.toml. Then every test: those not
 # marked realtime on every core (pytest-xdist; tests marked xdist_group(name) share one worker:
 # Kinova's machine-wide SDK lock), then the realtime ones (wall-clock timing, tests/conftest.py)
-# alone in one process.
+# alone in one process. The parallel part prints its 25 slowest tests (the test-time budget).
 test: lint
-	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m pytest -q -n auto --dist loadgroup -m "not realtime" $(PYTEST_ARGS)
+	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m pytest -q -n auto --dist loadgroup -m "not realtime" --durations=25 $(PYTEST_ARGS)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m pytest -q -m realtime $(PYTEST_ARGS)
 
 lint: $(STAMP)

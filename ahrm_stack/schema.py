@@ -345,7 +345,8 @@ class Section:
         return core_schema.no_info_before_validator_function(refuse, schema)
 
     def derive(self) -> None:
-        """Fill the :func:`derived` fields (``object.__setattr__``); runs before :meth:`check`."""
+        """Fill the :func:`derived` fields (``object.__setattr__``); runs before :meth:`check`, and
+        may raise :class:`ConfigError` as it does (a value that cannot be derived)."""
 
     def check(self, key: str) -> None:
         """Rules across fields; raise :class:`ConfigError` with a message that names ``key``'s
@@ -504,8 +505,8 @@ def _finish(obj: Any, key: str, error: type[Exception], source: Source | None) -
     if isinstance(obj, Section):
         for field in dataclasses.fields(obj):
             _finish(getattr(obj, field.name), f"{key}.{field.name}" if key else field.name, error, source)
-        obj.derive()
         try:
+            obj.derive()
             obj.check(key)
         except ConfigError as problem:
             raise error(f"{problem}{source_note(source, key)}") from None

@@ -61,7 +61,7 @@ def pytest_collection_modifyitems(config, items):
         if item.path.name in SHARED_FIXTURE_FILES:
             item.add_marker(pytest.mark.xdist_group(item.path.stem))
     result = yield
-    if config.getvalue("loadgroup"):
+    if getattr(config.option, "loadgroup", False):  # set on an xdist worker under --dist loadgroup
         from _pytest.nodeid import coerce_node_id
 
         for item in items:

@@ -25,6 +25,7 @@ def test_every_per_arm_value_comes_from_the_arms_file():
         entry = load_arm(name)
         assert config.task.arm.home_deg[name] == entry.home_deg
         assert config.safety.self_collision_pairs[name] == entry.self_collision_pairs
+        assert load_config([f"task.robot={name}"]).safety.acceleration_limit == entry.acceleration_limit
         if entry.kinova_gen2 is not None:
             assert deploy.kinova_gen2.joints[name].robot_types == tuple(entry.kinova_gen2["robot_types"])
         else:
@@ -35,7 +36,7 @@ def test_every_per_arm_value_comes_from_the_arms_file():
         robot = describe(name, make_arm(name))
         assert robot.commanded_joints == entry.commanded_joints
         assert robot.min_velocity_margin == entry.min_velocity_margin
-        assert len(entry.home_deg) == robot.num_joints
+        assert len(entry.home_deg) == len(entry.acceleration_limit) == robot.num_joints
     assert set(deploy.kortex.models) == {"gen3"}  # the one Kortex arm
     for section in ("task.yaml", "safety.yaml", "deploy.yaml"):  # said once: in the arms' files
         text = (CONFIG_DIR / section).read_text()
@@ -51,6 +52,8 @@ def test_a_bad_entry_is_one_line_naming_the_arms_file_and_key(tmp_path):
             ({"commanded_joints": [0, 0]}, r"robots/jaco\.commanded_joints: \[0, 0\] repeats a joint"),
             ({"self_collision_pairs": [["base", "elbow"]]}, r"robots/jaco\.self_collision_pairs\[0\]: 'elbow' is "
                                                              r"not an arm part"),
+            ({"acceleration_limit": [4.0] * 5}, r"robots/jaco\.acceleration_limit has 5 values, home_deg 6"),
+            ({"acceleration_limit": [4, 4, 4, 6, 6, 0]}, r"robots/jaco\.acceleration_limit\[5\] must be > 0"),
             ({"colour": 1}, r"unknown config key 'robots/jaco\.colour'")):
         entry = yaml.safe_load((CONFIG_DIR / "robots" / "jaco.yaml").read_text())
         entry.update(change)
@@ -72,6 +75,7 @@ NEW_ARM = textwrap.dedent("""
     assert arm_names() == ("gen3", "j2s6s200", "jaco", "spherical_copy"), arm_names()
     config = load_config(["task.robot=spherical_copy", "task.arm.start=home"])
     assert config.task.arm.home_deg["spherical_copy"][0] == 340.0
+    assert config.safety.acceleration_limit == (4.0, 4.0, 4.0, 6.0, 6.0, 6.0)  # from its file
     task = PushOffTask(config.task)
     runner = TaskRunner(task, seed=0, safety=config.safety)
     runner.reset()
@@ -87,7 +91,8 @@ NEW_ARM = textwrap.dedent("""
 def test_a_new_arm_is_one_file_in_the_registry(tmp_path):
     """A worked example: a copy of configs/ with one more file, robots/spherical_copy.yaml (the
     j2s6s200's entry, another home posture), and nothing else changed: the task, its safety filter
-    (with that file's self-collision pairs) and deploy's Gen2 joint convention take the new arm."""
+    (with that file's self-collision pairs and acceleration limits) and deploy's Gen2 joint
+    convention take the new arm."""
     configs = tmp_path / "configs"
     shutil.copytree(CONFIG_DIR, configs)
     entry = yaml.safe_load((CONFIG_DIR / "robots" / "j2s6s200.yaml").read_text())

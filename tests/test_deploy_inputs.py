@@ -67,7 +67,7 @@ def test_a_weaker_checkpoint_changes_nothing_and_each_key_is_named(ours):
 
 
 def test_a_stricter_checkpoint_tightens_entry_by_entry(ours):
-    assert ours.acceleration_limit == (4.0, 4.0, 4.0, 6.0, 6.0, 6.0)  # configs/safety.yaml
+    assert ours.acceleration_limit == (4.0, 4.0, 4.0, 6.0, 6.0, 6.0)  # configs/robots/jaco.yaml
     theirs = dataclasses.replace(
         ours, position_margin=0.1, acceleration_limit=(3.0, 4.0, 5.0, 6.0, 6.0, 2.0),
         workspace_upper=(0.5, 1.2, 1.4), obstacle_rows=True, max_obstacle_rows=12,

@@ -40,9 +40,6 @@ LINKS = {"shoulder_link": "shoulder_link", "half_arm_1_link": "HalfArm1_Link", "
 # actuators (joints 5-7) 69.91 deg/s. Kinova's URDF: joints 2, 4, 6 limited, 1, 3, 5, 7 continuous.
 SPEED_DEG = np.array([79.64] * 4 + [69.91] * 3)
 LIMITS = {1: 2.41, 3: 2.66, 5: 2.23}
-# safety.acceleration_limit gives one value per joint of the 6-joint arms (configs/safety.yaml); a
-# 7-joint arm needs its own: joints 1-4 as the JACO's large actuators, 5-7 as its small ones.
-ACCELERATION = "safety.acceleration_limit=[4.0,4.0,4.0,4.0,6.0,6.0,6.0]"
 
 
 @pytest.fixture(scope="module")
@@ -156,7 +153,7 @@ def _inertia(model: mujoco.MjModel, body: int) -> np.ndarray:
 
 def test_the_task_runs_the_gen3_and_the_scripted_controller_pushes_the_cube_off():
     config = load_config(["task.robot=gen3", "task.arm.start=home", "task.arm.joint_jitter=0",
-                          "task.layout.mode=fixed", "task.action.mode=joint", ACCELERATION])
+                          "task.layout.mode=fixed", "task.action.mode=joint"])
     task = PushOffTask(config.task)
     runner = TaskRunner(task, seed=0, safety=config.safety)
     runner.reset()

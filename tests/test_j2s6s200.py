@@ -289,7 +289,7 @@ def test_the_velocity_bound_takes_the_arms_larger_margin_and_the_jacos_is_unchan
     assert own > shared  # else the key would change nothing
     joints = _urdf_joints()
     urdf_v = np.array([float(joints[f"j2s6s200_joint_{i}"].find("limit").get("velocity")) for i in range(1, 7)])
-    accel = np.asarray(yaml.safe_load((CONFIGS / "safety.yaml").read_text())["acceleration_limit"], dtype=float)
+    accel = np.asarray(_robot_yaml()["acceleration_limit"], dtype=float)
     dt = config.task.episode.control_period
     safety = runner.filter
     np.testing.assert_allclose(safety.velocity.limit, urdf_v * (1 - own), rtol=1e-15)

@@ -157,7 +157,7 @@ def test_acceleration_soft_limits_are_checked_where_reported(robot):
     from fake_kortex_api.rig import fake_api
     from ahrm_stack.hardware.kortex import Credentials, KortexArm
 
-    accel = np.array([4.0, 4.0, 4.0, 6.0, 6.0, 6.0])  # configs/safety.yaml
+    accel = np.array([4.0, 4.0, 4.0, 6.0, 6.0, 6.0])  # configs/robots/jaco.yaml
     for reported, refused in (((), False), (np.degrees(accel) * 2, False), (np.degrees(accel) * 0.5, True)):
         _, fake = make_for(robot, soft_limits=_soft(robot, acceleration=reported))
         address = next(a for (a, _), arm in fake_api()["_fake_arm"].FakeArm._registry.items() if arm is fake)

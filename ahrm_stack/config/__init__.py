@@ -10,7 +10,8 @@ One idea per module; this ``__init__`` re-exports the names the rest of the proj
 
 * ``fields.py``: the shared field types (``Pos``, ``PosInt``, ``Pair`` ...) and :data:`LIMITS`;
 * ``task.py``: :class:`TaskConfig` and its sections, :class:`ScriptedConfig`;
-* ``safety.py``: :class:`SafetyConfig`; ``learning.py``: mechanism, PPO and training sections;
+* ``safety.py``: :class:`SafetyConfig` (and :func:`arm_acceleration_limit`, the arm in use's
+  ``safety.acceleration_limit``); ``learning.py``: mechanism, PPO and training sections;
 * ``root.py``: :class:`Config`, the six sections and the rules across them;
 * ``files.py``: where the YAML files live; ``load.py``: files, profiles and overrides to a
   :class:`Config` (:func:`load_config`, :func:`config_from_dict`, :func:`fill_missing`);
@@ -60,8 +61,8 @@ from ahrm_stack.config.load import (SCHEMA_VERSION, apply_overrides, config_from
                                     load_config, load_raw, profile_overrides)
 from ahrm_stack.config.robots import ArmEntry, UrdfArmConfig, arm_names, compose_deploy, compose_task, load_arm
 from ahrm_stack.config.root import Config
-from ahrm_stack.config.safety import (SELF_COLLISION_PAIRS_2026_12_01, SafetyConfig,
-                                      SelfCollisionPairs)
+from ahrm_stack.config.safety import (SELF_COLLISION_PAIRS_2026_12_01, AccelerationLimits, SafetyConfig,
+                                      SelfCollisionPairs, arm_acceleration_limit)
 from ahrm_stack.config.task import (ActionConfig, ArmConfig, CubeConfig, EpisodeConfig, HomeDeg, LayoutConfig,
                                     NearCubeStartConfig, ObservationConfig, ObstacleConfig, PusherConfig, RegionConfig,
                                     RewardConfig, Robot, ScriptedConfig, StartIKConfig, TableConfig, TaskConfig)
@@ -70,13 +71,15 @@ from ahrm_stack.schema import ConfigError, read_yaml
 _read_yaml = read_yaml  # the earlier name, still imported by a few modules
 
 __all__ = [
-    "ActionConfig", "ArmConfig", "ArmEntry", "CONFIG_DIR", "Config", "ConfigError", "CubeConfig", "EpisodeConfig",
+    "AccelerationLimits", "ActionConfig", "ArmConfig", "ArmEntry", "CONFIG_DIR", "Config", "ConfigError", "CubeConfig",
+    "EpisodeConfig",
     "ExperimentConfig", "Frozen", "HomeDeg", "LIMITS", "LaneFrame", "LayoutConfig", "MechanismConfig", "Method",
     "NearCubeStartConfig", "NonNeg", "NonNegInt", "ObservationConfig", "ObstacleConfig", "Order", "PPOConfig",
     "PROFILE_DIR", "Pair", "PaperRow", "Pos", "PosInt", "PusherConfig", "ROBOTS_DIR", "RegionConfig",
     "RewardConfig", "Robot", "SCHEMA_VERSION", "SECTIONS", "SELF_COLLISION_PAIRS_2026_12_01",
     "SafetyConfig", "ScriptedConfig", "SelfCollisionPairs", "StartIKConfig", "TableConfig", "TaskConfig",
-    "TrainConfig", "UrdfArmConfig", "Vec3", "VideoConfig", "Window", "apply_overrides", "arm_names",
+    "TrainConfig", "UrdfArmConfig", "Vec3", "VideoConfig", "Window", "apply_overrides", "arm_acceleration_limit",
+    "arm_names",
     "compose_deploy", "compose_task", "config_from_dict",
     "config_source", "fill_missing", "load_arm", "load_config", "load_extra", "load_raw",
     "profile_overrides",

@@ -1,12 +1,13 @@
 """The arm registry: one file per arm, ``configs/robots/<name>.yaml``, holds everything about that
 arm (:class:`ArmEntry`): where its model comes from, the joints the policy commands, its home
-posture, its self-collision pairs, the safety filter's servo headroom, and how a real arm of that
-model is driven (the Kinova Gen2 joint convention and the arm types it may be; the Kortex model it
+posture, its self-collision pairs, its joint acceleration limits, the safety filter's servo headroom,
+and how a real arm of that model is driven (the Kinova Gen2 joint convention and the arm types it may be; the Kortex model it
 is). A new arm is one such file plus its model files; its name is the file's name.
 
 Joint limits and velocity limits are not here: they are read from the compiled model
 (:mod:`ahrm_stack.robot`). The per-arm values the task, the safety filter and deploy read from their
-own sections (``task.arm.home_deg``, ``safety.self_collision_pairs``, deploy's
+own sections (``task.arm.home_deg``, ``safety.self_collision_pairs``,
+``safety.acceleration_limit``, deploy's
 ``kinova_gen2.joints`` and ``kortex.models``) are composed from the entries when the configuration
 is loaded (:func:`compose_task`, :func:`compose_deploy`), so a run's ``config.yaml`` still records
 them and a profile or an override still changes them.
@@ -75,6 +76,8 @@ class ArmEntry(Section):
     # (``task.arm.home_deg.<name>``)
     self_collision_pairs: tuple[tuple[Str, Str], ...]  # arm parts that keep the safety filter's
     # safe distance (``safety.self_collision_pairs.<name>``)
+    acceleration_limit: tuple[Pos, ...]  # rad/s^2 per joint (one per home_deg entry): the safety
+    # filter's |u - u_prev| <= a_max dt (``safety.acceleration_limit.<name>``)
     min_velocity_margin: Annotated[Float, within(0, 1, "[)")]  # lower bound on
     # safety.velocity_margin for this arm (fraction of each velocity limit): servo headroom
     kinova_gen2: Optional[dict[Str, Any]]  # the Kinova Gen2 joint convention (sign, offset_deg,
@@ -86,6 +89,9 @@ class ArmEntry(Section):
     def check(self, key: str) -> None:
         if (self.source == "urdf") != (self.urdf is not None):
             raise ConfigError(f"{key}.urdf: give it exactly when source is urdf (source: {self.source})")
+        if len(self.acceleration_limit) != len(self.home_deg):
+            raise ConfigError(f"{key}.acceleration_limit has {len(self.acceleration_limit)} values, home_deg "
+                              f"{len(self.home_deg)}: both give one value per joint")
         if len(set(self.commanded_joints)) != len(self.commanded_joints):
             raise ConfigError(f"{key}.commanded_joints: {list(self.commanded_joints)} repeats a joint")
         problem = pair_problem(self.self_collision_pairs)
@@ -124,9 +130,10 @@ def registered_arm(value: str) -> str:
 
 
 def compose_task(data: dict, robots_dir: Path | str = ROBOTS_DIR) -> None:
-    """``task.arm.home_deg`` and ``safety.self_collision_pairs`` of the raw sections ``data``, in
-    place, from the registry: one entry per arm, in name order (a section that already has the key
-    keeps its value: a file written before the registry)."""
+    """``task.arm.home_deg``, ``safety.self_collision_pairs`` and ``safety.acceleration_limit`` of
+    the raw sections ``data``, in place, from the registry: one entry per arm, in name order (a
+    section that already has the key keeps its value: a file written before the registry, or one
+    that gives its own)."""
     entries = {name: load_arm(name, robots_dir) for name in arm_names(robots_dir)}
     arm = data.get("task", {}).get("arm") if isinstance(data.get("task"), dict) else None
     if isinstance(arm, dict) and "home_deg" not in arm:
@@ -135,6 +142,8 @@ def compose_task(data: dict, robots_dir: Path | str = ROBOTS_DIR) -> None:
     if isinstance(safety, dict) and "self_collision_pairs" not in safety:
         safety["self_collision_pairs"] = {name: [list(p) for p in entry.self_collision_pairs]
                                           for name, entry in entries.items()}
+    if isinstance(safety, dict) and "acceleration_limit" not in safety:
+        safety["acceleration_limit"] = {name: list(entry.acceleration_limit) for name, entry in entries.items()}
 
 
 def compose_deploy(data: dict, robots_dir: Path | str = ROBOTS_DIR) -> None:

@@ -3,11 +3,12 @@ rules that span several of them."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from ahrm_stack.config.fields import LIMITS, Frozen
 from ahrm_stack.config.learning import MechanismConfig, PPOConfig, TrainConfig
-from ahrm_stack.config.safety import SafetyConfig
+from ahrm_stack.config.safety import SafetyConfig, arm_acceleration_limit
 from ahrm_stack.config.task import ScriptedConfig, TaskConfig
 from ahrm_stack.schema import ConfigError, Section, read_yaml
 
@@ -21,6 +22,14 @@ class Config(Section):
     ppo: PPOConfig
     train: TrainConfig
 
+    def derive(self) -> None:
+        # safety.acceleration_limit: task.robot's values (from the per-arm mapping, or the one list
+        # checked against the arm's joints), so that every reader of a loaded config, and the run's
+        # config.yaml, has the list of the arm in use
+        limit = arm_acceleration_limit(self.safety.acceleration_limit, self.task.robot, len(self.task.arm.home))
+        if limit != self.safety.acceleration_limit:
+            object.__setattr__(self, "safety", dataclasses.replace(self.safety, acceleration_limit=limit))
+
     def check(self, key: str) -> None:
         ppo, train, episode = self.ppo, self.train, self.task.episode
         if ppo.frames_per_batch % train.num_envs:
@@ -32,10 +41,6 @@ class Config(Section):
             raise ConfigError(f"train.demo_episodes ({train.demo_episodes}) x {steps} steps per "
                               f"episode (task.episode.duration) exceeds {LIMITS['demo_steps']} "
                               "demonstration steps held in memory")
-        if len(self.safety.acceleration_limit) != len(self.task.arm.home):
-            raise ConfigError(f"safety.acceleration_limit has {len(self.safety.acceleration_limit)} "
-                              f"values, task.arm.home_deg {len(self.task.arm.home)}: both give one "
-                              f"value per joint of task.robot ({self.task.robot})")
         if ppo.critic_privileged and uses_demos:
             raise ConfigError("ppo.critic_privileged needs train.warm_start: none and ppo.bc_coeff: 0 (the "
                               "demonstrations hold no privileged entries for the critic's refit)")

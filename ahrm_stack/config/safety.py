@@ -1,14 +1,18 @@
 """The safety filter's section (``configs/safety.yaml``): :class:`SafetyConfig`, whose every key
-carries a ``stricter`` marker, and the per-arm self-collision pairs."""
+carries a ``stricter`` marker, the per-arm self-collision pairs, and the per-arm joint acceleration
+limits with their one resolver (:func:`arm_acceleration_limit`)."""
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+import typing
+from typing import Annotated, Any, Literal
 
-from pydantic import AfterValidator
+from pydantic import AfterValidator, PlainValidator
+from pydantic_core import PydanticCustomError
 
 from ahrm_stack.config.fields import LIMITS, Frozen, NonNeg, NonNegInt, Pos, PosInt, Vec3
-from ahrm_stack.config.robots import arm_names, pair_problem
+from ahrm_stack.config.robots import arm_names, load_arm, pair_problem
+from ahrm_stack.schema import _float  # the Float rule, for values inside a custom validator
 from ahrm_stack.schema import Bool, ConfigError, Float, FrozenDict, Section, Str, fail, le, legacy, stricter, within
 
 #: ``safety.self_collision_pairs`` of a run written before the key existed: configs/safety.yaml's
@@ -40,6 +44,71 @@ def _pairs_per_arm(value: dict) -> dict:
 SelfCollisionPairs = Annotated[dict[Str, tuple[tuple[Str, Str], ...]], AfterValidator(_pairs_per_arm)]
 
 
+def _limits(value: Any, where: str) -> tuple[float, ...]:
+    """A list of accelerations, each a finite number > 0 (rad/s^2); errors name ``where[i]``."""
+    if not isinstance(value, (list, tuple)):
+        fail(f"{where}: expected a list of rad/s^2 per joint, got {value!r}")
+    out = []
+    for i, item in enumerate(value):
+        try:
+            number = _float(item)
+        except PydanticCustomError as error:
+            fail(f"{where}[{i}]{error.context['text']}")
+        if not number > 0:
+            fail(f"{where}[{i}] must be > 0, got {number!r}")
+        out.append(number)
+    return tuple(out)
+
+
+def _acceleration_limit(value: Any) -> tuple[float, ...] | FrozenDict:
+    """``safety.acceleration_limit``: one list (rad/s^2 per joint of task.robot) or a mapping
+    registered arm name -> its list, each list as long as that arm's joints (its registry entry's
+    ``home_deg``)."""
+    if not isinstance(value, dict):
+        return _limits(value, "")
+    names = arm_names()
+    out = {}
+    for robot, limits in value.items():
+        if robot not in names:
+            fail(f".{robot}: no arm {robot!r}; registered (configs/robots/): {list(names)}")
+        out[robot] = _limits(limits, f".{robot}")
+        joints = len(load_arm(robot).home_deg)
+        if len(out[robot]) != joints:
+            fail(f".{robot}: {len(out[robot])} values, arm {robot!r} has {joints} joints: give one per joint")
+    return FrozenDict(out)
+
+
+#: Joint acceleration limits, rad/s^2 per joint: per arm (``task.robot``), a mapping arm name -> one
+#: value per joint (composed from ``configs/robots/<arm>.yaml``'s ``acceleration_limit``), or one
+#: list that applies to task.robot (the form every run's ``config.yaml`` records, and overrides
+#: such as ``safety.acceleration_limit=[1000,1000,1000,1000,1000,1000]``). A loaded
+#: :class:`~ahrm_stack.config.Config` holds task.robot's list (:func:`arm_acceleration_limit`).
+AccelerationLimits = Annotated[typing.Union[tuple[float, ...], dict[str, tuple[float, ...]]],
+                               PlainValidator(_acceleration_limit)]
+
+
+def arm_acceleration_limit(value: tuple[float, ...] | typing.Mapping[str, tuple[float, ...]], robot: str,
+                           joints: int | None = None) -> tuple[float, ...]:
+    """The joint acceleration limits (rad/s^2 per joint) of arm ``robot`` in ``value`` (a
+    ``safety.acceleration_limit``: a mapping arm name -> values, or one list, which is the arm in
+    use's). The one resolver of the key: :class:`~ahrm_stack.config.Config` (for task.robot), the
+    safety filter and deploy's Kortex backend read it through here. ``joints``: the arm's joint
+    count (``task.arm.home_deg``'s), checked when given. Raises :class:`ConfigError` (one line
+    naming the key) for an arm the mapping lacks or a list of another length."""
+    if isinstance(value, typing.Mapping):
+        if robot not in value:
+            raise ConfigError(f"safety.acceleration_limit has no entry for arm {robot!r} (task.robot); "
+                              f"entries: {sorted(value)}")
+        limit, key, hint = tuple(value[robot]), f"safety.acceleration_limit.{robot}", ""
+    else:
+        limit, key = tuple(value), "safety.acceleration_limit"
+        hint = " (one list applies to task.robot; or give a mapping arm name -> rad/s^2 per joint)"
+    if joints is not None and len(limit) != joints:
+        raise ConfigError(f"{key} has {len(limit)} values, task.arm.home_deg {joints}: both give one value "
+                          f"per joint of task.robot ({robot}){hint}")
+    return limit
+
+
 @Frozen
 class SafetyConfig(Section):
     """The QP action filter (spec §5). Joint limits and velocity limits come from the robot
@@ -51,8 +120,9 @@ class SafetyConfig(Section):
     velocity_margin: Annotated[Float, within(0, 1, "[)"), stricter("higher")]  # fraction of each
     # joint's velocity limit left unused: headroom for the velocity controller, whose joints run
     # faster than commanded under gravity (servo error)
-    acceleration_limit: Annotated[tuple[Pos, ...], stricter("lower")]  # rad/s^2 per joint,
-    # |u - u_prev| <= a_max dt
+    acceleration_limit: Annotated[AccelerationLimits, stricter("lower")]  # rad/s^2 per joint,
+    # |u - u_prev| <= a_max dt: per arm, composed from configs/robots/<arm>.yaml, or one list for
+    # task.robot (AccelerationLimits above); a loaded Config holds task.robot's list
     braking_horizon: Annotated[Bool, stricter("on")]  # true: position and Cartesian rows look ahead
     # max(dt, max_i v_i/a_i) s (the time to brake from full speed), which keeps them satisfiable
     # under the acceleration limits; false: one control period dt, the literal one-step rows

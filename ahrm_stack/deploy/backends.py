@@ -128,12 +128,14 @@ def _bring_up_check_kortex(config, settings) -> None:
 def _make_kortex(config, settings):
     """The Kortex adapter (not connected) for ``config``'s robot, its workspace and its safety
     filter's acceleration limits."""
+    from ahrm_stack.config import arm_acceleration_limit
     from ahrm_stack.robot import describe, make_arm
     from ahrm_stack.hardware.kortex import make_kortex_backend, task_workspace
 
-    return make_kortex_backend(settings, describe(config.task.robot, make_arm(config.task.robot)),
+    robot = config.task.robot
+    return make_kortex_backend(settings, describe(robot, make_arm(robot)),
                                workspace=task_workspace(config.task, settings.kortex.workspace_height),
-                               acceleration_limit=config.safety.acceleration_limit)
+                               acceleration_limit=arm_acceleration_limit(config.safety.acceleration_limit, robot))
 
 
 def _link_check_kortex(config, settings) -> tuple[list[str], bool]:

@@ -52,7 +52,7 @@ def load_controller_config(checkpoint: Path | None, overrides: Sequence[str] = (
     if policy_file is not None and not Path(policy_file).is_file():
         raise ConfigError(f"--policy-file {policy_file}: no such file")
     policy_path = run / "policy.pt" if policy_file is None else Path(policy_file)
-    deploy_safety = load_config().safety
+    load_config()  # deploy's own configs/ first: a broken file is named before the checkpoint is read
     import torch
 
     from ahrm_stack.learning.checkpoint import CheckpointError
@@ -68,6 +68,8 @@ def load_controller_config(checkpoint: Path | None, overrides: Sequence[str] = (
         first = (str(error).splitlines() or [""])[0][:200]
         raise CheckpointError(f"{policy_path} does not fit {run / 'config.yaml'} "
                               f"({type(error).__name__}: {first})") from None
+    # deploy's safety settings for the checkpoint's arm (safety.acceleration_limit is per arm)
+    deploy_safety = load_config([f"task.robot={config.task.robot}"]).safety
     safety, differences = merge_safety(deploy_safety, config.safety)
     for note in differences:
         log.log(logging.WARNING if note.kind == "weaker" else logging.INFO, "deploy: %s", note.text)

@@ -39,7 +39,7 @@ from typing import cast
 
 import numpy as np
 
-from ahrm_stack.config import SafetyConfig
+from ahrm_stack.config import ConfigError, SafetyConfig, arm_acceleration_limit
 from ahrm_stack.kinematics.model import ArmKinematics
 from ahrm_stack.kinematics.scene import CollisionScene
 from ahrm_stack.robot import RobotDescription
@@ -75,11 +75,20 @@ def velocity_margin(robot: RobotDescription, config: SafetyConfig) -> float:
     return max(float(config.velocity_margin), float(robot.min_velocity_margin))
 
 
+def acceleration_limit(robot: RobotDescription, config: SafetyConfig) -> tuple[float, ...]:
+    """``robot``'s joint acceleration limits, rad/s^2 (``safety.acceleration_limit``: its entry of
+    the per-arm mapping, or the one list; :func:`~ahrm_stack.config.arm_acceleration_limit`)."""
+    try:
+        return arm_acceleration_limit(config.acceleration_limit, robot.name)
+    except ConfigError as error:
+        raise SafetyFilterError(str(error)) from None
+
+
 def braking_time(robot: RobotDescription, config: SafetyConfig) -> float:
     """max_i v_i / a_max_i, s, with v_i the commandable speed ``(1 - margin) v_max_i`` (margin:
     :func:`velocity_margin`): the longest time any joint needs to stop from full speed."""
     speed = robot.velocity_limit * (1.0 - velocity_margin(robot, config))
-    return float(np.max(speed / np.asarray(config.acceleration_limit, dtype=float)))
+    return float(np.max(speed / np.asarray(acceleration_limit(robot, config), dtype=float)))
 
 
 class SafetyFilter:
@@ -129,7 +138,7 @@ class SafetyFilter:
         self.dt = float(dt)
         self.num_joints = nv
         self.velocity = VelocityLimit(robot, velocity_margin(robot, config))
-        self.acceleration = AccelerationLimit(config.acceleration_limit, self.dt, nv)
+        self.acceleration = AccelerationLimit(acceleration_limit(robot, config), self.dt, nv)
         self.horizon = max(self.dt, braking_time(robot, config)) if config.braking_horizon else self.dt
         self.position = PositionLimit(robot, config.position_margin, self.horizon)
         self.table = (TableLimit(table_height, {"tip": config.table_margin,
