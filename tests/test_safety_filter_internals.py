@@ -15,6 +15,7 @@ from ahrm_stack.config import load_config
 from ahrm_stack.env.runner import TaskRunner
 from ahrm_stack.env.task import PushOffTask
 from ahrm_stack.safety.filter import VIOLATION_WEIGHT, SafetyFilter
+from ahrm_stack.safety.solvers import Outcome
 
 
 def _filter(safety=None) -> SafetyFilter:
@@ -108,3 +109,20 @@ def test_a_cartesian_request_beyond_the_arms_reach_is_scaled_along_its_direction
     np.testing.assert_array_equal(linear, np.zeros(6))
     more, _ = regularised._cartesian_objective(slow)
     np.testing.assert_allclose(more - hessian, (0.25 - 1e-3) * np.eye(6), atol=1e-12)
+
+
+def test_a_brake_that_meets_some_rows_but_not_all_is_not_kept(safety_filter):
+    """Zero meets the first row and violates the second: the fallback QP runs (SLSQP's answer)."""
+    lower, upper = -np.full(6, 0.8), np.full(6, 0.8)
+    matrix = np.array([[1.0, 0.5, 0, 0, 0, 0], [0, -1.0, 0.3, 0, 0, 0]])
+    bound = np.array([1.0, -0.2])
+    mine = safety_filter._safest(lower, upper, matrix, bound)
+    np.testing.assert_allclose(mine, _reference(lower, upper, matrix, bound), atol=2e-4)
+    assert np.all(matrix @ mine <= bound + 1e-9)
+
+
+def test_the_brake_is_returned_when_the_fallback_solve_fails(safety_filter, monkeypatch):
+    monkeypatch.setattr(safety_filter._fallback_solver, "solve", lambda *args: Outcome(None, "solver_failed"))
+    lower, upper = np.array([0.1, -1, -1, -1, -1, -1]), np.ones(6)
+    brake = safety_filter._safest(lower, upper, np.eye(6)[:1], np.array([-5.0]))
+    np.testing.assert_array_equal(brake, [0.1, 0, 0, 0, 0, 0])

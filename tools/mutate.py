@@ -85,7 +85,7 @@ SUITE: dict[str, tuple[tuple[str, ...], str]] = {
     "ahrm_stack/safety/constraints/distance.py": (("tests/test_distance_rows_fast.py",
                                                    "tests/test_constraints_fast.py"), ""),
     "ahrm_stack/safety/filter.py": (("tests/test_safety_filter_definition.py", "tests/test_safety_filter_internals.py",
-                                     *_CONSTRAINT_TESTS[0]), SAFETY_FAST),
+                                     "tests/test_safety_filter_paths.py", *_CONSTRAINT_TESTS[0]), SAFETY_FAST),
 }
 
 _SWAPPED_CALLS = {"min": "max", "max": "min", "minimum": "maximum", "maximum": "minimum", "any": "all",

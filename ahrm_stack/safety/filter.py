@@ -43,7 +43,7 @@ from ahrm_stack.config import ConfigError, SafetyConfig, arm_acceleration_limit
 from ahrm_stack.kinematics.model import ArmKinematics
 from ahrm_stack.kinematics.scene import CollisionScene
 from ahrm_stack.robot import RobotDescription
-from ahrm_stack.safety.constraints import (AccelerationLimit, ArmSnapshot, ControlPoints,
+from ahrm_stack.safety.constraints import (AccelerationLimit, ArmSnapshot,
                                            CoordinateRows, DistanceLimit, PositionLimit, TableLimit,
                                            VelocityLimit, WorkspaceLimit)
 from ahrm_stack.safety.constraints.base import JointBounds
@@ -475,13 +475,6 @@ class SafetyFilter:
                 names = names + distance_rows.names if names else distance_rows.names
                 count += added
         return self._matrix[:count], self._bound[:count], names
-
-    def _control_points(self) -> ControlPoints:
-        """The pusher tip and the wrist at the configuration of the last snapshot update."""
-        snap = self._snapshot
-        tip, wrist = self._frames
-        jacobians = np.concatenate((snap.jacobian(tip)[:3], snap.jacobian(wrist)[:3]))
-        return ControlPoints(CONTROL_POINTS, snap.positions(self._frames).ravel(), jacobians)
 
     def _cartesian_objective(self, v_nom: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         tip = self._frames[0]
