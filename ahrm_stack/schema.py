@@ -106,6 +106,16 @@ Bool = Annotated[bool, PlainValidator(_bool)]
 Str = Annotated[str, PlainValidator(_str)]
 
 
+def _path(value: Any) -> str | None:
+    """A path string (not blank) or None."""
+    if value is not None and (not isinstance(value, str) or not value.strip()):
+        fail(f" must be a path string or null, got {value!r}")
+    return value
+
+
+FilePath = Annotated[typing.Optional[str], PlainValidator(_path)]  # a file's path, or null: not set
+
+
 def _bound(op: str, limit: float, ok: Callable[[Any], bool], what: str) -> AfterValidator:
     def check(value: Any) -> Any:
         if not ok(value):

@@ -26,7 +26,8 @@ REALTIME_FILES = frozenset({
     "test_camera_video.py", "test_hardware_contract.py", "test_kinova_gen2.py",
     "test_kinova_gen2_check.py", "test_kinova_gen2_deploy.py", "test_kinova_gen2_estop.py",
     "test_kinova_gen2_move_home.py",
-    "test_kortex_backend.py", "test_kortex_check.py", "test_kortex_home.py", "test_kortex_link.py",
+    "test_kortex_backend.py", "test_kortex_check.py", "test_kortex_deploy.py", "test_kortex_home.py",
+    "test_kortex_link.py",
 })
 # and the brief runs of the benchmarks that pace threads or processes by the wall clock
 REALTIME_BENCHMARKS = ("bench_camera_scene", "bench_camera_thread", "bench_gen2_budget", "bench_gen2_estop",

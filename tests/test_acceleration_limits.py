@@ -136,11 +136,11 @@ def test_deploy_merges_a_checkpoint_with_its_own_arms_limits(monkeypatch, tmp_pa
 
 def test_the_kortex_backend_checks_the_arm_in_use_s_limits(monkeypatch):
     import ahrm_stack.hardware.kortex as kortex
-    from ahrm_stack.deploy.backends import BACKENDS
+    from ahrm_stack.deploy.backends import kortex_adapter
     from ahrm_stack.deploy.settings import load_deploy_settings
 
     seen = {}
     monkeypatch.setattr(kortex, "make_kortex_backend", lambda settings, robot, **kwargs: seen.update(kwargs))
     config, settings = load_config(["task.robot=gen3"]), load_deploy_settings()
-    BACKENDS["kortex"].make(config, settings)
+    kortex_adapter(config, settings)  # a run's adapter (BACKENDS["kortex"].make wraps it with its scene)
     assert tuple(seen["acceleration_limit"]) == GEN3

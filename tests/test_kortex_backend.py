@@ -523,7 +523,7 @@ def test_deploy_backend_kortex_refuses_with_one_line(tmp_path, capsys, monkeypat
     monkeypatch.setenv("KORTEX_USERNAME", "admin")
     monkeypatch.setenv("KORTEX_PASSWORD", PASSWORD)
     err = run()
-    assert "no Gen3 policy to run yet" in err and PASSWORD not in err
+    assert "has no deploy.kortex.models entry" in err and PASSWORD not in err
     assert not telemetry.exists() and not telemetry.parent.exists()  # nothing written
     assert "deploy.kortex.rpc_timeout_ms must be > 0" in run(rpc_timeout_ms=0)
 

@@ -131,7 +131,7 @@ def test_check_refuses_bad_input_in_one_line(robot, tmp_path, monkeypatch, capsy
     assert main(["--backend", "kortex", "--config", str(path), "--check"]) == 2
     captured = capsys.readouterr()
     err = captured.err.strip()
-    assert len(err.splitlines()) == 1 and "no Gen3 policy to run yet" in err and "Traceback" not in captured.err
+    assert len(err.splitlines()) == 1 and "has no deploy.kortex.models entry" in err and "Traceback" not in captured.err
     data = yaml.safe_load(path.read_text())
     data["kortex"]["check_ticks"] = 3
     path.write_text(yaml.safe_dump(data))

@@ -333,7 +333,7 @@ def test_home_command_line(world, tmp_path, monkeypatch, capsys):
     path = _cli_config(tmp_path, monkeypatch, world, models=False)
     assert main(["--backend", "kortex", "--config", str(path), "--home", "--yes"]) == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "no Gen3 policy to run yet" in err and "'jaco'" in err
+    assert len(err.splitlines()) == 1 and "has no deploy.kortex.models entry" in err and "'jaco'" in err
     path = _cli_config(tmp_path, monkeypatch, world, address=None)
     assert main(["--backend", "kortex", "--config", str(path), "--home"]) == 2
     assert "deploy.kortex.address is not set" in capsys.readouterr().err

@@ -7,7 +7,9 @@ key or the file), ``make(config, settings)`` builds the adapter, not yet connect
 with a link worth measuring (``--check``), connects, measures the link with the arm held still,
 disconnects and returns the lines to print and whether the budget fits (None: the backend has no
 such check); ``bring_up_check(config, settings)``, where set, replaces ``check`` before
-``--check`` and ``--home`` (the Kortex backend refuses every run, yet its bring-up steps run).
+``--check`` and ``--home`` (a Kortex run needs a scene source its bring-up steps do not). A real
+arm's adapter is wrapped with its static scene source (:func:`static_scene`, ``perception()`` for
+the loop; ``--scene camera`` replaces it) in one way for every backend: :func:`_perceived`.
 ``config`` is the run's :class:`~ahrm_stack.config.Config` (its ``task.robot`` is the arm model),
 ``settings`` the :class:`~ahrm_stack.deploy.DeploySettings`. Backends are imported only when built.
 """
@@ -51,7 +53,7 @@ def _gen2_parts(config, settings):
     """Validated Gen2 settings, the robot description and the scene (one-line errors)."""
     from ahrm_stack.robot import describe, make_arm
     from ahrm_stack.hardware.kinova_gen2 import Gen2ConfigError, check_library, joint_convention
-    from ahrm_stack.hardware.scene import StaticScene
+    from ahrm_stack.hardware.scene import static_scene
 
     gen2 = settings.kinova_gen2
     if not settings.realtime:
@@ -61,13 +63,18 @@ def _gen2_parts(config, settings):
     if gen2.serial is None:
         raise Gen2ConfigError("deploy.kinova_gen2.serial is not set: the arm is chosen by its "
                               "serial number, never the first one found")
-    if gen2.scene is None:
-        raise Gen2ConfigError("deploy.kinova_gen2.scene is not set: give a layout file of the cube "
-                              "and obstacle poses (e.g. configs/scenes/default.yaml)")
+    scene = static_scene(gen2.scene, config.task, "deploy.kinova_gen2.scene")
     robot = describe(config.task.robot, make_arm(config.task.robot))
     joint_convention(gen2, robot)
-    scene = StaticScene(gen2.scene, num_obstacles=len(config.task.obstacles.fixed_layout))
     return gen2, robot, scene
+
+
+def _perceived(arm: ArmAdapter, scene) -> ArmAdapter:
+    """A real arm's adapter for a deploy run: ``arm`` with the scene source ``scene`` (a
+    :func:`~ahrm_stack.hardware.scene.static_scene`) as its ``perception()``."""
+    from ahrm_stack.hardware.scene import PerceivedArm
+
+    return PerceivedArm(arm, scene)
 
 
 def _check_gen2(config, settings) -> None:
@@ -87,11 +94,10 @@ def _check_gen2(config, settings) -> None:
 
 def _make_gen2(config, settings) -> ArmAdapter:
     from ahrm_stack.hardware.kinova_gen2 import KinovaGen2Arm
-    from ahrm_stack.hardware.scene import PerceivedArm
 
     gen2, robot, scene = _gen2_parts(config, settings)
-    arm = KinovaGen2Arm(robot, gen2, command_timeout_s=gen2.command_timeout * settings.period)
-    return PerceivedArm(arm, scene)
+    return _perceived(KinovaGen2Arm(robot, gen2, command_timeout_s=gen2.command_timeout * settings.period),
+                      scene)
 
 
 def _link_check_gen2(config, settings) -> tuple[list[str], bool]:
@@ -108,12 +114,23 @@ def _link_check_gen2(config, settings) -> tuple[list[str], bool]:
     return check_link(arm, rates, gen2.check_calls)
 
 
+def _kortex_scene(config, settings):
+    """A Kortex run's static scene source (``kortex.scene``; one-line SceneError)."""
+    from ahrm_stack.hardware.scene import static_scene
+
+    return static_scene(settings.kortex.scene, config.task, "deploy.kortex.scene")
+
+
 def _check_kortex(config, settings) -> None:
-    """Refused in one line, before anything is written or contacted: what is missing (address,
-    credentials, real-time pacing, a Gen3 policy, a scene source)."""
+    """A run's checks, in one line before anything is written or contacted: what is missing
+    (address, credentials, real-time pacing, a policy whose robot is a Kortex arm, a scene source;
+    :func:`~ahrm_stack.hardware.kortex.kortex_deploy_blocker`), then the scene layout file itself."""
     from ahrm_stack.hardware.kortex import kortex_deploy_blocker
 
-    raise ValueError(kortex_deploy_blocker(settings, robot=config.task.robot))
+    blocker = kortex_deploy_blocker(settings, robot=config.task.robot)
+    if blocker is not None:
+        raise ValueError(blocker)
+    _kortex_scene(config, settings)
 
 
 def _bring_up_check_kortex(config, settings) -> None:
@@ -125,9 +142,9 @@ def _bring_up_check_kortex(config, settings) -> None:
         raise ValueError(blocker)
 
 
-def _make_kortex(config, settings):
+def kortex_adapter(config, settings):
     """The Kortex adapter (not connected) for ``config``'s robot, its workspace and its safety
-    filter's acceleration limits."""
+    filter's acceleration limits, without a scene source (``--check``, ``--home``)."""
     from ahrm_stack.config import arm_acceleration_limit
     from ahrm_stack.robot import describe, make_arm
     from ahrm_stack.hardware.kortex import make_kortex_backend, task_workspace
@@ -146,7 +163,12 @@ def _link_check_kortex(config, settings) -> tuple[list[str], bool]:
     rates = Rates(control_hz=settings.rate_hz,
                   send_deadline=settings.watchdog.command_deadline * settings.period,
                   rpc_timeout_ms=settings.kortex.rpc_timeout_ms)
-    return check_link(_make_kortex(config, settings), rates, settings.kortex.check_ticks)
+    return check_link(kortex_adapter(config, settings), rates, settings.kortex.check_ticks)
+
+
+def _make_kortex(config, settings) -> ArmAdapter:
+    """A run's Kortex adapter with its static scene source, as the Gen2 backend's (:func:`_perceived`)."""
+    return _perceived(kortex_adapter(config, settings), _kortex_scene(config, settings))
 
 
 BACKENDS: dict[str, Backend] = {
@@ -154,9 +176,10 @@ BACKENDS: dict[str, Backend] = {
     "kinova-gen2": Backend("kinova-gen2", "a Kinova Gen2 / JACO2 over Kinova's C SDK "
                            "(configs/deploy.yaml kinova_gen2; docs/hardware.md)",
                            _check_gen2, _make_gen2, _link_check_gen2),
-    "kortex": Backend("kortex", "a Kinova Gen3 over kortex_api (configs/deploy.yaml kortex; a run is "
-                      "refused until a Gen3 policy and its scene source are wired, naming what is missing; "
-                      "--check and --home run with a Gen3 policy)",
+    "kortex": Backend("kortex", "a Kinova Gen3 over kortex_api (configs/deploy.yaml kortex; a run needs "
+                      "the address, credentials, a policy whose robot has a kortex.models entry and "
+                      "kortex.scene, else it is refused naming what is missing; --check and --home need "
+                      "no scene)",
                       _check_kortex, _make_kortex, _link_check_kortex, _bring_up_check_kortex),
 }
 

@@ -85,7 +85,7 @@ def home(config, settings: DeploySettings, yes: bool, say=print, ask=input, touc
         from ahrm_stack.deploy import backends
         from ahrm_stack.hardware.kortex.home import KortexHoming
 
-        kortex = backends.get("kortex").make(config, settings)
+        kortex = backends.kortex_adapter(config, settings)
         kortex.connect()
         return KortexHoming(kortex, world, home_limits(world, settings, settings.kortex.home),
                             settings.period, say, None if yes else ask).run()

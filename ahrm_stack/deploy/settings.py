@@ -17,7 +17,7 @@ from typing import Annotated, Any, Literal, Optional
 
 from ahrm_stack.config import CONFIG_DIR, ROBOTS_DIR, arm_names, compose_deploy
 from ahrm_stack.realism import RealismConfig, resolve_realism
-from ahrm_stack.schema import (Bool, ConfigError, Float, Int, Section, Str, count, ge, gt, le,
+from ahrm_stack.schema import (Bool, ConfigError, FilePath, Float, Int, Section, Str, count, ge, gt, le,
                                read_yaml, show_path, stricter, validate)
 from ahrm_stack.hardware.kinova_gen2 import Gen2Settings
 
@@ -158,6 +158,7 @@ class KortexSection(Section):
     action_rpc_timeout_ms: PosInt  # ExecuteAction, OnNotificationActionTopic, Unsubscribe (--home)
     check_ticks: Annotated[Int, ge(10), le(100000)]  # --check: control ticks measured
     home: KortexHomeSection  # --home
+    scene: FilePath  # the static scene layout (ahrm_stack/hardware/scene.py) a run uses for perception
 
     def check(self, key: str) -> None:
         if self.watchdog_poll_periods > 0.5 * self.watchdog_periods:

@@ -107,6 +107,22 @@ class StaticScene:
                            obstacle_velocities=np.zeros((k, 3)))
 
 
+def scene_unset(key: str) -> str:
+    """Why a real arm's run has no scene source: its layout setting ``key`` (e.g.
+    ``deploy.kortex.scene``) is not set; one line."""
+    return (f"{key} is not set: give a layout file of the cube and obstacle poses "
+            "(e.g. configs/scenes/default.yaml)")
+
+
+def static_scene(path: Path | str | None, task_config, key: str) -> StaticScene:
+    """A real arm's static scene source: the layout file ``path`` (the setting ``key``) holding
+    ``task_config``'s obstacle count; a one-line :class:`SceneError` when it is unset or bad. The
+    Gen2 and Kortex backends both build theirs here, and wrap the adapter in :class:`PerceivedArm`."""
+    if path is None:
+        raise SceneError(scene_unset(key))
+    return StaticScene(path, num_obstacles=len(task_config.obstacles.fixed_layout))
+
+
 class PerceivedArm(ArmWrapper):
     """``arm`` with a scene source: every protocol call goes to ``arm``; :meth:`perception` asks
     ``scene`` (anything with ``poses(timestamp) -> ObjectPoses``) on the arm's clock."""

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal, Optional
 import numpy as np
 from pydantic import AfterValidator, PlainValidator
 
-from ahrm_stack.schema import Bool, ConfigError, Float, Int, Section, Str, count, fail, ge, gt, le
+from ahrm_stack.schema import Bool, ConfigError, FilePath, Float, Int, Section, Str, count, fail, ge, gt, le
 from ahrm_stack.hardware.kinova_gen2.bus import POINT_PERIOD
 from ahrm_stack.hardware.kinova_gen2.loader import LoaderPathError, check_comm_layers
 
@@ -40,13 +40,6 @@ def _sign(value: int) -> int:
     return value
 
 
-def _path(value: Any) -> str | None:
-    """A path string (not blank) or None."""
-    if value is not None and (not isinstance(value, str) or not value.strip()):
-        fail(f" must be a path string or null, got {value!r}")
-    return value
-
-
 def _serial(value: Any) -> str | None:
     """The arm's serial number, stripped (it fits the SDK's char[SERIAL_LENGTH]), or None."""
     if value is not None and (not isinstance(value, str) or not value.strip()
@@ -60,9 +53,6 @@ def _not_empty(value: dict) -> dict:
     if not value:
         fail(" must map each arm name to its sign and offset_deg, got {}")
     return value
-
-
-FilePath = Annotated[Optional[str], PlainValidator(_path)]
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,5 +1,5 @@
-"""Deploy wiring: the Kortex adapter built from the deploy settings, what the bring-up steps
-(``--check``, ``--home``) need before the arm is contacted, and why deploy cannot run it yet."""
+"""Deploy wiring: the Kortex adapter built from the deploy settings, and what the bring-up steps
+(``--check``, ``--home``) and a run need before the arm is contacted."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from ahrm_stack.hardware.kortex.credentials import Credentials, CredentialsError
 from ahrm_stack.hardware.kortex.settings import kortex_options
 from ahrm_stack.hardware.kortex.vendor_link import INSTALL_HINT, LinkError, import_modules
 from ahrm_stack.hardware.protocol import HardwareError
+from ahrm_stack.hardware.scene import scene_unset
 
 
 def import_kortex_api() -> dict:
@@ -73,31 +74,35 @@ def kortex_bring_up_blocker(settings, robot: str | None = None,
     except CredentialsError as error:
         return f"--backend kortex: {error}"
     if robot is not None and robot not in settings.kortex.models:
-        return (f"--backend kortex: no Gen3 policy to run yet: the policy's robot {robot!r} has no "
-                f"deploy.kortex.models entry (configs/robots/{robot}.yaml kortex), so connect would "
-                "refuse the arm; the arm was not contacted (docs/kortex.md)")
+        return _no_model(robot)
     return None
 
 
+def _no_model(robot: str | None) -> str:
+    """The one line for a policy whose robot has no ``kortex.models`` entry."""
+    named = "the policy's robot" if robot is None else f"the policy's robot {robot!r}"
+    where = "configs/robots/<arm>.yaml" if robot is None else f"configs/robots/{robot}.yaml"
+    return (f"--backend kortex: {named} has no deploy.kortex.models entry ({where} kortex), so connect "
+            "would refuse the arm: deploy a policy trained on a Kortex arm (task.robot=gen3); the arm "
+            "was not contacted (docs/kortex.md)")
+
+
 def kortex_deploy_blocker(settings, env: Mapping[str, str] | None = None,
-                          robot: str | None = None) -> str:
-    """Why ``python -m ahrm_stack.deploy --backend kortex`` cannot run yet, as one line naming what
-    is missing: the address, credentials (:func:`kortex_bring_up_blocker`), real-time pacing, a
-    Gen3 policy (the policy's robot, ``robot``, must have a ``kortex.models`` entry, else connect
-    refuses the arm), and in any case the deploy command's Kortex path wired to the camera scene
-    source (a static layout is not used in its place: the cube moves when pushed, so a static pose
-    would keep the controller pushing at where the cube was and miss success). ``--check`` and
-    ``--home`` need only the first three and the Gen3 policy."""
+                          robot: str | None = None) -> str | None:
+    """Why ``python -m ahrm_stack.deploy --backend kortex`` cannot run, as one line naming the
+    first thing missing: the address, the credentials (:func:`kortex_bring_up_blocker`), real-time
+    pacing, a policy whose robot (``robot``, its ``task.robot``) has a ``kortex.models`` entry
+    (connect would refuse the arm), and a scene source (``kortex.scene``, the static layout the
+    run's ``perception()`` reads, as ``kinova_gen2.scene``; required with ``--scene camera`` too);
+    None when nothing is. The arm is not contacted. ``--check`` and ``--home`` need no scene."""
     blocker = kortex_bring_up_blocker(settings, env=env)
     if blocker is not None:
         return blocker
     if not settings.realtime:
         return "--backend kortex: --fast / deploy.realtime false is for the sim backend only"
     if robot is None or robot not in settings.kortex.models:
-        named = "" if robot is None else f": the policy's robot {robot!r} has no deploy.kortex.models entry"
-        return (f"--backend kortex: no Gen3 policy to run yet{named} (connect refuses an arm whose model "
-                "is not listed), and the deploy command's Kortex path is not wired to --scene camera; "
-                "the arm was not contacted (docs/kortex.md, Deploy)")
-    return (f"--backend kortex: the deploy command's Kortex path is not wired to --scene camera yet "
-            f"(the policy's robot {robot!r} is a Kortex arm; --check and --home run on it); the arm "
-            "was not contacted (docs/kortex.md, Deploy)")
+        return _no_model(robot)
+    if settings.kortex.scene is None:
+        return (f"--backend kortex: {scene_unset('deploy.kortex.scene')}, the run's scene source "
+                "(with --scene camera too); the arm was not contacted (docs/kortex.md, Deploy)")
+    return None
