@@ -12,6 +12,8 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
+from ahrm_stack.hardware.protocol import HardwareError
+
 PATH_SAMPLES = 50  # points of the final move's joint-space path checked for clearance
 CONFIRM_WORD = "home"
 
@@ -131,3 +133,22 @@ def confirmed(answer: str, serial: str) -> bool:
 def degrees_text(values: np.ndarray) -> str:
     """``(a, b, ...)`` with one decimal."""
     return "(" + ", ".join(f"{v:.1f}" for v in values) + ")"
+
+
+def supervised(run: Callable[[], tuple[int, str]], stop: Callable[[], None]) -> tuple[int, str]:
+    """``run()``'s (status, reason), or the status and reason of how it ended: a :class:`HomeStop`
+    (stopped), a :class:`HomeRefusal` (bad input, nothing moved), a :class:`HardwareError` (a lost
+    link, a timed-out or refused call: stopped) or a Ctrl-C / SIGTERM (interrupted). ``stop()`` runs
+    on every exit path, success included (both backends' homing: Stop, then disconnect)."""
+    try:
+        return run()
+    except HomeStop as reason:
+        return STOPPED, f"stopped: {reason}"
+    except HomeRefusal as refusal:
+        return BAD_INPUT, f"refused: {refusal}"
+    except HardwareError as error:
+        return STOPPED, f"stopped: {(str(error).splitlines() or [''])[0]}"
+    except KeyboardInterrupt:
+        return INTERRUPTED, "stopped: interrupted (Ctrl-C or SIGTERM)"
+    finally:
+        stop()

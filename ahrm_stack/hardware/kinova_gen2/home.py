@@ -56,7 +56,7 @@ import numpy as np
 from ahrm_stack.hardware.homing import (BAD_INPUT, CONFIRM_WORD, DONE, INTERRUPTED, NOT_CONFIRMED,
                                         PATH_SAMPLES, STOPPED, HomeOutcome, HomeRefusal, Limits,
                                         TaskModel, check_target, confirmed, path_clearance,
-                                        start_target)
+                                        start_target, supervised)
 from ahrm_stack.hardware.homing import HomeStop as _Stop
 from ahrm_stack.hardware.homing import degrees_text as _degrees
 from ahrm_stack.hardware.homing import wrap as _wrap
@@ -100,18 +100,7 @@ class Homing:
     def run(self) -> HomeOutcome:
         """Plan, confirm, move, and stop on every exit path (the outcome says why)."""
         outcome = self.outcome
-        try:
-            outcome.status, outcome.reason = self._run()
-        except _Stop as stop:
-            outcome.status, outcome.reason = STOPPED, f"stopped: {stop}"
-        except HomeRefusal as refusal:
-            outcome.status, outcome.reason = BAD_INPUT, f"refused: {refusal}"
-        except HardwareError as error:  # a lost link, a refused call
-            outcome.status, outcome.reason = STOPPED, f"stopped: {(str(error).splitlines() or [''])[0]}"
-        except KeyboardInterrupt:
-            outcome.status, outcome.reason = INTERRUPTED, "stopped: interrupted (Ctrl-C or SIGTERM)"
-        finally:
-            self._stop()
+        outcome.status, outcome.reason = supervised(self._run, self._stop)
         level = logging.INFO if outcome.status == DONE else logging.ERROR
         log.log(level, "kinova_gen2: homing of %s: %s", self.arm.serial, outcome.reason)
         return outcome

@@ -46,9 +46,9 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 
 from ahrm_stack.hardware.homing import (BAD_INPUT, CONFIRM_WORD, DONE, INTERRUPTED, NOT_CONFIRMED,
-                                        STOPPED, HomeOutcome, HomeRefusal, HomeStop, Limits,
-                                        TaskModel, check_target, confirmed, degrees_text,
-                                        path_clearance, path_deviation, start_target, wrap)
+                                        STOPPED, HomeOutcome, HomeRefusal, HomeStop, Limits, TaskModel,
+                                        check_target, confirmed, degrees_text, path_clearance,
+                                        path_deviation, start_target, supervised, wrap)
 from ahrm_stack.hardware.kortex.moves import ACTION_ABORT, ACTION_END, kortex_degrees
 from ahrm_stack.hardware.protocol import HardwareError
 
@@ -88,18 +88,7 @@ class KortexHoming:
     def run(self) -> HomeOutcome:
         """Plan, confirm, move, and stop on every exit path (the outcome says why)."""
         outcome = self.outcome
-        try:
-            outcome.status, outcome.reason = self._run()
-        except HomeStop as stop:
-            outcome.status, outcome.reason = STOPPED, f"stopped: {stop}"
-        except HomeRefusal as refusal:
-            outcome.status, outcome.reason = BAD_INPUT, f"refused: {refusal}"
-        except HardwareError as error:  # a lost link, a timed-out or refused call
-            outcome.status, outcome.reason = STOPPED, f"stopped: {(str(error).splitlines() or [''])[0]}"
-        except KeyboardInterrupt:
-            outcome.status, outcome.reason = INTERRUPTED, "stopped: interrupted (Ctrl-C or SIGTERM)"
-        finally:
-            self._stop()
+        outcome.status, outcome.reason = supervised(self._run, self._stop)
         level = logging.INFO if outcome.status == DONE else logging.ERROR
         log.log(level, "kortex: homing of %s: %s", self.arm.address, outcome.reason)
         return outcome
