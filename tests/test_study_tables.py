@@ -42,3 +42,13 @@ def test_the_committed_planner_free_test_table_is_its_reads():
     sys.modules.setdefault("results_headlines", module)
     spec.loader.exec_module(module)
     assert module.planner_free_table(ROOT) == source.read_text()
+
+
+def test_the_committed_estop_table_is_its_data(tmp_path):
+    """The Gen3 e-stop diagnosis (studies/estop_diagnosis.py) is rendered from its committed CSVs."""
+    import estop_diagnosis
+
+    source = ROOT / "docs" / "policies" / "gen3-default-seed0" / "robustness"
+    copy = tmp_path / "out"
+    shutil.copytree(source, copy)
+    assert estop_diagnosis.write_tables(copy, "docs/policies/gen3-default-seed0") == (source / "estops.md").read_text()
