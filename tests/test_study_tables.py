@@ -52,3 +52,13 @@ def test_the_committed_estop_table_is_its_data(tmp_path):
     copy = tmp_path / "out"
     shutil.copytree(source, copy)
     assert estop_diagnosis.write_tables(copy, "docs/policies/gen3-default-seed0") == (source / "estops.md").read_text()
+
+
+def test_the_committed_contact_residual_table_is_its_data(tmp_path):
+    """docs/contact-residual/table.md (studies/contact_residual.py) is rendered from its rows.csv."""
+    import contact_residual
+
+    source = ROOT / "docs" / "contact-residual"
+    copy = tmp_path / "out"
+    shutil.copytree(source, copy)
+    assert contact_residual.render(copy) == (source / "table.md").read_text()
