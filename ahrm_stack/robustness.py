@@ -79,7 +79,6 @@ def _episodes(job: tuple[str | None, str, dict, list[int], float]) -> list[dict[
 
     import numpy as np
 
-    from ahrm_stack.deploy.loop import DeployFault
     from ahrm_stack.deploy.run import load_controller_config
     from ahrm_stack.deploy.session import DeploySession
     from ahrm_stack.deploy.settings import load_deploy_settings
@@ -95,18 +94,9 @@ def _episodes(job: tuple[str | None, str, dict, list[int], float]) -> list[dict[
                                  world_seed=0)
     records = []
     for seed in seeds:
-        if arm.is_connected:
-            arm.disconnect()
-        arm.reset_scene(seed)
-        arm.connect()
-        arm.clear_faults()
-        loop = session.loop()
+        session.reset_sim(seed)
         start = float(arm.physics.data.time)
-        fault = ""
-        try:
-            summary = loop.run(settings.duration)
-        except DeployFault as error:
-            summary, fault = error.summary, str(error)
+        summary, fault = session.run(settings.duration)
         truth = arm.truth
         records.append({
             "seed": seed, "controller": controller_name,

@@ -37,6 +37,7 @@ from typing import Sequence
 
 import mujoco
 import numpy as np
+from sim_contacts import ArmContacts
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = ROOT / "docs" / "contact-residual"
@@ -104,22 +105,8 @@ class ExternalTorqueEstimator:
         return self.estimate
 
 
-def _arm_bodies(model, qpos: np.ndarray) -> set[int]:
-    """The arm's bodies: those its joints move, and their descendants (the pusher)."""
-    bodies = {int(model.jnt_bodyid[j]) for j in range(model.njnt) if model.jnt_qposadr[j] in set(qpos.tolist())}
-    for body in range(model.nbody):
-        parent = body
-        while parent > 0:
-            if parent in bodies:
-                bodies.add(body)
-                break
-            parent = int(model.body_parentid[parent])
-    return bodies
-
-
 def measure(run: str, realism_name: str, episodes: int) -> list[dict]:
     """The residual against the contact torques on ``episodes`` episodes; one row per episode and joint."""
-    from ahrm_stack.deploy.loop import DeployFault
     from ahrm_stack.deploy.run import load_controller_config
     from ahrm_stack.deploy.session import DeploySession
     from ahrm_stack.deploy.settings import load_deploy_settings
@@ -137,46 +124,26 @@ def measure(run: str, realism_name: str, episodes: int) -> list[dict]:
     sim = SimArm(config.task, seed=seeds[0], clock=FastClock(), realism=realism_profiles()[realism_name])
     model, data = sim.physics.model.ptr, sim.physics.data.ptr
     qpos = sim._arm_qpos
-    dofs = np.array([model.jnt_dofadr[j] for j in range(model.njnt) if model.jnt_qposadr[j] in set(qpos.tolist())])
-    bodies = _arm_bodies(model, qpos)
+    contacts = ArmContacts(model, qpos)
+    dofs = contacts.dofs
     estimator = ExternalTorqueEstimator(model, dofs, qpos, GAIN, settings.period)
-    jacobian, force = np.zeros((3, model.nv)), np.zeros(6)
-
-    def contact_torque() -> np.ndarray:
-        torque = np.zeros(len(dofs))
-        for i in range(data.ncon):
-            contact = data.contact[i]
-            for geom, sign in ((contact.geom2, 1.0), (contact.geom1, -1.0)):
-                body = int(model.geom_bodyid[geom])
-                if body in bodies:
-                    mujoco.mj_contactForce(model, data, i, force)
-                    mujoco.mj_jac(model, data, jacobian, None, contact.pos, body)
-                    torque += (jacobian.T @ (sign * (contact.frame.reshape(3, 3).T @ force[:3])))[dofs]
-        return torque
 
     class Watched(ArmWrapper):
         def refresh_feedback(self):
             frame = self.arm.refresh_feedback()
             estimates.append(estimator.update(frame.position, frame.velocity, frame.torque).copy())
-            truths.append(contact_torque())
+            truths.append(contacts.torque(data)[0])
             return frame
 
     arm = Watched(sim)
     session = DeploySession.open(arm, config, actor, settings, world_seed=0)
     rows: list[dict] = []
     for seed in seeds:
-        if arm.is_connected:
-            arm.disconnect()
-        sim.reset_scene(seed)
-        arm.connect()
-        arm.clear_faults()
+        session.reset_sim(seed, sim)
         estimator.reset()
         estimates: list[np.ndarray] = []
         truths: list[np.ndarray] = []
-        try:
-            session.loop().run(settings.duration)
-        except DeployFault:
-            pass
+        session.run(settings.duration)
         estimate, truth = np.array(estimates), np.array(truths)
         filtered = np.zeros_like(truth)
         alpha = GAIN * settings.period

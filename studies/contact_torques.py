@@ -29,7 +29,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--realism", default="ideal")
     parser.add_argument("--episodes", type=int, default=4)
     args = parser.parse_args(argv)
-    from ahrm_stack.deploy.loop import DeployFault
     from ahrm_stack.deploy.run import load_controller_config
     from ahrm_stack.deploy.session import DeploySession
     from ahrm_stack.deploy.settings import load_deploy_settings
@@ -59,16 +58,9 @@ def main(argv: list[str] | None = None) -> int:
     arm = Recording(sim)
     session = DeploySession.open(arm, config, actor, settings, world_seed=0)
     for seed in seeds:
-        if arm.is_connected:
-            arm.disconnect()
-        sim.reset_scene(seed)
-        arm.connect()
-        arm.clear_faults()
+        session.reset_sim(seed, sim)
         arm.torques = []
-        try:
-            session.loop().run(settings.duration)
-        except DeployFault:
-            pass
+        session.run(settings.duration)
         torque = np.array(arm.torques)
         change = np.array([torque[t] - torque[max(0, t - 6):t - 1].mean(axis=0) for t in range(2, len(torque))])
         print(json.dumps({"seed": seed, "success": bool(sim.truth.success), "touched": bool(sim.truth.touched),

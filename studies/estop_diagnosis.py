@@ -29,28 +29,13 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from sim_contacts import ArmContacts
 
 LIMIT = re.compile(r"limit violation: joint (\d+) at ")
 
 
-def _arm_bodies(model, qpos: np.ndarray) -> set[int]:
-    """The arm's bodies: those its joints move, and their descendants (the pusher)."""
-    bodies = {int(model.jnt_bodyid[j]) for j in range(model.njnt) if model.jnt_qposadr[j] in set(qpos.tolist())}
-    for body in range(model.nbody):
-        parent = body
-        while parent > 0:
-            if parent in bodies:
-                bodies.add(body)
-                break
-            parent = int(model.body_parentid[parent])
-    return bodies
-
-
 def replay(run: Path, condition: str, seed: int, duration: float, profile: str) -> dict:
     """One episode replayed; a row of the table."""
-    import mujoco
-
-    from ahrm_stack.deploy.loop import DeployFault
     from ahrm_stack.deploy.run import load_controller_config
     from ahrm_stack.deploy.session import DeploySession
     from ahrm_stack.deploy.settings import load_deploy_settings
@@ -65,43 +50,22 @@ def replay(run: Path, condition: str, seed: int, duration: float, profile: str) 
     session = DeploySession.open(arm, config, actor, settings, world_seed=0)
     model, data = arm.physics.model.ptr, arm.physics.data.ptr
     qpos, actuators = arm._arm_qpos, arm._actuators
-    dofs = np.array([model.jnt_dofadr[j] for j in range(model.njnt) if model.jnt_qposadr[j] in set(qpos.tolist())])
-    bodies = _arm_bodies(model, qpos)
+    contacts = ArmContacts(model, qpos)
+    dofs = contacts.dofs
     effort = model.actuator_forcerange[actuators, 1]
-    jacobian, force = np.zeros((3, model.nv)), np.zeros(6)
     ticks: list[tuple] = []
     send = arm._send
 
-    def contact_torque() -> tuple[np.ndarray, set[str]]:
-        torque, touching = np.zeros(len(dofs)), set()
-        for i in range(data.ncon):
-            contact = data.contact[i]
-            for geom, sign, other in ((contact.geom2, 1.0, contact.geom1), (contact.geom1, -1.0, contact.geom2)):
-                body = int(model.geom_bodyid[geom])
-                if body in bodies:
-                    mujoco.mj_contactForce(model, data, i, force)
-                    world = sign * (contact.frame.reshape(3, 3).T @ force[:3])
-                    mujoco.mj_jac(model, data, jacobian, None, contact.pos, body)
-                    torque += (jacobian.T @ world)[dofs]
-                    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, int(model.geom_bodyid[other])) or "world"
-                    touching.add(name.rstrip("/").split("/")[0])
-        return torque, touching
-
     def recording(command):
-        torque, touching = contact_torque()
+        torque, touching = contacts.torque(data)
         ticks.append((float(data.time), np.array(command, dtype=float), data.qpos[qpos].copy(),
                       data.qvel[dofs].copy(), data.actuator_force[actuators].copy(), torque, touching))
         return send(command)
 
     arm._send = recording
     logging.disable(logging.WARNING)
-    arm.reset_scene(seed)
-    arm.connect()
-    arm.clear_faults()
-    try:
-        summary = session.loop().run(settings.duration)
-    except DeployFault as error:
-        summary = error.summary
+    session.reset_sim(seed)
+    summary, _ = session.run(settings.duration)
     arm.disconnect()
     match = LIMIT.match(summary.stop_reason)
     row: dict = {"condition": condition, "seed": seed, "stop_reason": summary.stop_reason}

@@ -14,7 +14,7 @@ from typing import Any
 
 from ahrm_stack.config import Config
 from ahrm_stack.deploy.controllers import make_controller
-from ahrm_stack.deploy.loop import DeployLoop
+from ahrm_stack.deploy.loop import DeployFault, DeployLoop
 from ahrm_stack.deploy.settings import DeploySettings
 from ahrm_stack.deploy.world import WorldModel
 
@@ -45,3 +45,21 @@ class DeploySession:
         perception source, None for the arm's own ``perception()``)."""
         return DeployLoop(self.arm, self.world, self.controller, self.config.safety, self.settings,
                           telemetry, scene)
+
+    def reset_sim(self, seed: int, sim: Any = None) -> None:
+        """Start a simulated episode: the sim arm (``sim``, default the session's arm; give it when
+        the session's arm wraps it) reset to the scene of ``seed``, the session's arm reconnected and
+        its faults cleared."""
+        if self.arm.is_connected:
+            self.arm.disconnect()
+        (self.arm if sim is None else sim).reset_scene(seed)
+        self.arm.connect()
+        self.arm.clear_faults()
+
+    def run(self, duration: float) -> tuple[Any, str]:
+        """One fresh loop run for up to ``duration`` s: its summary, and the fault's text when a
+        software fault ended it (its summary then the one the fault carried), else ``""``."""
+        try:
+            return self.loop().run(duration), ""
+        except DeployFault as error:
+            return error.summary, str(error)
