@@ -26,6 +26,20 @@ JACO_POLICY = ROOT / "docs" / "policies" / "ahrm-default-seed0"
 DURATION = 3.0  # s of wall-clock run
 
 
+def checked_run_record(telemetry: Path, output: str) -> list[dict]:
+    """The run's tick records, after checking what every Kortex run leaves: at least 10 ticks on
+    the arm's feedback, a stop reason in the summary and the printed output, a recorded stop event,
+    and a non-empty MCAP twin beside the telemetry."""
+    records = [json.loads(line) for line in telemetry.read_text().splitlines()]
+    ticks = [r for r in records if "u" in r and "u_nom" in r]
+    summary = records[-1]["summary"]
+    assert len(ticks) >= 10 and summary["ticks"] >= 10, summary  # the loop ran on the arm's feedback
+    assert summary["stop_reason"] and summary["stop_reason"] in output
+    assert any(r.get("event") == "stop" and r.get("reason") for r in records)  # a recorded stop
+    assert (telemetry.parent / "telemetry.mcap").stat().st_size > 0  # the run's MCAP twin
+    return ticks
+
+
 @pytest.fixture(scope="module")
 def gen3_policy(tmp_path_factory) -> Path:
     """A Gen3 policy: one batch of 128 frames, a 16 x 16 network, no demonstrations (only a
@@ -85,13 +99,7 @@ def test_a_gen3_policy_deploys_through_the_kortex_backend(gen3_policy, fake_gen3
     assert code in (0, 1, 3) and "deploy summary" in captured.out, captured.out + captured.err
     assert PASSWORD not in captured.out + captured.err
 
-    records = [json.loads(line) for line in telemetry.read_text().splitlines()]
-    ticks = [r for r in records if "u" in r and "u_nom" in r]
-    summary = records[-1]["summary"]
-    assert len(ticks) >= 10 and summary["ticks"] >= 10, summary  # the loop ran on the arm's feedback
-    assert summary["stop_reason"] and summary["stop_reason"] in captured.out
-    assert any(r.get("event") == "stop" and r.get("reason") for r in records)  # a recorded stop
-    assert (telemetry.parent / "telemetry.mcap").stat().st_size > 0  # the run's MCAP twin
+    ticks = checked_run_record(telemetry, captured.out)
 
     # every command the arm received passed the safety filter: within the arm's velocity limits,
     # and each one a tick's filtered command u (rad/s in the telemetry, deg/s on the arm)

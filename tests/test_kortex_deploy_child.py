@@ -22,7 +22,7 @@ import pytest
 import yaml
 
 from fake_kortex_api.rig import HERE, PASSWORD, child_spec
-from test_kortex_deploy import DURATION, _config, gen3_policy  # noqa: F401 - the tiny Gen3 policy fixture
+from test_kortex_deploy import DURATION, _config, checked_run_record, gen3_policy  # noqa: F401 - the tiny Gen3 policy fixture
 from ahrm_stack.deploy import main
 
 
@@ -48,6 +48,10 @@ def child_gen3(tmp_path, monkeypatch):
 
     class KeptChildLink(ChildLink):
         def __init__(self, *args, **kwargs) -> None:
+            # a loaded test machine (make test's workers) can keep the child from answering within
+            # the production margin (250 ms past a call's timeout), which kills it by design; the
+            # test is of the path, not of this machine's scheduling
+            kwargs["margin_ms"] = max(int(kwargs.get("margin_ms", 0)), 5000)
             super().__init__(*args, **kwargs)
             links.append(self)
 
@@ -76,13 +80,7 @@ def test_a_gen3_policy_deploys_with_kortex_api_in_a_child_process(gen3_policy, c
     assert links[0].pid is None and links[0].dead_reason == ""  # shut down, not died or killed
     assert not any(name == "kortex_api" or name.startswith("kortex_api.") for name in sys.modules)
 
-    records = [json.loads(line) for line in telemetry.read_text().splitlines()]
-    ticks = [r for r in records if "u" in r and "u_nom" in r]
-    summary = records[-1]["summary"]
-    assert len(ticks) >= 10 and summary["ticks"] >= 10, summary  # the loop ran on the arm's feedback
-    assert summary["stop_reason"] and summary["stop_reason"] in captured.out
-    assert any(r.get("event") == "stop" and r.get("reason") for r in records)  # a recorded stop
-    assert (telemetry.parent / "telemetry.mcap").stat().st_size > 0  # the run's MCAP twin
+    ticks = checked_run_record(telemetry, captured.out)
 
     # every filtered command is within the arm's velocity limits, and every speed the arm held (its
     # velocity feedback, which the fake reports exactly) is one of them (rad/s, rounded to 1e-6)
