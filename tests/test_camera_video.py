@@ -197,6 +197,37 @@ def test_deploy_scene_camera_runs_on_a_video_source(video, seen_video, tmp_path,
     assert not [t for t in threading.enumerate() if t.name == "camera-detection"]
 
 
+@pytest.mark.parametrize("isolation", ["process", "thread"])
+def test_a_real_sources_frames_go_into_the_record(video, seen_video, tmp_path, monkeypatch, isolation):
+    """``deploy.record_frames`` with a real frame source (the video, played in real time): the
+    child process (or the thread) encodes every 2nd frame where it captures it; the frames in the
+    MCAP twin are the camera's size, in capture order, and each tick's frame that was recorded is
+    there at the capture stamp the tick names (issue 58, item 6; tests/test_record_frames.py)."""
+    import ahrm_stack.perception.settings as perception_settings
+    from ahrm_stack.deploy import load_deploy_settings
+    from ahrm_stack.deploy.record import iter_frames, read_run
+    from ahrm_stack.deploy.run import deploy_sim
+
+    _, _, settings, _ = video
+    played = _with_source(settings, kind="video", video_file=str(seen_video), loop=True, isolation=isolation)
+    monkeypatch.setattr(perception_settings, "load_perception_settings", lambda *a, **k: played)
+    telemetry = tmp_path / "telemetry.jsonl"
+    deploy_sim(load_deploy_settings(realtime=True, telemetry=str(telemetry), duration=0.6, record_frames=True,
+                                    record_frames_every=2), scene="camera")
+    record = read_run(telemetry.with_suffix(".mcap"))
+    assert record.summary is not None and record.summary["fault"] == "", record.summary
+    frames = list(iter_frames(telemetry))
+    assert len(frames) >= 2 and all(f.index % 2 == 0 for f in frames), [f.index for f in frames]
+    assert [f.t for f in frames] == sorted(f.t for f in frames) and frames[0].t >= 0.0
+    assert all(f.image.shape == (settings.camera.height, settings.camera.width) for f in frames)
+    recorded = {f.index: f.t for f in frames}
+    named = [t for t in record.ticks if t["frame"] in recorded]
+    assert named, ([t["frame"] for t in record.ticks], list(recorded))
+    for tick in named:
+        assert recorded[tick["frame"]] == pytest.approx(tick["frame_t"], abs=1e-6)
+        assert tick["frame_t"] <= tick["poses_t"]  # the pose is predicted to the tick from its frame
+
+
 def test_camera_check_reports_the_tag_size_and_distance_of_the_video(video, seen_video, capsys, monkeypatch):
     """The bring-up check on the rendered video: every frame's tag seen, its edge and distance as
     the rendered camera's geometry gives them (f * size / distance)."""

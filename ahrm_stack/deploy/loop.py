@@ -299,6 +299,7 @@ class DeployLoop:
         self.controller.reset()
         self._sent = np.zeros_like(self._sent)
         self._t0 = self.clock.now()
+        getattr(self.telemetry, "start_run", lambda t0: None)(self._t0)  # a RunLog: frames are timed from t0
         self._started = True
 
     def resume(self) -> None:
@@ -383,7 +384,8 @@ class DeployLoop:
             self._stage = "telemetry"
             self.world.record_command(sent)
             self._write(tick_record(elapsed, self._t0, info, self.controller.stage, feedback, poses, u_nom,
-                                    sent, sent_at, result, self.touch.touched, latency))
+                                    sent, sent_at, result, self.touch.touched, latency,
+                                    getattr(self._scene_source, "frame", None)))
             return True
         except _Halt:
             return False

@@ -21,16 +21,32 @@ written (ns; never decreasing), its record's own ``t`` the run's time. Chunks ar
 (:data:`CHUNK_BYTES`), so that a run killed mid-way loses at most the last few ticks of the twin;
 :func:`read_run` reads a twin without its summary section (a killed run) too. The twin never stops
 a run: a failure writing it is logged once and the twin dropped; the JSONL goes on.
+
+**Camera frames** (``deploy.record_frames``, a run with ``--scene camera``): the frames the
+perception measured (every ``record_frames_every``-th of its source, grey, JPEG or PNG;
+:mod:`ahrm_stack.perception.frame_record`) go into the twin on :data:`IMAGE_TOPIC` as Foxglove's
+``foxglove.CompressedImage`` (JSON: ``timestamp`` {sec, nsec} the frame's capture stamp in the
+run's time, as ``poses_t``; ``frame_id`` :data:`CAMERA_FRAME`; ``format``; ``data`` base64), the
+MCAP message's ``sequence`` the frame's index. Each is written before the first record that
+follows its capture; frames captured before the run's start (:meth:`RunLog.start_run`) or after its
+last record are not recorded. In a camera run every tick names the frame its poses came from,
+``frame`` (its index) and ``frame_t`` (its capture stamp, s), whether that frame was recorded or
+not; :func:`iter_frames` reads the frames back, decoded. A frame that cannot be written is logged
+once and the frames dropped; the records go on.
 """
 
 from __future__ import annotations
 
+import base64
 import dataclasses
 import json
 import logging
 import time
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any, Iterator
+
+if TYPE_CHECKING:
+    from ahrm_stack.perception.frame_record import EncodedFrame, FrameRecording
 
 import numpy as np
 
@@ -47,6 +63,19 @@ _SCHEMAS = {
     "summary": {"type": "object", "title": "ahrm_stack deploy summary",
                 "properties": {"summary": {"type": "object"}}},
 }
+IMAGE_TOPIC = "/camera/image"
+IMAGE_SCHEMA = "foxglove.CompressedImage"
+CAMERA_FRAME = "perception"  # frame_id of a recorded frame: the perception camera's optical frame
+#: Foxglove's foxglove.CompressedImage JSON Schema (github.com/foxglove/schemas)
+_IMAGE_SCHEMA = {
+    "title": IMAGE_SCHEMA, "description": "A compressed image", "type": "object",
+    "properties": {
+        "timestamp": {"type": "object", "title": "time", "description": "Timestamp of image",
+                      "properties": {"sec": {"type": "integer", "minimum": 0},
+                                     "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}}},
+        "frame_id": {"type": "string", "description": "Frame of reference for the image"},
+        "data": {"type": "string", "contentEncoding": "base64", "description": "Compressed image data"},
+        "format": {"type": "string", "description": "Image format"}}}
 
 
 def _round(values: Any, digits: int = 6) -> list[float]:
@@ -55,10 +84,11 @@ def _round(values: Any, digits: int = 6) -> list[float]:
 
 def tick_record(elapsed: float, t0: float, info: Any, stage: str, feedback: Any, poses: Any,
                 u_nom: np.ndarray, sent: np.ndarray, sent_at: float, result: Any, touched: bool,
-                latency: float) -> dict[str, Any]:
+                latency: float, frame: tuple[int, float] | None = None) -> dict[str, Any]:
     """One tick's telemetry line (see the module docstring): ``elapsed`` s since the run's start
     ``t0`` (adapter clock, which also stamps ``feedback`` and ``poses`` and gave ``sent_at``, when
-    the command was sent)."""
+    the command was sent). ``frame``: the camera frame the poses came from (index, capture stamp
+    s on the adapter's clock), recorded as ``frame`` and ``frame_t``; None: no camera."""
     obstacles = np.hstack([np.asarray(poses.obstacle_positions, dtype=float).reshape(-1, 3),
                            np.asarray(poses.obstacle_quaternions, dtype=float).reshape(-1, 4)])
     return {
@@ -70,7 +100,8 @@ def tick_record(elapsed: float, t0: float, info: Any, stage: str, feedback: Any,
         "obstacles": [_round(row) for row in obstacles],
         "u_nom": _round(u_nom), "u": _round(sent), "sent_t": round(sent_at - t0, 6),
         "active": list(result.active),
-        "status": result.status, "touched": touched, "latency_ms": round(latency * 1e3, 4)}
+        "status": result.status, "touched": touched, "latency_ms": round(latency * 1e3, 4),
+        **({} if frame is None else {"frame": int(frame[0]), "frame_t": round(float(frame[1]) - t0, 6)})}
 
 
 def twin_path(telemetry: Path) -> Path:
@@ -81,6 +112,15 @@ def twin_path(telemetry: Path) -> Path:
         telemetry.name + ".mcap")
 
 
+def frame_message(frame: EncodedFrame, t0: float) -> bytes:
+    """A recorded frame as a ``foxglove.CompressedImage`` JSON message, its timestamp the capture
+    stamp less ``t0`` (s: the run's time, never negative)."""
+    ns = max(0, round((frame.stamp - t0) * 1e9))
+    return json.dumps({"timestamp": {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000},
+                       "frame_id": CAMERA_FRAME, "format": frame.format,
+                       "data": base64.b64encode(frame.data).decode("ascii")}).encode()
+
+
 def kind_of(record: dict[str, Any]) -> str:
     """The channel of a telemetry record: ``summary``, ``event`` or ``tick``."""
     return "summary" if "summary" in record else "event" if "event" in record else "tick"
@@ -88,11 +128,16 @@ def kind_of(record: dict[str, Any]) -> str:
 
 class RunLog:
     """The run's telemetry file (JSON lines, written as given) and, with ``mcap``, the same records
-    in :func:`twin_path` of it. File-like: :meth:`write` takes one JSON line."""
+    in :func:`twin_path` of it; with ``frames`` too, the camera frames put there (the module
+    docstring). File-like: :meth:`write` takes one JSON line."""
 
-    def __init__(self, path: Path, mcap: bool) -> None:
+    def __init__(self, path: Path, mcap: bool, frames: FrameRecording | None = None) -> None:
         self.path = Path(path)
         self.mcap_path = twin_path(self.path) if mcap else None
+        self.frames = frames if mcap else None
+        self.frames_written = 0
+        self.frames_early = 0  # captured before the run's start: not recorded
+        self._t0: float | None = None
         self._file: IO[str] = self.path.open("w")
         self._writer: Any = None
         self._mcap_file: IO[bytes] | None = None
@@ -109,6 +154,20 @@ class RunLog:
                                                       data=json.dumps(_SCHEMAS[kind]).encode())
                 self._channels[kind] = self._writer.register_channel(
                     topic=f"/deploy/{kind}", message_encoding="json", schema_id=schema)
+            if self.frames is not None:
+                schema = self._writer.register_schema(name=IMAGE_SCHEMA, encoding="jsonschema",
+                                                      data=json.dumps(_IMAGE_SCHEMA).encode())
+                self._channels["image"] = self._writer.register_channel(
+                    topic=IMAGE_TOPIC, message_encoding="json", schema_id=schema)
+
+    def start_run(self, t0: float) -> None:
+        """The run starts at ``t0`` s on the adapter's clock: the frames' timestamps are the time
+        since (the deploy loop calls this when its first tick is due)."""
+        self._t0 = float(t0)
+
+    def _stamp(self) -> int:
+        self._last_ns = max(self._last_ns, time.time_ns())
+        return self._last_ns
 
     def write(self, line: str) -> None:
         self._file.write(line)
@@ -117,14 +176,42 @@ class RunLog:
         text = line.strip()
         if not text:
             return
+        self._write_frames()
         try:
-            stamp = self._last_ns = max(self._last_ns, time.time_ns())
+            stamp = self._stamp()
             self._writer.add_message(channel_id=self._channels[kind_of(json.loads(text))], log_time=stamp,
                                      publish_time=stamp, data=text.encode())
         except Exception as error:  # noqa: BLE001 - the twin never stops a run
-            log.error("deploy: the MCAP twin %s failed (%s: %s); the JSONL telemetry goes on",
-                      self.mcap_path, type(error).__name__, error)
-            self._drop_twin()
+            self._twin_failed(error)
+
+    def _twin_failed(self, error: BaseException) -> None:
+        log.error("deploy: the MCAP twin %s failed (%s: %s); the JSONL telemetry goes on",
+                  self.mcap_path, type(error).__name__, error)
+        self._drop_twin()
+
+    def _write_frames(self) -> None:
+        """The frames put since the last record (once the run started), before it."""
+        if self.frames is None or self._t0 is None:
+            return
+        for frame in self.frames.take():
+            if frame.stamp < self._t0 - 1e-9:
+                self.frames_early += 1
+                continue
+            try:
+                data = frame_message(frame, self._t0)
+            except Exception as error:  # noqa: BLE001 - a frame never stops a run
+                log.error("deploy: a camera frame could not be recorded (%s: %s); no more frames are "
+                          "recorded, the run goes on", type(error).__name__, error)
+                self.frames = None
+                return
+            try:
+                stamp = self._stamp()
+                self._writer.add_message(channel_id=self._channels["image"], log_time=stamp, publish_time=stamp,
+                                         data=data, sequence=frame.index & 0xFFFFFFFF)
+            except Exception as error:  # noqa: BLE001 - the twin never stops a run
+                self._twin_failed(error)
+                return
+            self.frames_written += 1
 
     def _drop_twin(self) -> None:
         writer, stream, self._writer, self._mcap_file = self._writer, self._mcap_file, None, None
@@ -146,6 +233,10 @@ class RunLog:
         try:
             self._file.close()
         finally:
+            if self.frames is not None:
+                log.info("deploy: %d camera frames recorded in %s (%d dropped from a full queue, %d captured "
+                         "before the run's start)", self.frames_written, self.mcap_path, self.frames.dropped,
+                         self.frames_early)
             self._drop_twin()
 
 
@@ -160,8 +251,9 @@ class RunRecord:
 
 
 def read_run(path: Path | str) -> RunRecord:
-    """A run's telemetry (``.jsonl``) or MCAP record (``.mcap``, read with the ``mcap`` library);
-    :class:`ValueError` (one line naming the file) when it is neither or is damaged."""
+    """A run's telemetry (``.jsonl``) or MCAP record (``.mcap``, read with the ``mcap`` library;
+    its camera frames are :func:`iter_frames`'); :class:`ValueError` (one line naming the file)
+    when it is neither or is damaged."""
     path = Path(path)
     records: list[dict[str, Any]] = []
     try:
@@ -169,8 +261,9 @@ def read_run(path: Path | str) -> RunRecord:
             from mcap.reader import NonSeekingReader
 
             with path.open("rb") as stream:  # in file order; a killed run's twin has no summary section
-                for _, _, message in NonSeekingReader(stream).iter_messages():
-                    records.append(json.loads(message.data))
+                for _, channel, message in NonSeekingReader(stream).iter_messages():
+                    if channel.topic != IMAGE_TOPIC:
+                        records.append(json.loads(message.data))
         else:
             with path.open() as stream:
                 records = [json.loads(line) for line in stream if line.strip()]
@@ -183,3 +276,40 @@ def read_run(path: Path | str) -> RunRecord:
     events = [r for r in records if kind_of(r) == "event"]
     summaries = [r["summary"] for r in records if kind_of(r) == "summary"]
     return RunRecord(ticks, events, summaries[-1] if summaries else None)
+
+
+@dataclasses.dataclass(frozen=True)
+class RecordedFrame:
+    """A camera frame read back from a run's MCAP record: ``index`` (frames since the source
+    started: a tick's ``frame``), ``t`` s (capture stamp in the run's time: a tick's ``frame_t``),
+    ``format``, and ``image`` (uint8, height × width grey; None when not decoded)."""
+
+    index: int
+    t: float
+    format: str
+    image: np.ndarray | None
+
+
+def iter_frames(path: Path | str, decode: bool = True) -> Iterator[RecordedFrame]:
+    """The camera frames of a run's MCAP record (``.mcap``; or its JSONL telemetry, whose twin is
+    read), in file order, decoded to arrays (``decode``); none for a run without them.
+    :class:`ValueError` (one line naming the file) when it cannot be read or a frame is damaged."""
+    from ahrm_stack.perception.frame_record import decode_frame
+
+    path = Path(path)
+    path = path if path.suffix == ".mcap" else twin_path(path)
+    try:
+        from mcap.reader import NonSeekingReader
+
+        with path.open("rb") as stream:
+            for _, _, message in NonSeekingReader(stream).iter_messages(topics=[IMAGE_TOPIC]):
+                body = json.loads(message.data)
+                stamp = body["timestamp"]
+                data = base64.b64decode(body["data"])
+                yield RecordedFrame(int(message.sequence), stamp["sec"] + stamp["nsec"] * 1e-9, body["format"],
+                                    decode_frame(data) if decode else None)
+    except OSError as error:
+        raise ValueError(f"{path}: cannot read ({error.strerror or error})") from None
+    except Exception as error:  # noqa: BLE001 - a damaged file, whatever the library raises
+        raise ValueError(f"{path}: not a deploy record with camera frames ({type(error).__name__}: "
+                         f"{(str(error).splitlines() or [''])[0]})") from None

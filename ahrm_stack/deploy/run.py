@@ -9,8 +9,7 @@ import json
 import logging
 import math
 from pathlib import Path
-from typing import Sequence
-
+from typing import TYPE_CHECKING, Sequence
 
 from ahrm_stack.config import Config, ConfigError, load_config
 from ahrm_stack.deploy.loop import DeployFault, DeployLoop, DeploySummary
@@ -18,6 +17,9 @@ from ahrm_stack.deploy.record import RunLog
 from ahrm_stack.deploy.safety_settings import SafetyNote, merge_safety, require_filter
 from ahrm_stack.deploy.session import DeploySession
 from ahrm_stack.deploy.settings import DeployConfigError, DeploySettings
+
+if TYPE_CHECKING:
+    from ahrm_stack.perception.frame_record import FrameRecording
 
 log = logging.getLogger("ahrm_stack.deploy")
 
@@ -78,9 +80,10 @@ def load_controller_config(checkpoint: Path | None, overrides: Sequence[str] = (
     return dataclasses.replace(config, safety=safety), actor
 
 
-def open_telemetry(path: str, mcap: bool = False) -> RunLog | None:
+def open_telemetry(path: str, mcap: bool = False, frames: FrameRecording | None = None) -> RunLog | None:
     """The run's log opened for writing (its folder made): the JSONL telemetry and, with ``mcap``,
-    its MCAP twin (:class:`~ahrm_stack.deploy.record.RunLog`); None for ''. A path that cannot be
+    its MCAP twin (:class:`~ahrm_stack.deploy.record.RunLog`), with ``frames`` the camera frames
+    put there too; None for ''. A path that cannot be
     written, or a telemetry path ending in .mcap (its twin's name), is a one-line
     :class:`DeployConfigError`."""
     if not path:
@@ -91,7 +94,7 @@ def open_telemetry(path: str, mcap: bool = False) -> RunLog | None:
                                 "(deploy.record_mcap); name the JSONL telemetry .jsonl")
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
-        return RunLog(target, mcap)
+        return RunLog(target, mcap, frames)
     except OSError as error:
         raise DeployConfigError(f"deploy.telemetry: cannot write {target}: "
                                 f"{error.strerror or error}") from None
@@ -140,6 +143,9 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
     surveyed from the simulator at the start into ``layout.yaml`` beside the telemetry, or with no
     telemetry into a temporary folder removed when the run ends).
 
+    ``deploy.record_frames`` puts the camera's frames into the record's MCAP twin
+    (:mod:`ahrm_stack.deploy.record`); with ``scene`` ``sim`` it is bad input.
+
     ``dry_run``: the backend's feedback and scene, every command computed, filtered and logged,
     none sent (:class:`~ahrm_stack.hardware.dry_run.DryRunArm`); stops still reach the arm.
 
@@ -166,12 +172,20 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
         check_camera_scene(perception, backend, config.task, layout_file, settings.realtime)
     elif scene != "sim":
         raise DeployConfigError(f"--scene {scene!r}: choose sim or camera")
+    recording = None
+    if settings.record_frames:
+        if perception is None:
+            raise DeployConfigError("deploy.record_frames is true, but this run's perception has no camera "
+                                    "(--scene sim: the adapter's poses): run --scene camera or set it false")
+        from ahrm_stack.perception.frame_record import FrameRecording
+
+        recording = FrameRecording(settings.record_frames_every, settings.record_frames_format)
     control_period = config.task.episode.control_period
     if not math.isclose(settings.period, control_period, rel_tol=1e-9):
         log.warning("deploy: the loop runs at %g Hz; the controller was built for %g Hz "
                     "(task.episode.control_period %g s)", settings.rate_hz, 1.0 / control_period,
                     control_period)
-    telemetry = open_telemetry(settings.telemetry, settings.record_mcap)
+    telemetry = open_telemetry(settings.telemetry, settings.record_mcap, recording)
     arm = source = scratch = None
     try:
         for note in notes if telemetry is not None else ():
@@ -202,7 +216,8 @@ def deploy(settings: DeploySettings, checkpoint: Path | None = None,
                         scratch = tempfile.TemporaryDirectory(prefix="deploy-layout-")
                         folder = Path(scratch.name)
                     layout_file = survey_obstacles(arm, folder / "layout.yaml")
-                source = camera_scene(arm, config.task, perception, layout_file)
+                source = camera_scene(arm, config.task, perception, layout_file,
+                                      recording if telemetry is not None else None)
             loop = session.loop(telemetry, source)
         except Exception as error:  # noqa: BLE001 - recorded, then raised as a fault
             raise _start_up_fault(arm, telemetry, error) from error

@@ -180,6 +180,12 @@ class DeploySettings(Section):
     seed: Annotated[Int, ge(0)]
     telemetry: Str  # path; '' for none
     record_mcap: Bool  # the telemetry's records also in MCAP beside it (<telemetry>.mcap; deploy/record.py)
+    # the perception's camera frames in that MCAP too (/camera/image, foxglove.CompressedImage); needs
+    # record_mcap, and --scene camera (a run without a camera is refused in one line naming this key)
+    record_frames: Bool
+    record_frames_every: Annotated[Int, ge(1)]  # every N-th frame of the camera is recorded (1: each; the sim
+    # camera renders one per control tick, a real camera perception.source.fps a second)
+    record_frames_format: Literal["jpeg", "png"]  # jpeg: quality 90, lossy; png: lossless, several times larger
     watchdog: WatchdogSettings
     success: SuccessSettings
     touch: TouchSettings
@@ -201,6 +207,9 @@ class DeploySettings(Section):
         if 0 < self.progress.timeout < self.period:
             raise ConfigError(f"{key}.progress.timeout must be 0 (off) or at least one control period "
                               f"({self.period:g} s), got {self.progress.timeout!r}")
+        if self.record_frames and not self.record_mcap:
+            raise ConfigError(f"{key}.record_frames needs {key}.record_mcap true: the frames go into the "
+                              "telemetry's MCAP twin")
         timeout = self.kortex.connection_inactivity_timeout_ms
         if 1e3 / self.rate_hz > timeout:
             raise ConfigError(f"{key}.rate_hz {self.rate_hz!r} Hz: a control period of {self.period:g} s "

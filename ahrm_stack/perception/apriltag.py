@@ -201,6 +201,8 @@ class AprilTagCubeSource:
         self.last: TagMeasurement | None = None  # the last frame's measurement with the tag
         self.measurements = 0  # frames with the tag
         self.ambiguous = 0  # of which with two poses of nearly equal error
+        self.frames_read = 0
+        self.frame: tuple[int, float] | None = None  # the last frame's (index from 0, capture stamp s)
 
     @classmethod
     def from_settings(cls, frames: FrameSource, settings: PerceptionSettings,
@@ -211,6 +213,7 @@ class AprilTagCubeSource:
     def cube(self) -> CubeState:
         """Grab, measure (the last measured up axis as the prior; +z at the start), track."""
         time, gray = self.frames.grab()
+        self.frame, self.frames_read = (self.frames_read, float(time)), self.frames_read + 1
         up = None if self.last is None else self.last.rotation[:, 2]
         measurement = self.detector.measure(gray, up)
         if measurement is not None:

@@ -8,6 +8,8 @@ the sim backend only); ``video``, ``uvc`` and ``realsense`` are real frame sourc
 (:mod:`~ahrm_stack.perception.detection_process`, ``source.isolation: process``) or thread
 (:mod:`~ahrm_stack.perception.detection_thread`), on the wall clock, for every backend. The
 obstacles come from a measured layout file; only the sim backend can survey one at the start.
+With a :class:`~ahrm_stack.perception.frame_record.FrameRecording` (``deploy.record_frames``) each
+source's frames are also encoded for the run's record where they are captured.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ahrm_stack.config import TaskConfig
+from ahrm_stack.perception.frame_record import FrameRecording, TappedFrames
 from ahrm_stack.perception.scene_source import LayoutFileObstacles, MeasuredScene
 from ahrm_stack.perception.settings import PerceptionConfigError, PerceptionSettings
 
@@ -42,13 +45,14 @@ def check_camera_scene(settings: PerceptionSettings, backend: str, task_config: 
 
 
 def camera_scene(arm, task_config: TaskConfig, settings: PerceptionSettings,
-                 layout_file: Path | str) -> MeasuredScene:
+                 layout_file: Path | str, recording: FrameRecording | None = None) -> MeasuredScene:
     """The camera scene on the connected ``arm`` (its clock stamps the frames); a real frame
-    source's thread is started and has measured its first frame when this returns."""
+    source's thread is started and has measured its first frame when this returns. ``recording``:
+    where the frames to record go (None: none are)."""
     if settings.source.kind == "sim":
         from ahrm_stack.perception.sim_camera import sim_camera_scene
 
-        return sim_camera_scene(arm, task_config, settings, layout_file)
+        return sim_camera_scene(arm, task_config, settings, layout_file, recording=recording)
     from ahrm_stack.perception.apriltag import TagDetector
     from ahrm_stack.perception.calibration import undistorter
     from ahrm_stack.perception.detection_process import DetectionProcess
@@ -60,10 +64,13 @@ def camera_scene(arm, task_config: TaskConfig, settings: PerceptionSettings,
     label = f"tag {settings.tag.family} id {settings.tag.id}"
     runner: DetectionRunner
     if settings.source.isolation == "process":
-        runner = DetectionProcess(settings, task_config.cube.size, label)
+        runner = DetectionProcess(settings, task_config.cube.size, label, recording=recording)
     else:
-        runner = DetectionThread(open_frame_source(settings, arm.clock),
-                                 TagDetector(settings, task_config.cube.size), arm.clock, undistorter(settings))
+        frames = open_frame_source(settings, arm.clock)
+        if recording is not None:
+            frames = TappedFrames(frames, recording.encoder())
+        runner = DetectionThread(frames, TagDetector(settings, task_config.cube.size), arm.clock,
+                                 undistorter(settings))
     cube = ThreadedCubeSource(runner, CubeTracker(settings.tracker, label), arm.clock)
     try:
         cube.start()

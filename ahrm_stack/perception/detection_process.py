@@ -13,6 +13,10 @@ inside a process that runs Python code holds the GIL for up to the switch interv
 control thread needs it, which showed in the control tick's p99
 (``benchmarks/bench_camera_thread.py``).
 
+With a :class:`~ahrm_stack.perception.frame_record.FrameRecording` (``deploy.record_frames``), the
+child also encodes the frames to record (its every-th, JPEG or PNG) and sends each through the
+same pipe; the receiver thread puts them into the recording.
+
 Time base: the child stamps frames with ``time.perf_counter`` (CLOCK_MONOTONIC, one clock for
 every process on Linux), which is the adapter's clock when that is the wall clock
 (:class:`~ahrm_stack.hardware.protocol.WallClock`, the sim backend's in real time); :meth:`start` checks it.
@@ -27,12 +31,15 @@ import time
 from typing import Any
 
 from ahrm_stack.perception.detection_thread import CameraThreadError, MeasurementBuffer, StampedMeasurement
+from ahrm_stack.perception.frame_record import EncodedFrame, FrameFailure, FrameRecording
 from ahrm_stack.perception.settings import PerceptionSettings
 
 
-def _child(settings: PerceptionSettings, cube_size: float, conn, stop, nice: int) -> None:
+def _child(settings: PerceptionSettings, cube_size: float, conn, stop, nice: int,
+           record: tuple[int, str] | None = None) -> None:
     """The child process: the frame source, undistortion and detection loop; results or one
-    error line through ``conn``."""
+    error line through ``conn``, and with ``record`` (every, format) the encoded frames to record
+    (:class:`~ahrm_stack.perception.frame_record.EncodedFrame`, or one ``FrameFailure``)."""
     try:
         os.nice(nice)
     except OSError:
@@ -41,11 +48,14 @@ def _child(settings: PerceptionSettings, cube_size: float, conn, stop, nice: int
     try:
         from ahrm_stack.perception.apriltag import TagDetector
         from ahrm_stack.perception.calibration import undistorter
+        from ahrm_stack.perception.frame_record import FrameEncoder, TappedFrames
         from ahrm_stack.perception.frames import open_frame_source
         from ahrm_stack.hardware.protocol import WallClock
 
         clock = WallClock()
         frames = open_frame_source(settings, clock)
+        if record is not None:
+            frames = TappedFrames(frames, FrameEncoder(record[0], record[1], conn.send))
         detector = TagDetector(settings, cube_size)
         undistort = undistorter(settings)
         up, index = None, 0
@@ -83,10 +93,11 @@ class DetectionProcess(MeasurementBuffer):
     poll = 0.005
 
     def __init__(self, settings: PerceptionSettings, cube_size: float, label: str, history: int = 64,
-                 nice: int = 10) -> None:
+                 nice: int = 10, recording: FrameRecording | None = None) -> None:
         self.settings, self.cube_size, self.label = settings, cube_size, label
         super().__init__(history)
         self.nice = nice
+        self.recording = recording  # the frames the child encodes go here
         self._receiver: threading.Thread | None = None
         self._process: Any = None  # multiprocessing's spawn Process once started
         self._conn: Any = None  # the receiving end of the pipe
@@ -103,7 +114,8 @@ class DetectionProcess(MeasurementBuffer):
         self._stop = context.Event()
         self._process = context.Process(target=_child, name="camera-detection", daemon=True,
                                         args=(self.settings, self.cube_size, child_conn, self._stop,
-                                              self.nice))
+                                              self.nice, None if self.recording is None else
+                                              (self.recording.every, self.recording.format)))
         self._process.start()
         child_conn.close()
         self._receiver = threading.Thread(target=self._receive, name="camera-receiver", daemon=True)
@@ -116,6 +128,10 @@ class DetectionProcess(MeasurementBuffer):
         try:
             while True:
                 item = conn.recv()  # waits without the GIL
+                if isinstance(item, (EncodedFrame, FrameFailure)):
+                    if self.recording is not None:
+                        self.recording.put(item)
+                    continue
                 if isinstance(item, str):
                     with self._lock:
                         self.error = item

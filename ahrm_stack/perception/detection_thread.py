@@ -197,6 +197,7 @@ class ThreadedCubeSource:
         self.measurements = 0  # frames with the tag
         self.misses = 0  # frames without it
         self.ambiguous = 0
+        self.frame: tuple[int, float] | None = None  # the newest frame fed: (index, capture stamp s)
 
     def start(self) -> None:
         self.thread.start(self.clock)
@@ -209,6 +210,7 @@ class ThreadedCubeSource:
             raise CameraThreadError("camera thread not started (ThreadedCubeSource.start)")
         for result in self.thread.since(self._next):
             self._next = result.index + 1
+            self.frame = (result.index, result.capture_time)
             found = result.measurement
             if found is None:
                 self.misses += 1

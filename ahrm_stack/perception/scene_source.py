@@ -118,6 +118,13 @@ class MeasuredScene:
                            obstacle_quaternions=self.obstacles.quaternions.copy(),
                            obstacle_velocities=self.obstacles.velocities.copy())
 
+    @property
+    def frame(self) -> tuple[int, float] | None:
+        """The camera frame the last :meth:`poses` came from: (index since the source started,
+        capture stamp s on the adapter's clock); None before the first or for a source without
+        frames."""
+        return getattr(self.cube_source, "frame", None)
+
     def close(self) -> None:
         """Release the cube source's camera (its offscreen context), if it has one."""
         close = getattr(self.cube_source, "close", None)

@@ -21,7 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from ahrm_stack.config import TaskConfig
-from ahrm_stack.perception.apriltag import AprilTagCubeSource, TagDetector
+from ahrm_stack.perception.apriltag import AprilTagCubeSource, FrameSource, TagDetector
+from ahrm_stack.perception.frame_record import FrameRecording, TappedFrames
 from ahrm_stack.perception.geometry import CameraPose, Intrinsics
 from ahrm_stack.perception.scene_source import LayoutFileObstacles, MeasuredScene, write_layout_file
 from ahrm_stack.perception.settings import PerceptionConfigError, PerceptionSettings
@@ -170,13 +171,17 @@ def survey_obstacles(arm, path: Path | str) -> Path:
 
 def sim_camera_scene(arm, task_config: TaskConfig, settings: PerceptionSettings,
                      layout_file: Path | str, camera: SimCamera | None = None,
-                     detector: TagDetector | None = None) -> MeasuredScene:
+                     detector: TagDetector | None = None,
+                     recording: FrameRecording | None = None) -> MeasuredScene:
     """The camera scene source on the sim backend ``arm``: obstacles from ``layout_file``, the
     cube from the AprilTag on frames of a :class:`SimCamera` (``camera``, or a new one; a
-    ``detector`` may be shared between runs too, the tracker is new)."""
+    ``detector`` may be shared between runs too, the tracker is new). ``recording``: the frames to
+    record are encoded into it in the control tick (None: none are)."""
     obstacles = LayoutFileObstacles(layout_file, count=len(task_config.obstacles.fixed_layout))
     camera = camera if camera is not None else SimCamera(task_config, settings)
     detector = detector if detector is not None else TagDetector(settings, task_config.cube.size)
-    cube = AprilTagCubeSource(SimFrames(arm, camera), detector,
-                              CubeTracker(settings.tracker, detector.label))
+    frames: FrameSource = SimFrames(arm, camera)
+    if recording is not None:
+        frames = TappedFrames(frames, recording.encoder())
+    cube = AprilTagCubeSource(frames, detector, CubeTracker(settings.tracker, detector.label))
     return MeasuredScene(obstacles, cube)
