@@ -43,11 +43,18 @@ ARMS: dict[str, list[str]] = {
     "clip-0.05": ["ppo.clip_epsilon=0.05"],
     "scheduled-std": ["ppo.std_mode=scheduled", "ppo.final_std=0.1", "ppo.std_schedule_frames=200000"],
     "oracle": ["task.rewards.learning=staged", "mechanism.constraint_check=none"],
+    # stage 2 (registered 2026-12-07 22:10 UTC): the update's step size and its entropy bonus, each
+    # set to the project's default (configs/ppo.yaml), and both together
+    "lr-1e-4": ["ppo.learning_rate=1e-4"],
+    "no-entropy": ["ppo.entropy_coeff=0"],
+    "lr-1e-4-no-entropy": ["ppo.learning_rate=1e-4", "ppo.entropy_coeff=0"],
 }
-# the registered order: seed 0 of every arm not yet run (paper and no-constraint seed 0 exist),
+STAGE2 = ("lr-1e-4", "no-entropy", "lr-1e-4-no-entropy")
+# the registered order: seed 0 of every arm not yet run (paper and no-constraint seed 0 exist; stage 2
+# after stage 1),
 # then seeds 1-2 (docs/protocol.md: those of arms whose seed 0 passed 20/40 first, decided by hand)
 ORDER = [(arm, 0) for arm in ("oracle", "episode-constraint", "no-accel-rows", "separate-optim",
-                              "clip-0.05", "scheduled-std")] + \
+                              "clip-0.05", "scheduled-std", *STAGE2)] + \
         [(arm, seed) for seed in (1, 2) for arm in ARMS]
 DEFAULT_RUNS = Path("/work/study-paper-diagnosis")
 
