@@ -148,6 +148,24 @@ def test_excluded_episodes_are_left_out_of_the_update():
         assert keep[i, last + 1:].all()
 
 
+def test_a_batch_whose_every_step_is_excluded_makes_no_update():
+    """``episode``: when every step of a batch belongs to an excluded episode (the paper-row grid's
+    episode-constraint run met one at 219k frames and crashed: TensorDict's numel() is 1 for an empty
+    batch), the update makes no optimiser step and the run goes on."""
+    from ahrm_stack.learning.trainer import Trainer
+
+    config = load_config(["profile=scratch", "ppo.frames_per_batch=32", "ppo.mini_batch_size=16",
+                          "train.num_envs=1", "train.time_limit=0.5", "ppo.hidden_sizes=[16,16]",
+                          "train.frames=64"])
+    trainer = Trainer(config)
+    data = trainer._collect()
+    parameters = [p for group in trainer._groups for p in group]
+    before = [p.detach().clone() for p in parameters]
+    totals, grad_norms, updates = trainer._update(data, torch.zeros(data.shape, dtype=torch.bool))
+    assert updates == 0 and grad_norms == [] and totals == {}
+    assert all(torch.equal(a, b) for a, b in zip(before, parameters))
+
+
 def test_separate_optimisers_clip_and_step_each_network_on_its_own():
     """``ppo.optimizer: separate``: two Adams, each network's gradient clipped by itself; a
     checkpoint carries both and a shared-optimiser checkpoint is refused with a message."""

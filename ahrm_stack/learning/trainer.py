@@ -301,7 +301,8 @@ class Trainer:
             self.advantage(data)
         self.buffer.empty()
         learned = data.reshape(-1) if keep is None else data[keep]
-        if learned.numel():
+        steps = learned.batch_size.numel()  # (TensorDict's numel() is 1, not 0, when it is empty)
+        if steps:
             self.buffer.extend(learned)
         totals: dict[str, list[float]] = {}
         grad_norms = []
@@ -310,7 +311,7 @@ class Trainer:
         for _ in range(ppo.epochs):
             if kl_stopped:
                 break
-            for _ in range(learned.numel() // ppo.mini_batch_size):
+            for _ in range(steps // ppo.mini_batch_size):
                 batch = self.buffer.sample()
                 losses = self.compute_loss(batch)
                 if ppo.target_kl > 0 and float(losses["kl_approx"]) > 1.5 * ppo.target_kl:
