@@ -483,3 +483,24 @@ def test_actor_init_scale_shrinks_the_output_layer_only():
     loc_plain = actor_plain[-1](hidden(x))
     loc_small = actor_small[-1](hidden(x))
     assert torch.allclose(loc_small, 0.01 * loc_plain, atol=1e-7)
+
+
+def test_touch_cost_is_charged_once_per_episode_and_the_episode_goes_on():
+    """task.rewards.touch_cost: the first touching step of an episode pays it, the next touching
+    step does not, the episode is not ended by it, and a new episode pays it again."""
+    config = load_config(["task.rewards.touch_cost=40"])
+    env = PushOffEnv(config.task, config.safety, seed=0)  # no mechanism: LS, the sum of g
+    for _ in range(2):  # two episodes: the charge is per episode
+        td = env.reset()
+        _touch_the_cube_with_an_obstacle(env)
+        paid = []
+        for _ in range(2):
+            td = env.step(td.set("action", env.action_spec.zero()))["next"]
+            assert bool(td["touched"]) and not bool(td["done"])
+            paid.append(float(td["g"].sum()) - float(td["reward"]))
+        assert paid == [pytest.approx(40.0), pytest.approx(0.0)]
+
+
+def test_bad_touch_cost_names_the_key():
+    with pytest.raises(ConfigError, match=r"task\.rewards\.touch_cost"):
+        load_config(["task.rewards.touch_cost=-1"])

@@ -251,6 +251,10 @@ class RewardConfig(Section):
     # runs and logs)
     staged: Annotated[StagedRewardConfig, legacy({"tanh_scale": 5.0, "push_offset": 0.03,
                                                   "reached_distance": 0.03})]
+    touch_cost: Annotated[NonNeg, legacy(0.0)]  # the learner's reward units (before ppo.reward_scale):
+    # subtracted once per episode, at its first step that touches an obstacle; the episode goes on
+    # (issue 56 item 4: the touch priced per episode, as the goal counts it; 0: none; legacy: before
+    # 2026-12-08 none)
 
 
 @Frozen

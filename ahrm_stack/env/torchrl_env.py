@@ -72,6 +72,7 @@ class PushOffEnv(EnvBase):
         self.mechanism = mechanism
         self.completed: list[EpisodeSummary] = []
         self._monitor = None
+        self._touch_charged = False
         self.touch_penalty = float(touch_penalty)
         self.task = PushOffTask(config)
         self.runner = TaskRunner(self.task, seed, safety)
@@ -121,6 +122,7 @@ class PushOffEnv(EnvBase):
         transition = self.runner.reset()
         self._monitor = self.mechanism.constraint_monitor() if self.mechanism is not None else None
         self._recorder = EpisodeRecorder(transition.info)
+        self._touch_charged = False  # task.rewards.touch_cost charged in this episode
         physics = self.runner.physics  # the planner's lane at the start (reading only): lane agreement
         directions = self.task.config.layout.lane_directions
         self._planned = directions[self.task.plan_lane(physics)]
@@ -159,6 +161,9 @@ class PushOffEnv(EnvBase):
                                         self.task.config.cube.size / 2, self.task.config.table.half_extent[0],
                                         info.touched, info.success, staged.tanh_scale, staged.push_offset,
                                         staged.reached_distance)
+        if info.touched and not self._touch_charged:  # task.rewards.touch_cost: once per episode
+            self._touch_charged = True
+            reward -= rewards.touch_cost
         if self.touch_penalty > 0 and info.touched and not terminated:
             reward -= self.touch_penalty
             if not truncated:  # a step that hit the time limit has closed the episode already
