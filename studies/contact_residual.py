@@ -31,81 +31,21 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import logging
 from pathlib import Path
 from typing import Sequence
 
-import mujoco
 import numpy as np
 from sim_contacts import ArmContacts
 
+from ahrm_stack.deploy.contact import ExternalTorqueEstimator
+
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = ROOT / "docs" / "contact-residual"
-GAIN = 10.0  # 1/s, K
 
 
-class ExternalTorqueEstimator:
-    """Per-joint external torque (N·m, joint frame, model signs) from measured joint position,
-    velocity and torque, on a private copy of the arm's dynamics.
-
-    Args:
-        model: a compiled MuJoCo model holding the arm (other bodies may be present: the arm's
-            block of the inertia matrix and its bias do not depend on them).
-        dofs: the arm's degrees of freedom in ``model`` (indices into ``qvel``), one per joint.
-        qpos: the arm's joint addresses in ``model`` (indices into ``qpos``).
-        gain: K, 1/s, of the estimate's low-pass.
-        period: Δt, s, between two readings (the control period).
-    """
-
-    def __init__(self, model: mujoco.MjModel, dofs: Sequence[int], qpos: Sequence[int], gain: float,
-                 period: float) -> None:
-        if not 0 < gain * period <= 1:
-            raise ValueError(f"observer gain x period must be in (0, 1], got {gain} x {period}")
-        self.model, self.data = model, mujoco.MjData(model)
-        self.dofs, self.qpos = np.asarray(dofs, dtype=int), np.asarray(qpos, dtype=int)
-        self.alpha, self.period = gain * period, period
-        n = len(self.dofs)
-        self._full = np.zeros((model.nv, model.nv))
-        self.estimate = np.zeros(n)
-        self._previous: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # M, q̇, b - τ
-
-    def reset(self) -> None:
-        """Forget the history (a new run, or after a stop): the next reading starts it again."""
-        self.estimate[:] = 0.0
-        self._previous = None
-
-    def _dynamics(self, position: np.ndarray, velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """M (n, n) and bias minus passive force (n,) of the arm at (q, q̇)."""
-        model, data = self.model, self.data
-        data.qpos[self.qpos] = position
-        data.qvel[:] = 0.0
-        data.qvel[self.dofs] = velocity
-        mujoco.mj_kinematics(model, data)
-        mujoco.mj_comPos(model, data)
-        mujoco.mj_makeM(model, data)  # composite rigid bodies, armature added
-        mujoco.mj_comVel(model, data)
-        mujoco.mj_passive(model, data)
-        mujoco.mj_rne(model, data, 0, data.qfrc_bias)
-        mujoco.mj_fullM(model, data, self._full)
-        inertia = self._full[np.ix_(self.dofs, self.dofs)].copy()
-        return inertia, data.qfrc_bias[self.dofs] - data.qfrc_passive[self.dofs]
-
-    def update(self, position: np.ndarray, velocity: np.ndarray, torque: np.ndarray) -> np.ndarray:
-        """Take one reading (rad, rad/s, N·m per joint) and return the estimate (a view: copy it
-        to keep it). The first reading after :meth:`reset` returns zeros."""
-        velocity = np.asarray(velocity, dtype=float)
-        inertia, bias = self._dynamics(np.asarray(position, dtype=float), velocity)
-        residual = bias - np.asarray(torque, dtype=float)
-        if self._previous is not None:
-            inertia_0, velocity_0, residual_0 = self._previous
-            mean = 0.5 * (inertia + inertia_0) @ (velocity - velocity_0) / self.period
-            mean += 0.5 * (residual + residual_0)
-            self.estimate += self.alpha * (mean - self.estimate)
-        self._previous = (inertia, velocity, residual)
-        return self.estimate
-
-
-def measure(run: str, realism_name: str, episodes: int) -> list[dict]:
+def measure(run: str, realism_name: str, episodes: int, overrides: Sequence[str] = ()) -> list[dict]:
     """The residual against the contact torques on ``episodes`` episodes; one row per episode and joint."""
     from ahrm_stack.deploy.run import load_controller_config
     from ahrm_stack.deploy.session import DeploySession
@@ -118,15 +58,18 @@ def measure(run: str, realism_name: str, episodes: int) -> list[dict]:
 
     logging.disable(logging.WARNING)
     checkpoint = None if run == "scripted" else Path(run)
-    config, actor = load_controller_config(checkpoint)
+    config, actor = load_controller_config(checkpoint, overrides)
     settings = load_deploy_settings(realtime=False, telemetry="", duration=30.0)
+    gain = settings.contact.observer_gain  # 1/s, K: deploy's (configs/deploy.yaml)
+    # the loop's own contact stop off: these rows measure the estimate over whole runs
+    settings = dataclasses.replace(settings, contact=dataclasses.replace(settings.contact, enabled=False))
     seeds = [seed_table()["robustness"].seed(i) for i in range(episodes)]
     sim = SimArm(config.task, seed=seeds[0], clock=FastClock(), realism=realism_profiles()[realism_name])
     model, data = sim.physics.model.ptr, sim.physics.data.ptr
     qpos = sim._arm_qpos
     contacts = ArmContacts(model, qpos)
     dofs = contacts.dofs
-    estimator = ExternalTorqueEstimator(model, dofs, qpos, GAIN, settings.period)
+    estimator = ExternalTorqueEstimator(model, dofs, qpos, gain, settings.period)
     effort = model.actuator_forcerange[sim._actuators, 1]  # N·m, each joint's actuator force limit
 
     class Watched(ArmWrapper):
@@ -134,7 +77,9 @@ def measure(run: str, realism_name: str, episodes: int) -> list[dict]:
             frame = self.arm.refresh_feedback()
             estimates.append(estimator.update(frame.position, frame.velocity, frame.torque).copy())
             torques.append(np.array(frame.torque, dtype=float))
-            truths.append(contacts.torque(data)[0])
+            truth, touching = contacts.torque(data)
+            truths.append(truth)
+            touched_by_arm.update(touching)
             return frame
 
     arm = Watched(sim)
@@ -146,10 +91,11 @@ def measure(run: str, realism_name: str, episodes: int) -> list[dict]:
         estimates: list[np.ndarray] = []
         truths: list[np.ndarray] = []
         torques: list[np.ndarray] = []
+        touched_by_arm: set[str] = set()
         session.run(settings.duration)
         estimate, truth = np.array(estimates), np.array(truths)
         filtered = np.zeros_like(truth)
-        alpha = GAIN * settings.period
+        alpha = gain * settings.period
         for k in range(1, len(truth)):
             filtered[k] = filtered[k - 1] + alpha * (0.5 * (truth[k] + truth[k - 1]) - filtered[k - 1])
         error = np.abs(estimate - filtered)
@@ -157,13 +103,22 @@ def measure(run: str, realism_name: str, episodes: int) -> list[dict]:
         # readings (the smallest of each 3): a stall rule's statistic
         share = np.abs(np.array(torques)) / effort
         held = np.min([share[:-2], share[1:-1], share[2:]], axis=0) if len(share) > 2 else share
+        magnitude = np.abs(estimate)
+        held2 = np.minimum(magnitude[1:], magnitude[:-1]) if len(magnitude) > 1 else magnitude
         for joint in range(len(dofs)):
-            rows.append({"run": Path(run).name, "realism": realism_name, "seed": seed,
+            name = Path(run).name + "".join(f" {o}" for o in overrides)
+            rows.append({"run": name, "robot": config.task.robot, "realism": realism_name, "seed": seed,
                          "success": bool(sim.truth.success), "touched": bool(sim.truth.touched),
                          "ticks": len(truth), "joint": joint,
                          "contact_torque_peak_nm": round(float(np.abs(filtered[:, joint]).max()), 2),
                          "error_p95_nm": round(float(np.percentile(error[:, joint], 95)), 2),
                          "error_max_nm": round(float(error[:, joint].max()), 2),
+                         # the estimate itself (what a threshold sees) and what the arm touched
+                         "estimate_max_nm": round(float(np.abs(estimate[:, joint]).max()), 2),
+                         # ... held on 2 consecutive readings (the smaller of each pair): what deploy's
+                         # contact stop with contact.readings = 2 compares with a threshold
+                         "estimate_held2_max_nm": round(float(held2[:, joint].max()), 2),
+                         "arm_touched": " ".join(sorted(touched_by_arm)),
                          "effort_share_held_3_max": round(float(held[:, joint].max()), 3)})
     arm.disconnect()
     return rows
@@ -171,7 +126,7 @@ def measure(run: str, realism_name: str, episodes: int) -> list[dict]:
 
 def render(out: Path) -> str:
     """``out/table.md`` from ``out/rows.csv``: per run, realism and joint, over the episodes, the
-    median and largest contact-torque peak and the median and largest p95 error (N m)."""
+    median and largest contact-torque peak, p95 and largest error, and estimate held on 2 readings (N m)."""
     with open(out / "rows.csv", newline="") as handle:
         rows = list(csv.DictReader(handle))
     groups: dict[tuple, list[dict]] = {}
@@ -181,18 +136,21 @@ def render(out: Path) -> str:
              "The dynamics residual at the deploy loop's rate (one reading per 50 ms tick, the simulator's own "
              "model) against MuJoCo's contact torques on the arm (J^T f, low-passed alike), N m, over each "
              "group's episodes (median / largest); last column: episodes in which the joint's measured torque "
-             "stayed at its actuator's force limit (>= 99 %) on 3 consecutive readings.", "",
+             "stayed at its actuator's force limit (>= 99 %) on 3 consecutive readings. 'estimate held 2': the "
+             "largest |estimate| held on 2 consecutive readings, what deploy's contact stop compares with each arm's "
+             "contact_threshold_nm (configs/robots/: 1.25 x the largest of these over the arm's rows).", "",
              "| run | realism | joint | episodes | contact torque peak | residual error p95 | residual error max "
-             "| torque at its limit on 3 readings |",
-             "|---|---|---|---|---|---|---|---|"]
+             "| estimate held 2 | torque at its limit on 3 readings |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for (run, realism, joint), group in groups.items():
         peak = [float(r["contact_torque_peak_nm"]) for r in group]
         p95 = [float(r["error_p95_nm"]) for r in group]
         worst = [float(r["error_max_nm"]) for r in group]
+        estimate = [float(r["estimate_held2_max_nm"]) for r in group]
         held = [float(r["effort_share_held_3_max"]) >= 0.99 for r in group]
         lines.append(f"| {run} | {realism} | {joint} | {len(group)} | {np.median(peak):.1f} / {max(peak):.1f} | "
                      f"{np.median(p95):.1f} / {max(p95):.1f} | {np.median(worst):.1f} / {max(worst):.1f} | "
-                     f"{sum(held)} of {len(group)} |")
+                     f"{np.median(estimate):.1f} / {max(estimate):.1f} | {sum(held)} of {len(group)} |")
     text = "\n".join(lines) + "\n"
     (out / "table.md").write_text(text)
     return text
@@ -204,12 +162,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--episodes", type=int, default=6)
     parser.add_argument("--realism", nargs="+", default=["ideal", "jaco2"])
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
+    parser.add_argument("--override", nargs="*", default=[],
+                        help="KEY=VALUE for the scripted run (e.g. task.robot=j2s6s200)")
     parser.add_argument("--render", type=Path, default=None, help="only render DIR/table.md from DIR/rows.csv")
     args = parser.parse_args(argv)
     if args.render is not None:
         print(render(args.render), end="")
         return 0
-    rows = [row for name in args.realism for row in measure(args.run, name, args.episodes)]
+    rows = [row for name in args.realism for row in measure(args.run, name, args.episodes, args.override)]
     args.out.mkdir(parents=True, exist_ok=True)
     with open(args.out / "rows.csv", "w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(rows[0]), lineterminator="\n")

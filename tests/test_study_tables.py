@@ -62,3 +62,23 @@ def test_the_committed_contact_residual_table_is_its_data(tmp_path):
     copy = tmp_path / "out"
     shutil.copytree(source, copy)
     assert contact_residual.render(copy) == (source / "table.md").read_text()
+
+
+def test_each_arms_contact_thresholds_are_derived_from_the_committed_rows():
+    """configs/robots/<arm>.yaml's contact_threshold_nm is 1.25 x the largest external-torque estimate
+    held on 2 readings over that arm's normal runs in docs/contact-residual/rows.csv, rounded up to
+    the N·m (the rule the files state; a threshold typed by hand would drift from its data)."""
+    import csv
+    import math
+
+    from ahrm_stack.config import arm_names, load_arm
+
+    with open(ROOT / "docs" / "contact-residual" / "rows.csv", newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    for arm in arm_names():
+        mine = [r for r in rows if r["robot"] == arm]
+        assert mine, f"no contact-residual rows for {arm}"
+        joints = len(load_arm(arm).home_deg)
+        derived = [math.ceil(1.25 * max(float(r["estimate_held2_max_nm"]) for r in mine if int(r["joint"]) == j))
+                   for j in range(joints)]
+        assert list(load_arm(arm).contact_threshold_nm) == derived, arm

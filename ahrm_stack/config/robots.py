@@ -78,6 +78,9 @@ class ArmEntry(Section):
     # safe distance (``safety.self_collision_pairs.<name>``)
     acceleration_limit: tuple[Pos, ...]  # rad/s^2 per joint (one per home_deg entry): the safety
     # filter's |u - u_prev| <= a_max dt (``safety.acceleration_limit.<name>``)
+    contact_threshold_nm: tuple[Pos, ...]  # N·m per joint (one per home_deg entry): the deploy loop's
+    # contact stop e-stops the arm when its external-torque estimate passes this (deploy's
+    # ``contact.threshold_nm.<name>``; ahrm_stack/deploy/contact.py)
     min_velocity_margin: Annotated[Float, within(0, 1, "[)")]  # lower bound on
     # safety.velocity_margin for this arm (fraction of each velocity limit): servo headroom
     kinova_gen2: Optional[dict[Str, Any]]  # the Kinova Gen2 joint convention (sign, offset_deg,
@@ -91,6 +94,9 @@ class ArmEntry(Section):
             raise ConfigError(f"{key}.urdf: give it exactly when source is urdf (source: {self.source})")
         if len(self.acceleration_limit) != len(self.home_deg):
             raise ConfigError(f"{key}.acceleration_limit has {len(self.acceleration_limit)} values, home_deg "
+                              f"{len(self.home_deg)}: both give one value per joint")
+        if len(self.contact_threshold_nm) != len(self.home_deg):
+            raise ConfigError(f"{key}.contact_threshold_nm has {len(self.contact_threshold_nm)} values, home_deg "
                               f"{len(self.home_deg)}: both give one value per joint")
         if len(set(self.commanded_joints)) != len(self.commanded_joints):
             raise ConfigError(f"{key}.commanded_joints: {list(self.commanded_joints)} repeats a joint")
@@ -147,9 +153,13 @@ def compose_task(data: dict, robots_dir: Path | str = ROBOTS_DIR) -> None:
 
 
 def compose_deploy(data: dict, robots_dir: Path | str = ROBOTS_DIR) -> None:
-    """deploy's ``kinova_gen2.joints`` and ``kortex.models`` of the raw ``deploy.yaml`` ``data``, in
-    place, from the registry's arms that have them (a section that already has the key keeps it)."""
+    """deploy's ``kinova_gen2.joints``, ``kortex.models`` and ``contact.threshold_nm`` of the raw
+    ``deploy.yaml`` ``data``, in place, from the registry's arms that have them (a section that
+    already has the key keeps it)."""
     entries = {name: load_arm(name, robots_dir) for name in arm_names(robots_dir)}
+    contact = data.get("contact")
+    if isinstance(contact, dict) and "threshold_nm" not in contact:
+        contact["threshold_nm"] = {name: list(entry.contact_threshold_nm) for name, entry in entries.items()}
     for section, key, field in (("kinova_gen2", "joints", "kinova_gen2"), ("kortex", "models", "kortex")):
         target = data.get(section)
         if isinstance(target, dict) and key not in target:

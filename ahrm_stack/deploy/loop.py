@@ -119,6 +119,25 @@ class DeployLoop:
         self.success_judge = SuccessJudge(settings.success, task.config.table)
         self.touch = TouchEstimator(settings.touch)
         self.progress = ProgressWatchdog(settings.progress)
+        self.contact = self._contact_stop(settings.contact, robot.name)
+
+    def _contact_stop(self, contact, robot: str):
+        """The contact stop (:mod:`~ahrm_stack.deploy.contact`) on the world's model of the arm;
+        None when ``deploy.contact.enabled`` is false or the adapter's torques are not measured
+        with every feedback frame (a WARNING says so: an estimate from stale torques is wrong)."""
+        if not contact.enabled:
+            return None
+        if not getattr(self.arm, "torque_every_frame", True):
+            log.warning("contact stop off: %s does not measure the torques with every feedback frame",
+                        type(self.arm).__name__)
+            return None
+        if robot not in contact.threshold_nm:
+            raise ValueError(f"deploy.contact.threshold_nm has no entry for {robot!r}")
+        from ahrm_stack.deploy.contact import ContactStop
+
+        physics = self.world.physics
+        return ContactStop.on_model(physics.model.ptr, self.world.arm_qpos, contact.threshold_nm[robot],
+                                    contact.readings, contact.observer_gain, self.period)
 
     # ------------------------------------------------------------------ helpers
     def _write(self, record: dict) -> None:
@@ -214,6 +233,10 @@ class DeployLoop:
         if not feedback.healthy:
             self._halt(f"arm fault: state {feedback.arm_state.value}, flags {feedback.faults!r}",
                        emergency=True)
+        if self.contact is not None:  # after the non-finite checks: the estimate needs finite readings
+            contact = self.contact.observe(feedback.position, feedback.velocity, feedback.torque)
+            if contact:
+                self._halt(contact, emergency=True)
         past = np.flatnonzero((feedback.position < self._lower) | (feedback.position > self._upper))
         if past.size:
             i = past[0]
@@ -283,6 +306,8 @@ class DeployLoop:
             raise StartPostureError(refusal)
         self._last_frame = feedback.frame_id - 1
         self._t0 = self.clock.now()
+        if self.contact is not None:
+            self.contact.reset()
         self.world.begin_run()
         self.world.update(feedback, self._perceive(), 0.0)
         self.controller.reset()
@@ -309,6 +334,8 @@ class DeployLoop:
         self.fault = ""
         self.error = None
         self._over_speed[:] = 0
+        if self.contact is not None:
+            self.contact.reset()
         self._sent = np.zeros_like(self._sent)
         self.filter.reset()
         feedback = self.arm.refresh_feedback()

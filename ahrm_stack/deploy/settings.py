@@ -69,6 +69,18 @@ class ProgressSettings(Section):
 
 
 @dataclasses.dataclass(frozen=True)
+class ContactSettings(Section):
+    """The contact stop (:class:`~ahrm_stack.deploy.contact.ContactStop`): a momentum observer's
+    external torque over a joint's threshold e-stops the arm."""
+
+    enabled: Bool  # false: no contact stop (the estimate is still not computed)
+    observer_gain: Pos  # 1/s, K of the estimate's low-pass; K x the control period must be <= 1
+    readings: PosInt  # consecutive feedback readings over a joint's threshold that make a contact
+    threshold_nm: dict[Str, tuple[Pos, ...]]  # robot description (task.robot) -> N·m per joint: each
+    # arm's contact_threshold_nm (configs/robots/<arm>.yaml)
+
+
+@dataclasses.dataclass(frozen=True)
 class StartPostureSettings(Section):
     """How near the trained start the arm must be before the loop's first command
     (:func:`~ahrm_stack.deploy.start_check.start_refusal`)."""
@@ -190,6 +202,7 @@ class DeploySettings(Section):
     success: SuccessSettings
     touch: TouchSettings
     progress: ProgressSettings
+    contact: ContactSettings
     start_posture: StartPostureSettings
     sim: SimSettings
     kortex: KortexSection
@@ -215,6 +228,10 @@ class DeploySettings(Section):
             raise ConfigError(f"{key}.rate_hz {self.rate_hz!r} Hz: a control period of {self.period:g} s "
                               f"is longer than {key}.kortex.connection_inactivity_timeout_ms ({timeout} ms), "
                               "after which the arm stops itself between two commands")
+        if self.contact.enabled and self.contact.observer_gain * self.period > 1:
+            raise ConfigError(f"{key}.contact.observer_gain {self.contact.observer_gain!r} 1/s times the control "
+                              f"period {self.period:g} s must be <= 1 (the estimate's low-pass step; or set "
+                              f"{key}.contact.enabled false)")
 
 
 def control_periods(duration: float, period: float) -> int:

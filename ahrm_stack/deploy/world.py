@@ -60,6 +60,11 @@ class WorldModel:
     def robot(self):
         return self.task.robot
 
+    @property
+    def arm_qpos(self) -> np.ndarray:
+        """The arm's joint addresses in :attr:`physics` (indices into ``qpos``), joint order."""
+        return np.asarray(self._addresses.arm_qpos, dtype=int)
+
     def update(self, feedback, poses, elapsed: float):
         """Write ``feedback`` (joint state) and ``poses`` (objects) into the mirror; returns the
         task's :class:`~ahrm_stack.env.task.StepInfo` for this state. ``elapsed``: s since start."""

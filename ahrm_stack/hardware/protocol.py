@@ -317,6 +317,12 @@ class ArmAdapter(abc.ABC):
         return WallClock()
 
     @property
+    def torque_every_frame(self) -> bool:
+        """Each feedback frame's torques were measured with its positions (the deploy loop's
+        contact stop needs that); a backend that reads them less often says False."""
+        return True
+
+    @property
     @abc.abstractmethod
     def is_connected(self) -> bool:
         """A session is open."""

@@ -37,6 +37,10 @@ class ArmWrapper(ArmAdapter):
         return self.arm.clock
 
     @property
+    def torque_every_frame(self) -> bool:
+        return self.arm.torque_every_frame
+
+    @property
     def is_connected(self) -> bool:
         return self.arm.is_connected
 

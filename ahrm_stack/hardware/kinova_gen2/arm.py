@@ -66,6 +66,12 @@ class KinovaGen2Arm(Gen2Moves):
             (``settings.command_timeout`` control periods; the caller knows the period).
     """
 
+    @property
+    def torque_every_frame(self) -> bool:
+        """False: the torques are one step of the status poll (``kinova_gen2.status_rate_hz``), not
+        read with each frame's positions, so the deploy loop's contact stop is off on this backend."""
+        return False
+
     def __init__(self, robot: RobotDescription, settings: Gen2Settings,
                  command_timeout_s: float) -> None:
         if not command_timeout_s > 0:

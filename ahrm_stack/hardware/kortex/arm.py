@@ -60,6 +60,13 @@ class KortexArm(KortexMoves, DescribedArm):
             where it reports them (None: not checked).
     """
 
+    @property
+    def torque_every_frame(self) -> bool:
+        """False, for now: BaseCyclic gives each actuator's torque with every frame, but their zero and
+        sign against the arm's model are unmeasured on an arm (the fake ``kortex_api``'s are a
+        constant), so the deploy loop's contact stop stays off on this backend (issue 58 item 4)."""
+        return False
+
     def __init__(self, robot: RobotDescription, address: str, credentials: Credentials,
                  options: KortexOptions, *, api: dict | None = None,
                  clock: WallClock | None = None, workspace: np.ndarray | None = None,
