@@ -55,7 +55,7 @@ def test_the_committed_estop_table_is_its_data(tmp_path):
 
 
 def test_the_committed_contact_residual_table_is_its_data(tmp_path):
-    """docs/contact-residual/table.md (studies/contact_residual.py) is rendered from its rows.csv."""
+    """docs/contact-residual/table.md (studies/contact_residual.py) is rendered from its rows.csv.gz."""
     import contact_residual
 
     source = ROOT / "docs" / "contact-residual"
@@ -66,15 +66,15 @@ def test_the_committed_contact_residual_table_is_its_data(tmp_path):
 
 def test_each_arms_contact_thresholds_are_derived_from_the_committed_rows():
     """configs/robots/<arm>.yaml's contact_threshold_nm is 1.25 x the largest external-torque estimate
-    held on 2 readings over that arm's normal runs in docs/contact-residual/rows.csv, rounded up to
+    held on 2 readings over that arm's normal runs in docs/contact-residual/rows.csv.gz, rounded up to
     the N·m (the rule the files state; a threshold typed by hand would drift from its data)."""
-    import csv
     import math
+
+    import contact_residual
 
     from ahrm_stack.config import arm_names, load_arm
 
-    with open(ROOT / "docs" / "contact-residual" / "rows.csv", newline="") as handle:
-        rows = list(csv.DictReader(handle))
+    rows = contact_residual._read_rows(ROOT / "docs" / "contact-residual")
     for arm in arm_names():
         mine = [r for r in rows if r["robot"] == arm]
         assert mine, f"no contact-residual rows for {arm}"
