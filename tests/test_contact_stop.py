@@ -148,3 +148,28 @@ def test_contact_stop_is_off_where_torques_are_not_read_with_every_frame(caplog)
     off = dataclasses.replace(settings, contact=dataclasses.replace(settings.contact, enabled=False))
     assert DeploySession.open(sim, config, None, off, world_seed=0).loop().contact is None
     assert DeploySession.open(sim, config, None, settings, world_seed=0).loop().contact is not None
+
+
+def test_the_contact_stop_changes_nothing_but_the_stop():
+    """A normal run commands the same speeds, tick for tick, with the contact stop on and off (it
+    reads the feedback on its own copy of the model's data, never the world's)."""
+    config = load_config()
+    settings = load_deploy_settings(realtime=False, telemetry="", duration=4.0)
+    off = dataclasses.replace(settings, contact=dataclasses.replace(settings.contact, enabled=False))
+    sent = []
+    for chosen in (settings, off):
+        sim = SimArm(config.task, seed=3, clock=FastClock())
+        commands: list[np.ndarray] = []
+
+        class Logged(ArmWrapper):
+            def send_joint_speeds(self, speeds):
+                commands.append(np.array(speeds, dtype=float))
+                return self.arm.send_joint_speeds(speeds)
+
+        session = DeploySession.open(Logged(sim), config, None, chosen, world_seed=3)
+        session.reset_sim(3, sim)
+        summary, fault = session.run(chosen.duration)
+        assert fault == "" and not summary.stop_reason.startswith("contact")
+        sent.append(np.array(commands))
+    assert sent[0].shape == sent[1].shape and len(sent[0]) > 20
+    assert np.array_equal(sent[0], sent[1])
