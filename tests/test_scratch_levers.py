@@ -403,16 +403,16 @@ def test_worker_processes_get_the_curriculum_level_and_the_delayed_touch_switch(
                                    "ppo.gamma=0.98", "train.touch_end_after=64", "train.start_curriculum=near_cube",
                                    "train.curriculum_window=4", "train.curriculum_step=0.25"]))
     try:
-        assert trainer.env.worker_settings() == [(1.0, 0.0)] * 2  # level 0: every start near the cube
+        assert trainer.env.worker_settings() == [(1.0, 0.0, 0.0)] * 2  # level 0: every start near the cube
         seen = []
         for _ in range(2):
             trainer.iteration()
-            seen.append([penalty for _, penalty in trainer.env.worker_settings()])
+            seen.append([penalty for _, penalty, _ in trainer.env.worker_settings()])
         assert seen == [[0.0, 0.0], [pytest.approx(3 / 0.02)] * 2]
         level = trainer.curriculum_level
         trainer._update_curriculum([{"success": True}] * 4)
         assert trainer.curriculum_level == level + 0.25
-        assert [share for share, _ in trainer.env.worker_settings()] == [1.0 - trainer.curriculum_level] * 2
+        assert [share for share, _, _ in trainer.env.worker_settings()] == [1.0 - trainer.curriculum_level] * 2
         state = trainer.state_dict()
     finally:
         trainer.close()
@@ -420,7 +420,7 @@ def test_worker_processes_get_the_curriculum_level_and_the_delayed_touch_switch(
                                    "train.start_curriculum=near_cube"]))
     try:
         resumed.load_state_dict(state)
-        assert [share for share, _ in resumed.env.worker_settings()] == [1.0 - state["curriculum"]["level"]] * 2
+        assert [share for share, _, _ in resumed.env.worker_settings()] == [1.0 - state["curriculum"]["level"]] * 2
     finally:
         resumed.close()
 
@@ -499,6 +499,32 @@ def test_touch_cost_is_charged_once_per_episode_and_the_episode_goes_on():
             assert bool(td["touched"]) and not bool(td["done"])
             paid.append(float(td["g"].sum()) - float(td["reward"]))
         assert paid == [pytest.approx(40.0), pytest.approx(0.0)]
+
+
+def test_trainer_charges_the_touch_cost_after_so_many_frames():
+    """train.touch_cost_after = 64 frames (one batch): the first batch is collected with no touch
+    cost, the second with task.rewards.touch_cost, in process and in worker processes alike."""
+    on = Trainer(load_config([*TINY, "task.rewards.touch_cost=40", "train.touch_cost_after=64"]))
+    seen = []
+    for _ in range(2):
+        on.iteration()
+        seen.append([env.touch_cost for env in on.envs])
+    assert seen == [[0.0] * len(on.envs), [40.0] * len(on.envs)]
+    on.close()
+    pooled = Trainer(load_config([*TINY, "task.rewards.touch_cost=40", "train.touch_cost_after=64",
+                                  "train.num_envs=2", "train.env_workers=2"]))
+    try:
+        seen = []
+        for _ in range(2):
+            pooled.iteration()
+            seen.append([cost for _, _, cost in pooled.env.worker_settings()])
+        assert seen == [[0.0, 0.0], [40.0, 40.0]]
+    finally:
+        pooled.close()
+    always = Trainer(load_config([*TINY, "task.rewards.touch_cost=40"]))
+    always.iteration()
+    assert all(env.touch_cost == 40.0 for env in always.envs)
+    always.close()
 
 
 def test_bad_touch_cost_names_the_key():

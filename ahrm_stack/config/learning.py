@@ -164,6 +164,8 @@ class TrainConfig(Section):
     # step's reward lowered by touch_penalty(ppo.gamma) (evaluation: touches never end an episode)
     touch_end_after: Annotated[NonNegInt, legacy(0)]  # frames: with touch_end, touches end episodes only from this many
     # frames collected on (0: from the start)
+    touch_cost_after: Annotated[NonNegInt, legacy(0)]  # frames: task.rewards.touch_cost is charged only from this many
+    # frames collected on (0: from the start; legacy: before 2026-12-08 from the start)
     start_curriculum: Annotated[Literal["none", "near_cube", "scripted_states"], legacy("none")]  # near_cube: start near the
     # cube (task.arm.near_cube), more starts by task.arm.start as the level rises; scripted_states:
     # start from the scripted controller's recorded states, further back as the level rises

@@ -74,6 +74,9 @@ class PushOffEnv(EnvBase):
         self._monitor = None
         self._touch_charged = False
         self.touch_penalty = float(touch_penalty)
+        # task.rewards.touch_cost, charged once per episode (the trainer sets 0 until
+        # train.touch_cost_after frames)
+        self.touch_cost = float(config.rewards.touch_cost)
         self.task = PushOffTask(config)
         self.runner = TaskRunner(self.task, seed, safety)
         if time_limit > 0:
@@ -163,7 +166,7 @@ class PushOffEnv(EnvBase):
                                         staged.reached_distance)
         if info.touched and not self._touch_charged:  # task.rewards.touch_cost: once per episode
             self._touch_charged = True
-            reward -= rewards.touch_cost
+            reward -= self.touch_cost
         if self.touch_penalty > 0 and info.touched and not terminated:
             reward -= self.touch_penalty
             if not truncated:  # a step that hit the time limit has closed the episode already

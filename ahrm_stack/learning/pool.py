@@ -37,7 +37,7 @@ from ahrm_stack.learning.collection import NUMPY_DTYPES, STEP_KEYS, LocalEnvs, S
 
 # the WorkerEnv methods the trainer calls on every environment (see workers.WorkerEnv)
 CALLS = ("drain", "load_mechanism", "worker_state", "load_worker_state", "process_id", "set_near_cube_share",
-         "set_touch_penalty", "worker_settings", "mechanism_state")
+         "set_touch_penalty", "set_touch_cost", "worker_settings", "mechanism_state")
 CLOSE_TIMEOUT = 10.0  # s a worker gets to exit after "close" before it is terminated
 
 

@@ -230,13 +230,20 @@ class Trainer:
     def _set_touch_end(self) -> None:
         """``train.touch_end``: the in-process environments end episodes on a touch, with
         :func:`touch_penalty`, once ``train.touch_end_after`` frames are collected (a whole batch
-        either way; worker processes are built with it, or get it before each batch when delayed)."""
+        either way; worker processes are built with it, or get it before each batch when delayed);
+        likewise ``task.rewards.touch_cost`` from ``train.touch_cost_after`` frames."""
         train = self.config.train
         penalty = touch_penalty(train.touch_end and self.frames >= train.touch_end_after, self.config.ppo.gamma)
         for env in self.envs:
             env.touch_penalty = penalty
         if self.workers and train.touch_end_after > 0:  # (otherwise they were built with it)
             self.env.set_touch_penalty(penalty)
+        if train.touch_cost_after > 0:  # task.rewards.touch_cost, charged from touch_cost_after frames
+            cost = self.config.task.rewards.touch_cost if self.frames >= train.touch_cost_after else 0.0
+            for env in self.envs:
+                env.touch_cost = cost
+            if self.workers:
+                self.env.set_touch_cost(cost)
 
     def iteration(self) -> IterationResult:
         started = time.perf_counter()

@@ -121,13 +121,17 @@ class WorkerEnv(PushOffEnv):
         """``train.touch_end`` switched on after ``train.touch_end_after`` frames, from the trainer."""
         self.touch_penalty = float(penalty)
 
+    def set_touch_cost(self, cost: float) -> None:
+        """``task.rewards.touch_cost`` charged from ``train.touch_cost_after`` frames, from the trainer."""
+        self.touch_cost = float(cost)
+
     def mechanism_state(self) -> dict:
         """The state this environment rewards with (the trainer's, as last sent)."""
         return self.mechanism.local.state_dict()
 
-    def worker_settings(self) -> tuple[float, float]:
-        """(near-cube share, touch penalty) as this environment holds them."""
-        return self.task.near_cube_share, self.touch_penalty
+    def worker_settings(self) -> tuple[float, float, float]:
+        """(near-cube share, touch penalty, touch cost) as this environment holds them."""
+        return self.task.near_cube_share, self.touch_penalty, self.touch_cost
 
 
 def _flat(results: list) -> list:
