@@ -156,20 +156,23 @@ def test_the_contact_stop_changes_nothing_but_the_stop():
     config = load_config()
     settings = load_deploy_settings(realtime=False, telemetry="", duration=4.0)
     off = dataclasses.replace(settings, contact=dataclasses.replace(settings.contact, enabled=False))
+    class Logged(ArmWrapper):
+        def __init__(self, arm):
+            super().__init__(arm)
+            self.commands: list[np.ndarray] = []
+
+        def send_joint_speeds(self, speeds):
+            self.commands.append(np.array(speeds, dtype=float))
+            return self.arm.send_joint_speeds(speeds)
+
     sent = []
     for chosen in (settings, off):
         sim = SimArm(config.task, seed=3, clock=FastClock())
-        commands: list[np.ndarray] = []
-
-        class Logged(ArmWrapper):
-            def send_joint_speeds(self, speeds):
-                commands.append(np.array(speeds, dtype=float))
-                return self.arm.send_joint_speeds(speeds)
-
-        session = DeploySession.open(Logged(sim), config, None, chosen, world_seed=3)
+        arm = Logged(sim)
+        session = DeploySession.open(arm, config, None, chosen, world_seed=3)
         session.reset_sim(3, sim)
         summary, fault = session.run(chosen.duration)
         assert fault == "" and not summary.stop_reason.startswith("contact")
-        sent.append(np.array(commands))
+        sent.append(np.array(arm.commands))
     assert sent[0].shape == sent[1].shape and len(sent[0]) > 20
     assert np.array_equal(sent[0], sent[1])
