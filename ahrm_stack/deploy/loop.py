@@ -38,7 +38,8 @@ class DeployLoop:
 
     Every way a run ends commands the arm to stop (zero velocity, or an e-stop), writes a stop
     event with its cause to the log and the telemetry, and (through :meth:`run`) the summary: the
-    watchdog and hardware checks, the progress watchdog, the safety filter's report, an adapter
+    watchdog and hardware checks, the contact stop (:mod:`~ahrm_stack.deploy.contact`), the
+    progress watchdog, the safety filter's report, an adapter
     error, success (confirmed or not), the duration, Ctrl-C, and any exception in start-up or in a
     tick's stages (a *fault*: the stop reason names the stage, ``perception fault: ValueError:
     ...``; :meth:`run` then raises
