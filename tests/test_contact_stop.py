@@ -143,11 +143,11 @@ def test_contact_stop_is_off_where_torques_are_not_read_with_every_frame(caplog)
     session = DeploySession.open(Slow(sim), config, None, settings, world_seed=0)
     with caplog.at_level(logging.WARNING, logger="ahrm_stack.deploy"):
         loop = session.loop()
-    assert loop.contact is None
+    assert not loop.contact.active
     assert "contact stop off: Slow does not measure the torques with every feedback frame" in caplog.text
     off = dataclasses.replace(settings, contact=dataclasses.replace(settings.contact, enabled=False))
-    assert DeploySession.open(sim, config, None, off, world_seed=0).loop().contact is None
-    assert DeploySession.open(sim, config, None, settings, world_seed=0).loop().contact is not None
+    assert not DeploySession.open(sim, config, None, off, world_seed=0).loop().contact.active
+    assert DeploySession.open(sim, config, None, settings, world_seed=0).loop().contact.active
 
 
 def test_the_contact_stop_changes_nothing_but_the_stop():

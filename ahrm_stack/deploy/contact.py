@@ -25,6 +25,7 @@ safety filter does not know), not a skin: light contacts go unseen.
 
 from __future__ import annotations
 
+import logging
 from typing import Sequence
 
 import mujoco
@@ -112,6 +113,8 @@ class ContactStop:
         readings: consecutive readings over the threshold that make a contact (1: the first).
     """
 
+    active = True
+
     def __init__(self, estimator: ExternalTorqueEstimator, thresholds: Sequence[float], readings: int) -> None:
         limits = np.asarray(thresholds, dtype=float)
         if limits.shape != estimator.estimate.shape:
@@ -155,4 +158,34 @@ class ContactStop:
                 f"{self.thresholds[i]:g} N·m on {self._over[i]} consecutive readings")
 
 
-__all__ = ["ContactStop", "ExternalTorqueEstimator", "arm_dofs"]
+class NoContactStop:
+    """The contact stop off (``deploy.contact.enabled`` false, or an adapter whose torques are not
+    measured with every frame): observes nothing."""
+
+    active = False
+
+    def reset(self) -> None:
+        """Nothing to forget."""
+
+    def observe(self, position: np.ndarray, velocity: np.ndarray, torque: np.ndarray) -> str | None:
+        return None
+
+
+def loop_contact_stop(arm, world, contact, robot: str, period: float) -> ContactStop | NoContactStop:
+    """The deploy loop's contact stop for ``arm`` on ``world``'s model of ``robot`` (``contact``: the
+    ``deploy.contact`` settings, ``period`` s): off when ``contact.enabled`` is false, or when the
+    adapter's torques are not measured with every feedback frame (a WARNING says so: an estimate
+    from stale torques is wrong as soon as the arm moves)."""
+    if not contact.enabled:
+        return NoContactStop()
+    if not getattr(arm, "torque_every_frame", True):
+        logging.getLogger("ahrm_stack.deploy").warning(
+            "contact stop off: %s does not measure the torques with every feedback frame", type(arm).__name__)
+        return NoContactStop()
+    if robot not in contact.threshold_nm:
+        raise ValueError(f"deploy.contact.threshold_nm has no entry for {robot!r}")
+    return ContactStop.on_model(world.physics.model.ptr, world.arm_qpos, contact.threshold_nm[robot],
+                                contact.readings, contact.observer_gain, period)
+
+
+__all__ = ["ContactStop", "ExternalTorqueEstimator", "NoContactStop", "arm_dofs", "loop_contact_stop"]

@@ -14,6 +14,7 @@ import time
 
 import numpy as np
 
+from ahrm_stack.deploy.contact import loop_contact_stop
 from ahrm_stack.deploy.judging import (ProgressWatchdog, SuccessJudge, TouchEstimator, confirm_success,
                                       first_line)
 from ahrm_stack.deploy.record import tick_record
@@ -38,11 +39,10 @@ class DeployLoop:
 
     Every way a run ends commands the arm to stop (zero velocity, or an e-stop), writes a stop
     event with its cause to the log and the telemetry, and (through :meth:`run`) the summary: the
-    watchdog and hardware checks, the contact stop (:mod:`~ahrm_stack.deploy.contact`), the
-    progress watchdog, the safety filter's report, an adapter
-    error, success (confirmed or not), the duration, Ctrl-C, and any exception in start-up or in a
-    tick's stages (a *fault*: the stop reason names the stage, ``perception fault: ValueError:
-    ...``; :meth:`run` then raises
+    watchdog, hardware and contact checks (:mod:`~ahrm_stack.deploy.contact`), the progress
+    watchdog, the safety filter's report, an adapter error, success (confirmed or not), the
+    duration, Ctrl-C, and any exception in start-up or in a tick's stages (a *fault*: the stop
+    reason names the stage, ``perception fault: ValueError: ...``; :meth:`run` then raises
     :class:`DeployFault`). A controller request that is not finite (NaN from a policy) is a fault
     too, never a silent zero.
 
@@ -120,25 +120,7 @@ class DeployLoop:
         self.success_judge = SuccessJudge(settings.success, task.config.table)
         self.touch = TouchEstimator(settings.touch)
         self.progress = ProgressWatchdog(settings.progress)
-        self.contact = self._contact_stop(settings.contact, robot.name)
-
-    def _contact_stop(self, contact, robot: str):
-        """The contact stop (:mod:`~ahrm_stack.deploy.contact`) on the world's model of the arm;
-        None when ``deploy.contact.enabled`` is false or the adapter's torques are not measured
-        with every feedback frame (a WARNING says so: an estimate from stale torques is wrong)."""
-        if not contact.enabled:
-            return None
-        if not getattr(self.arm, "torque_every_frame", True):
-            log.warning("contact stop off: %s does not measure the torques with every feedback frame",
-                        type(self.arm).__name__)
-            return None
-        if robot not in contact.threshold_nm:
-            raise ValueError(f"deploy.contact.threshold_nm has no entry for {robot!r}")
-        from ahrm_stack.deploy.contact import ContactStop
-
-        physics = self.world.physics
-        return ContactStop.on_model(physics.model.ptr, self.world.arm_qpos, contact.threshold_nm[robot],
-                                    contact.readings, contact.observer_gain, self.period)
+        self.contact = loop_contact_stop(arm, world, settings.contact, robot.name, self.period)
 
     # ------------------------------------------------------------------ helpers
     def _write(self, record: dict) -> None:
@@ -234,10 +216,8 @@ class DeployLoop:
         if not feedback.healthy:
             self._halt(f"arm fault: state {feedback.arm_state.value}, flags {feedback.faults!r}",
                        emergency=True)
-        if self.contact is not None:  # after the non-finite checks: the estimate needs finite readings
-            contact = self.contact.observe(feedback.position, feedback.velocity, feedback.torque)
-            if contact:
-                self._halt(contact, emergency=True)
+        if contact := self.contact.observe(feedback.position, feedback.velocity, feedback.torque):
+            self._halt(contact, emergency=True)
         past = np.flatnonzero((feedback.position < self._lower) | (feedback.position > self._upper))
         if past.size:
             i = past[0]
@@ -307,8 +287,7 @@ class DeployLoop:
             raise StartPostureError(refusal)
         self._last_frame = feedback.frame_id - 1
         self._t0 = self.clock.now()
-        if self.contact is not None:
-            self.contact.reset()
+        self.contact.reset()
         self.world.begin_run()
         self.world.update(feedback, self._perceive(), 0.0)
         self.controller.reset()
@@ -335,8 +314,7 @@ class DeployLoop:
         self.fault = ""
         self.error = None
         self._over_speed[:] = 0
-        if self.contact is not None:
-            self.contact.reset()
+        self.contact.reset()
         self._sent = np.zeros_like(self._sent)
         self.filter.reset()
         feedback = self.arm.refresh_feedback()
@@ -433,11 +411,10 @@ class DeployLoop:
         raises :class:`DeployFault` once the arm is stopped and the summary written; any other
         exception escaping the loop (e.g. SystemExit) stops the arm, is recorded, and propagates.
 
-        Python's garbage collector, a realtime loop's usual outlier, runs between ticks here: the
-        set-up's objects are frozen (``gc.freeze``: not scanned by the run's collections),
-        automatic collection is off, and after each tick's command the generation the interpreter
-        would have collected is (:meth:`_collect_garbage`); both are restored when the run ends.
-        Not when automatic collection was already off."""
+        Python's garbage collector, a realtime loop's usual outlier, runs between ticks: the set-up's
+        objects frozen (``gc.freeze``), automatic collection off, and after each tick's command the
+        generation the interpreter would have collected is (:meth:`_collect_garbage`); both are
+        restored when the run ends (not when automatic collection was already off)."""
         ticks = control_periods(duration, self.period)
         collecting = gc.isenabled()
         thaw = collecting and gc.get_freeze_count() == 0  # else another freeze is not ours to undo
