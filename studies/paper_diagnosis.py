@@ -48,6 +48,9 @@ ARMS: dict[str, list[str]] = {
     "lr-1e-4": ["ppo.learning_rate=1e-4"],
     "no-entropy": ["ppo.entropy_coeff=0"],
     "lr-1e-4-no-entropy": ["ppo.learning_rate=1e-4", "ppo.entropy_coeff=0"],
+    # stage 3 (registered 2026-12-08 01:55 UTC): the step size with the priority constraint off, the
+    # pair whose members each left seed 0 at 0/40 for different reasons (docs/paper-diagnosis.md)
+    "lr-1e-4-no-constraint": ["ppo.learning_rate=1e-4", "mechanism.constraint_check=none"],
 }
 STAGE2 = ("lr-1e-4", "no-entropy", "lr-1e-4-no-entropy")
 # the registered order: seed 0 of every arm not yet run (paper and no-constraint seed 0 exist; stage 2
