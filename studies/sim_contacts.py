@@ -7,16 +7,16 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from ahrm_stack.deploy.contact import arm_dofs
+
 
 class ArmContacts:
     """Of a compiled ``model`` whose arm joints sit at ``qpos`` (indices into ``qpos``)."""
 
     def __init__(self, model: mujoco.MjModel, qpos: np.ndarray) -> None:
         self.model = model
-        addresses = set(np.asarray(qpos).tolist())
-        joints = [j for j in range(model.njnt) if model.jnt_qposadr[j] in addresses]
-        self.dofs = np.array([model.jnt_dofadr[j] for j in joints], dtype=int)  # indices into qvel
-        bodies = {int(model.jnt_bodyid[j]) for j in joints}
+        self.dofs = arm_dofs(model, qpos)  # indices into qvel, in qpos's order
+        bodies = {int(model.dof_bodyid[d]) for d in self.dofs}
         for body in range(model.nbody):  # and their descendants (the pusher)
             parent = body
             while parent > 0:

@@ -17,10 +17,10 @@ low-passed as ``r_k = r_{k-1} + K Δt (e_k - r_{k-1})``.
 
 What it can sense, measured (docs/contact-residual/, ``studies/contact_residual.py``): at 20 Hz,
 with the simulator's own model (an exact model), the estimate errs by ~10 N·m (95th percentile) on
-the JACO's three large joints in normal runs, about the torque of a light contact. The thresholds
-(each arm's ``contact_threshold_nm``, configs/robots/) sit above what normal runs show, so this
-is a stop for a *hard* contact (an arm pushing near its actuators' limits against something the
-safety filter does not know), not a skin: light contacts go unseen.
+the JACO's three large joints in normal runs, about the torque of a light contact, and pushing the
+cube loads the arm that much too. The thresholds (each arm's ``contact_threshold_nm``,
+configs/robots/) sit above every normal run's estimate, at or above the actuators' limits, so this
+stops a load that back-drives the arm, not a light contact: it is no skin.
 """
 
 from __future__ import annotations
