@@ -6,6 +6,7 @@ tests/test_kinova_gen2_vendor.py."""
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from pathlib import Path
 
@@ -45,6 +46,11 @@ def test_the_judgement_by_hand():
     assert not starved.fits and "97.0 points/s" in starved.lines[3]
     lines, fits = report(_measured(3.0, 6.0), RATES)
     assert fits and lines[-1] == "the USB budget fits at 20 Hz"
+    # torques with every tick (kinova_gen2.torque_each_tick, for the contact stop): 100 x 3 + 20 x
+    # (3 + 3) + 2 x (3 + 3) ms = 43.2 %, the status poll down to two calls
+    each_tick = judge(_measured(3.0, 6.0), dataclasses.replace(RATES, torque_each_tick=True))
+    assert each_tick.fits and "bus load 43 %" in each_tick.lines[0], each_tick.lines[0]
+    assert "20 position and torque reads/s, 2 status polls/s of 2 calls" in each_tick.lines[0]
 
 
 def test_check_measures_the_fake_arm_held_still(library, tmp_path, task_config, capsys, gen2_config):

@@ -8,6 +8,7 @@ import contextlib
 import importlib.util
 import logging
 import math
+import threading
 import time
 from pathlib import Path
 
@@ -258,3 +259,79 @@ def test_a_dry_run_sends_no_motion_to_the_fake_arm(library, tmp_path, task_confi
     after, _ = fake.state()
     np.testing.assert_allclose(after, before, atol=1e-6)  # deg: nothing moved it
     assert main(["--backend", "kinova-gen2", "--dry-run", "--home"]) == 2
+
+
+def _held_torques(task_config, degrees: np.ndarray) -> np.ndarray:
+    """N·m: what a JACO's torque sensors read holding still at Kinova angles ``degrees``, from
+    MuJoCo's gravity on the task's arm model (the fake has no dynamics; jaco's convention is the
+    identity, so Kinova's angles and signs are the model's)."""
+    import mujoco
+
+    from ahrm_stack.deploy.contact import arm_dofs
+    from ahrm_stack.hardware.protocol import FastClock
+    from ahrm_stack.sim_arm import SimArm
+
+    sim = SimArm(task_config, seed=0, clock=FastClock())
+    model = sim.physics.model.ptr
+    data = mujoco.MjData(model)
+    data.qpos[sim._arm_qpos] = np.radians(degrees)
+    mujoco.mj_forward(model, data)
+    dofs = arm_dofs(model, sim._arm_qpos)
+    return data.qfrc_bias[dofs] - data.qfrc_passive[dofs]
+
+
+@pytest.mark.parametrize("push", [False, True])
+def test_an_injected_contact_stops_a_run_on_the_fake_arm(library, tmp_path, task_config, capsys,
+                                                         gen2_config, push):
+    """The contact stop on the Gen2 backend (issue 58 item 4): with ``torque_each_tick`` the
+    torques come with every frame, so the stop runs. A dry run holds the arm at home reading the
+    torques a held JACO would (gravity); after 10 frames, a contact adds 80 N·m on joint 1 (its threshold
+    51): the run e-stops, naming the joint, on the fourth reading with it (the estimate's low-pass
+    and deploy.contact.readings 2: 150-200 ms at 20 Hz). The same run without the contact runs its
+    duration."""
+    fake = fake_module.FakeSdk(library)
+    home = np.degrees(task_config.arm.home)
+    fake.reset(position_deg=home)
+    held = _held_torques(task_config, home)
+    fake.set_force(held)
+    path = gen2_config(library=str(library), serial=fake_module.SERIAL, scene=str(SCENE),
+                       torque_each_tick=True)
+    data = yaml.safe_load(path.read_text())
+    data["watchdog"]["max_deadline_misses"] = 1000
+    data["watchdog"]["max_feedback_age"] = 10.0
+    path.write_text(yaml.safe_dump(data))
+    telemetry = tmp_path / "telemetry.jsonl"
+    began: list[float] = []
+
+    done = threading.Event()
+
+    def touch() -> None:  # the contact: on joint 1, once the run has read 10 frames
+        while len(fake.calls(function="GetAngularPosition")) < 10:
+            if done.wait(0.01):
+                return
+        fake.set_force(held + np.array([0.0, 80.0, 0.0, 0.0, 0.0, 0.0]))
+        began.append(time.perf_counter())  # the fake's clock (CLOCK_MONOTONIC)
+
+    toucher = threading.Thread(target=touch, daemon=True)
+    if push:
+        toucher.start()
+    try:
+        code = main(["--backend", "kinova-gen2", "--config", str(path), "--duration", "2", "--dry-run",
+                     "--telemetry", str(telemetry)])
+    finally:
+        done.set()
+    out = capsys.readouterr().out
+    assert code == 1 and "deploy summary" in out, out
+    reads = [c for c in fake.calls() if c.function == "GetAngularForce"]
+    ticks = [c for c in fake.calls() if c.function == "GetAngularPosition"]
+    assert len(reads) >= len(ticks) - 2  # the torques read with (nearly) every tick's position
+    if not push:
+        assert "contact" not in out and "duration of 2 s reached" in out, out
+        return
+    assert "contact: joint 1 external torque" in out and "2 consecutive readings" in out, out
+    stopped = min(c.t for c in fake.calls(function="StopControlAPI") if c.t > began[0])  # the e-stop
+    seen = [c for c in reads if began[0] < c.t < stopped]  # torque reads with the contact, to the stop
+    # the estimate averages the torques at both ends of a period and low-passes (K = 10/s: half
+    # the gap per reading at 20 Hz): 20, 50, 65, 72.5 N·m, so the second reading over 51 is the
+    # fourth with the contact (150-200 ms at 20 Hz)
+    assert len(seen) == 4, [round(c.t - began[0], 3) for c in seen]

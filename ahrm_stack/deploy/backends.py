@@ -110,7 +110,7 @@ def _link_check_gen2(config, settings) -> tuple[list[str], bool]:
     rates = Rates(control_hz=settings.rate_hz,
                   command_deadline=settings.watchdog.command_deadline * settings.period,
                   send_rate_hz=gen2.send_rate_hz, send_ahead=gen2.send_ahead,
-                  status_rate_hz=gen2.status_rate_hz)
+                  status_rate_hz=gen2.status_rate_hz, torque_each_tick=gen2.torque_each_tick)
     return check_link(arm, rates, gen2.check_calls)
 
 

@@ -115,6 +115,7 @@ class FakeSdk:
         lib.FakeKinova_SetLatency.argtypes = [ctypes.c_double]
         lib.FakeKinova_SetHome.argtypes = [ctypes.POINTER(ctypes.c_double), ctypes.c_double]
         lib.FakeKinova_SetDrift.argtypes = [ctypes.POINTER(ctypes.c_double)]
+        lib.FakeKinova_SetForce.argtypes = [ctypes.POINTER(ctypes.c_double)]
         lib.FakeKinova_SetPositionNoise.argtypes = [ctypes.c_double]
         lib.FakeKinova_SetVelocityNoise.argtypes = [ctypes.c_double, ctypes.c_ulonglong]
         lib.FakeKinova_SetCommMissing.argtypes = [ctypes.c_int]
@@ -168,6 +169,11 @@ class FakeSdk:
         """A runaway: the joints move by themselves at ``deg_s`` (deg/s) from now, whatever they are
         sent or erased (zeros: none); the e-stop stops it."""
         self.lib.FakeKinova_SetDrift((ctypes.c_double * 6)(*np.asarray(deg_s, dtype=float)))
+
+    def set_force(self, newton_metres) -> None:
+        """GetAngularForce's joint torques (N·m, Kinova's signs) from now on (after a reset: 0.5,
+        1.0, ... 3.0)."""
+        self.lib.FakeKinova_SetForce((ctypes.c_double * 6)(*np.asarray(newton_metres, dtype=float)))
 
     def set_position_noise(self, degrees: float) -> None:
         """GetAngularPosition's noise, deg (standard deviation; 0, the default: exact)."""

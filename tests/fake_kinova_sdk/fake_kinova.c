@@ -48,6 +48,9 @@
  *   does), and leaves the arm in Cartesian control, where ANGULAR points are ignored here (assumed)
  *   until SetAngularControl. With the e-stop pressed the home move stays queued and MoveHome keeps
  *   polling. The log records MoveHome when its packet is sent.
+ * - Joint torques. GetAngularForce reports what FakeKinova_SetForce set (N m; after a reset 0.5, 1.0,
+ *   ..., 3.0): the fake has no dynamics, so a test that needs the torques of a held arm computes them
+ *   (gravity at the fake's angles) and sets them, and a contact is a change of them.
  * - A runaway (FakeKinova_SetDrift): the joints move by themselves at a set speed whatever they are
  *   sent; only the e-stop stops them.
  * - Noisy velocity feedback. GetAngularVelocity reports the true velocity plus Gaussian noise
@@ -177,6 +180,7 @@ static const double FACTORY_HOME[NJ] = {275.2885, 167.5800, 57.4104, 240.8247, 8
 static double home_q[NJ], home_speed = DEFAULT_POSITION_SPEED, position_speed = DEFAULT_POSITION_SPEED;
 static double drift[NJ];               /* deg/s the arm moves by itself (a runaway), whatever it is sent */
 static double position_noise = 0.0;    /* deg, GetAngularPosition's noise (standard deviation) */
+static double force[NJ];               /* N m, GetAngularForce's joint torques (FakeKinova_SetForce) */
 static int fifo_head = 0, fifo_count = 0;
 static double head_start = 0.0;  /* when the point at the head began (valid while fifo_count > 0) */
 static long dropped = 0;
@@ -558,7 +562,7 @@ int GetAngularForce(AngularPosition *response) {
     memset(response, 0, sizeof(*response));
     float *a = &response->Actuators.Actuator1;
     int result = GETTER(ERROR_API_NOT_INITIALIZED);
-    if (result == NO_ERROR_KINOVA) for (int i = 0; i < NJ; i++) a[i] = (float)(0.5 * (i + 1));
+    if (result == NO_ERROR_KINOVA) for (int i = 0; i < NJ; i++) a[i] = (float)force[i];
     LEAVE(F_GET_FORCE, result, 0, NULL);
 }
 
@@ -600,7 +604,7 @@ void FakeKinova_Reset(void) {
     for (int i = 0; i < NJ; i++) q[i] = 0.0;
     erase_fifo(); dropped = 0; fifo_peak = 0; last_time = -1.0; voltage = 24.0; nerrors = 0; ncalls = 0;
     latency = DEFAULT_LATENCY; velocity_noise = DEFAULT_VELOCITY_NOISE; rng = 0x9E3779B97F4A7C15ULL;
-    for (int i = 0; i < NJ; i++) { home_q[i] = FACTORY_HOME[i]; drift[i] = 0.0; }
+    for (int i = 0; i < NJ; i++) { home_q[i] = FACTORY_HOME[i]; drift[i] = 0.0; force[i] = 0.5 * (i + 1); }
     home_speed = position_speed = DEFAULT_POSITION_SPEED; position_noise = 0.0;
     crashes = 0; crash_for_real = 0; fail_function = 0; robot_type = 3;
     pthread_mutex_unlock(&lock);
@@ -646,6 +650,12 @@ void FakeKinova_SetHome(const double *degrees, double speed) {
 
 /* A runaway: the joints move by themselves at `deg_s` (deg/s) from now, whatever is sent or erased
  * (0s: no drift); the e-stop (power cut) stops it. */
+void FakeKinova_SetForce(const double *newton_metres) {  /* GetAngularForce's torques from now */
+    pthread_mutex_lock(&lock);
+    for (int i = 0; i < NJ; i++) force[i] = newton_metres[i];
+    pthread_mutex_unlock(&lock);
+}
+
 void FakeKinova_SetDrift(const double *deg_s) {
     pthread_mutex_lock(&lock);
     advance(now());

@@ -25,7 +25,9 @@ are position differences between reads); :meth:`~KinovaGen2Arm.send_joint_speeds
 command the standing one, which the thread sends in its next point (at most 100 per second,
 ``send_ahead`` s of motion queued: ``kinova_gen2.send_rate_hz`` is capped at 100 Hz since faster
 points pile up in the arm's 2,000-point FIFO and keep it moving after commands stop). Supply
-voltage, the system error log and the torques are polled at ``kinova_gen2.status_rate_hz`` (2 Hz).
+voltage, the system error log and the torques are polled at ``kinova_gen2.status_rate_hz`` (2 Hz);
+with ``kinova_gen2.torque_each_tick`` the torques are read with each tick's positions instead
+(the deploy loop's contact stop needs them so).
 Every stop sends zero velocity and erases the FIFO (``EraseAllTrajectories``). The **command
 watchdog** (the protocol's rule, :class:`~ahrm_stack.hardware.protocol.ArmAdapter`): when no fresh command has
 come for ``kinova_gen2.command_timeout`` control periods while the standing command moves the arm,

@@ -68,9 +68,10 @@ class KinovaGen2Arm(Gen2Moves):
 
     @property
     def torque_every_frame(self) -> bool:
-        """False: the torques are one step of the status poll (``kinova_gen2.status_rate_hz``), not
-        read with each frame's positions, so the deploy loop's contact stop is off on this backend."""
-        return False
+        """``kinova_gen2.torque_each_tick``: the torques read with each frame's positions (one USB
+        call more per tick); else they are one step of the status poll (``status_rate_hz``) and the
+        deploy loop's contact stop is off on this backend."""
+        return self.settings.torque_each_tick
 
     def __init__(self, robot: RobotDescription, settings: Gen2Settings,
                  command_timeout_s: float) -> None:
@@ -202,7 +203,8 @@ class KinovaGen2Arm(Gen2Moves):
         settings = self.settings
         self._bus = UsbBus(sdk, velocity_point, self.num_joints, 1.0 / settings.send_rate_hz,
                            settings.send_ahead, self._timeout, 1.0 / settings.status_rate_hz,
-                           (self._read_sensors, self._read_error_log, self._read_torques),
+                           (self._read_sensors, self._read_error_log)
+                           + (() if settings.torque_each_tick else (self._read_torques,)),
                            f"kinova-gen2-usb-{self._serial}", self.watchdog_stops,
                            self._watchdog_stopped)
         self._switch_interval = sys.getswitchinterval()
@@ -334,13 +336,22 @@ class KinovaGen2Arm(Gen2Moves):
             return np.zeros_like(q)
         return (q - reference[1]) / (stamp - reference[0])
 
+    def _read_frame(self, sdk: Sdk) -> tuple[np.ndarray, float]:
+        """A tick's reads: the position (:meth:`_read_position`), then with ``torque_each_tick`` the
+        torques (:meth:`_read_torques`), in one turn of the USB thread."""
+        degrees, stamp = self._read_position(sdk)
+        if self.settings.torque_each_tick:
+            self._read_torques(sdk)
+        return degrees, stamp
+
     def refresh_feedback(self) -> Feedback:
         """One position read (the frame's stamp: when it returned); velocities are the position
         difference to an earlier read, at least ``velocity_window`` s older, over the time between
         their stamps (:meth:`_velocity`: at 20 Hz the previous tick's; the firmware's velocity
-        feedback is noisy and not read here); torques and faults as of the last status poll
-        (``status_rate_hz``)."""
-        degrees, stamp = self._on_bus(self._read_position)
+        feedback is noisy and not read here); torques read right after the position with
+        ``torque_each_tick``, else as of the last status poll (``status_rate_hz``); faults as of the
+        last status poll."""
+        degrees, stamp = self._on_bus(self._read_frame)
         q = self._model_position(degrees)
         dq = self._velocity(q, stamp)
         self._last_position = q

@@ -19,7 +19,9 @@ configured rates, each line a pass or a fail with its figures:
 
 - **bus load**: the share of each second the USB is busy, ``send_rate_hz`` x t(point) + the
   control rate x t(position) + ``status_rate_hz`` x (t(sensors) + t(error count) + t(torques)),
-  medians, at most :data:`MAX_BUS_LOAD` (the rest absorbs the slow calls and the stops);
+  medians, at most :data:`MAX_BUS_LOAD` (the rest absorbs the slow calls and the stops); with
+  ``torque_each_tick`` the torques are read at the control rate, not the status poll's (and the
+  held-still loop's ticks read them too, so the tick's p99 below includes them);
 - **the tick**: the held-still loop's position read, p99, at most :data:`MAX_READ_SHARE` of the
   command deadline (``watchdog.command_deadline`` periods): the rest is perception's, the
   controller's and the safety filter's (their p99 is 2-7 ms on this project's machines);
@@ -76,6 +78,7 @@ class Rates:
     send_rate_hz: float  # kinova_gen2.send_rate_hz
     send_ahead: float  # s, kinova_gen2.send_ahead
     status_rate_hz: float  # kinova_gen2.status_rate_hz
+    torque_each_tick: bool = False  # kinova_gen2.torque_each_tick: the torques read with every tick
 
 
 @dataclasses.dataclass(frozen=True)
@@ -117,8 +120,11 @@ def measure(arm: "KinovaGen2Arm", rate_hz: float, calls: int) -> Measurement:
 def judge(m: Measurement, rates: Rates) -> Verdict:
     """The three rules of the module docstring at ``rates``."""
     c = m.calls
-    load = (rates.send_rate_hz * c["SendAdvanceTrajectory"].p50 + rates.control_hz * c["GetAngularPosition"].p50
-            + rates.status_rate_hz * sum(c[name].p50 for name in STATUS_CALLS)) * 1e-3
+    tick_calls = ("GetAngularPosition", "GetAngularForce") if rates.torque_each_tick else ("GetAngularPosition",)
+    load = (rates.send_rate_hz * c["SendAdvanceTrajectory"].p50
+            + rates.control_hz * sum(c[name].p50 for name in tick_calls)
+            + rates.status_rate_hz * sum(c[name].p50 for name in STATUS_CALLS if name not in tick_calls)) * 1e-3
+    polled = len([name for name in STATUS_CALLS if name not in tick_calls])
     deadline_ms = rates.command_deadline * 1e3
     read_limit = MAX_READ_SHARE * deadline_ms
     held_back = max(s.p99 for name, s in c.items() if name != "GetAngularVelocity") + c["SendAdvanceTrajectory"].p99
@@ -127,10 +133,12 @@ def judge(m: Measurement, rates: Rates) -> Verdict:
     rules = [
         (load <= MAX_BUS_LOAD,
          f"bus load {load * 100:.0f} % of each second ({rates.send_rate_hz:g} points/s, "
-         f"{rates.control_hz:g} position reads/s, {rates.status_rate_hz:g} status polls/s of 3 calls; "
+         f"{rates.control_hz:g} position{' and torque' if rates.torque_each_tick else ''} reads/s, "
+         f"{rates.status_rate_hz:g} status polls/s of {polled} calls; "
          f"limit {MAX_BUS_LOAD * 100:.0f} %)"),
         (m.read.p99 <= read_limit,
-         f"a tick's position read p99 {m.read.p99:.2f} ms of the {deadline_ms:g} ms command deadline "
+         f"a tick's position{' and torque' if rates.torque_each_tick else ''} read p99 {m.read.p99:.2f} ms "
+         f"of the {deadline_ms:g} ms command deadline "
          f"(limit {read_limit:g} ms: the rest is perception's, the controller's and the filter's)"),
         (held_back <= ahead_ms,
          f"a point held back by one call reaches the arm {held_back:.2f} ms after it falls due "

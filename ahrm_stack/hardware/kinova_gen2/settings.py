@@ -137,6 +137,9 @@ class Gen2Settings(Section):
     status_rate_hz: Annotated[Float, gt(0), le(10.0, " Hz: each poll is three USB calls of several ms "
                                            "(kinova-ros polls at 10 Hz)")]  # Hz: supply voltage, error
     # log and torques are read this often (a logged fault is seen within 1 / this)
+    torque_each_tick: Bool  # read the joint torques (GetAngularForce) with each tick's positions,
+    # one USB call more per tick, instead of at the status poll: the deploy loop's contact stop
+    # (deploy.contact) needs them fresh and is off on this backend without it
     command_timeout: Annotated[Float, gt(1, " (a healthy loop sends one command per period)"),
                                le(100.0)]  # control periods without a fresh command before the
     # USB thread stops the arm
