@@ -18,6 +18,7 @@ import yaml
 
 from ahrm_stack.deploy import main
 from ahrm_stack.hardware.scene import SceneError, StaticScene
+from held_torques import held_torques
 
 fake_module = pytest.importorskip("fake_kinova_sdk.fake")
 ROOT = Path(__file__).resolve().parents[1]
@@ -261,25 +262,6 @@ def test_a_dry_run_sends_no_motion_to_the_fake_arm(library, tmp_path, task_confi
     assert main(["--backend", "kinova-gen2", "--dry-run", "--home"]) == 2
 
 
-def _held_torques(task_config, degrees: np.ndarray) -> np.ndarray:
-    """N·m: what a JACO's torque sensors read holding still at Kinova angles ``degrees``, from
-    MuJoCo's gravity on the task's arm model (the fake has no dynamics; jaco's convention is the
-    identity, so Kinova's angles and signs are the model's)."""
-    import mujoco
-
-    from ahrm_stack.deploy.contact import arm_dofs
-    from ahrm_stack.hardware.protocol import FastClock
-    from ahrm_stack.sim_arm import SimArm
-
-    sim = SimArm(task_config, seed=0, clock=FastClock())
-    model = sim.physics.model.ptr
-    data = mujoco.MjData(model)
-    data.qpos[sim._arm_qpos] = np.radians(degrees)
-    mujoco.mj_forward(model, data)
-    dofs = arm_dofs(model, sim._arm_qpos)
-    return data.qfrc_bias[dofs] - data.qfrc_passive[dofs]
-
-
 @pytest.mark.parametrize("push", [False, True])
 def test_an_injected_contact_stops_a_run_on_the_fake_arm(library, tmp_path, task_config, capsys,
                                                          gen2_config, push):
@@ -292,7 +274,7 @@ def test_an_injected_contact_stops_a_run_on_the_fake_arm(library, tmp_path, task
     fake = fake_module.FakeSdk(library)
     home = np.degrees(task_config.arm.home)
     fake.reset(position_deg=home)
-    held = _held_torques(task_config, home)
+    held = held_torques(task_config, home)  # jaco's Gen2 convention is the identity
     fake.set_force(held)
     path = gen2_config(library=str(library), serial=fake_module.SERIAL, scene=str(SCENE),
                        torque_each_tick=True)

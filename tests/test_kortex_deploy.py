@@ -11,6 +11,7 @@ before anything is contacted or written."""
 from __future__ import annotations
 
 import json
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,7 @@ import pytest
 import yaml
 
 from fake_kortex_api.rig import PASSWORD, fake_api
+from held_torques import held_torques
 from ahrm_stack.deploy import DEPLOY_CONFIG, main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -146,3 +148,51 @@ def test_a_gen3_policy_without_a_scene_is_refused_in_one_line(gen3_policy, fake_
                     "--checkpoint", str(gen3_policy), "--telemetry", str(telemetry)], capsys)
     assert "deploy.kortex.scene is not set" in err
     assert not telemetry.parent.exists() and arm.calls == []
+
+
+@pytest.mark.parametrize("push", [False, True])
+def test_an_injected_contact_stops_a_dry_run_on_the_fake_gen3(gen3_policy, fake_gen3, tmp_path, capsys, push):
+    """The contact stop on the Kortex backend (issue 58 item 4), with ``kortex.contact_torques``: a
+    dry run holds the Gen3 at its start, its actuators reporting what a held Gen3's would (MuJoCo's
+    gravity, plus the fake's 0.02 N·m noise); after 10 frames a contact adds 90 N·m on joint 1 (its
+    threshold 60): the run e-stops naming the joint (the estimate reads 22.5, 56.3, 73.1, 81.6 N·m:
+    the fourth reading with it, 150-200 ms at 20 Hz). Without the contact it runs its duration."""
+    from ahrm_stack.config import load_config
+
+    address, arm, robot = fake_gen3
+    task = load_config(["task.robot=gen3"]).task
+    held = held_torques(task, arm.read_positions())  # the Gen3's Kortex angles are the model's
+    arm.set_torques(held)
+    path = _config(tmp_path, address)
+    data = yaml.safe_load(path.read_text())
+    data["kortex"]["contact_torques"] = True
+    path.write_text(yaml.safe_dump(data))
+    reads: list[float] = []
+    done = threading.Event()
+
+    def touch() -> None:
+        while sum(call.name == "RefreshFeedback" for call in list(arm.calls)) < 10:
+            if done.wait(0.01):
+                return
+        arm.set_torques(held + np.array([0.0, 90.0, 0, 0, 0, 0, 0]))
+        reads.append(len([c for c in list(arm.calls) if c.name == "RefreshFeedback"]))
+
+    toucher = threading.Thread(target=touch, daemon=True)
+    if push:
+        toucher.start()
+    telemetry = tmp_path / "out" / "telemetry.jsonl"
+    try:
+        code = main(["--backend", "kortex", "--config", str(path), "--checkpoint", str(gen3_policy),
+                     "--duration", str(DURATION), "--dry-run", "--telemetry", str(telemetry)])
+    finally:
+        done.set()
+    out = capsys.readouterr().out
+    assert code == 1 and "deploy summary" in out, out
+    if not push:
+        assert "contact" not in out and f"duration of {DURATION:g} s reached" in out, out
+        return
+    assert "contact: joint 1 external torque" in out and "2 consecutive readings" in out, out
+    names = [call.name for call in arm.calls]
+    stopped = names.index("ApplyEmergencyStop") if "ApplyEmergencyStop" in names else names.index("Stop")
+    seen = names[:stopped].count("RefreshFeedback") - reads[0]  # frames read with the contact
+    assert seen == 4, seen

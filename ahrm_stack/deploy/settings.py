@@ -168,6 +168,8 @@ class KortexSection(Section):
     soft_limit_tolerance: Annotated[Float, ge(0), le(1), stricter("lower")]  # the description's
     # velocity limit over the arm's soft limit, as a fraction
     action_rpc_timeout_ms: PosInt  # ExecuteAction, OnNotificationActionTopic, Unsubscribe (--home)
+    contact_torques: Bool  # the BaseCyclic torques feed the deploy loop's contact stop (deploy.contact):
+    # their zero and sign against the arm's model are unmeasured on an arm, so off by default
     check_ticks: Annotated[Int, ge(10), le(100000)]  # --check: control ticks measured
     home: KortexHomeSection  # --home
     scene: FilePath  # the static scene layout (ahrm_stack/hardware/scene.py) a run uses for perception

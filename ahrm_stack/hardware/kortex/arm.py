@@ -62,10 +62,10 @@ class KortexArm(KortexMoves, DescribedArm):
 
     @property
     def torque_every_frame(self) -> bool:
-        """False, for now: BaseCyclic gives each actuator's torque with every frame, but their zero and
-        sign against the arm's model are unmeasured on an arm (the fake ``kortex_api``'s are a
-        constant), so the deploy loop's contact stop stays off on this backend (issue 58 item 4)."""
-        return False
+        """``kortex.contact_torques``: BaseCyclic gives each actuator's torque with every frame, but
+        their zero and sign against the arm's model are unmeasured on an arm, so the deploy loop's
+        contact stop uses them only when told to (off by default; issue 58 item 4)."""
+        return self._options.contact_torques
 
     def __init__(self, robot: RobotDescription, address: str, credentials: Credentials,
                  options: KortexOptions, *, api: dict | None = None,

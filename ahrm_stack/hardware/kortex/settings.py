@@ -49,6 +49,8 @@ class KortexOptions:
             soft limits must allow the policy's (the lowest over them, per joint).
         soft_limit_tolerance: fraction by which the policy's limit may exceed that soft limit.
         action_rpc_timeout_ms: timeout of ExecuteAction, OnNotificationActionTopic and Unsubscribe (ms).
+        contact_torques: the actuators' torques, read with every frame, feed the deploy loop's
+            contact stop (:attr:`KortexArm.torque_every_frame`).
     """
 
     port: int
@@ -72,6 +74,7 @@ class KortexOptions:
     soft_limit_modes: tuple[str, ...] = ("ANGULAR_JOYSTICK", "ANGULAR_TRAJECTORY")
     soft_limit_tolerance: float = 0.0
     action_rpc_timeout_ms: int = 1000
+    contact_torques: bool = False
 
 
 def kortex_options(settings) -> KortexOptions:
@@ -92,4 +95,5 @@ def kortex_options(settings) -> KortexOptions:
         speed_limit_tolerance=k.speed_limit_tolerance,
         refuse_zones_in_workspace=k.refuse_zones_in_workspace,
         workspace_height=k.workspace_height, soft_limit_modes=tuple(k.soft_limit_modes),
-        soft_limit_tolerance=k.soft_limit_tolerance, action_rpc_timeout_ms=k.action_rpc_timeout_ms)
+        soft_limit_tolerance=k.soft_limit_tolerance, action_rpc_timeout_ms=k.action_rpc_timeout_ms,
+        contact_torques=k.contact_torques)

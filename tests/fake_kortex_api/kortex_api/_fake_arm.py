@@ -101,6 +101,9 @@ class FakeArm:
         self.positions = np.asarray(positions_deg, dtype=float).copy()  # deg, unwrapped
         self.continuous = np.asarray(continuous, dtype=bool)
         self.speeds = np.zeros_like(self.positions)  # deg/s, held until the next command
+        # N·m per actuator, what BaseCyclic reports (plus a 0.02 N·m sensor noise): the fake has no
+        # dynamics, so a test that needs a held arm's torques sets them (set_torques)
+        self.torques = np.full(len(self.positions), 0.5)
         self.velocity_limit = (None if velocity_limit_deg_s is None
                                else np.asarray(velocity_limit_deg_s, dtype=float))
         self.violations = 0  # commands that reached the joints beyond the velocity limit
@@ -186,6 +189,11 @@ class FakeArm:
         TimeoutError)."""
         with self._lock:
             self.latency[name] = float(seconds)
+
+    def set_torques(self, newton_metres) -> None:
+        """The actuators' torques (N·m) the feedback reports from now on (a contact: a change of them)."""
+        with self._lock:
+            self.torques = np.asarray(newton_metres, dtype=float).copy()
 
     def press_estop(self) -> None:
         """The arm's e-stop button: it stops, aborts its action and is in fault until reset."""
@@ -346,7 +354,7 @@ class FakeArm:
             actuator = BaseCyclic_pb2.ActuatorFeedback()
             actuator.position = float(position)
             actuator.velocity = float(speed)
-            actuator.torque = 0.5 + float(self._rng.normal(0.0, 0.02))
+            actuator.torque = float(self.torques[i]) + float(self._rng.normal(0.0, 0.02))
             actuator.current_motor = 0.3 + float(self._rng.normal(0.0, 0.005))
             actuator.voltage = 24.0 + float(self._rng.normal(0.0, 0.05))
             actuator.temperature_core = 35.0 + float(self._rng.normal(0.0, 0.1))
