@@ -20,7 +20,7 @@ fake_module = pytest.importorskip("fake_kinova_sdk.fake")
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "configs" / "scenes" / "default.yaml"
 RATES = Rates(control_hz=20.0, command_deadline=0.025, send_rate_hz=100.0, send_ahead=0.01,
-              status_rate_hz=2.0)
+              status_rate_hz=2.0, torque_each_tick=False)
 
 
 def _measured(call_ms: float, read_ms: float, rate: float = 100.0) -> Measurement:

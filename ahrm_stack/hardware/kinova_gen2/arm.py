@@ -336,22 +336,17 @@ class KinovaGen2Arm(Gen2Moves):
             return np.zeros_like(q)
         return (q - reference[1]) / (stamp - reference[0])
 
-    def _read_frame(self, sdk: Sdk) -> tuple[np.ndarray, float]:
-        """A tick's reads: the position (:meth:`_read_position`), then with ``torque_each_tick`` the
-        torques (:meth:`_read_torques`), in one turn of the USB thread."""
-        degrees, stamp = self._read_position(sdk)
-        if self.settings.torque_each_tick:
-            self._read_torques(sdk)
-        return degrees, stamp
-
     def refresh_feedback(self) -> Feedback:
         """One position read (the frame's stamp: when it returned); velocities are the position
         difference to an earlier read, at least ``velocity_window`` s older, over the time between
         their stamps (:meth:`_velocity`: at 20 Hz the previous tick's; the firmware's velocity
-        feedback is noisy and not read here); torques read right after the position with
-        ``torque_each_tick``, else as of the last status poll (``status_rate_hz``); faults as of the
-        last status poll."""
-        degrees, stamp = self._on_bus(self._read_frame)
+        feedback is noisy and not read here); with ``torque_each_tick`` the torques are read next, as
+        a second call of the USB thread (a point that falls due may go between the two, so neither
+        holds a point back by more than one call), else they are the last status poll's
+        (``status_rate_hz``); faults as of the last status poll."""
+        degrees, stamp = self._on_bus(self._read_position)
+        if self.settings.torque_each_tick:
+            self._on_bus(self._read_torques)
         q = self._model_position(degrees)
         dq = self._velocity(q, stamp)
         self._last_position = q

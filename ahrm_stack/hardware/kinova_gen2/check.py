@@ -78,7 +78,7 @@ class Rates:
     send_rate_hz: float  # kinova_gen2.send_rate_hz
     send_ahead: float  # s, kinova_gen2.send_ahead
     status_rate_hz: float  # kinova_gen2.status_rate_hz
-    torque_each_tick: bool = False  # kinova_gen2.torque_each_tick: the torques read with every tick
+    torque_each_tick: bool  # kinova_gen2.torque_each_tick: the torques read with every tick
 
 
 @dataclasses.dataclass(frozen=True)
