@@ -530,3 +530,43 @@ def test_trainer_charges_the_touch_cost_after_so_many_frames():
 def test_bad_touch_cost_names_the_key():
     with pytest.raises(ConfigError, match=r"task\.rewards\.touch_cost"):
         load_config(["task.rewards.touch_cost=-1"])
+
+
+def _push_the_cube_off(env: PushOffEnv) -> None:
+    """Place the cube 5 cm beyond the table's +x edge (the next step is a success)."""
+    physics, task = env.runner.physics, env.task
+    body = int(physics.bind(task.cube.geom).bodyid)
+    adr = physics.model.jnt_qposadr[physics.model.body_jntadr[body]]
+    physics.data.qpos[adr] = task.config.table.half_extent[0] + 0.05
+    physics.forward()
+
+
+def test_touched_success_cost_prices_a_success_only_after_a_touch():
+    """task.rewards.touched_success_cost: the success step of an episode that touched an obstacle
+    pays it; a clean success and a touch without a success do not; the success still ends the
+    episode and counts as one."""
+    config = load_config(["task.rewards.touched_success_cost=200"])
+    env = PushOffEnv(config.task, config.safety, seed=0)  # no mechanism: LS, the sum of g
+
+    def paid(td) -> float:
+        return float(td["g"].sum()) - float(td["reward"])
+
+    td = env.reset()  # a clean success
+    _push_the_cube_off(env)
+    td = env.step(td.set("action", env.action_spec.zero()))["next"]
+    assert bool(td["terminated"]) and not bool(td["touched"]) and paid(td) == pytest.approx(0.0)
+    assert env.completed[-1].success
+    td = env.reset()  # a touch, then a success
+    _touch_the_cube_with_an_obstacle(env)
+    td = env.step(td.set("action", env.action_spec.zero()))["next"]
+    assert bool(td["touched"]) and not bool(td["done"]) and paid(td) == pytest.approx(0.0)
+    _push_the_cube_off(env)
+    td = env.step(td.set("action", env.action_spec.zero()))["next"]
+    assert bool(td["terminated"]) and paid(td) == pytest.approx(200.0)
+    assert env.completed[-1].success and env.completed[-1].touched
+    td = env.reset()  # the next episode starts clean
+    _push_the_cube_off(env)
+    td = env.step(td.set("action", env.action_spec.zero()))["next"]
+    assert bool(td["terminated"]) and paid(td) == pytest.approx(0.0)
+    with pytest.raises(ConfigError, match=r"task\.rewards\.touched_success_cost"):
+        load_config(["task.rewards.touched_success_cost=-1"])

@@ -255,6 +255,11 @@ class RewardConfig(Section):
     # subtracted once per episode, at its first step that touches an obstacle; the episode goes on
     # (issue 56 item 4: the touch priced per episode, as the goal counts it; 0: none; legacy: before
     # 2026-12-08 none)
+    touched_success_cost: Annotated[NonNeg, legacy(0.0)]  # the learner's reward units (before
+    # ppo.reward_scale): subtracted at the success step of an episode that touched an obstacle before
+    # or at it, so that a touched push is priced only when it succeeds (a touch that does not lead to a
+    # success costs nothing more; the curriculum still counts the success); 0: none; legacy: before
+    # 2026-12-08 none
 
 
 @Frozen

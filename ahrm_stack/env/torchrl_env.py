@@ -77,6 +77,8 @@ class PushOffEnv(EnvBase):
         # task.rewards.touch_cost, charged once per episode (the trainer sets 0 until
         # train.touch_cost_after frames)
         self.touch_cost = float(config.rewards.touch_cost)
+        self.touched_success_cost = float(config.rewards.touched_success_cost)
+        self._touched = False  # an obstacle touched in this episode (task.rewards.touched_success_cost)
         self.task = PushOffTask(config)
         self.runner = TaskRunner(self.task, seed, safety)
         if time_limit > 0:
@@ -126,6 +128,7 @@ class PushOffEnv(EnvBase):
         self._monitor = self.mechanism.constraint_monitor() if self.mechanism is not None else None
         self._recorder = EpisodeRecorder(transition.info)
         self._touch_charged = False  # task.rewards.touch_cost charged in this episode
+        self._touched = False
         physics = self.runner.physics  # the planner's lane at the start (reading only): lane agreement
         directions = self.task.config.layout.lane_directions
         self._planned = directions[self.task.plan_lane(physics)]
@@ -167,6 +170,9 @@ class PushOffEnv(EnvBase):
         if info.touched and not self._touch_charged:  # task.rewards.touch_cost: once per episode
             self._touch_charged = True
             reward -= self.touch_cost
+        self._touched = self._touched or bool(info.touched)
+        if info.success and self._touched:  # task.rewards.touched_success_cost: a touched success priced
+            reward -= self.touched_success_cost
         if self.touch_penalty > 0 and info.touched and not terminated:
             reward -= self.touch_penalty
             if not truncated:  # a step that hit the time limit has closed the episode already
