@@ -167,7 +167,7 @@ def test_an_injected_contact_stops_a_dry_run_on_the_fake_gen3(gen3_policy, fake_
     data = yaml.safe_load(path.read_text())
     data["kortex"]["contact_torques"] = True
     path.write_text(yaml.safe_dump(data))
-    reads: list[float] = []
+    reads: list[int] = []  # RefreshFeedback calls made when the contact began
     done = threading.Event()
 
     def touch() -> None:
